@@ -1,0 +1,3 @@
+//! Host-side companions of calib-core: a physical simulator of the calibration rig.
+
+pub mod sim;
