@@ -1,1 +1,36 @@
-//! placeholder
+//! Field calibration of a triaxial MEMS gyroscope (and the accelerometer it leans on) from a
+//! hobby-servo rig: pure, `no_std`, allocation-free math shared by the firmware and the PC.
+//!
+//! Conventions (DESIGN §4): sensor frame B = sensor axes; raw gyro `g` in °/s, raw accel `a`
+//! in g; gyro model `ω = K (g − b)`; accelerometer model `f = M (a − o)`. Every estimator keeps
+//! O(1) or bounded state (sums, normal equations, pose means), never sample buffers; sums are
+//! kept in `f64` so that `f32` inputs give results within 1e-5 of an `f64` reference.
+//!
+//! - [`lsq`]: weighted least squares by normal equations (every linear solve goes through it).
+//! - [`stats`], [`rest`]: Welford statistics and the stillness detector.
+//! - [`bias`]: gyro bias at rest. [`accel`]: 6- and 9-parameter accelerometer calibration.
+//! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
+//! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
+#![no_std]
+#![deny(missing_docs)]
+// Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod accel;
+pub mod axis;
+pub mod bias;
+mod error;
+pub mod gyro;
+mod linalg;
+pub mod lsq;
+pub mod paper;
+pub mod rest;
+pub mod stats;
+pub mod sweep;
+
+pub use error::Error;
+
+/// A 3-vector in the sensor frame (unit stated where used).
+pub type Vec3 = [f32; 3];
+/// A 3×3 matrix, row-major.
+pub type Mat3 = [[f32; 3]; 3];

@@ -1,0 +1,341 @@
+//! Accelerometer calibration from static poses: `f = M (a − o)` with `|f| = 1 g`.
+//!
+//! Two models, both fed one pose mean at a time (raw g, sensor frame):
+//! - 6 parameters (`M` diagonal): the linearised fit of Ye, Guo & Su (2017),
+//!   `Σ α_i a_i² + Σ β_i a_i = 1`, then Gauss-Newton on `|f| − 1`;
+//! - 9 parameters (`M` upper triangular, offsets): a quadric (ellipsoid) fit, Cholesky of its
+//!   shape matrix, then Gauss-Newton.
+//!
+//! Poses must point the sensor in many directions (Ye: 6 axis poses or 12 icosahedron poses);
+//! poses on one servo cone do not determine the model.
+
+use crate::linalg::{cholesky, cholesky_inverse};
+use crate::lsq::NormalEquations;
+use crate::{Error, Mat3, Vec3};
+
+/// Largest number of accelerometer poses kept.
+pub const MAX_ACCEL_POSES: usize = 32;
+const GAUSS_NEWTON_STEPS: usize = 12;
+
+/// Which accelerometer model a calibration uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AccelModel {
+    /// Identity: no calibration applied.
+    None,
+    /// Diagonal gains and offsets.
+    SixParam,
+    /// Upper-triangular gain matrix (scale and non-orthogonality) and offsets.
+    NineParam,
+}
+
+/// An accelerometer calibration `f = M (a − o)` (g, sensor frame) with its fit quality.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AccelCal {
+    /// Gain matrix `M` (row-major).
+    pub m: Mat3,
+    /// Offset `o` (g).
+    pub offset_g: Vec3,
+    /// The model fitted.
+    pub model: AccelModel,
+    /// RMS of `|a| − 1` over the poses before calibration (g).
+    pub rms_before_g: f32,
+    /// RMS of `|f| − 1` over the poses after calibration (g).
+    pub rms_after_g: f32,
+    /// 1σ of the offsets (g).
+    pub sigma_offset_g: Vec3,
+    /// 1σ of the diagonal gains.
+    pub sigma_gain: Vec3,
+    /// Condition number of the last Gauss-Newton normal matrix.
+    pub condition: f32,
+    /// Poses used.
+    pub poses: u8,
+}
+
+impl AccelCal {
+    /// No correction.
+    pub const IDENTITY: AccelCal = AccelCal {
+        m: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        offset_g: [0.0; 3],
+        model: AccelModel::None,
+        rms_before_g: 0.0,
+        rms_after_g: 0.0,
+        sigma_offset_g: [0.0; 3],
+        sigma_gain: [0.0; 3],
+        condition: 1.0,
+        poses: 0,
+    };
+
+    /// Calibrated specific force `M (a − o)` (g) from a raw reading (g).
+    pub fn apply(&self, a: Vec3) -> Vec3 {
+        let d = [a[0] - self.offset_g[0], a[1] - self.offset_g[1], a[2] - self.offset_g[2]];
+        let mut f = [0.0; 3];
+        for (fi, row) in f.iter_mut().zip(self.m.iter()) {
+            *fi = row[0] * d[0] + row[1] * d[1] + row[2] * d[2];
+        }
+        f
+    }
+}
+
+/// Static accelerometer poses (mean readings, g), with the linear fits accumulated as they come.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AccelCalibrator {
+    poses: [[f64; 3]; MAX_ACCEL_POSES],
+    n: usize,
+    lin6: NormalEquations<6>,
+    lin9: NormalEquations<9>,
+}
+
+impl Default for AccelCalibrator {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Parameters of a Gauss-Newton iteration: offsets then the gain entries it fits.
+type Params = [f64; 9];
+
+impl AccelCalibrator {
+    /// No poses.
+    pub const fn new() -> Self {
+        Self { poses: [[0.0; 3]; MAX_ACCEL_POSES], n: 0, lin6: NormalEquations::new(), lin9: NormalEquations::new() }
+    }
+
+    /// Number of poses.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// True when no pose was added.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Adds the mean raw reading (g) of one static pose.
+    pub fn add_pose(&mut self, a: Vec3) -> Result<(), Error> {
+        if self.n == MAX_ACCEL_POSES {
+            return Err(Error::CapacityExceeded { max: MAX_ACCEL_POSES as u8 });
+        }
+        let [x, y, z] = [a[0] as f64, a[1] as f64, a[2] as f64];
+        self.lin6.add_row(&[x * x, y * y, z * z, x, y, z], 1.0, 1.0)?;
+        self.lin9.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
+        self.poses[self.n] = [x, y, z];
+        self.n += 1;
+        Ok(())
+    }
+
+    /// Fits the 6-parameter model (needs ≥ 6 well-spread poses).
+    pub fn solve6(&self) -> Result<AccelCal, Error> {
+        self.need(6)?;
+        let s = self.lin6.solve()?.x;
+        let mut p: Params = [0.0; 9];
+        let mut sum = 1.0;
+        for i in 0..3 {
+            if !(s[i] > 0.0) {
+                return Err(Error::AccelFitFailed);
+            }
+            p[i] = -s[3 + i] / (2.0 * s[i]);
+            sum += s[i] * p[i] * p[i];
+        }
+        let d = 1.0 / sum;
+        for i in 0..3 {
+            p[3 + i] = libm::sqrt(s[i] * d);
+        }
+        self.refine::<6>(p, AccelModel::SixParam)
+    }
+
+    /// Fits the 9-parameter model (needs ≥ 9 well-spread poses).
+    pub fn solve9(&self) -> Result<AccelCal, Error> {
+        self.need(9)?;
+        let q = self.lin9.solve()?.x;
+        let shape = [[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]];
+        let l = cholesky(&shape, 1e-12).ok_or(Error::AccelFitFailed)?;
+        let inv = cholesky_inverse(&l);
+        let mut o = [0.0; 3];
+        for (i, oi) in o.iter_mut().enumerate() {
+            *oi = -0.5 * (0..3).map(|j| inv[i][j] * q[6 + j]).sum::<f64>();
+        }
+        let s = 1.0 + (0..3).map(|i| (0..3).map(|j| o[i] * shape[i][j] * o[j]).sum::<f64>()).sum::<f64>();
+        if !(s > 0.0) {
+            return Err(Error::AccelFitFailed);
+        }
+        // shape / s = L Lᵀ = Mᵀ M with M = Lᵀ / √s upper triangular.
+        let r = 1.0 / libm::sqrt(s);
+        let p: Params = [o[0], o[1], o[2], l[0][0] * r, l[1][0] * r, l[2][0] * r, l[1][1] * r, l[2][1] * r, l[2][2] * r];
+        self.refine::<9>(p, AccelModel::NineParam)
+    }
+
+    fn need(&self, n: usize) -> Result<(), Error> {
+        if self.n < n {
+            return Err(Error::TooFewPoses { have: self.n as u8, need: n as u8 });
+        }
+        Ok(())
+    }
+
+    /// Gauss-Newton on `|M (a − o)| − 1` over the poses; `P` = 6 (diagonal) or 9 (triangular).
+    fn refine<const P: usize>(&self, mut p: Params, model: AccelModel) -> Result<AccelCal, Error> {
+        let mut last = None;
+        for _ in 0..GAUSS_NEWTON_STEPS {
+            let mut ne = NormalEquations::<P>::new();
+            for a in &self.poses[..self.n] {
+                let (r, jac) = residual::<P>(&p, a);
+                ne.add_row(&jac, -r, 1.0)?;
+            }
+            let sol = ne.solve()?;
+            let mut step = 0.0f64;
+            for i in 0..P {
+                p[i] += sol.x[i];
+                step = step.max(sol.x[i].abs());
+            }
+            last = Some(sol);
+            if step < 1e-12 {
+                break;
+            }
+        }
+        let sol = last.ok_or(Error::AccelFitFailed)?;
+        let m = gain_matrix::<P>(&p);
+        if !(0..3).all(|i| m[i][i] > 0.0) || !p.iter().all(|v| v.is_finite()) {
+            return Err(Error::AccelFitFailed);
+        }
+        let rms = |f: &dyn Fn(&[f64; 3]) -> f64| {
+            libm::sqrt(self.poses[..self.n].iter().map(|a| f(a) * f(a)).sum::<f64>() / self.n as f64) as f32
+        };
+        let diag_index: [usize; 3] = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
+        let mut cal = AccelCal {
+            m: [[0.0; 3]; 3],
+            offset_g: [p[0] as f32, p[1] as f32, p[2] as f32],
+            model,
+            rms_before_g: rms(&|a| norm(a) - 1.0),
+            rms_after_g: rms(&|a| residual::<P>(&p, a).0),
+            sigma_offset_g: [0.0; 3],
+            sigma_gain: [0.0; 3],
+            condition: sol.condition as f32,
+            poses: self.n as u8,
+        };
+        for i in 0..3 {
+            for j in 0..3 {
+                cal.m[i][j] = m[i][j] as f32;
+            }
+            cal.sigma_offset_g[i] = sol.sigma(i) as f32;
+            cal.sigma_gain[i] = sol.sigma(diag_index[i]) as f32;
+        }
+        Ok(cal)
+    }
+}
+
+fn norm(v: &[f64; 3]) -> f64 {
+    libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+}
+
+/// Gain matrix from the parameters: `[o; kx, ky, kz]` (P = 6) or `[o; m00, m01, m02, m11, m12, m22]`.
+fn gain_matrix<const P: usize>(p: &Params) -> [[f64; 3]; 3] {
+    if P == 6 {
+        [[p[3], 0.0, 0.0], [0.0, p[4], 0.0], [0.0, 0.0, p[5]]]
+    } else {
+        [[p[3], p[4], p[5]], [0.0, p[6], p[7]], [0.0, 0.0, p[8]]]
+    }
+}
+
+/// Residual `|M (a − o)| − 1` and its gradient with respect to the `P` parameters.
+fn residual<const P: usize>(p: &Params, a: &[f64; 3]) -> (f64, [f64; P]) {
+    let m = gain_matrix::<P>(p);
+    let d = [a[0] - p[0], a[1] - p[1], a[2] - p[2]];
+    let f: [f64; 3] = core::array::from_fn(|i| (0..3).map(|j| m[i][j] * d[j]).sum());
+    let n = norm(&f).max(1e-12);
+    let mut jac = [0.0; P];
+    for k in 0..3 {
+        jac[k] = -(0..3).map(|i| m[i][k] * f[i]).sum::<f64>() / n;
+    }
+    if P == 6 {
+        for i in 0..3 {
+            jac[3 + i] = f[i] * d[i] / n;
+        }
+    } else {
+        let mut idx = 3;
+        for i in 0..3 {
+            for j in i..3 {
+                jac[idx] = f[i] * d[j] / n;
+                idx += 1;
+            }
+        }
+    }
+    (n - 1.0, jac)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Raw reading of a true unit specific force `f` for `a = M⁻¹ f + o` (M triangular).
+    fn raw(m: &[[f64; 3]; 3], o: &[f64; 3], f: [f64; 3]) -> Vec3 {
+        // Back-substitution of the upper-triangular M.
+        let mut d = [0.0; 3];
+        for i in (0..3).rev() {
+            let s: f64 = (i + 1..3).map(|j| m[i][j] * d[j]).sum();
+            d[i] = (f[i] - s) / m[i][i];
+        }
+        [(d[0] + o[0]) as f32, (d[1] + o[1]) as f32, (d[2] + o[2]) as f32]
+    }
+
+    fn icosahedron() -> [[f64; 3]; 12] {
+        let t = (1.0 + libm::sqrt(5.0)) / 2.0;
+        let n = libm::sqrt(1.0 + t * t);
+        let v = [
+            [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
+            [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
+            [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
+        ];
+        v.map(|p| [p[0] / n, p[1] / n, p[2] / n])
+    }
+
+    #[test]
+    fn six_param_exact_on_six_axis_poses() {
+        let m = [[1.02, 0.0, 0.0], [0.0, 0.97, 0.0], [0.0, 0.0, 1.01]];
+        let o = [0.02, -0.015, 0.03];
+        let mut c = AccelCalibrator::new();
+        for f in [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
+            c.add_pose(raw(&m, &o, f)).unwrap();
+        }
+        let cal = c.solve6().unwrap();
+        for i in 0..3 {
+            assert!((cal.m[i][i] as f64 - m[i][i]).abs() < 2e-6, "{:?}", cal.m);
+            assert!((cal.offset_g[i] as f64 - o[i]).abs() < 2e-6);
+        }
+        assert!(cal.rms_after_g < 1e-6 && cal.rms_before_g > 1e-3);
+    }
+
+    #[test]
+    fn nine_param_exact_on_icosahedron() {
+        let m = [[1.02, 0.004, -0.003], [0.0, 0.97, 0.006], [0.0, 0.0, 1.01]];
+        let o = [0.02, -0.015, 0.03];
+        let mut c = AccelCalibrator::new();
+        for f in icosahedron() {
+            c.add_pose(raw(&m, &o, f)).unwrap();
+        }
+        let cal = c.solve9().unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((cal.m[i][j] as f64 - m[i][j]).abs() < 2e-6, "{:?}", cal.m);
+            }
+            assert!((cal.offset_g[i] as f64 - o[i]).abs() < 2e-6);
+        }
+    }
+
+    #[test]
+    fn too_few_and_degenerate_poses_are_errors() {
+        let mut c = AccelCalibrator::new();
+        for f in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
+            c.add_pose(f).unwrap();
+        }
+        assert_eq!(c.solve6(), Err(Error::TooFewPoses { have: 3, need: 6 }));
+        // Eight poses on one cone (a servo's): the ellipsoid is not determined.
+        let mut c = AccelCalibrator::new();
+        for k in 0..8 {
+            let th = k as f64 * 0.7;
+            let v = [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8];
+            c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32]).unwrap();
+        }
+        assert!(matches!(c.solve6(), Err(Error::Singular | Error::IllConditioned { .. } | Error::AccelFitFailed)));
+    }
+}

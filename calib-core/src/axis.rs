@@ -1,0 +1,250 @@
+//! Static rig poses and the geometry they imply: the rotation axis in the sensor frame, the
+//! axis tilt, the shaft turn between two poses, and the geometry checks both gyro estimators need.
+//!
+//! Convention (DESIGN §4): turning the shaft by `+θ` about `u` (right hand) rotates the specific
+//! force `A`, seen in the sensor frame B, by `−θ` about `u`; `A·u` is the same in every pose.
+
+use crate::linalg::sym_eigen;
+use crate::{Error, Vec3};
+use nalgebra::Vector3;
+
+/// Largest number of rig poses kept.
+pub const MAX_POSES: usize = 32;
+
+/// Requirements on the rig geometry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GeometryLimits {
+    /// Fewest static poses.
+    pub min_poses: u8,
+    /// Smallest angle between the rotation axis and vertical (°).
+    pub min_tilt_deg: f32,
+    /// Largest angle between the rotation axis and vertical for the paper estimator (°).
+    pub max_tilt_deg_paper: f32,
+    /// Smallest |component| of the unit rotation axis on every sensor axis.
+    pub min_axis_component: f32,
+    /// Smallest shaft-angle span of the poses (°).
+    pub min_span_deg: f32,
+    /// Largest RMS distance of the pose tips from their plane (g).
+    pub max_plane_rms_g: f32,
+}
+
+impl Default for GeometryLimits {
+    fn default() -> Self {
+        Self {
+            min_poses: 4,
+            min_tilt_deg: 10.0,
+            max_tilt_deg_paper: 80.0,
+            min_axis_component: 0.1,
+            min_span_deg: 90.0,
+            max_plane_rms_g: 0.01,
+        }
+    }
+}
+
+/// The rig geometry measured from the poses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Geometry {
+    /// Unit rotation axis in B, signed so that `A·u ≥ 0`.
+    pub u: Vector3<f64>,
+    /// Angle between the axis and vertical (°).
+    pub tilt_deg: f64,
+    /// Shaft-angle span of the poses (°).
+    pub span_deg: f64,
+    /// Smallest |u_k|.
+    pub min_component: f64,
+    /// RMS distance of the pose tips from their plane (g).
+    pub plane_rms_g: f64,
+}
+
+/// Mean calibrated accelerometer readings (g, B) of the static rig poses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Poses {
+    a: [[f64; 3]; MAX_POSES],
+    n: usize,
+}
+
+impl Default for Poses {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Poses {
+    /// No poses.
+    pub const fn new() -> Self {
+        Self { a: [[0.0; 3]; MAX_POSES], n: 0 }
+    }
+
+    /// Number of poses.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Adds a pose (calibrated specific force, g); returns its index.
+    pub fn push(&mut self, a: Vec3) -> Result<u8, Error> {
+        if !a.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        if self.n == MAX_POSES {
+            return Err(Error::CapacityExceeded { max: MAX_POSES as u8 });
+        }
+        self.a[self.n] = [a[0] as f64, a[1] as f64, a[2] as f64];
+        self.n += 1;
+        Ok((self.n - 1) as u8)
+    }
+
+    /// Pose `i` as a vector (g). Panics never: out-of-range indices give the last pose.
+    pub fn get(&self, i: usize) -> Vector3<f64> {
+        let a = self.a[i.min(self.n.saturating_sub(1))];
+        Vector3::new(a[0], a[1], a[2])
+    }
+
+    /// Iterator over the poses.
+    pub fn iter(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
+        self.a[..self.n].iter().map(|a| Vector3::new(a[0], a[1], a[2]))
+    }
+
+    /// Measures and checks the geometry. `paper` adds the paper estimator's own requirement
+    /// (axis not near horizontal, where `A·u → 0`).
+    pub fn geometry(&self, limits: &GeometryLimits, paper: bool) -> Result<Geometry, Error> {
+        if self.n < (limits.min_poses as usize).max(3) {
+            return Err(Error::TooFewPoses { have: self.n as u8, need: limits.min_poses.max(3) });
+        }
+        let n = self.n as f64;
+        let mean = self.iter().sum::<Vector3<f64>>() / n;
+        let mut scatter = [[0.0; 3]; 3];
+        for a in self.iter() {
+            let d = a - mean;
+            for i in 0..3 {
+                for j in 0..3 {
+                    scatter[i][j] += d[i] * d[j] / n;
+                }
+            }
+        }
+        let (vals, vecs) = sym_eigen(&scatter);
+        let mut u = Vector3::new(vecs[0][0], vecs[1][0], vecs[2][0]);
+        if u.dot(&mean) < 0.0 {
+            u = -u;
+        }
+        let (axial, radial) = self.iter().fold((0.0, 0.0), |(ax, ra), a| {
+            let along = a.dot(&u);
+            (ax + along / n, ra + (a - u * along).norm() / n)
+        });
+        let tilt_deg = libm::atan2(radial, axial).to_degrees();
+        // Gravity that barely changes between poses means a vertical axis whatever the fit says.
+        let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
+        let min_tilt = (limits.min_tilt_deg as f64).to_radians();
+        if spread < 0.3 * libm::sin(min_tilt) || tilt_deg < limits.min_tilt_deg as f64 {
+            let tilt = libm::asin((spread / mean.norm().max(1e-9)).min(1.0)).to_degrees().min(tilt_deg);
+            return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
+        }
+        let first = self.get(0);
+        let (lo, hi) = self.iter().fold((0.0f64, 0.0f64), |(lo, hi), a| {
+            let t = turn_deg(&u, &first, &a);
+            (lo.min(t), hi.max(t))
+        });
+        let span_deg = hi - lo;
+        if span_deg < limits.min_span_deg as f64 {
+            return Err(Error::AngleSpanTooSmall { span_deg: span_deg as f32, min_deg: limits.min_span_deg });
+        }
+        let plane_rms_g = libm::sqrt(vals[0].max(0.0));
+        if plane_rms_g > limits.max_plane_rms_g as f64 {
+            return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.max_plane_rms_g });
+        }
+        let (axis, min_component) =
+            (0..3).map(|k| (k, u[k].abs())).fold((0, f64::INFINITY), |b, c| if c.1 < b.1 { c } else { b });
+        if min_component < limits.min_axis_component as f64 {
+            return Err(Error::WeakSensorAxis {
+                axis: axis as u8,
+                component: min_component as f32,
+                min: limits.min_axis_component,
+            });
+        }
+        if paper && tilt_deg > limits.max_tilt_deg_paper as f64 {
+            return Err(Error::AxisNearHorizontal { tilt_deg: tilt_deg as f32, limit_deg: limits.max_tilt_deg_paper });
+        }
+        Ok(Geometry { u, tilt_deg, span_deg, min_component, plane_rms_g })
+    }
+}
+
+/// Shaft turn (°, in (−180, 180]) about `u` that takes pose `from` to pose `to`.
+pub fn turn_deg(u: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> f64 {
+    let p = from - u * from.dot(u);
+    let q = to - u * to.dot(u);
+    -libm::atan2(u.dot(&p.cross(&q)), p.dot(&q)).to_degrees()
+}
+
+/// `angle_deg + k·360°` nearest to `reference_deg`: resolves the turn measured modulo a full turn
+/// with the gyro's own (uncalibrated) integral.
+pub fn unwrap_near(angle_deg: f64, reference_deg: f64) -> f64 {
+    angle_deg + 360.0 * libm::round((reference_deg - angle_deg) / 360.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Specific force seen in B when the shaft (axis `u`, tilt `tilt` from vertical) is at `th`.
+    pub(crate) fn pose(u: Vector3<f64>, tilt: f64, th: f64) -> Vec3 {
+        let e1 = u.cross(&Vector3::new(0.3, -0.5, 0.8)).normalize();
+        let e2 = u.cross(&e1);
+        // Rotating the shaft by th rotates A by −th about u.
+        let (s, c) = (libm::sin(-th), libm::cos(-th));
+        let a = u * libm::cos(tilt) + (e1 * c + e2 * s) * libm::sin(tilt);
+        [a[0] as f32, a[1] as f32, a[2] as f32]
+    }
+
+    fn axis() -> Vector3<f64> {
+        Vector3::new(0.5, -0.6, 0.62).normalize()
+    }
+
+    #[test]
+    fn recovers_axis_tilt_span_and_turn_sign() {
+        let u = axis();
+        let mut p = Poses::new();
+        for k in 0..6 {
+            p.push(pose(u, 0.7, (k as f64 * 30.0).to_radians())).unwrap();
+        }
+        let g = p.geometry(&GeometryLimits::default(), true).unwrap();
+        assert!((g.u - u).norm() < 1e-6, "{:?}", g.u);
+        assert!((g.tilt_deg - 0.7f64.to_degrees()).abs() < 1e-4);
+        assert!((g.span_deg - 150.0).abs() < 1e-4);
+        assert!((turn_deg(&u, &p.get(0), &p.get(2)) - 60.0).abs() < 1e-4);
+        assert!((turn_deg(&(-u), &p.get(0), &p.get(2)) + 60.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn unwrap_picks_the_branch_nearest_the_gyro() {
+        assert_eq!(unwrap_near(-170.0, 185.0), 190.0);
+        assert_eq!(unwrap_near(10.0, 372.0), 370.0);
+        assert_eq!(unwrap_near(10.0, 12.0), 10.0);
+    }
+
+    #[test]
+    fn degenerate_geometries_are_named() {
+        let lim = GeometryLimits::default();
+        let mk = |u: Vector3<f64>, tilt: f64, step: f64, n: usize| {
+            let mut p = Poses::new();
+            for k in 0..n {
+                p.push(pose(u, tilt, (k as f64 * step).to_radians())).unwrap();
+            }
+            p
+        };
+        assert!(matches!(mk(axis(), 0.02, 30.0, 6).geometry(&lim, false), Err(Error::AxisNearVertical { .. })));
+        assert!(matches!(mk(axis(), 0.7, 5.0, 6).geometry(&lim, false), Err(Error::AngleSpanTooSmall { .. })));
+        assert!(matches!(mk(axis(), 0.7, 30.0, 3).geometry(&lim, false), Err(Error::TooFewPoses { .. })));
+        let weak = Vector3::new(0.05, 0.7, 0.7).normalize();
+        assert!(matches!(
+            mk(weak, 0.7, 30.0, 6).geometry(&lim, false),
+            Err(Error::WeakSensorAxis { axis: 0, .. })
+        ));
+        assert!(matches!(mk(axis(), 1.5, 30.0, 6).geometry(&lim, true), Err(Error::AxisNearHorizontal { .. })));
+        assert!(mk(axis(), 1.5, 30.0, 6).geometry(&lim, false).is_ok());
+    }
+}

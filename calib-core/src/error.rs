@@ -1,0 +1,101 @@
+//! The one error type of the crate: every failure names the requirement that was not met.
+
+use core::fmt;
+
+/// Why a calibration step failed. Values in the variants are in the units their names state.
+#[allow(missing_docs)] // variant fields are named with their units
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Error {
+    /// A least-squares problem has fewer independent rows than unknowns.
+    TooFewRows { have: u32, need: u32 },
+    /// The normal matrix is not positive definite: the data do not determine every unknown.
+    Singular,
+    /// The (equilibrated) normal matrix is too badly conditioned to trust the solution.
+    IllConditioned { condition: f32, limit: f32 },
+    /// A sample or parameter was NaN or infinite.
+    NonFinite,
+    /// Too few static poses for this estimator.
+    TooFewPoses { have: u8, need: u8 },
+    /// No room for another pose or move (bounded storage, no heap).
+    CapacityExceeded { max: u8 },
+    /// The rotation axis is within `limit_deg` of vertical: every pose sees the same gravity.
+    AxisNearVertical { tilt_deg: f32, limit_deg: f32 },
+    /// The rotation axis is within `limit_deg` of horizontal: `A·u → 0` (paper estimator only).
+    AxisNearHorizontal { tilt_deg: f32, limit_deg: f32 },
+    /// A sensor axis sees too small a component of the rotation axis to calibrate it.
+    WeakSensorAxis { axis: u8, component: f32, min: f32 },
+    /// The static poses span too small a shaft angle.
+    AngleSpanTooSmall { span_deg: f32, min_deg: f32 },
+    /// The pose accelerations do not lie on one plane: the axis moved (loose clamp, hand-held).
+    AxisNotFixed { plane_rms_g: f32, limit_g: f32 },
+    /// The mean rotation rate is too small to scale the gyro (paper estimator).
+    NoRotation { rate_dps: f32, min_dps: f32 },
+    /// The scale solution has mixed signs or a gain outside the plausible range.
+    ImplausibleScale { axis: u8, value: f32 },
+    /// No move between two poses turned the shaft by a usable angle.
+    NoUsableMove,
+    /// Too few samples in a rest period or segment.
+    TooFewSamples { have: u32, need: u32 },
+    /// The sensor moved during a period that must be still.
+    NotStill { gyro_std_dps: f32, accel_std_g: f32 },
+    /// The gyro bias exceeds the datasheet range: wrong sensor settings or a broken part.
+    BiasOutOfRange { axis: u8, bias_dps: f32, limit_dps: f32 },
+    /// An accelerometer fit gave a non-ellipsoid (negative gain) or did not converge.
+    AccelFitFailed,
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Error::TooFewRows { have, need } => write!(f, "least squares needs {need} rows, has {have}"),
+            Error::Singular => f.write_str("normal matrix singular: the data do not determine every parameter"),
+            Error::IllConditioned { condition, limit } => {
+                write!(f, "normal matrix ill-conditioned: condition {condition:.3e} > limit {limit:.1e}")
+            }
+            Error::NonFinite => f.write_str("non-finite value (NaN or infinity) in the input"),
+            Error::TooFewPoses { have, need } => write!(f, "too few static poses: {have}, need {need}"),
+            Error::CapacityExceeded { max } => write!(f, "capacity exceeded: at most {max} entries"),
+            Error::AxisNearVertical { tilt_deg, limit_deg } => write!(
+                f,
+                "rotation axis {tilt_deg:.1} deg from vertical, need at least {limit_deg:.1} deg: tilt the servo"
+            ),
+            Error::AxisNearHorizontal { tilt_deg, limit_deg } => write!(
+                f,
+                "rotation axis {tilt_deg:.1} deg from vertical, need at most {limit_deg:.1} deg for the paper method"
+            ),
+            Error::WeakSensorAxis { axis, component, min } => write!(
+                f,
+                "sensor axis {} has rotation-axis component {component:.3} < {min:.3}: remount the board askew",
+                ["x", "y", "z"][axis as usize % 3]
+            ),
+            Error::AngleSpanTooSmall { span_deg, min_deg } => {
+                write!(f, "poses span {span_deg:.1} deg of shaft angle, need {min_deg:.1} deg")
+            }
+            Error::AxisNotFixed { plane_rms_g, limit_g } => write!(
+                f,
+                "pose accelerations off their plane by {plane_rms_g:.4} g rms > {limit_g:.4} g: the axis moved"
+            ),
+            Error::NoRotation { rate_dps, min_dps } => {
+                write!(f, "rotation rate {rate_dps:.2} deg/s below {min_dps:.2} deg/s")
+            }
+            Error::ImplausibleScale { axis, value } => write!(
+                f,
+                "implausible scale factor {value:.4} on axis {}",
+                ["x", "y", "z"][axis as usize % 3]
+            ),
+            Error::NoUsableMove => f.write_str("no move between poses turned the shaft by a usable angle"),
+            Error::TooFewSamples { have, need } => write!(f, "too few samples: {have}, need {need}"),
+            Error::NotStill { gyro_std_dps, accel_std_g } => write!(
+                f,
+                "motion during a still period: gyro std {gyro_std_dps:.3} deg/s, accel std {accel_std_g:.4} g"
+            ),
+            Error::BiasOutOfRange { axis, bias_dps, limit_dps } => write!(
+                f,
+                "gyro bias {bias_dps:.2} deg/s on axis {} exceeds {limit_dps:.1} deg/s",
+                ["x", "y", "z"][axis as usize % 3]
+            ),
+            Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
+        }
+    }
+}

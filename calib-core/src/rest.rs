@@ -1,0 +1,146 @@
+//! Rest (stillness) detection on consecutive windows, with thresholds in physical units.
+
+use crate::stats::Welford3;
+use crate::Vec3;
+
+/// Thresholds of the rest detector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RestConfig {
+    /// Length of one analysis window (s).
+    pub window_s: f32,
+    /// Continuous still time before the state is `Still` (s).
+    pub hold_s: f32,
+    /// Largest per-axis accelerometer standard deviation in a still window (g).
+    pub accel_std_max_g: f32,
+    /// Largest per-axis gyro standard deviation in a still window (°/s).
+    pub gyro_std_max_dps: f32,
+    /// Largest change of the accelerometer mean between consecutive still windows (g):
+    /// catches slow turns whose per-window variance is small.
+    pub accel_drift_max_g: f32,
+}
+
+impl Default for RestConfig {
+    /// For the LSM9DS1 at 119–952 Hz: noise ≈ 1–3 mg and 0.1–0.3 °/s rms.
+    fn default() -> Self {
+        Self { window_s: 0.25, hold_s: 0.5, accel_std_max_g: 0.006, gyro_std_max_dps: 0.8, accel_drift_max_g: 0.004 }
+    }
+}
+
+/// Output of the detector for each sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RestState {
+    /// The last completed window showed motion.
+    Moving,
+    /// Still windows so far, but not yet for `hold_s`.
+    Settling,
+    /// Still for at least `hold_s`.
+    Still,
+}
+
+/// Block-window rest detector: O(1) state, one decision per completed window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RestDetector {
+    cfg: RestConfig,
+    window_start_s: Option<f64>,
+    accel: Welford3,
+    gyro: Welford3,
+    prev_accel_mean: Option<[f64; 3]>,
+    still_since_s: Option<f64>,
+    state: RestState,
+}
+
+impl RestDetector {
+    /// A detector that starts in `Moving`.
+    pub fn new(cfg: RestConfig) -> Self {
+        Self {
+            cfg,
+            window_start_s: None,
+            accel: Welford3::new(),
+            gyro: Welford3::new(),
+            prev_accel_mean: None,
+            still_since_s: None,
+            state: RestState::Moving,
+        }
+    }
+
+    /// Forgets all history (state `Moving`).
+    pub fn reset(&mut self) {
+        *self = Self::new(self.cfg);
+    }
+
+    /// Current state.
+    pub fn state(&self) -> RestState {
+        self.state
+    }
+
+    /// Feeds one sample: time (s, MCU clock), raw accel (g), raw gyro (°/s).
+    pub fn update(&mut self, t_s: f64, accel_g: Vec3, gyro_dps: Vec3) -> RestState {
+        let start = *self.window_start_s.get_or_insert(t_s);
+        self.accel.add(accel_g);
+        self.gyro.add(gyro_dps);
+        if t_s - start < self.cfg.window_s as f64 {
+            return self.state;
+        }
+        let mean = self.accel.mean();
+        let drift = self.prev_accel_mean.map_or(0.0, |p| {
+            (0..3).fold(0.0f64, |m, k| m.max((mean[k] - p[k]).abs()))
+        });
+        let still = self.accel.count() >= 2
+            && self.accel.max_std() <= self.cfg.accel_std_max_g as f64
+            && self.gyro.max_std() <= self.cfg.gyro_std_max_dps as f64
+            && drift <= self.cfg.accel_drift_max_g as f64;
+        if still {
+            let since = *self.still_since_s.get_or_insert(start);
+            self.state = if t_s - since >= self.cfg.hold_s as f64 { RestState::Still } else { RestState::Settling };
+        } else {
+            self.still_since_s = None;
+            self.state = RestState::Moving;
+        }
+        self.prev_accel_mean = Some(mean);
+        self.window_start_s = Some(t_s);
+        self.accel = Welford3::new();
+        self.gyro = Welford3::new();
+        self.state
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn feed(d: &mut RestDetector, t0: f64, secs: f64, f: impl Fn(f64) -> (Vec3, Vec3)) -> (RestState, f64) {
+        let mut t = t0;
+        let mut s = d.state();
+        while t < t0 + secs {
+            let (a, g) = f(t);
+            s = d.update(t, a, g);
+            t += 0.01;
+        }
+        (s, t)
+    }
+
+    #[test]
+    fn still_after_hold_and_moving_on_rotation() {
+        let mut d = RestDetector::new(RestConfig::default());
+        let tiny = |t: f64| libm::sin(t * 377.0) as f32 * 1e-3;
+        let (s, t) = feed(&mut d, 0.0, 0.3, |t| ([0.0, 0.0, 1.0 + tiny(t)], [tiny(t); 3]));
+        assert_eq!(s, RestState::Settling);
+        let (s, t) = feed(&mut d, t, 0.6, |t| ([0.0, 0.0, 1.0 + tiny(t)], [tiny(t); 3]));
+        assert_eq!(s, RestState::Still);
+        // A slow turn at 2 °/s: gyro variance is small, accel drifts.
+        let (s, _) = feed(&mut d, t, 1.0, |t| {
+            let th = (t * 2.0f64).to_radians();
+            ([libm::sin(th) as f32, 0.0, libm::cos(th) as f32], [0.0, 2.0, 0.0])
+        });
+        assert_eq!(s, RestState::Moving);
+    }
+
+    #[test]
+    fn vibration_is_motion() {
+        let mut d = RestDetector::new(RestConfig::default());
+        let (s, _) = feed(&mut d, 0.0, 2.0, |t| ([0.0, 0.0, 1.0], [5.0 * libm::sin(t * 60.0) as f32, 0.0, 0.0]));
+        assert_eq!(s, RestState::Moving);
+    }
+}

@@ -1,0 +1,124 @@
+//! Streaming statistics: Welford mean and variance of 3-vectors, in `f64`.
+
+use crate::Vec3;
+
+/// Running mean and per-axis variance of 3-vectors (Welford). O(1) state, numerically stable.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Welford3 {
+    n: u32,
+    mean: [f64; 3],
+    m2: [f64; 3],
+}
+
+impl Welford3 {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self { n: 0, mean: [0.0; 3], m2: [0.0; 3] }
+    }
+
+    /// Adds one vector (any unit; the statistics keep it).
+    pub fn add(&mut self, v: Vec3) {
+        self.n += 1;
+        let n = self.n as f64;
+        for ((m, m2), &x) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(v.iter()) {
+            let x = x as f64;
+            let d = x - *m;
+            *m += d / n;
+            *m2 += d * (x - *m);
+        }
+    }
+
+    /// Number of vectors added.
+    pub fn count(&self) -> u32 {
+        self.n
+    }
+
+    /// Mean (f64).
+    pub fn mean(&self) -> [f64; 3] {
+        self.mean
+    }
+
+    /// Unbiased per-axis variance (0 with fewer than two samples).
+    pub fn variance(&self) -> [f64; 3] {
+        if self.n < 2 {
+            return [0.0; 3];
+        }
+        let d = (self.n - 1) as f64;
+        [self.m2[0] / d, self.m2[1] / d, self.m2[2] / d]
+    }
+
+    /// Largest per-axis standard deviation.
+    pub fn max_std(&self) -> f64 {
+        let v = self.variance();
+        libm::sqrt(v[0].max(v[1]).max(v[2]))
+    }
+}
+
+/// Running mean, standard deviation and range of a scalar: the spread of the dot-product
+/// invariant in the quality report.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Spread {
+    /// Number of values.
+    pub n: u32,
+    /// Mean.
+    pub mean: f32,
+    /// Standard deviation (unbiased).
+    pub std: f32,
+    /// Largest minus smallest value.
+    pub range: f32,
+}
+
+impl Spread {
+    /// Spread of `values` (computed in f64).
+    pub fn of(values: impl Iterator<Item = f64>) -> Self {
+        let (mut n, mut mean, mut m2) = (0u32, 0.0f64, 0.0f64);
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for x in values {
+            n += 1;
+            let d = x - mean;
+            mean += d / n as f64;
+            m2 += d * (x - mean);
+            lo = lo.min(x);
+            hi = hi.max(x);
+        }
+        if n == 0 {
+            return Self::default();
+        }
+        let std = if n > 1 { libm::sqrt(m2 / (n - 1) as f64) } else { 0.0 };
+        Self { n, mean: mean as f32, std: std as f32, range: (hi - lo) as f32 }
+    }
+
+    /// Standard deviation relative to the mean's magnitude (0 when the mean is 0).
+    pub fn relative_std(&self) -> f32 {
+        if self.mean == 0.0 {
+            0.0
+        } else {
+            self.std / libm::fabsf(self.mean)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn welford_matches_two_pass() {
+        let xs: [[f32; 3]; 5] = [[1.0, 2.0, 3.0], [2.0, 2.5, -1.0], [0.5, 2.0, 0.0], [3.0, 1.0, 2.0], [1.5, 2.0, 1.0]];
+        let mut w = Welford3::new();
+        xs.iter().for_each(|&x| w.add(x));
+        for k in 0..3 {
+            let m: f64 = xs.iter().map(|x| x[k] as f64).sum::<f64>() / 5.0;
+            let v: f64 = xs.iter().map(|x| (x[k] as f64 - m).powi(2)).sum::<f64>() / 4.0;
+            assert!((w.mean()[k] - m).abs() < 1e-12 && (w.variance()[k] - v).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn spread_of_values() {
+        let s = Spread::of([1.0, 3.0, 2.0].into_iter());
+        assert_eq!((s.n, s.mean, s.std, s.range), (3, 2.0, 1.0, 2.0));
+        assert_eq!(Spread::of(core::iter::empty()), Spread::default());
+    }
+}

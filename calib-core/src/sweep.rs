@@ -1,0 +1,175 @@
+//! The speed-free sweep estimator (DESIGN §4.2): over a move from pose `i` to pose `j`,
+//! `K Γ = Δθ u`, with `Γ = ∫ (g − b) dt` from the MCU clock, `u` the normal of the plane of the
+//! pose accelerations and `Δθ` the turn read from the accelerometer. No servo speed, no constant
+//! rate; back-and-forth moves cancel a residual bias.
+
+use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses};
+use crate::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
+use crate::lsq::NormalEquations;
+use crate::stats::Spread;
+use crate::{Error, Vec3};
+use nalgebra::Vector3;
+
+/// Largest number of moves kept.
+pub const MAX_MOVES: usize = 64;
+/// Moves that turn the shaft less than this (°) are not used.
+pub const MIN_MOVE_DEG: f64 = 10.0;
+
+/// Trapezoidal integral of the bias-free gyro over one move (°, sensor frame), in `f64`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Integrator {
+    gamma: [f64; 3],
+    last: Option<(f64, [f64; 3])>,
+    samples: u32,
+}
+
+impl Integrator {
+    /// Empty: the next sample starts the move.
+    pub const fn new() -> Self {
+        Self { gamma: [0.0; 3], last: None, samples: 0 }
+    }
+
+    /// Adds a sample: MCU time (s) and bias-free gyro `g − b` (°/s). Out-of-order samples are ignored.
+    pub fn add(&mut self, t_s: f64, g_dps: Vec3) {
+        let g = [g_dps[0] as f64, g_dps[1] as f64, g_dps[2] as f64];
+        if let Some((t0, g0)) = self.last {
+            let dt = t_s - t0;
+            if !(dt > 0.0) {
+                return;
+            }
+            for k in 0..3 {
+                self.gamma[k] += 0.5 * (g0[k] + g[k]) * dt;
+            }
+        }
+        self.last = Some((t_s, g));
+        self.samples += 1;
+    }
+
+    /// `Γ` so far (°).
+    pub fn gamma(&self) -> [f64; 3] {
+        self.gamma
+    }
+
+    /// Samples integrated.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+}
+
+/// One move between two recorded poses.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Move {
+    /// Index of the start pose.
+    pub from: u8,
+    /// Index of the end pose.
+    pub to: u8,
+    /// `Γ = ∫ (g − b) dt` over the move (°).
+    pub gamma_deg: [f64; 3],
+}
+
+/// The moves of a sweep session (bounded, no heap).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Moves {
+    moves: [Move; MAX_MOVES],
+    n: usize,
+}
+
+impl Default for Moves {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Moves {
+    /// No moves.
+    pub const fn new() -> Self {
+        Self { moves: [Move { from: 0, to: 0, gamma_deg: [0.0; 3] }; MAX_MOVES], n: 0 }
+    }
+
+    /// Number of moves.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Records a move from pose `from` to pose `to` with its gyro integral.
+    pub fn push(&mut self, from: u8, to: u8, gamma_deg: [f64; 3]) -> Result<(), Error> {
+        if !gamma_deg.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        if self.n == MAX_MOVES {
+            return Err(Error::CapacityExceeded { max: MAX_MOVES as u8 });
+        }
+        self.moves[self.n] = Move { from, to, gamma_deg };
+        self.n += 1;
+        Ok(())
+    }
+
+    /// The moves.
+    pub fn as_slice(&self) -> &[Move] {
+        &self.moves[..self.n]
+    }
+}
+
+/// Solves `K Γ = Δθ u` (diagonal `K`) over all moves whose poses exist and turn ≥ `MIN_MOVE_DEG`.
+pub fn solve(poses: &Poses, moves: &Moves, limits: &GeometryLimits) -> Result<GyroCal, Error> {
+    let geo = poses.geometry(limits, false)?;
+    let u = geo.u;
+    let mut ne = NormalEquations::<3>::new();
+    let mut used = 0u16;
+    // (start-pose acceleration, Γ, Δθ) of each used move, recomputed below for the invariant.
+    let usable = |m: &Move| -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+        let n = poses.len();
+        if m.from as usize >= n || m.to as usize >= n {
+            return None;
+        }
+        let gamma = Vector3::from(m.gamma_deg);
+        let (a, b) = (poses.get(m.from as usize), poses.get(m.to as usize));
+        let dtheta = unwrap_near(turn_deg(&u, &a, &b), gamma.dot(&u));
+        (dtheta.abs() >= MIN_MOVE_DEG).then_some((a, gamma, dtheta))
+    };
+    for (_, gamma, dtheta) in moves.as_slice().iter().filter_map(usable) {
+        for k in 0..3 {
+            let mut x = [0.0; 3];
+            x[k] = gamma[k];
+            ne.add_row(&x, dtheta * u[k], 1.0)?;
+        }
+        used += 1;
+    }
+    if used == 0 {
+        return Err(Error::NoUsableMove);
+    }
+    let sol = ne.solve()?;
+    let k = Vector3::from(sol.x);
+    for (axis, &v) in k.iter().enumerate() {
+        if !(v > SCALE_RANGE.0 && v < SCALE_RANGE.1) {
+            return Err(Error::ImplausibleScale { axis: axis as u8, value: v as f32 });
+        }
+    }
+    let invariant = |kk: Vector3<f64>| {
+        Spread::of(moves.as_slice().iter().filter_map(usable).map(|(a, g, dth)| a.dot(&kk.component_mul(&g)) / dth))
+    };
+    let quality = GyroQuality {
+        invariant_before: invariant(Vector3::repeat(1.0)),
+        invariant_after: invariant(k),
+        sigma_k: core::array::from_fn(|i| sol.sigma(i) as f32),
+        condition: sol.condition as f32,
+        residual_rms: libm::sqrt(sol.rss / ne.rows() as f64) as f32,
+        axis: u.map(|v| v as f32).into(),
+        tilt_deg: geo.tilt_deg as f32,
+        span_deg: geo.span_deg as f32,
+        min_axis_component: geo.min_component as f32,
+        plane_rms_g: geo.plane_rms_g as f32,
+        poses: poses.len() as u8,
+        rows: used,
+    };
+    let mut km = [[0.0f32; 3]; 3];
+    for i in 0..3 {
+        km[i][i] = k[i] as f32;
+    }
+    Ok(GyroCal { k: km, method: Method::Sweep, quality })
+}
