@@ -1,3 +1,7 @@
-//! Host-side companions of calib-core: a physical simulator of the calibration rig.
+//! Host-side companions of calib-core: a physical simulator of the calibration rig, the paper's
+//! own simulation model, and the statistics the benchmarks print.
 
+pub mod moments;
+pub mod paper_model;
+pub mod servo_protocol;
 pub mod sim;

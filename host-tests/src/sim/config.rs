@@ -1,0 +1,117 @@
+//! Rig configuration: sensors, servo, geometry, clocks.
+
+use super::kinematics::{rotation_between, tilted_axis};
+use super::sensor::{AccelModel, GyroModel};
+use super::servo::{PositionalServo, ServoModel};
+use nalgebra::{Unit, UnitQuaternion, Vector3};
+use rand::Rng;
+use rand_distr::StandardNormal;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigConfig {
+    /// Nominal output data rate (Hz): 119, 238, 476 or 952 on the LSM9DS1.
+    pub odr_hz: f64,
+    /// Relative ODR error: actual ODR = `odr_hz · (1 + odr_error)`.
+    pub odr_error: f64,
+    pub gyro: GyroModel,
+    pub accel: AccelModel,
+    pub servo: ServoModel,
+    /// Shaft axis angle from world vertical (deg).
+    pub shaft_tilt_deg: f64,
+    /// Shaft axis azimuth, from world +x towards +y (deg).
+    pub shaft_azimuth_deg: f64,
+    /// Board attitude (body → world) at shaft angle 0; fixes the axis in B, `u_B = mount⁻¹ s_W`.
+    pub mount: UnitQuaternion<f64>,
+    /// Sensor distance from the shaft axis (m), along body x (or y) made perpendicular to `u_B`.
+    pub radius_m: f64,
+    /// MCU crystal error (ppm): timestamps run `(1 + ppm·1e-6)` times true time.
+    pub mcu_clock_ppm: f64,
+    /// RMS white jitter of the timestamps (s).
+    pub timestamp_jitter_s: f64,
+    /// Sensor temperature at t = 0 (°C).
+    pub temp_c: f64,
+    /// Linear temperature drift (°C/s).
+    pub temp_drift_c_per_s: f64,
+    /// Duration of the smooth move back onto the shaft in `Rig::attach` (s).
+    pub attach_transition_s: f64,
+}
+
+impl RigConfig {
+    /// Error-free sensors (no noise, no quantisation), exact servo (`PositionalServo::ideal`),
+    /// exact 119 Hz, exact clock; shaft tilted 45° at azimuth 30°, axis `u_B = (2, −3, 6)/7`.
+    pub fn ideal() -> Self {
+        Self {
+            odr_hz: 119.0,
+            odr_error: 0.0,
+            gyro: GyroModel::ideal(),
+            accel: AccelModel::ideal(),
+            servo: ServoModel::Positional(PositionalServo::ideal()),
+            shaft_tilt_deg: 45.0,
+            shaft_azimuth_deg: 30.0,
+            mount: UnitQuaternion::identity(),
+            radius_m: 0.0,
+            mcu_clock_ppm: 0.0,
+            timestamp_jitter_s: 0.0,
+            temp_c: 25.0,
+            temp_drift_c_per_s: 0.0,
+            attach_transition_s: 1.0,
+        }
+        .with_axis(Vector3::new(2.0, -3.0, 6.0), 25.0)
+    }
+
+    /// Nano 33 BLE (LSM9DS1 at 119 Hz) on a positional hobby servo, drawn from `rng`: see
+    /// `GyroModel::realistic`, `AccelModel::realistic`, `PositionalServo::realistic`; ODR error
+    /// U(−5 %, −2 %), shaft tilt U(20°, 70°) at a random azimuth, random mount with
+    /// |u_k| ≥ 0.2 on every sensor axis, radius U(0, 2 cm), crystal U(−20, 20) ppm,
+    /// 10 µs jitter, 20–30 °C drifting up to 0.3 °C/min.
+    pub fn realistic(rng: &mut impl Rng) -> Self {
+        let axis_b = loop {
+            let v = Vector3::<f64>::from_fn(|_, _| rng.sample(StandardNormal)).normalize();
+            if v.iter().all(|c| c.abs() >= 0.2) {
+                break v;
+            }
+        };
+        let twist_deg = rng.random_range(0.0..360.0);
+        Self {
+            odr_hz: 119.0,
+            odr_error: rng.random_range(-0.05..-0.02),
+            gyro: GyroModel::realistic(rng),
+            accel: AccelModel::realistic(rng),
+            servo: ServoModel::Positional(PositionalServo::realistic(rng)),
+            shaft_tilt_deg: rng.random_range(20.0..70.0),
+            shaft_azimuth_deg: rng.random_range(0.0..360.0),
+            mount: UnitQuaternion::identity(),
+            radius_m: rng.random_range(0.0..0.02),
+            mcu_clock_ppm: rng.random_range(-20.0..20.0),
+            timestamp_jitter_s: 10e-6,
+            temp_c: rng.random_range(20.0..30.0),
+            temp_drift_c_per_s: rng.random_range(0.0..0.005),
+            attach_transition_s: 1.0,
+        }
+        .with_axis(axis_b, twist_deg)
+    }
+
+    /// Shaft axis in W (unit).
+    pub fn shaft_axis_w(&self) -> Unit<Vector3<f64>> {
+        tilted_axis(self.shaft_tilt_deg, self.shaft_azimuth_deg)
+    }
+
+    /// Shaft axis in B (unit): constant while the board is clamped on the shaft.
+    pub fn axis_b(&self) -> Vector3<f64> {
+        self.mount.inverse() * self.shaft_axis_w().into_inner()
+    }
+
+    /// Sets `mount` so that the shaft axis in B is `axis_b` (normalised), with the board then
+    /// turned by `twist_deg` about the shaft (which sets where gravity lies at shaft angle 0).
+    pub fn with_axis(mut self, axis_b: Vector3<f64>, twist_deg: f64) -> Self {
+        let s_w = self.shaft_axis_w();
+        self.mount = UnitQuaternion::from_axis_angle(&s_w, twist_deg.to_radians())
+            * rotation_between(&axis_b.normalize(), &s_w);
+        self
+    }
+
+    /// Actual ODR (Hz).
+    pub fn actual_odr_hz(&self) -> f64 {
+        self.odr_hz * (1.0 + self.odr_error)
+    }
+}

@@ -1,0 +1,266 @@
+//! The rig: board on a servo shaft (or held by hand), sampled by the LSM9DS1 at its own ODR and
+//! timestamped by the MCU clock.
+
+use super::config::RigConfig;
+use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
+use super::servo::{Servo, ServoModel};
+use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+
+/// Shaft dynamics integration rate (Hz): at least this many substeps per second.
+const SUBSTEP_HZ: f64 = 8000.0;
+
+/// One IMU sample as the MCU sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// MCU timestamp (s): crystal error and jitter included, strictly increasing.
+    pub t_s: f64,
+    /// Raw accelerometer (g, datasheet sensitivity applied).
+    pub accel_g: [f32; 3],
+    /// Raw gyroscope (deg/s, datasheet sensitivity applied).
+    pub gyro_dps: [f32; 3],
+    /// Temperature (°C) in 1/16 °C steps (16 LSB/°C).
+    pub temp_c: f32,
+    pub accel_saturated: bool,
+    pub gyro_saturated: bool,
+}
+
+/// Ground truth after the latest sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Truth {
+    /// True time of the latest sample (s).
+    pub t_s: f64,
+    /// True spacing from the previous sample (s).
+    pub dt_s: f64,
+    /// Gyro scale matrix `K = C_g⁻¹`: `ω = K (g − b)`.
+    pub gyro_k: Matrix3<f64>,
+    /// Gyro bias at the current temperature (raw deg/s: the reading at rest).
+    pub gyro_bias_dps: Vector3<f64>,
+    /// Accelerometer matrix `C_a`: `a = C_a f + o` (so `M = C_a⁻¹`).
+    pub accel_c: Matrix3<f64>,
+    /// Accelerometer offset `o` (g).
+    pub accel_offset_g: Vector3<f64>,
+    /// Shaft axis in B (unit), the rotation axis whenever the board is on the shaft.
+    pub axis_b: Vector3<f64>,
+    /// Shaft angle (deg), vibration included; the board turns by +θ about the world shaft axis.
+    pub shaft_deg: f64,
+    /// Shaft rate (deg/s), vibration included.
+    pub shaft_rate_dps: f64,
+    /// Actual ODR (Hz).
+    pub odr_hz: f64,
+    /// Board clamped on the shaft (false while held by hand or moving on/off the shaft).
+    pub attached: bool,
+    /// Board attitude (body → world) at the latest sample.
+    pub q_wb: UnitQuaternion<f64>,
+    /// Error-free gyro input: mean body rate over the latest sample interval (deg/s, in B).
+    pub rate_b_dps: Vector3<f64>,
+    /// Error-free accelerometer input: specific force at the latest sample (g, in B).
+    pub specific_force_b_g: Vector3<f64>,
+    /// Sensor temperature (°C).
+    pub temp_c: f64,
+}
+
+pub struct Rig {
+    cfg: RigConfig,
+    axis_w: Unit<Vector3<f64>>,
+    axis_b: Vector3<f64>,
+    lever_b: Vector3<f64>,
+    servo: Servo,
+    /// Some(resting attitude) while the board is off the shaft.
+    hand: Option<UnitQuaternion<f64>>,
+    transition: Option<Transition>,
+    wobbles: Vec<Wobble>,
+    k: u64,
+    t_s: f64,
+    dt_s: f64,
+    q_wb: UnitQuaternion<f64>,
+    rate_b: Vector3<f64>,
+    force_b: Vector3<f64>,
+    t_mcu_s: f64,
+    noise_rng: ChaCha8Rng,
+    clock_rng: ChaCha8Rng,
+    event_rng: ChaCha8Rng,
+}
+
+impl Rig {
+    /// Rig at true time 0, board on the shaft at angle 0, servo without pulse. Noise, vibration,
+    /// jitter and disturbances draw from separate streams of `seed`, so switching one source off
+    /// leaves the others unchanged.
+    pub fn new(cfg: RigConfig, seed: u64) -> Self {
+        assert!(cfg.odr_hz > 0.0 && cfg.odr_error > -1.0, "ODR must be positive");
+        let vibration_hz = match &cfg.servo {
+            ServoModel::Positional(p) => p.vibration.freq_hz,
+            ServoModel::Continuous(c) => c.vibration.freq_hz,
+        };
+        assert!(vibration_hz < SUBSTEP_HZ / 20.0, "vibration too fast for the integrator");
+        let stream = |n| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(n);
+            rng
+        };
+        let axis_w = cfg.shaft_axis_w();
+        let axis_b = cfg.axis_b();
+        let mut rig = Self {
+            cfg,
+            axis_w,
+            axis_b,
+            lever_b: perpendicular(&axis_b) * cfg.radius_m,
+            servo: Servo::new(cfg.servo, stream(1)),
+            hand: None,
+            transition: None,
+            wobbles: Vec::new(),
+            k: 0,
+            t_s: 0.0,
+            dt_s: 0.0,
+            q_wb: cfg.mount,
+            rate_b: Vector3::zeros(),
+            force_b: Vector3::zeros(),
+            t_mcu_s: f64::NEG_INFINITY,
+            noise_rng: stream(2),
+            clock_rng: stream(3),
+            event_rng: stream(4),
+        };
+        rig.force_b = rig.specific_force(&rig.q_wb);
+        rig
+    }
+
+    /// Servo pulse width (µs), picked up at the next 20 ms PWM frame.
+    pub fn set_pulse_us(&mut self, us: f64) {
+        self.servo.set_pulse_us(us);
+    }
+
+    /// A stalled (or unplugged) servo holds its shaft whatever the command.
+    pub fn stall(&mut self, stalled: bool) {
+        self.servo.stall(stalled);
+    }
+
+    /// Takes the board off the shaft and moves it smoothly (slerp, smooth-step timing) from its
+    /// current attitude to `q_wb` (body → world) in `transition_s`, then holds it still. The
+    /// hand pivots the board about the sensor: no linear acceleration. The shaft keeps running.
+    pub fn detach_to(&mut self, q_wb: UnitQuaternion<f64>, transition_s: f64) {
+        let from = self.base_attitude(self.t_s);
+        self.hand = Some(q_wb);
+        self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: transition_s });
+    }
+
+    /// Puts the board back on the shaft, moving smoothly in `attach_transition_s`.
+    pub fn attach(&mut self) {
+        if self.hand.is_some() {
+            let from = self.base_attitude(self.t_s);
+            self.hand = None;
+            self.transition =
+                Some(Transition { from, t0_s: self.t_s, duration_s: self.cfg.attach_transition_s });
+        }
+    }
+
+    /// Someone touching the rig from now on for `duration_s`: a wobble of rate amplitude
+    /// ~`amplitude_dps` about a random body axis, starting and ending at rest.
+    pub fn disturb(&mut self, duration_s: f64, amplitude_dps: f64) {
+        let wobble = Wobble::new(&mut self.event_rng, self.t_s, duration_s, amplitude_dps);
+        self.wobbles.push(wobble);
+    }
+
+    /// Advances to the next sensor sample and returns it.
+    pub fn next_sample(&mut self) -> Sample {
+        self.k += 1;
+        let t_s = self.k as f64 / self.cfg.actual_odr_hz();
+        let dt_s = t_s - self.t_s;
+        let substeps = (dt_s * SUBSTEP_HZ).ceil().max(1.0);
+        for _ in 0..substeps as u32 {
+            self.servo.step(dt_s / substeps);
+        }
+
+        let q_wb = self.attitude(t_s);
+        if self.transition.is_some_and(|tr| tr.is_over(t_s)) {
+            self.transition = None;
+        }
+        self.wobbles.retain(|w| !w.is_over(t_s));
+        self.rate_b = rotation_vector_between(&self.q_wb, &q_wb) / dt_s;
+        self.force_b = self.specific_force(&q_wb);
+        self.q_wb = q_wb;
+        self.t_s = t_s;
+        self.dt_s = dt_s;
+
+        let odr = self.cfg.actual_odr_hz();
+        let delta_temp_c = self.cfg.temp_drift_c_per_s * t_s;
+        let rate_dps = self.rate_b.map(f64::to_degrees);
+        let (gyro_dps, gyro_saturated) =
+            self.cfg.gyro.measure(&rate_dps, delta_temp_c, odr, &mut self.noise_rng);
+        let (accel_g, accel_saturated) = self.cfg.accel.measure(&self.force_b, odr, &mut self.noise_rng);
+
+        let jitter = self.cfg.timestamp_jitter_s * self.clock_rng.sample::<f64, _>(StandardNormal);
+        let t_mcu = t_s * (1.0 + self.cfg.mcu_clock_ppm * 1e-6) + jitter;
+        self.t_mcu_s = t_mcu.max(self.t_mcu_s + 1e-6);
+
+        Sample {
+            t_s: self.t_mcu_s,
+            accel_g,
+            gyro_dps,
+            temp_c: (((self.cfg.temp_c + delta_temp_c) * 16.0).round() / 16.0) as f32,
+            accel_saturated,
+            gyro_saturated,
+        }
+    }
+
+    /// True time of the latest sample (s).
+    pub fn time_s(&self) -> f64 {
+        self.t_s
+    }
+
+    pub fn truth(&self) -> Truth {
+        let delta_temp_c = self.cfg.temp_drift_c_per_s * self.t_s;
+        Truth {
+            t_s: self.t_s,
+            dt_s: self.dt_s,
+            gyro_k: self.cfg.gyro.matrix().try_inverse().expect("gyro matrix is singular"),
+            gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c),
+            accel_c: self.cfg.accel.matrix(),
+            accel_offset_g: self.cfg.accel.offset_g,
+            axis_b: self.axis_b,
+            shaft_deg: self.servo.angle().to_degrees(),
+            shaft_rate_dps: self.servo.rate().to_degrees(),
+            odr_hz: self.cfg.actual_odr_hz(),
+            attached: self.on_shaft(),
+            q_wb: self.q_wb,
+            rate_b_dps: self.rate_b.map(f64::to_degrees),
+            specific_force_b_g: self.force_b,
+            temp_c: self.cfg.temp_c + delta_temp_c,
+        }
+    }
+
+    pub fn config(&self) -> &RigConfig {
+        &self.cfg
+    }
+
+    fn on_shaft(&self) -> bool {
+        self.hand.is_none() && self.transition.is_none()
+    }
+
+    /// Attitude at true time `t_s` (shaft state as integrated up to `t_s`), without wobbles.
+    fn base_attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
+        let target = self.hand.unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&self.axis_w, self.servo.angle()) * self.cfg.mount
+        });
+        match &self.transition {
+            Some(tr) => tr.attitude(t_s, &target),
+            None => target,
+        }
+    }
+
+    fn attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
+        self.wobbles.iter().fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
+    }
+
+    /// Specific force (g, in B): gravity reaction `R_BW ẑ`, plus the lever-arm acceleration
+    /// while clamped on the shaft.
+    fn specific_force(&self, q_wb: &UnitQuaternion<f64>) -> Vector3<f64> {
+        let gravity = q_wb.inverse() * Vector3::z();
+        if self.on_shaft() {
+            gravity + lever_accel_g(&self.axis_b, &self.lever_b, self.servo.rate(), self.servo.accel())
+        } else {
+            gravity
+        }
+    }
+}
