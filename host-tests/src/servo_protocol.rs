@@ -199,7 +199,9 @@ impl Variant {
 pub fn compare(runs: usize, seed: u64) -> Value {
     println!("\nHobby-servo rig ({runs} random rigs per variant; simulated LSM9DS1 at 119 Hz with ODR -4 %, scale,");
     println!("bias, noise, quantisation; servo lag, slew, dead band, vibration; MCU timestamps; accelerometer by our");
-    println!("9-parameter fit on 12 hand-held poses). Error of the diagonal of K against truth, in %:");
+    println!("9-parameter fit on 12 hand-held poses). Script: rest 2 s (bias); 12 hand-held poses; on the shaft,");
+    println!("13 static poses 0..180..0 deg every 30 deg (settle 0.7 s, average 1 s), moves commanded at 30 deg/s (sweep);");
+    println!("rotation 0 -> 180 deg commanded at 20 deg/s (paper, w_n = 20 deg/s). Error of diag(K) against truth, in %:");
     println!("{:<24}{:<8}{:>10}{:>10}{:>10}{:>8}", "variant", "method", "RMS", "max|e|", "mean", "failed");
     let mut out = serde_json::Map::new();
     for variant in [Variant::Hobby, Variant::ExactServo, Variant::HobbyMisaligned] {
