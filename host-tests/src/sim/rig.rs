@@ -2,8 +2,10 @@
 //! timestamped by the MCU clock.
 
 use super::config::RigConfig;
-use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
-use super::servo::{Servo, ServoModel};
+use super::kinematics::{
+    lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble,
+};
+use super::servo::Servo;
 use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -44,6 +46,8 @@ pub struct Truth {
     pub accel_offset_g: Vector3<f64>,
     /// Shaft axis in B (unit), the rotation axis whenever the board is on the shaft.
     pub axis_b: Vector3<f64>,
+    /// Sensor position from the shaft axis (m, in B), perpendicular to `axis_b`.
+    pub lever_b_m: Vector3<f64>,
     /// Shaft angle (deg), vibration included; the board turns by +θ about the world shaft axis.
     pub shaft_deg: f64,
     /// Shaft rate (deg/s), vibration included.
@@ -89,12 +93,14 @@ impl Rig {
     /// jitter and disturbances draw from separate streams of `seed`, so switching one source off
     /// leaves the others unchanged.
     pub fn new(cfg: RigConfig, seed: u64) -> Self {
-        assert!(cfg.odr_hz > 0.0 && cfg.odr_error > -1.0, "ODR must be positive");
-        let vibration_hz = match &cfg.servo {
-            ServoModel::Positional(p) => p.vibration.freq_hz,
-            ServoModel::Continuous(c) => c.vibration.freq_hz,
-        };
-        assert!(vibration_hz < SUBSTEP_HZ / 20.0, "vibration too fast for the integrator");
+        assert!(
+            cfg.odr_hz > 0.0 && cfg.odr_error > -1.0,
+            "ODR must be positive"
+        );
+        assert!(
+            cfg.servo.vibration().freq_hz < SUBSTEP_HZ / 20.0,
+            "vibration too fast for the integrator"
+        );
         let stream = |n| {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(n);
@@ -142,7 +148,11 @@ impl Rig {
     pub fn detach_to(&mut self, q_wb: UnitQuaternion<f64>, transition_s: f64) {
         let from = self.base_attitude(self.t_s);
         self.hand = Some(q_wb);
-        self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: transition_s });
+        self.transition = Some(Transition {
+            from,
+            t0_s: self.t_s,
+            duration_s: transition_s,
+        });
     }
 
     /// Puts the board back on the shaft, moving smoothly in `attach_transition_s`.
@@ -150,8 +160,11 @@ impl Rig {
         if self.hand.is_some() {
             let from = self.base_attitude(self.t_s);
             self.hand = None;
-            self.transition =
-                Some(Transition { from, t0_s: self.t_s, duration_s: self.cfg.attach_transition_s });
+            self.transition = Some(Transition {
+                from,
+                t0_s: self.t_s,
+                duration_s: self.cfg.attach_transition_s,
+            });
         }
     }
 
@@ -183,12 +196,12 @@ impl Rig {
         self.t_s = t_s;
         self.dt_s = dt_s;
 
-        let odr = self.cfg.actual_odr_hz();
-        let delta_temp_c = self.cfg.temp_drift_c_per_s * t_s;
+        let (cfg, rng) = (&self.cfg, &mut self.noise_rng);
+        let odr = cfg.actual_odr_hz();
+        let delta_temp_c = cfg.temp_drift_c_per_s * t_s;
         let rate_dps = self.rate_b.map(f64::to_degrees);
-        let (gyro_dps, gyro_saturated) =
-            self.cfg.gyro.measure(&rate_dps, delta_temp_c, odr, &mut self.noise_rng);
-        let (accel_g, accel_saturated) = self.cfg.accel.measure(&self.force_b, odr, &mut self.noise_rng);
+        let (gyro_dps, gyro_saturated) = cfg.gyro.measure(&rate_dps, delta_temp_c, odr, rng);
+        let (accel_g, accel_saturated) = cfg.accel.measure(&self.force_b, odr, rng);
 
         let jitter = self.cfg.timestamp_jitter_s * self.clock_rng.sample::<f64, _>(StandardNormal);
         let t_mcu = t_s * (1.0 + self.cfg.mcu_clock_ppm * 1e-6) + jitter;
@@ -214,11 +227,17 @@ impl Rig {
         Truth {
             t_s: self.t_s,
             dt_s: self.dt_s,
-            gyro_k: self.cfg.gyro.matrix().try_inverse().expect("gyro matrix is singular"),
+            gyro_k: self
+                .cfg
+                .gyro
+                .matrix()
+                .try_inverse()
+                .expect("gyro matrix is singular"),
             gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c),
             accel_c: self.cfg.accel.matrix(),
             accel_offset_g: self.cfg.accel.offset_g,
             axis_b: self.axis_b,
+            lever_b_m: self.lever_b,
             shaft_deg: self.servo.angle().to_degrees(),
             shaft_rate_dps: self.servo.rate().to_degrees(),
             odr_hz: self.cfg.actual_odr_hz(),
@@ -250,7 +269,9 @@ impl Rig {
     }
 
     fn attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
-        self.wobbles.iter().fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
+        self.wobbles
+            .iter()
+            .fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
     }
 
     /// Specific force (g, in B): gravity reaction `R_BW ẑ`, plus the lever-arm acceleration
@@ -258,7 +279,13 @@ impl Rig {
     fn specific_force(&self, q_wb: &UnitQuaternion<f64>) -> Vector3<f64> {
         let gravity = q_wb.inverse() * Vector3::z();
         if self.on_shaft() {
-            gravity + lever_accel_g(&self.axis_b, &self.lever_b, self.servo.rate(), self.servo.accel())
+            gravity
+                + lever_accel_g(
+                    &self.axis_b,
+                    &self.lever_b,
+                    self.servo.rate(),
+                    self.servo.accel(),
+                )
         } else {
             gravity
         }
