@@ -184,3 +184,68 @@ fn integrator_is_the_trapezoid_rule_on_the_mcu_clock() {
     let g = it.gamma();
     assert!((g[0] - 5.0).abs() < 1e-5 && (g[2] + 10.0).abs() < 2e-5, "{g:?}");
 }
+
+fn finite(k: &[[f32; 3]; 3]) -> bool {
+    k.iter().flatten().all(|v| v.is_finite())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    /// Any input, however wild: a finite result or a named error, never a panic or NaN.
+    #[test]
+    fn arbitrary_input_never_panics_or_gives_nan(
+        raw in prop::collection::vec(prop::array::uniform3(any::<f32>()), 0..12),
+        small in prop::collection::vec(prop::array::uniform3(-2.0f32..2.0), 0..12),
+        gammas in prop::collection::vec((0u8..14, 0u8..14, prop::array::uniform3(-1e4f64..1e4)), 0..20),
+        gbar in prop::array::uniform3(any::<f32>()), w in any::<f32>(),
+    ) {
+        let lim = GeometryLimits::default();
+        for set in [&raw, &small] {
+            let mut poses = Poses::new();
+            let mut acc = AccelCalibrator::new();
+            for p in set.iter() {
+                let _ = poses.push(*p);
+                let _ = acc.add_pose(*p);
+            }
+            let mut moves = Moves::new();
+            for (from, to, g) in &gammas {
+                moves.push(*from, *to, *g).unwrap();
+            }
+            if let Ok(c) = sweep::solve(&poses, &moves, &lim) {
+                prop_assert!(finite(&c.k));
+            }
+            if let Ok(c) = paper::solve(&poses, gbar, w, &lim) {
+                prop_assert!(finite(&c.k));
+            }
+            for cal in [acc.solve6(), acc.solve9()].into_iter().flatten() {
+                prop_assert!(finite(&cal.m) && cal.offset_g.iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+
+    #[test]
+    fn accel_nine_param_recovers_any_triangular_model(
+        d in prop::array::uniform3(0.95f64..1.05), off in prop::array::uniform3(-0.01f64..0.01),
+        o in prop::array::uniform3(-0.05f64..0.05), roll in 0.0f64..std::f64::consts::TAU,
+    ) {
+        let m = nalgebra::Matrix3::new(d[0], off[0], off[1], 0.0, d[1], off[2], 0.0, 0.0, d[2]);
+        let minv = m.try_inverse().unwrap();
+        let rot = Rotation3::from_euler_angles(roll, 0.4, -0.3);
+        let phi = (1.0 + 5f64.sqrt()) / 2.0;
+        let mut c = AccelCalibrator::new();
+        for v in [[-1.0, phi, 0.0], [1.0, phi, 0.0], [-1.0, -phi, 0.0], [1.0, -phi, 0.0], [0.0, -1.0, phi],
+                  [0.0, 1.0, phi], [0.0, -1.0, -phi], [0.0, 1.0, -phi], [phi, 0.0, -1.0], [phi, 0.0, 1.0],
+                  [-phi, 0.0, -1.0], [-phi, 0.0, 1.0]] {
+            let f = rot * Vector3::from(v).normalize();
+            c.add_pose(f32v(minv * f + Vector3::from(o))).unwrap();
+        }
+        let cal = c.solve9().unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                prop_assert!((cal.m[i][j] as f64 - m[(i, j)]).abs() < 2e-5, "{:?} vs {}", cal.m, m);
+            }
+            prop_assert!((cal.offset_g[i] as f64 - o[i]).abs() < 2e-5);
+        }
+    }
+}
