@@ -112,6 +112,12 @@ impl AccelCalibrator {
         self.n == 0
     }
 
+    /// Pose `i` (raw g); the last pose for an out-of-range index, zero when empty.
+    pub fn pose(&self, i: usize) -> nalgebra::Vector3<f64> {
+        let a = if self.n == 0 { [0.0; 3] } else { self.poses[i.min(self.n - 1)] };
+        nalgebra::Vector3::new(a[0], a[1], a[2])
+    }
+
     /// Adds the mean raw reading (g) of one static pose.
     pub fn add_pose(&mut self, a: Vec3) -> Result<(), Error> {
         if self.n == MAX_ACCEL_POSES {

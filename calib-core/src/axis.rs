@@ -49,7 +49,7 @@ pub struct Geometry {
     pub u: Vector3<f64>,
     /// Angle between the axis and vertical (°).
     pub tilt_deg: f64,
-    /// Shaft-angle span of the poses (°).
+    /// Shaft-angle span of the poses (°), unwrapped along the pose order.
     pub span_deg: f64,
     /// Smallest |u_k|.
     pub min_component: f64,
@@ -144,11 +144,13 @@ impl Poses {
             let tilt = libm::asin((spread / mean.norm().max(1e-9)).min(1.0)).to_degrees().min(tilt_deg);
             return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
         }
-        let first = self.get(0);
-        let (lo, hi) = self.iter().fold((0.0f64, 0.0f64), |(lo, hi), a| {
-            let t = turn_deg(&u, &first, &a);
-            (lo.min(t), hi.max(t))
-        });
+        // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).
+        let (mut at, mut lo, mut hi) = (0.0f64, 0.0f64, 0.0f64);
+        for i in 1..self.n {
+            at += turn_deg(&u, &self.get(i - 1), &self.get(i));
+            lo = lo.min(at);
+            hi = hi.max(at);
+        }
         let span_deg = hi - lo;
         if span_deg < limits.min_span_deg as f64 {
             return Err(Error::AngleSpanTooSmall { span_deg: span_deg as f32, min_deg: limits.min_span_deg });

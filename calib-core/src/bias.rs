@@ -56,6 +56,12 @@ impl BiasEstimator {
         self.accel.add(accel_g);
     }
 
+    /// Adds a whole window of rest samples (gyro °/s, accel g), summarised.
+    pub fn add_window(&mut self, gyro: &Welford3, accel: &Welford3) {
+        self.gyro.merge(gyro);
+        self.accel.merge(accel);
+    }
+
     /// Mean accelerometer reading over the rest (g): a free static pose.
     pub fn accel_mean(&self) -> Vec3 {
         let m = self.accel.mean();

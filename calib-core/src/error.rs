@@ -1,5 +1,6 @@
 //! The one error type of the crate: every failure names the requirement that was not met.
 
+use crate::procedure::Phase;
 use core::fmt;
 
 /// Why a calibration step failed. Values in the variants are in the units their names state.
@@ -43,6 +44,18 @@ pub enum Error {
     BiasOutOfRange { axis: u8, bias_dps: f32, limit_dps: f32 },
     /// An accelerometer fit gave a non-ellipsoid (negative gain) or did not converge.
     AccelFitFailed,
+    /// No sensor sample for `gap_s` seconds: the sensor or its bus stopped.
+    SensorTimeout { gap_s: f32 },
+    /// A phase did not complete within its time limit.
+    PhaseTimeout { phase: Phase, limit_s: f32 },
+    /// The servo was commanded to turn but the gyro saw (almost) no rotation: unplugged or stalled.
+    ServoNotTurning { commanded_deg: f32, measured_deg: f32 },
+    /// A static pose kept being disturbed: retaken `retries` times.
+    PoseDisturbed { index: u8, retries: u8 },
+    /// A sample reached the sensor's full scale during a move: lower the rate or raise the range.
+    Saturated,
+    /// The calibration result failed validation (scale out of range or too uncertain).
+    ResultRejected { axis: u8, k: f32, sigma: f32 },
 }
 
 impl fmt::Display for Error {
@@ -96,6 +109,21 @@ impl fmt::Display for Error {
                 ["x", "y", "z"][axis as usize % 3]
             ),
             Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
+            Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s:.2} s: sensor or I2C bus stopped"),
+            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s:.0} s", phase.name()),
+            Error::ServoNotTurning { commanded_deg, measured_deg } => write!(
+                f,
+                "servo commanded {commanded_deg:.1} deg but the gyro saw {measured_deg:.1} deg: servo unplugged or stalled"
+            ),
+            Error::PoseDisturbed { index, retries } => {
+                write!(f, "static pose {index} disturbed {retries} times: keep the rig still")
+            }
+            Error::Saturated => f.write_str("sensor saturated during a move: lower the servo rate or raise the range"),
+            Error::ResultRejected { axis, k, sigma } => write!(
+                f,
+                "result rejected: axis {} scale {k:.4} (1 sigma {sigma:.4}) outside the accepted range",
+                ["x", "y", "z"][axis as usize % 3]
+            ),
         }
     }
 }

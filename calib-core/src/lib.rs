@@ -11,6 +11,7 @@
 //! - [`bias`]: gyro bias at rest. [`accel`]: 6- and 9-parameter accelerometer calibration.
 //! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
 //! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
+//! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
 #![no_std]
 #![deny(missing_docs)]
 // Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.
@@ -24,6 +25,8 @@ pub mod gyro;
 mod linalg;
 pub mod lsq;
 pub mod paper;
+pub mod procedure;
+pub mod record;
 pub mod rest;
 pub mod stats;
 pub mod sweep;

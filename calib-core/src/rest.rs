@@ -1,4 +1,7 @@
 //! Rest (stillness) detection on consecutive windows, with thresholds in physical units.
+//!
+//! Each completed window is returned with its statistics so that callers build pose and bias
+//! means from whole still windows only: a window with motion never leaks into a mean.
 
 use crate::stats::Welford3;
 use crate::Vec3;
@@ -15,7 +18,7 @@ pub struct RestConfig {
     pub accel_std_max_g: f32,
     /// Largest per-axis gyro standard deviation in a still window (°/s).
     pub gyro_std_max_dps: f32,
-    /// Largest change of the accelerometer mean between consecutive still windows (g):
+    /// Largest change of the accelerometer mean between consecutive windows (g):
     /// catches slow turns whose per-window variance is small.
     pub accel_drift_max_g: f32,
 }
@@ -27,7 +30,7 @@ impl Default for RestConfig {
     }
 }
 
-/// Output of the detector for each sample.
+/// Output of the detector.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RestState {
@@ -37,6 +40,23 @@ pub enum RestState {
     Settling,
     /// Still for at least `hold_s`.
     Still,
+}
+
+/// One completed analysis window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// Time of its first sample (s).
+    pub t_start_s: f64,
+    /// Time of its last sample (s).
+    pub t_end_s: f64,
+    /// Accelerometer statistics (g).
+    pub accel: Welford3,
+    /// Gyro statistics (°/s).
+    pub gyro: Welford3,
+    /// Whether the window itself met the thresholds.
+    pub still: bool,
+    /// Detector state after this window.
+    pub state: RestState,
 }
 
 /// Block-window rest detector: O(1) state, one decision per completed window.
@@ -65,6 +85,11 @@ impl RestDetector {
         }
     }
 
+    /// Its thresholds.
+    pub fn config(&self) -> &RestConfig {
+        &self.cfg
+    }
+
     /// Forgets all history (state `Moving`).
     pub fn reset(&mut self) {
         *self = Self::new(self.cfg);
@@ -75,18 +100,17 @@ impl RestDetector {
         self.state
     }
 
-    /// Feeds one sample: time (s, MCU clock), raw accel (g), raw gyro (°/s).
-    pub fn update(&mut self, t_s: f64, accel_g: Vec3, gyro_dps: Vec3) -> RestState {
+    /// Feeds one sample: time (s, MCU clock), raw accel (g), raw gyro (°/s). Returns the window
+    /// it completed, if any.
+    pub fn update(&mut self, t_s: f64, accel_g: Vec3, gyro_dps: Vec3) -> Option<Window> {
         let start = *self.window_start_s.get_or_insert(t_s);
         self.accel.add(accel_g);
         self.gyro.add(gyro_dps);
         if t_s - start < self.cfg.window_s as f64 {
-            return self.state;
+            return None;
         }
         let mean = self.accel.mean();
-        let drift = self.prev_accel_mean.map_or(0.0, |p| {
-            (0..3).fold(0.0f64, |m, k| m.max((mean[k] - p[k]).abs()))
-        });
+        let drift = self.prev_accel_mean.map_or(0.0, |p| (0..3).fold(0.0f64, |m, k| m.max((mean[k] - p[k]).abs())));
         let still = self.accel.count() >= 2
             && self.accel.max_std() <= self.cfg.accel_std_max_g as f64
             && self.gyro.max_std() <= self.cfg.gyro_std_max_dps as f64
@@ -99,10 +123,11 @@ impl RestDetector {
             self.state = RestState::Moving;
         }
         self.prev_accel_mean = Some(mean);
-        self.window_start_s = Some(t_s);
+        let window = Window { t_start_s: start, t_end_s: t_s, accel: self.accel, gyro: self.gyro, still, state: self.state };
+        self.window_start_s = None;
         self.accel = Welford3::new();
         self.gyro = Welford3::new();
-        self.state
+        Some(window)
     }
 }
 
@@ -112,13 +137,12 @@ mod tests {
 
     fn feed(d: &mut RestDetector, t0: f64, secs: f64, f: impl Fn(f64) -> (Vec3, Vec3)) -> (RestState, f64) {
         let mut t = t0;
-        let mut s = d.state();
         while t < t0 + secs {
             let (a, g) = f(t);
-            s = d.update(t, a, g);
+            d.update(t, a, g);
             t += 0.01;
         }
-        (s, t)
+        (d.state(), t)
     }
 
     #[test]
@@ -138,9 +162,18 @@ mod tests {
     }
 
     #[test]
-    fn vibration_is_motion() {
+    fn vibration_is_motion_and_windows_partition_the_samples() {
         let mut d = RestDetector::new(RestConfig::default());
-        let (s, _) = feed(&mut d, 0.0, 2.0, |t| ([0.0, 0.0, 1.0], [5.0 * libm::sin(t * 60.0) as f32, 0.0, 0.0]));
-        assert_eq!(s, RestState::Moving);
+        let mut n = 0;
+        let mut t = 0.0;
+        for _ in 0..200 {
+            if let Some(w) = d.update(t, [0.0, 0.0, 1.0], [5.0 * libm::sin(t * 60.0) as f32, 0.0, 0.0]) {
+                assert!(!w.still && w.state == RestState::Moving);
+                assert!(w.t_end_s - w.t_start_s >= 0.25 - 1e-9);
+                n += w.gyro.count();
+            }
+            t += 0.01;
+        }
+        assert!(n > 180 && n <= 200);
     }
 }

@@ -28,6 +28,21 @@ impl Welford3 {
         }
     }
 
+    /// Adds all vectors summarised by `other` (Chan et al. parallel update).
+    pub fn merge(&mut self, other: &Welford3) {
+        if other.n == 0 {
+            return;
+        }
+        let (na, nb) = (self.n as f64, other.n as f64);
+        let n = na + nb;
+        for k in 0..3 {
+            let d = other.mean[k] - self.mean[k];
+            self.mean[k] += d * nb / n;
+            self.m2[k] += other.m2[k] + d * d * na * nb / n;
+        }
+        self.n += other.n;
+    }
+
     /// Number of vectors added.
     pub fn count(&self) -> u32 {
         self.n
@@ -113,6 +128,21 @@ mod tests {
             let v: f64 = xs.iter().map(|x| (x[k] as f64 - m).powi(2)).sum::<f64>() / 4.0;
             assert!((w.mean()[k] - m).abs() < 1e-12 && (w.variance()[k] - v).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn merge_equals_sequential() {
+        let xs: [[f32; 3]; 6] = [[1.0, 2.0, 3.0], [2.0, 2.5, -1.0], [0.5, 2.0, 0.0], [3.0, 1.0, 2.0], [1.5, 2.0, 1.0], [0.0; 3]];
+        let (mut all, mut a, mut b) = (Welford3::new(), Welford3::new(), Welford3::new());
+        xs.iter().for_each(|&x| all.add(x));
+        xs[..2].iter().for_each(|&x| a.add(x));
+        xs[2..].iter().for_each(|&x| b.add(x));
+        a.merge(&b);
+        a.merge(&Welford3::new());
+        for k in 0..3 {
+            assert!((a.mean()[k] - all.mean()[k]).abs() < 1e-12 && (a.variance()[k] - all.variance()[k]).abs() < 1e-12);
+        }
+        assert_eq!(a.count(), 6);
     }
 
     #[test]

@@ -4,4 +4,5 @@
 pub mod moments;
 pub mod paper_model;
 pub mod servo_protocol;
+pub mod session;
 pub mod sim;

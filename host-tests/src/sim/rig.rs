@@ -137,6 +137,11 @@ impl Rig {
         self.servo.set_pulse_us(us);
     }
 
+    /// No more servo pulses (from the next 20 ms frame): the motor idles.
+    pub fn servo_off(&mut self) {
+        self.servo.pulse_off();
+    }
+
     /// A stalled (or unplugged) servo holds its shaft whatever the command.
     pub fn stall(&mut self, stalled: bool) {
         self.servo.stall(stalled);

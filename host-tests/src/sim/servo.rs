@@ -199,6 +199,11 @@ impl Servo {
         self.pulse_cmd_us = Some(us);
     }
 
+    /// Stops the pulses from the next PWM frame on: the motor idles.
+    pub fn pulse_off(&mut self) {
+        self.pulse_cmd_us = None;
+    }
+
     pub fn stall(&mut self, stalled: bool) {
         self.stalled = stalled;
     }

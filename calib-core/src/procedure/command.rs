@@ -1,0 +1,110 @@
+//! What the procedure asks its I/O shell to do, and what it reports.
+
+use super::Phase;
+use crate::accel::AccelCal;
+use crate::bias::Bias;
+use crate::gyro::{GyroCal, Method};
+use crate::record::Record;
+use crate::{Error, Vec3};
+
+/// LED patterns (the shell maps them to pins and blink timing).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Led {
+    /// Waiting for the button.
+    Idle,
+    /// Working on a phase.
+    Busy(Phase),
+    /// The user must act: hold the board still in a new orientation, or re-clamp it and press.
+    WaitUser,
+    /// Calibration stored and applied.
+    Done,
+    /// Failed; the class tells what to check.
+    Error(ErrorClass),
+}
+
+/// Error classes shown on the LEDs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorClass {
+    /// Sensor stopped, saturated or out of range.
+    Sensor,
+    /// Motion where the rig must be still.
+    Motion,
+    /// Servo not turning.
+    Servo,
+    /// Rig geometry (axis, mounting, span).
+    Geometry,
+    /// The solution was singular, implausible or rejected.
+    Result,
+    /// A phase timed out.
+    Timeout,
+}
+
+impl ErrorClass {
+    /// The class of an error.
+    pub fn of(e: &Error) -> Self {
+        match e {
+            Error::SensorTimeout { .. } | Error::Saturated | Error::BiasOutOfRange { .. } | Error::NonFinite => {
+                ErrorClass::Sensor
+            }
+            Error::NotStill { .. } | Error::PoseDisturbed { .. } | Error::AxisNotFixed { .. } => ErrorClass::Motion,
+            Error::ServoNotTurning { .. } | Error::NoRotation { .. } | Error::NoUsableMove => ErrorClass::Servo,
+            Error::AxisNearVertical { .. }
+            | Error::AxisNearHorizontal { .. }
+            | Error::WeakSensorAxis { .. }
+            | Error::AngleSpanTooSmall { .. }
+            | Error::TooFewPoses { .. } => ErrorClass::Geometry,
+            Error::PhaseTimeout { .. } => ErrorClass::Timeout,
+            _ => ErrorClass::Result,
+        }
+    }
+}
+
+/// Progress and results, for the log.
+#[allow(missing_docs)] // variant fields are named with their units
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Report {
+    /// A phase started.
+    Phase(Phase),
+    /// Gyro bias measured.
+    Bias(Bias),
+    /// A hand-held accelerometer pose was captured (raw mean, g).
+    AccelPose { index: u8, accel_g: Vec3 },
+    /// The accelerometer calibration.
+    Accel(AccelCal),
+    /// A static rig pose was captured (calibrated mean, g).
+    RigPose { index: u8, servo_deg: f32, accel_g: Vec3 },
+    /// A pose was disturbed and is being retaken.
+    Retake { index: u8, retries: u8 },
+    /// A move between two poses: its raw gyro turn |Γ| (°).
+    Move { from: u8, to: u8, gyro_turn_deg: f32 },
+    /// One gyro estimator's result.
+    Gyro(GyroCal),
+    /// One gyro estimator failed (the other may still succeed).
+    EstimatorFailed { method: Method, error: Error },
+    /// The calibration was stored and applied.
+    Done(Record),
+    /// The calibration failed; nothing was stored.
+    Failed(Error),
+}
+
+/// A command to the I/O shell.
+#[allow(missing_docs)] // variant fields are named with their units
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Drive servo `channel` (0 = rotation, 1 = tilt) with a pulse (µs, already clamped).
+    Servo { channel: u8, pulse_us: u16 },
+    /// Stop driving servo `channel`.
+    ServoOff { channel: u8 },
+    /// Show an LED pattern.
+    Led(Led),
+    /// Log a report.
+    Report(Report),
+    /// Store this record in flash (power-fail safe; keep the previous one until it is written).
+    Store(Record),
+    /// Apply this calibration to every reading from now on.
+    Apply(Record),
+}

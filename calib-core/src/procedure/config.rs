@@ -1,0 +1,196 @@
+//! The one configuration of the calibration procedure, with defaults for a positional hobby
+//! servo on the Nano 33 BLE.
+
+use crate::axis::GeometryLimits;
+use crate::bias::BiasLimits;
+use crate::rest::RestConfig;
+
+/// The rotation servo.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ServoKind {
+    /// Positional servo: pulse `pulse_min_us..pulse_max_us` ↔ angle `angle_min_deg..angle_max_deg`.
+    Positional,
+    /// Continuous-rotation servo: `neutral_us ± span_us` ↔ full speed either way.
+    Continuous {
+        /// Pulse of zero speed (µs).
+        neutral_us: u16,
+        /// Pulse offset of full speed (µs).
+        span_us: u16,
+        /// Speed used for moves and the rotation, as a fraction of full speed.
+        speed: f32,
+        /// Nominal shaft rate at `speed` (°/s), only for the stall check.
+        nominal_rate_dps: f32,
+        /// Duration of one move between poses (s).
+        move_s: f32,
+    },
+}
+
+/// Procedure configuration. Angles in degrees, times in seconds, pulses in µs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Config {
+    /// The rotation servo.
+    pub servo: ServoKind,
+    /// Safe pulse range: every servo command is clamped to it.
+    pub pulse_min_us: u16,
+    /// See `pulse_min_us`.
+    pub pulse_max_us: u16,
+    /// Nominal angle at `pulse_min_us` (positional).
+    pub angle_min_deg: f32,
+    /// Nominal angle at `pulse_max_us` (positional).
+    pub angle_max_deg: f32,
+    /// Static rig poses per pass (≥ 4), spread from `pose_first_deg` to `pose_last_deg`.
+    pub pose_count: u8,
+    /// First pose angle (positional).
+    pub pose_first_deg: f32,
+    /// Last pose angle (positional).
+    pub pose_last_deg: f32,
+    /// Passes there and back over the poses.
+    pub round_trips: u8,
+    /// Commanded rate of the moves between poses (°/s, positional).
+    pub move_rate_dps: f32,
+    /// Commanded rate of the paper's constant-rate rotation (°/s); 0 skips it.
+    pub rotation_rate_dps: f32,
+    /// Duration of the rotation with a continuous servo (s).
+    pub rotation_s: f32,
+    /// Still time averaged per pose (s).
+    pub pose_average_s: f32,
+    /// Still time averaged for the bias (s).
+    pub bias_s: f32,
+    /// Hand-held accelerometer poses to capture (≥ 6; ≥ 9 fits 9 parameters).
+    pub accel_poses: u8,
+    /// Smallest angle between two hand-held poses (°).
+    pub accel_min_separation_deg: f32,
+    /// Stillness thresholds.
+    pub rest: RestConfig,
+    /// Bias limits.
+    pub bias: BiasLimits,
+    /// Rig geometry requirements.
+    pub geometry: GeometryLimits,
+    /// Retakes of a disturbed pose (or bias) before giving up.
+    pub pose_retries: u8,
+    /// Time to reach rest in a static phase (s).
+    pub rest_timeout_s: f32,
+    /// Time for all hand-held poses (s).
+    pub handheld_timeout_s: f32,
+    /// Time to put the board back on the shaft and press the button (s).
+    pub reattach_timeout_s: f32,
+    /// Longest gap between sensor samples (s).
+    pub sample_timeout_s: f32,
+    /// A move must turn the gyro by at least this fraction of the commanded angle.
+    pub min_turn_fraction: f32,
+    /// Accelerometer full scale (g): samples at 98 % of it are saturated.
+    pub accel_range_g: f32,
+    /// Gyro full scale (°/s).
+    pub gyro_range_dps: f32,
+    /// Accepted range of each scale factor.
+    pub k_min: f32,
+    /// See `k_min`.
+    pub k_max: f32,
+    /// Largest accepted 1σ of a scale factor.
+    pub max_sigma_k: f32,
+    /// Largest accepted accelerometer residual after calibration (g).
+    pub max_accel_rms_g: f32,
+}
+
+impl Default for Config {
+    /// SG90-class positional servo on D9, LSM9DS1 at ±2 g / ±500 °/s: 7 poses over 0–180°
+    /// there and back at 30 °/s, then a 20 °/s rotation; 12 hand-held accelerometer poses.
+    fn default() -> Self {
+        Self {
+            servo: ServoKind::Positional,
+            pulse_min_us: 1000,
+            pulse_max_us: 2000,
+            angle_min_deg: 0.0,
+            angle_max_deg: 180.0,
+            pose_count: 7,
+            pose_first_deg: 0.0,
+            pose_last_deg: 180.0,
+            round_trips: 1,
+            move_rate_dps: 30.0,
+            rotation_rate_dps: 20.0,
+            rotation_s: 10.0,
+            pose_average_s: 1.0,
+            bias_s: 2.0,
+            accel_poses: 12,
+            accel_min_separation_deg: 30.0,
+            rest: RestConfig::default(),
+            bias: BiasLimits::default(),
+            geometry: GeometryLimits::default(),
+            pose_retries: 3,
+            rest_timeout_s: 20.0,
+            handheld_timeout_s: 300.0,
+            reattach_timeout_s: 300.0,
+            sample_timeout_s: 0.5,
+            min_turn_fraction: 0.5,
+            accel_range_g: 2.0,
+            gyro_range_dps: 500.0,
+            k_min: 0.8,
+            k_max: 1.2,
+            max_sigma_k: 0.005,
+            max_accel_rms_g: 0.01,
+        }
+    }
+}
+
+impl Config {
+    /// Pulse (µs) for a nominal positional angle (°), clamped to the safe range.
+    pub fn pulse_for_deg(&self, deg: f32) -> u16 {
+        let span = self.angle_max_deg - self.angle_min_deg;
+        let x = if span != 0.0 { (deg - self.angle_min_deg) / span } else { 0.0 };
+        let us = self.pulse_min_us as f32 + x * (self.pulse_max_us as f32 - self.pulse_min_us as f32);
+        self.clamp_pulse(us)
+    }
+
+    /// Clamps a pulse (µs) to `pulse_min_us..=pulse_max_us`.
+    pub fn clamp_pulse(&self, us: f32) -> u16 {
+        let us = if us.is_finite() { us } else { self.pulse_min_us as f32 };
+        (libm::roundf(us) as i32).clamp(self.pulse_min_us as i32, self.pulse_max_us as i32) as u16
+    }
+
+    /// Rig steps (static poses) in one run: there and back `round_trips` times.
+    pub fn rig_steps(&self) -> u16 {
+        1 + 2 * (self.pose_count.max(2) as u16 - 1) * self.round_trips.max(1) as u16
+    }
+
+    /// Pose slot (0..pose_count) visited at rig step `k`.
+    pub fn pose_slot(&self, k: u16) -> u16 {
+        let n = self.pose_count.max(2) as u16;
+        let p = k % (2 * (n - 1));
+        if p < n {
+            p
+        } else {
+            2 * (n - 1) - p
+        }
+    }
+
+    /// Commanded angle (°) of rig step `k` (positional).
+    pub fn step_deg(&self, k: u16) -> f32 {
+        let n = self.pose_count.max(2) as f32;
+        self.pose_first_deg + (self.pose_last_deg - self.pose_first_deg) * self.pose_slot(k) as f32 / (n - 1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_goes_there_and_back() {
+        let c = Config { pose_count: 4, ..Config::default() };
+        assert_eq!(c.rig_steps(), 7);
+        let slots: [u16; 7] = core::array::from_fn(|k| c.pose_slot(k as u16));
+        assert_eq!(slots, [0, 1, 2, 3, 2, 1, 0]);
+        assert_eq!(c.step_deg(3), 180.0);
+    }
+
+    #[test]
+    fn pulses_are_clamped_to_the_safe_range() {
+        let c = Config::default();
+        assert_eq!(c.pulse_for_deg(90.0), 1500);
+        assert_eq!(c.pulse_for_deg(500.0), 2000);
+        assert_eq!(c.pulse_for_deg(-50.0), 1000);
+        assert_eq!(c.clamp_pulse(f32::NAN), 1000);
+    }
+}

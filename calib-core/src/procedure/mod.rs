@@ -1,0 +1,708 @@
+//! The calibration procedure as a pure state machine (sans-IO): fed timestamped samples, button
+//! presses and timer ticks, it returns commands (servo, LED, report, store, apply). No I/O, no
+//! allocation, bounded work per input. The firmware and the host tests drive the same machine.
+//!
+//! Phases: wait for rest → gyro bias → accelerometer (hand-held poses, skipped when a valid
+//! stored calibration exists) → re-clamp and press → static rig poses and the moves between
+//! them, there and back → the paper's constant-rate rotation → solve both estimators →
+//! validate → store → report → apply.
+//!
+//! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
+//! (one call queues at most 8 commands; the queue holds 16).
+
+mod command;
+mod config;
+
+pub use command::{Command, ErrorClass, Led, Report};
+pub use config::{Config, ServoKind};
+
+use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
+use crate::axis::{turn_deg, Poses};
+use crate::bias::{Bias, BiasEstimator};
+use crate::gyro::{GyroCal, Method};
+use crate::record::Record;
+use crate::rest::{RestDetector, RestState, Window};
+use crate::stats::Welford3;
+use crate::sweep::{Integrator, Moves};
+use crate::{paper, sweep, Error, Vec3};
+use heapless::Deque;
+use nalgebra::Vector3;
+
+/// One IMU sample as the shell delivers it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Sample {
+    /// MCU timestamp (s), from the crystal clock, never from the nominal ODR.
+    pub t_s: f64,
+    /// Raw accelerometer (g).
+    pub accel_g: Vec3,
+    /// Raw gyro (°/s).
+    pub gyro_dps: Vec3,
+    /// Sensor temperature (°C).
+    pub temp_c: f32,
+}
+
+/// The phase the procedure is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Phase {
+    /// Waiting for the button.
+    Idle,
+    /// Waiting for the rig to be still.
+    WaitRest,
+    /// Measuring the gyro bias.
+    Bias,
+    /// Capturing hand-held accelerometer poses.
+    HandHeld,
+    /// Waiting for the board to be clamped back on the shaft and the button pressed.
+    Reattach,
+    /// Static rig poses and the moves between them.
+    RigPoses,
+    /// The paper's constant-rate rotation.
+    Rotation,
+    /// Calibration stored and applied.
+    Done,
+    /// Calibration failed; nothing stored.
+    Failed,
+}
+
+impl Phase {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Idle => "idle",
+            Phase::WaitRest => "wait-rest",
+            Phase::Bias => "bias",
+            Phase::HandHeld => "hand-held",
+            Phase::Reattach => "reattach",
+            Phase::RigPoses => "rig-poses",
+            Phase::Rotation => "rotation",
+            Phase::Done => "done",
+            Phase::Failed => "failed",
+        }
+    }
+}
+
+/// Averages whole still windows into one pose; a disturbed window restarts it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Capture {
+    accel: Welford3,
+    gyro: Welford3,
+    t_first: f64,
+    t_last: f64,
+    retries: u8,
+}
+
+enum CaptureStep {
+    Pending,
+    Done,
+    Disturbed,
+}
+
+impl Capture {
+    fn feed(&mut self, w: &Window, tainted: bool, need_s: f32) -> CaptureStep {
+        if w.still && w.state == RestState::Still && !tainted {
+            if self.accel.count() == 0 {
+                self.t_first = w.t_start_s;
+            }
+            self.accel.merge(&w.accel);
+            self.gyro.merge(&w.gyro);
+            self.t_last = w.t_end_s;
+            return if self.t_last - self.t_first >= need_s as f64 { CaptureStep::Done } else { CaptureStep::Pending };
+        }
+        if self.accel.count() > 0 {
+            *self = Capture { retries: self.retries.saturating_add(1), ..Capture::default() };
+            return CaptureStep::Disturbed;
+        }
+        CaptureStep::Pending
+    }
+
+    fn accel_mean(&self) -> Vec3 {
+        self.accel.mean().map(|v| v as f32)
+    }
+}
+
+/// A commanded positional ramp (°) in time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Ramp {
+    from_deg: f32,
+    to_deg: f32,
+    t0: f64,
+    duration_s: f64,
+}
+
+impl Ramp {
+    fn at(&self, t: f64) -> (f32, bool) {
+        let x = if self.duration_s > 0.0 { ((t - self.t0) / self.duration_s).clamp(0.0, 1.0) } else { 1.0 };
+        (self.from_deg + (self.to_deg - self.from_deg) * x as f32, x >= 1.0)
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Step {
+    Idle,
+    WaitRest,
+    Bias { capture: Capture },
+    HandHeld { capture: Capture },
+    Reattach,
+    /// Moving to rig step `k` (started at `t0`).
+    Move { k: u16, ramp: Ramp },
+    /// Capturing rig step `k`.
+    Pose { k: u16, capture: Capture, since: f64 },
+    /// The paper's constant-rate rotation.
+    Rotation { rot: Rotation },
+    Finished(Phase),
+}
+
+/// The paper's rotation: mean bias-free rate over its middle and, for a continuous servo whose
+/// speed is unknown, the angle gravity turned about the axis over the same samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Rotation {
+    t0: f64,
+    axis: Option<Vector3<f64>>,
+    rate: Welford3,
+    turn_deg: f64,
+    prev_accel: Option<Vec3>,
+    t_first: Option<f64>,
+    t_last: f64,
+}
+
+impl Rotation {
+    fn add(&mut self, t_s: f64, g: Vec3, accel: Vec3) {
+        self.rate.add(g);
+        if let (Some(u), Some(p)) = (self.axis, self.prev_accel) {
+            self.turn_deg += turn_deg(&u, &v64(p), &v64(accel));
+        }
+        self.prev_accel = Some(accel);
+        self.t_first.get_or_insert(t_s);
+        self.t_last = t_s;
+    }
+
+    /// Mean shaft rate from the accelerometer (°/s).
+    fn accel_rate_dps(&self) -> f32 {
+        match self.t_first {
+            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0)) as f32,
+            _ => 0.0,
+        }
+    }
+}
+
+/// Head room of the rotation's averaging window: skipped after the start and before the end (s).
+const ROTATION_SKIP_START_S: f64 = 1.0;
+const ROTATION_SKIP_END_S: f64 = 0.5;
+
+/// The calibration procedure.
+pub struct Procedure {
+    cfg: Config,
+    stored: Option<Record>,
+    step: Step,
+    phase_t0: f64,
+    last_sample_t: Option<f64>,
+    queue: Deque<Command, 16>,
+    rest: RestDetector,
+    tainted: bool,
+    servo_deg: Option<f32>,
+    last_pulse: Option<u16>,
+    bias: Option<Bias>,
+    accel_cal: AccelCal,
+    accel_poses: AccelCalibrator,
+    poses: Poses,
+    moves: Moves,
+    integ: Integrator,
+    gbar: Option<(Vec3, f32)>,
+    temp: Welford3,
+}
+
+impl Procedure {
+    /// A procedure in `Idle`; `stored` is the valid record found in flash, if any (its
+    /// accelerometer calibration is reused and its sequence number continued).
+    pub fn new(cfg: Config, stored: Option<Record>) -> Self {
+        let mut p = Self {
+            cfg,
+            stored,
+            step: Step::Idle,
+            phase_t0: 0.0,
+            last_sample_t: None,
+            queue: Deque::new(),
+            rest: RestDetector::new(cfg.rest),
+            tainted: false,
+            servo_deg: None,
+            last_pulse: None,
+            bias: None,
+            accel_cal: AccelCal::IDENTITY,
+            accel_poses: AccelCalibrator::new(),
+            poses: Poses::new(),
+            moves: Moves::new(),
+            integ: Integrator::new(),
+            gbar: None,
+            temp: Welford3::new(),
+        };
+        p.push(Command::Led(Led::Idle));
+        p
+    }
+
+    /// The current phase.
+    pub fn phase(&self) -> Phase {
+        match self.step {
+            Step::Idle => Phase::Idle,
+            Step::WaitRest => Phase::WaitRest,
+            Step::Bias { .. } => Phase::Bias,
+            Step::HandHeld { .. } => Phase::HandHeld,
+            Step::Reattach => Phase::Reattach,
+            Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
+            Step::Rotation { .. } => Phase::Rotation,
+            Step::Finished(p) => p,
+        }
+    }
+
+    /// The commanded rotation-servo angle (°), `None` while the servo is not driven by angle
+    /// (idle, hand-held, continuous servo): the `servo_deg` column of the raw log.
+    pub fn servo_deg(&self) -> Option<f32> {
+        self.servo_deg
+    }
+
+    /// Next command for the shell.
+    pub fn poll(&mut self) -> Option<Command> {
+        self.queue.pop_front()
+    }
+
+    /// The button was pressed: starts a calibration (from idle, done or failed) or confirms
+    /// that the board is back on the shaft.
+    pub fn handle_button(&mut self, t_s: f64) {
+        match self.step {
+            Step::Idle | Step::Finished(_) => self.start(t_s),
+            Step::Reattach => {
+                self.begin_rig(t_s);
+            }
+            _ => {}
+        }
+    }
+
+    /// Timer tick without a sample: detects a sensor that stopped and phase timeouts.
+    pub fn handle_tick(&mut self, t_s: f64) {
+        if !self.running() {
+            return;
+        }
+        if let Some(last) = self.last_sample_t {
+            let gap = t_s - last;
+            if gap > self.cfg.sample_timeout_s as f64 {
+                return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
+            }
+        }
+        self.check_timeout(t_s);
+    }
+
+    /// A sensor sample.
+    pub fn handle_sample(&mut self, s: &Sample) {
+        if !self.running() {
+            return;
+        }
+        let finite = s.accel_g.iter().chain(s.gyro_dps.iter()).all(|v| v.is_finite()) && s.t_s.is_finite();
+        if !finite {
+            return self.fail(Error::NonFinite);
+        }
+        if let Some(last) = self.last_sample_t {
+            if !(s.t_s > last) {
+                return; // duplicate or out-of-order timestamp: dropped
+            }
+        }
+        self.last_sample_t = Some(s.t_s);
+        let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.accel_range_g)
+            || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.gyro_range_dps);
+        self.tainted |= saturated;
+        let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
+        let tainted = self.tainted;
+        if window.is_some() {
+            self.tainted = false;
+        }
+        let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
+        self.temp.add([s.temp_c, 0.0, 0.0]);
+        match self.step {
+            Step::Idle | Step::Finished(_) | Step::Reattach => {}
+            Step::WaitRest => {
+                if self.rest.state() == RestState::Still {
+                    if self.bias.is_none() {
+                        self.enter(Step::Bias { capture: Capture::default() }, s.t_s);
+                    } else {
+                        self.enter(Step::Pose { k: 0, capture: Capture::default(), since: s.t_s }, s.t_s);
+                    }
+                }
+            }
+            Step::Bias { mut capture } => {
+                if let Some(w) = window {
+                    match capture.feed(&w, tainted, self.cfg.bias_s) {
+                        CaptureStep::Pending => self.step = Step::Bias { capture },
+                        CaptureStep::Disturbed => self.retake(0, capture, |c| Step::Bias { capture: c }),
+                        CaptureStep::Done => self.finish_bias(&capture, s.t_s),
+                    }
+                }
+            }
+            Step::HandHeld { mut capture } => {
+                if let Some(w) = window {
+                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
+                        CaptureStep::Done => self.finish_accel_pose(&capture, s.t_s),
+                        // A disturbed hand-held pose is simply taken again: the user is moving it.
+                        CaptureStep::Pending | CaptureStep::Disturbed => self.step = Step::HandHeld { capture },
+                    }
+                }
+            }
+            Step::Move { k, ramp } => {
+                if saturated {
+                    return self.fail(Error::Saturated);
+                }
+                self.integ.add(s.t_s, g);
+                if let ServoKind::Positional = self.cfg.servo {
+                    let (deg, done) = ramp.at(s.t_s);
+                    self.drive_deg(deg);
+                    if done {
+                        self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
+                    }
+                } else if s.t_s - ramp.t0 >= ramp.duration_s {
+                    self.push(Command::ServoOff { channel: 0 });
+                    self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
+                }
+            }
+            Step::Pose { k, mut capture, since } => {
+                if saturated {
+                    // The shaft may still be settling: a clipped sample corrupts the move's integral.
+                    return self.fail(Error::Saturated);
+                }
+                self.integ.add(s.t_s, g);
+                if let Some(w) = window {
+                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
+                        CaptureStep::Pending => self.step = Step::Pose { k, capture, since },
+                        CaptureStep::Disturbed => {
+                            self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since })
+                        }
+                        CaptureStep::Done => self.finish_pose(k, &capture, s),
+                    }
+                }
+            }
+            Step::Rotation { mut rot } => {
+                if saturated {
+                    return self.fail(Error::Saturated);
+                }
+                let elapsed = s.t_s - rot.t0;
+                let duration = self.rotation_duration();
+                if let ServoKind::Positional = self.cfg.servo {
+                    let (from_deg, to_deg) = (self.cfg.pose_first_deg, self.cfg.pose_last_deg);
+                    self.drive_deg(Ramp { from_deg, to_deg, t0: rot.t0, duration_s: duration }.at(s.t_s).0);
+                }
+                if elapsed > ROTATION_SKIP_START_S && elapsed < duration - ROTATION_SKIP_END_S {
+                    rot.add(s.t_s, g, self.accel_cal.apply(s.accel_g));
+                }
+                if elapsed >= duration {
+                    self.finish_rotation(&rot, s.t_s);
+                } else {
+                    self.step = Step::Rotation { rot };
+                }
+            }
+        }
+        self.check_timeout(s.t_s);
+    }
+
+    fn running(&self) -> bool {
+        !matches!(self.step, Step::Idle | Step::Finished(_))
+    }
+
+    fn push(&mut self, c: Command) {
+        // Bounded by the contract (≤ 8 per call, drained after each); never blocks.
+        let _ = self.queue.push_back(c);
+    }
+
+    fn start(&mut self, t_s: f64) {
+        let (cfg, stored) = (self.cfg, self.stored);
+        let queue = core::mem::take(&mut self.queue);
+        *self = Self::new(cfg, stored);
+        self.queue = queue;
+        if let Some(acc) = stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
+            self.accel_cal = acc;
+        }
+        self.last_sample_t = None;
+        self.park_servo();
+        self.enter(Step::WaitRest, t_s);
+    }
+
+    fn park_servo(&mut self) {
+        match self.cfg.servo {
+            ServoKind::Positional => self.drive_deg(self.cfg.pose_first_deg),
+            ServoKind::Continuous { .. } => {
+                self.servo_deg = None;
+                self.push(Command::ServoOff { channel: 0 });
+            }
+        }
+    }
+
+    fn drive_deg(&mut self, deg: f32) {
+        let pulse = self.cfg.pulse_for_deg(deg);
+        self.servo_deg = Some(deg);
+        if self.last_pulse != Some(pulse) {
+            self.last_pulse = Some(pulse);
+            self.push(Command::Servo { channel: 0, pulse_us: pulse });
+        }
+    }
+
+    fn enter(&mut self, step: Step, t_s: f64) {
+        self.step = step;
+        self.phase_t0 = t_s;
+        let phase = self.phase();
+        self.push(Command::Report(Report::Phase(phase)));
+        let led = match phase {
+            Phase::HandHeld | Phase::Reattach => Led::WaitUser,
+            p => Led::Busy(p),
+        };
+        self.push(Command::Led(led));
+    }
+
+    fn fail(&mut self, e: Error) {
+        self.step = Step::Finished(Phase::Failed);
+        self.last_pulse = None;
+        self.push(Command::ServoOff { channel: 0 });
+        self.servo_deg = None;
+        self.push(Command::Report(Report::Failed(e)));
+        self.push(Command::Led(Led::Error(ErrorClass::of(&e))));
+    }
+
+    fn retake(&mut self, index: u8, capture: Capture, back: impl Fn(Capture) -> Step) {
+        if capture.retries > self.cfg.pose_retries {
+            return self.fail(Error::PoseDisturbed { index, retries: capture.retries });
+        }
+        self.push(Command::Report(Report::Retake { index, retries: capture.retries }));
+        self.step = back(capture);
+    }
+
+    fn check_timeout(&mut self, t_s: f64) {
+        let c = &self.cfg;
+        let (since, limit) = match self.step {
+            Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
+            Step::HandHeld { .. } => (self.phase_t0, c.handheld_timeout_s),
+            Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
+            Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
+            Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
+            Step::Rotation { rot } => (rot.t0, self.rotation_duration() as f32 + c.rest_timeout_s),
+            Step::Idle | Step::Finished(_) => return,
+        };
+        if t_s - since > limit as f64 {
+            let phase = self.phase();
+            self.fail(Error::PhaseTimeout { phase, limit_s: limit });
+        }
+    }
+
+    fn finish_bias(&mut self, capture: &Capture, t_s: f64) {
+        let mut est = BiasEstimator::new();
+        est.add_window(&capture.gyro, &capture.accel);
+        match est.finish(&self.cfg.bias) {
+            Ok(b) => {
+                self.bias = Some(b);
+                self.push(Command::Report(Report::Bias(b)));
+                if self.accel_cal.model == AccelModel::None {
+                    self.servo_deg = None;
+                    self.last_pulse = None;
+                    self.push(Command::ServoOff { channel: 0 });
+                    self.enter(Step::HandHeld { capture: Capture::default() }, t_s);
+                } else {
+                    self.begin_rig(t_s);
+                }
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    fn finish_accel_pose(&mut self, capture: &Capture, t_s: f64) {
+        let a = capture.accel_mean();
+        let min_cos = libm::cosf(self.cfg.accel_min_separation_deg.to_radians());
+        let new_dir = v64(a).normalize();
+        let distinct = (0..self.accel_poses.len()).all(|i| self.accel_poses.pose(i).normalize().dot(&new_dir) < min_cos as f64);
+        self.step = Step::HandHeld { capture: Capture::default() };
+        if !distinct {
+            return;
+        }
+        if let Err(e) = self.accel_poses.add_pose(a) {
+            return self.fail(e);
+        }
+        let index = (self.accel_poses.len() - 1) as u8;
+        self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
+        if self.accel_poses.len() < self.cfg.accel_poses.max(6) as usize {
+            return;
+        }
+        let fit = if self.accel_poses.len() >= 9 {
+            self.accel_poses.solve9().or_else(|_| self.accel_poses.solve6())
+        } else {
+            self.accel_poses.solve6()
+        };
+        match fit {
+            Ok(cal) if cal.rms_after_g <= self.cfg.max_accel_rms_g => {
+                self.accel_cal = cal;
+                self.push(Command::Report(Report::Accel(cal)));
+                self.enter(Step::Reattach, t_s);
+            }
+            Ok(_) => self.fail(Error::AccelFitFailed),
+            Err(e) => self.fail(e),
+        }
+    }
+
+    fn begin_rig(&mut self, t_s: f64) {
+        self.rest.reset();
+        self.park_servo();
+        self.poses = Poses::new();
+        self.moves = Moves::new();
+        self.integ = Integrator::new();
+        self.enter(Step::WaitRest, t_s);
+    }
+
+    fn finish_pose(&mut self, k: u16, capture: &Capture, s: &Sample) {
+        let a = self.accel_cal.apply(capture.accel_mean());
+        let idx = match self.poses.push(a) {
+            Ok(i) => i,
+            Err(e) => return self.fail(e),
+        };
+        let servo_deg = self.servo_deg.unwrap_or(f32::NAN);
+        self.push(Command::Report(Report::RigPose { index: idx, servo_deg, accel_g: a }));
+        if k > 0 {
+            let gamma = self.integ.gamma();
+            let turned = libm::sqrt(gamma.iter().map(|v| v * v).sum::<f64>()) as f32;
+            let commanded = match self.cfg.servo {
+                ServoKind::Positional => (self.cfg.step_deg(k) - self.cfg.step_deg(k - 1)).abs(),
+                ServoKind::Continuous { nominal_rate_dps, move_s, .. } => nominal_rate_dps * move_s,
+            };
+            if turned < self.cfg.min_turn_fraction * commanded {
+                return self.fail(Error::ServoNotTurning { commanded_deg: commanded, measured_deg: turned });
+            }
+            if let Err(e) = self.moves.push(idx - 1, idx, gamma) {
+                return self.fail(e);
+            }
+            self.push(Command::Report(Report::Move { from: idx - 1, to: idx, gyro_turn_deg: turned }));
+        }
+        self.integ = Integrator::new();
+        self.integ.add(s.t_s, self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps)));
+        let next = k + 1;
+        if next < self.cfg.rig_steps() {
+            let ramp = match self.cfg.servo {
+                ServoKind::Positional => {
+                    let (from_deg, to_deg) = (self.cfg.step_deg(k), self.cfg.step_deg(next));
+                    let rate = self.cfg.move_rate_dps.max(1.0);
+                    Ramp { from_deg, to_deg, t0: s.t_s, duration_s: ((to_deg - from_deg).abs() / rate) as f64 }
+                }
+                ServoKind::Continuous { neutral_us, span_us, speed, move_s, .. } => {
+                    // Forward over the first half of each round trip, back over the second.
+                    let forward = (k % (2 * (self.cfg.pose_count.max(2) as u16 - 1))) < self.cfg.pose_count as u16 - 1;
+                    let dir = if forward { 1.0 } else { -1.0 };
+                    let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
+                    self.push(Command::Servo { channel: 0, pulse_us: pulse });
+                    Ramp { from_deg: 0.0, to_deg: 0.0, t0: s.t_s, duration_s: move_s as f64 }
+                }
+            };
+            self.step = Step::Move { k: next, ramp };
+        } else if self.cfg.rotation_rate_dps > 0.0 {
+            if let ServoKind::Continuous { neutral_us, span_us, speed, .. } = self.cfg.servo {
+                let pulse = self.cfg.clamp_pulse(neutral_us as f32 + speed * span_us as f32);
+                self.push(Command::Servo { channel: 0, pulse_us: pulse });
+            }
+            let rot = Rotation {
+                t0: s.t_s,
+                axis: self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u),
+                rate: Welford3::new(),
+                turn_deg: 0.0,
+                prev_accel: None,
+                t_first: None,
+                t_last: s.t_s,
+            };
+            self.enter(Step::Rotation { rot }, s.t_s);
+        } else {
+            self.solve(s.t_s);
+        }
+    }
+
+    fn rotation_duration(&self) -> f64 {
+        match self.cfg.servo {
+            ServoKind::Positional => {
+                ((self.cfg.pose_last_deg - self.cfg.pose_first_deg).abs() / self.cfg.rotation_rate_dps.max(1.0)) as f64
+            }
+            ServoKind::Continuous { .. } => self.cfg.rotation_s as f64,
+        }
+    }
+
+    fn finish_rotation(&mut self, rot: &Rotation, t_s: f64) {
+        self.push(Command::ServoOff { channel: 0 });
+        self.servo_deg = None;
+        self.last_pulse = None;
+        let omega = match self.cfg.servo {
+            ServoKind::Positional => self.cfg.rotation_rate_dps,
+            // A continuous servo's speed is unknown: the rate at which gravity turns about the axis.
+            ServoKind::Continuous { .. } => rot.accel_rate_dps(),
+        };
+        if rot.rate.count() > 0 {
+            self.gbar = Some((rot.rate.mean().map(|v| v as f32), omega));
+        }
+        self.solve(t_s);
+    }
+
+    fn solve(&mut self, t_s: f64) {
+        let lim = self.cfg.geometry;
+        let sweep = sweep::solve(&self.poses, &self.moves, &lim);
+        let paper = self.gbar.map(|(g, w)| paper::solve(&self.poses, g, w, &lim));
+        for (method, r) in [(Method::Sweep, Some(sweep)), (Method::Paper, paper)] {
+            match r {
+                Some(Ok(cal)) => self.push(Command::Report(Report::Gyro(cal))),
+                Some(Err(error)) => self.push(Command::Report(Report::EstimatorFailed { method, error })),
+                None => {}
+            }
+        }
+        let chosen = match (sweep, paper) {
+            (Ok(c), _) | (Err(_), Some(Ok(c))) => c,
+            (Err(e), _) => return self.fail(e),
+        };
+        if let Err(e) = self.validate(&chosen) {
+            return self.fail(e);
+        }
+        let record = self.record(&chosen);
+        self.push(Command::Store(record));
+        self.push(Command::Report(Report::Done(record)));
+        self.push(Command::Apply(record));
+        self.push(Command::Led(Led::Done));
+        self.stored = Some(record);
+        self.phase_t0 = t_s;
+        self.step = Step::Finished(Phase::Done);
+    }
+
+    fn validate(&self, cal: &GyroCal) -> Result<(), Error> {
+        for i in 0..3 {
+            let (k, sigma) = (cal.k[i][i], cal.quality.sigma_k[i]);
+            if !(k >= self.cfg.k_min && k <= self.cfg.k_max && sigma <= self.cfg.max_sigma_k) {
+                return Err(Error::ResultRejected { axis: i as u8, k, sigma });
+            }
+        }
+        Ok(())
+    }
+
+    fn record(&self, cal: &GyroCal) -> Record {
+        let q = &cal.quality;
+        Record {
+            seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
+            temp_c: self.temp.mean()[0] as f32,
+            gyro_k: cal.k,
+            gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
+            method: cal.method,
+            accel_m: self.accel_cal.m,
+            accel_offset_g: self.accel_cal.offset_g,
+            accel_model: self.accel_cal.model,
+            poses: q.poses,
+            rows: q.rows,
+            sigma_k: q.sigma_k,
+            invariant_before_rel: q.invariant_before.relative_std(),
+            invariant_after_rel: q.invariant_after.relative_std(),
+            condition: q.condition,
+            tilt_deg: q.tilt_deg,
+            span_deg: q.span_deg,
+            accel_rms_g: self.accel_cal.rms_after_g,
+        }
+    }
+}
+
+fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn v64(a: Vec3) -> Vector3<f64> {
+    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
+}

@@ -1,0 +1,64 @@
+//! The flash record: round trip of any record, and a decoder that never panics on any bytes.
+
+use calib_core::accel::AccelModel;
+use calib_core::gyro::Method;
+use calib_core::record::{DecodeError, Record, LEN};
+use proptest::prelude::*;
+
+fn finite() -> impl Strategy<Value = f32> {
+    prop::num::f32::NORMAL | prop::num::f32::ZERO | prop::num::f32::SUBNORMAL
+}
+
+prop_compose! {
+    fn any_record()(
+        seq in any::<u32>(), temp_c in finite(), k in prop::array::uniform9(finite()),
+        b in prop::array::uniform3(finite()), m in prop::array::uniform9(finite()),
+        o in prop::array::uniform3(finite()), s in prop::array::uniform3(finite()),
+        q in prop::array::uniform6(finite()), method in any::<bool>(), model in 0u8..3,
+        poses in any::<u8>(), rows in any::<u16>(),
+    ) -> Record {
+        Record {
+            seq, temp_c,
+            gyro_k: [[k[0], k[1], k[2]], [k[3], k[4], k[5]], [k[6], k[7], k[8]]],
+            gyro_bias_dps: b,
+            method: if method { Method::Sweep } else { Method::Paper },
+            accel_m: [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]],
+            accel_offset_g: o,
+            accel_model: [AccelModel::None, AccelModel::SixParam, AccelModel::NineParam][model as usize],
+            poses, rows, sigma_k: s,
+            invariant_before_rel: q[0], invariant_after_rel: q[1], condition: q[2],
+            tilt_deg: q[3], span_deg: q[4], accel_rms_g: q[5],
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    #[test]
+    fn round_trip(r in any_record()) {
+        let bytes = r.encode();
+        prop_assert_eq!(Record::decode(&bytes), Ok(r));
+        // Any single flipped bit is caught (CRC-32 detects every 1-bit error).
+        for bit in [0usize, 37, 333, 8 * LEN - 1] {
+            let mut c = bytes;
+            c[bit / 8] ^= 1 << (bit % 8);
+            prop_assert!(Record::decode(&c).is_err());
+        }
+        // Every truncation is reported as such.
+        let truncated = matches!(Record::decode(&bytes[..LEN - 1]), Err(DecodeError::Truncated { .. }));
+        prop_assert!(truncated);
+    }
+
+    #[test]
+    fn decoder_never_panics(bytes in prop::collection::vec(any::<u8>(), 0..400)) {
+        let _ = Record::decode(&bytes);
+    }
+
+    #[test]
+    fn decoder_never_panics_on_mutated_records(r in any_record(), at in 0usize..LEN, v in any::<u8>(), cut in 0usize..=LEN) {
+        let mut b = r.encode();
+        b[at] = v;
+        let _ = Record::decode(&b[..cut]);
+    }
+}
