@@ -9,7 +9,7 @@ use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
 /// Largest number of rig poses kept.
-pub const MAX_POSES: usize = 32;
+pub const MAX_POSES: usize = 64;
 
 /// Requirements on the rig geometry.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -12,6 +12,33 @@
 //! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
 //! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
 //! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
+//!
+//! ```
+//! use calib_core::axis::{GeometryLimits, Poses};
+//! use calib_core::sweep::{self, Moves};
+//!
+//! // Axis u in the sensor frame, tilted 45° from vertical; e1, e2 span the plane ⟂ u.
+//! let (s, h) = (1.0f32 / 3f32.sqrt(), 1.0f32 / 2f32.sqrt());
+//! let (u, e1, e2) = ([s, s, s], [h, -h, 0.0], [s * h, s * h, -2.0 * s * h]);
+//! let k_true = [1.02f32, 0.97, 1.01];
+//! let mut poses = Poses::new();
+//! for i in 0..7 {
+//!     // Turning the shaft by +θ turns gravity by −θ about u, as seen by the sensor.
+//!     let th = -(30.0 * i as f32).to_radians();
+//!     let a: [f32; 3] = core::array::from_fn(|k| h * u[k] + h * (e1[k] * th.cos() + e2[k] * th.sin()));
+//!     poses.push(a).unwrap();
+//! }
+//! let mut moves = Moves::new();
+//! for i in 0..6u8 {
+//!     // The raw gyro integral of a +30° move: Γ = K⁻¹ Δθ u.
+//!     let gamma: [f64; 3] = core::array::from_fn(|k| (30.0 * u[k] / k_true[k]) as f64);
+//!     moves.push(i, i + 1, gamma).unwrap();
+//! }
+//! let cal = sweep::solve(&poses, &moves, &GeometryLimits::default()).unwrap();
+//! for k in 0..3 {
+//!     assert!((cal.k[k][k] - k_true[k]).abs() < 1e-4);
+//! }
+//! ```
 #![no_std]
 #![deny(missing_docs)]
 // Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.

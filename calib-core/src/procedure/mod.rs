@@ -158,7 +158,7 @@ enum Step {
 /// speed is unknown, the angle gravity turned about the axis over the same samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Rotation {
-    t0: f64,
+    ramp: Ramp,
     axis: Option<Vector3<f64>>,
     rate: Welford3,
     turn_deg: f64,
@@ -255,8 +255,9 @@ impl Procedure {
         }
     }
 
-    /// The commanded rotation-servo angle (°), `None` while the servo is not driven by angle
-    /// (idle, hand-held, continuous servo): the `servo_deg` column of the raw log.
+    /// The commanded rotation-servo angle (°), `None` while no servo is commanded (idle,
+    /// hand-held poses): the `servo_deg` column of the raw log. For a continuous servo it is the
+    /// nominal angle, commanded speed × time.
     pub fn servo_deg(&self) -> Option<f32> {
         self.servo_deg
     }
@@ -351,14 +352,12 @@ impl Procedure {
                     return self.fail(Error::Saturated);
                 }
                 self.integ.add(s.t_s, g);
-                if let ServoKind::Positional = self.cfg.servo {
-                    let (deg, done) = ramp.at(s.t_s);
-                    self.drive_deg(deg);
-                    if done {
-                        self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
+                let (deg, done) = ramp.at(s.t_s);
+                self.set_angle(deg);
+                if done {
+                    if let ServoKind::Continuous { .. } = self.cfg.servo {
+                        self.push(Command::ServoOff { channel: 0 });
                     }
-                } else if s.t_s - ramp.t0 >= ramp.duration_s {
-                    self.push(Command::ServoOff { channel: 0 });
                     self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
                 }
             }
@@ -382,12 +381,9 @@ impl Procedure {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
-                let elapsed = s.t_s - rot.t0;
-                let duration = self.rotation_duration();
-                if let ServoKind::Positional = self.cfg.servo {
-                    let (from_deg, to_deg) = (self.cfg.pose_first_deg, self.cfg.pose_last_deg);
-                    self.drive_deg(Ramp { from_deg, to_deg, t0: rot.t0, duration_s: duration }.at(s.t_s).0);
-                }
+                let elapsed = s.t_s - rot.ramp.t0;
+                let duration = rot.ramp.duration_s;
+                self.set_angle(rot.ramp.at(s.t_s).0);
                 if elapsed > ROTATION_SKIP_START_S && elapsed < duration - ROTATION_SKIP_END_S {
                     rot.add(s.t_s, g, self.accel_cal.apply(s.accel_g));
                 }
@@ -424,21 +420,38 @@ impl Procedure {
     }
 
     fn park_servo(&mut self) {
-        match self.cfg.servo {
-            ServoKind::Positional => self.drive_deg(self.cfg.pose_first_deg),
-            ServoKind::Continuous { .. } => {
-                self.servo_deg = None;
-                self.push(Command::ServoOff { channel: 0 });
+        if let ServoKind::Continuous { .. } = self.cfg.servo {
+            self.push(Command::ServoOff { channel: 0 });
+        }
+        self.set_angle(self.cfg.pose_first_deg);
+    }
+
+    /// Sets the commanded angle (°): drives a positional servo; for a continuous servo it is
+    /// only the nominal angle (commanded speed × time) logged in the `servo_deg` column.
+    fn set_angle(&mut self, deg: f32) {
+        self.servo_deg = Some(deg);
+        if let ServoKind::Positional = self.cfg.servo {
+            let pulse = self.cfg.pulse_for_deg(deg);
+            if self.last_pulse != Some(pulse) {
+                self.last_pulse = Some(pulse);
+                self.push(Command::Servo { channel: 0, pulse_us: pulse });
             }
         }
     }
 
-    fn drive_deg(&mut self, deg: f32) {
-        let pulse = self.cfg.pulse_for_deg(deg);
-        self.servo_deg = Some(deg);
-        if self.last_pulse != Some(pulse) {
-            self.last_pulse = Some(pulse);
-            self.push(Command::Servo { channel: 0, pulse_us: pulse });
+    /// Starts a commanded turn from the current angle: a positional ramp to `to_deg` at
+    /// `rate_dps`, or a continuous servo at speed `dir` (±1) for `secs`.
+    fn start_ramp(&mut self, t_s: f64, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
+        let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
+        match self.cfg.servo {
+            ServoKind::Positional => {
+                Ramp { from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 }
+            }
+            ServoKind::Continuous { neutral_us, span_us, speed, nominal_rate_dps, .. } => {
+                let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
+                self.push(Command::Servo { channel: 0, pulse_us: pulse });
+                Ramp { from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs as f64 }
+            }
         }
     }
 
@@ -479,7 +492,7 @@ impl Procedure {
             Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
-            Step::Rotation { rot } => (rot.t0, self.rotation_duration() as f32 + c.rest_timeout_s),
+            Step::Rotation { rot } => (rot.ramp.t0, rot.ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Idle | Step::Finished(_) => return,
         };
         if t_s - since > limit as f64 {
@@ -577,29 +590,17 @@ impl Procedure {
         self.integ.add(s.t_s, self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps)));
         let next = k + 1;
         if next < self.cfg.rig_steps() {
-            let ramp = match self.cfg.servo {
-                ServoKind::Positional => {
-                    let (from_deg, to_deg) = (self.cfg.step_deg(k), self.cfg.step_deg(next));
-                    let rate = self.cfg.move_rate_dps.max(1.0);
-                    Ramp { from_deg, to_deg, t0: s.t_s, duration_s: ((to_deg - from_deg).abs() / rate) as f64 }
-                }
-                ServoKind::Continuous { neutral_us, span_us, speed, move_s, .. } => {
-                    // Forward over the first half of each round trip, back over the second.
-                    let forward = (k % (2 * (self.cfg.pose_count.max(2) as u16 - 1))) < self.cfg.pose_count as u16 - 1;
-                    let dir = if forward { 1.0 } else { -1.0 };
-                    let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
-                    self.push(Command::Servo { channel: 0, pulse_us: pulse });
-                    Ramp { from_deg: 0.0, to_deg: 0.0, t0: s.t_s, duration_s: move_s as f64 }
-                }
-            };
+            // Forward over the first half of each round trip, back over the second.
+            let forward = self.cfg.pose_slot(next) > self.cfg.pose_slot(k);
+            let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo { move_s } else { 0.0 };
+            let dir = if forward { 1.0 } else { -1.0 };
+            let ramp = self.start_ramp(s.t_s, self.cfg.step_deg(next), self.cfg.move_rate_dps, dir, move_s);
             self.step = Step::Move { k: next, ramp };
         } else if self.cfg.rotation_rate_dps > 0.0 {
-            if let ServoKind::Continuous { neutral_us, span_us, speed, .. } = self.cfg.servo {
-                let pulse = self.cfg.clamp_pulse(neutral_us as f32 + speed * span_us as f32);
-                self.push(Command::Servo { channel: 0, pulse_us: pulse });
-            }
+            let ramp =
+                self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
             let rot = Rotation {
-                t0: s.t_s,
+                ramp,
                 axis: self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u),
                 rate: Welford3::new(),
                 turn_deg: 0.0,
@@ -610,15 +611,6 @@ impl Procedure {
             self.enter(Step::Rotation { rot }, s.t_s);
         } else {
             self.solve(s.t_s);
-        }
-    }
-
-    fn rotation_duration(&self) -> f64 {
-        match self.cfg.servo {
-            ServoKind::Positional => {
-                ((self.cfg.pose_last_deg - self.cfg.pose_first_deg).abs() / self.cfg.rotation_rate_dps.max(1.0)) as f64
-            }
-            ServoKind::Continuous { .. } => self.cfg.rotation_s as f64,
         }
     }
 

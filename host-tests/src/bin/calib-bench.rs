@@ -1,0 +1,65 @@
+//! Benchmark of the offline `calib` path: simulated calibration logs (the procedure on random
+//! realistic rigs, servo angle-scale error U(−3, 3) %), written as CSV, parsed back and
+//! calibrated with the default method. Prints the scale-factor error per ODR and servo type;
+//! with `--json` the last line is a JSON summary.
+//!
+//! `cargo run --release -p host-tests --target host-tuple --bin calib-bench [--json] [--logs N]`
+
+use calib_core::procedure::{Config, Procedure, ServoKind};
+use host_tests::csvlog::{self, Row, HEADER};
+use host_tests::moments::Moments;
+use host_tests::offline;
+use host_tests::servo_protocol::Variant;
+use host_tests::session::{run, Faults};
+use host_tests::sim::{ContinuousServo, Rig, ServoModel};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde_json::json;
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let json_out = args.iter().any(|a| a == "--json");
+    let logs: usize = args.iter().position(|a| a == "--logs").and_then(|i| args.get(i + 1)?.parse().ok()).unwrap_or(10);
+    println!("calib-bench: {logs} simulated logs per row; error of diag(K) in % against the simulator's truth");
+    println!("{:<12}{:>6}{:>10}{:>10}{:>10}{:>8}", "servo", "ODR", "RMS", "max|e|", "mean", "failed");
+    let mut rows_json = vec![];
+    for (servo, odrs) in [("positional", &[119.0, 238.0, 476.0, 952.0][..]), ("continuous", &[119.0, 476.0][..])] {
+        for &odr in odrs {
+            let (mut errs, mut failed) = (vec![], vec![]);
+            for i in 0..logs {
+                let mut cfg = Variant::Hobby.config(77, i);
+                cfg.odr_hz = odr;
+                let mut pcfg = Config::default();
+                if servo == "continuous" {
+                    cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(i as u64)));
+                    pcfg.servo = ServoKind::Continuous {
+                        neutral_us: 1500,
+                        span_us: 500,
+                        speed: 0.2,
+                        nominal_rate_dps: 60.0,
+                        move_s: 1.0,
+                    };
+                }
+                let mut rig = Rig::new(cfg, i as u64 + 100);
+                let mut p = Procedure::new(pcfg, None);
+                let mut text = format!("{HEADER}\n");
+                run(&mut rig, &mut p, Faults::default(), 900.0, |s, deg| {
+                    let r = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: deg, tilt_deg: None };
+                    csvlog::format_row(&mut text, &r);
+                });
+                let k = rig.truth().gyro_k;
+                match csvlog::parse(&text).map_err(|e| e.to_string()).and_then(|r| offline::calibrate(&r, None).map_err(|e| e.to_string())) {
+                    Ok(c) => errs.extend((0..3).map(|a| (c.gyro.k[a][a] as f64 / k[(a, a)] - 1.0) * 100.0)),
+                    Err(e) => failed.push(e),
+                }
+            }
+            let m = Moments::of(&errs);
+            let max = errs.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            println!("{:<12}{:>6}{:>10.4}{:>10.4}{:>10.4}{:>8}", servo, odr, m.rms, max, m.mean, failed.len());
+            rows_json.push(json!({"servo": servo, "odr_hz": odr, "rms_pct": m.rms, "max_pct": max, "mean_pct": m.mean, "failed": failed}));
+        }
+    }
+    if json_out {
+        println!("{}", json!({"logs_per_row": logs, "rows": rows_json}));
+    }
+}

@@ -1,0 +1,111 @@
+//! `calib LOG.csv [--method paper|sweep]`: calibrates a recorded log with calib-core and prints
+//! one JSON object. `calib --simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous]`
+//! writes a log of a simulated calibration run (the firmware's procedure on the rig simulator).
+//!
+//! Exit codes: 0 success, 1 calibration failed, 2 usage or I/O error, 3 malformed log.
+
+use calib_core::gyro::Method;
+use calib_core::procedure::{Config, Procedure, ServoKind};
+use host_tests::csvlog::{self, Row, HEADER};
+use host_tests::offline;
+use host_tests::servo_protocol::Variant;
+use host_tests::session::{run, Faults};
+use host_tests::sim::{ContinuousServo, Rig, ServoModel};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::process::ExitCode;
+
+const USAGE: &str = "usage: calib LOG.csv [--method paper|sweep]\n       calib --simulate OUT.csv [--seed N] [--odr 119|238|476|952] [--servo positional|continuous]";
+
+fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
+    eprintln!("calib: {msg}");
+    ExitCode::from(code)
+}
+
+fn simulate(path: &str, seed: u64, odr: f64, continuous: bool) -> ExitCode {
+    let mut cfg = Variant::Hobby.config(seed, 0);
+    cfg.odr_hz = odr;
+    let mut pcfg = Config::default();
+    if continuous {
+        cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed)));
+        pcfg.servo = ServoKind::Continuous { neutral_us: 1500, span_us: 500, speed: 0.2, nominal_rate_dps: 60.0, move_s: 1.0 };
+    }
+    let mut rig = Rig::new(cfg, seed);
+    let mut p = Procedure::new(pcfg, None);
+    let mut out = format!("# simulated by calib --simulate, seed {seed}, ODR {odr} Hz\n{HEADER}\n");
+    let outcome = run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo| {
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
+        csvlog::format_row(&mut out, &row);
+    });
+    let k = rig.truth().gyro_k;
+    out.push_str(&format!("# true K diagonal: {:.6} {:.6} {:.6}\n", k[(0, 0)], k[(1, 1)], k[(2, 2)]));
+    if let Err(e) = std::fs::write(path, out) {
+        return fail(2, format!("{path}: {e}"));
+    }
+    match outcome.error {
+        None => {
+            eprintln!(
+                "calib: wrote {path}: {} samples, {:.0} s; true K diagonal {:.6} {:.6} {:.6}",
+                outcome.samples, outcome.end_s, k[(0, 0)], k[(1, 1)], k[(2, 2)]
+            );
+            ExitCode::SUCCESS
+        }
+        Some(e) => fail(1, format!("the simulated run failed: {e}")),
+    }
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (mut log, mut method, mut sim, mut seed, mut odr, mut continuous) = (None, None, None, 1u64, 119.0, false);
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = |name: &str| it.next().cloned().ok_or(format!("{name} needs a value"));
+        let r: Result<(), String> = (|| {
+            match a.as_str() {
+                "--method" => {
+                    method = Some(match value("--method")?.as_str() {
+                        "paper" => Method::Paper,
+                        "sweep" => Method::Sweep,
+                        m => return Err(format!("unknown method {m:?} (paper or sweep)")),
+                    })
+                }
+                "--simulate" => sim = Some(value("--simulate")?),
+                "--seed" => seed = value("--seed")?.parse().map_err(|_| "--seed needs an integer")?,
+                "--odr" => odr = value("--odr")?.parse().map_err(|_| "--odr needs a number")?,
+                "--servo" => {
+                    continuous = match value("--servo")?.as_str() {
+                        "positional" => false,
+                        "continuous" => true,
+                        s => return Err(format!("unknown servo {s:?} (positional or continuous)")),
+                    }
+                }
+                "-h" | "--help" => return Err(USAGE.into()),
+                s if s.starts_with("--") => return Err(format!("unknown option {s}\n{USAGE}")),
+                s => log = Some(s.to_string()),
+            }
+            Ok(())
+        })();
+        if let Err(e) = r {
+            return fail(2, e);
+        }
+    }
+    if let Some(path) = sim {
+        return simulate(&path, seed, odr, continuous);
+    }
+    let Some(path) = log else { return fail(2, USAGE) };
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) => return fail(2, format!("{path}: {e}")),
+    };
+    let rows = match csvlog::parse(&text) {
+        Ok(r) => r,
+        Err(e) => return fail(3, format!("{path}: {e}")),
+    };
+    match offline::calibrate(&rows, method) {
+        Ok(c) => {
+            println!("{}", c.json());
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(1, format!("{path}: {e}")),
+    }
+}

@@ -1,0 +1,422 @@
+//! Offline calibration of a recorded log with the same calib-core code as the firmware.
+//!
+//! The phases are found from the data: still windows (calib-core's rest detector, with
+//! thresholds raised to the log's own noise floor) grouped into still segments; a still segment
+//! with an empty servo column is a hand-held accelerometer pose, one with a servo value a rig
+//! pose; the motion between two consecutive rig poses is a move; a long run of windows with a
+//! steady gyro rate is the paper's constant-rate rotation.
+
+use crate::csvlog::Row;
+use calib_core::accel::{AccelCal, AccelCalibrator};
+use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
+use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
+use calib_core::gyro::{GyroCal, Method};
+use calib_core::rest::{RestConfig, RestDetector, RestState};
+use calib_core::stats::{Spread, Welford3};
+use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
+use calib_core::{paper, sweep, Error};
+use nalgebra::Vector3;
+use serde_json::{json, Value};
+
+/// A still segment: consecutive still windows.
+#[derive(Debug, Clone, Copy)]
+pub struct Segment {
+    /// First row index.
+    pub first: usize,
+    /// Last row index (inclusive).
+    pub last: usize,
+    /// Accelerometer statistics (raw g).
+    pub accel: Welford3,
+    /// Gyro statistics (raw °/s).
+    pub gyro: Welford3,
+    /// Commanded servo angle (°), `None` for a hand-held pose.
+    pub servo_deg: Option<f32>,
+}
+
+/// A steady-rate run: the paper's rotation.
+#[derive(Debug, Clone, Copy)]
+pub struct Rotation {
+    /// First and last row index (inclusive) of the averaged part.
+    pub rows: (usize, usize),
+    /// Mean raw gyro over it (°/s).
+    pub gyro: Welford3,
+}
+
+/// Why a log could not be calibrated.
+#[derive(Debug, Clone, PartialEq)]
+pub enum OfflineError {
+    /// A calib-core step failed; `stage` names it.
+    Calib { stage: &'static str, error: Error },
+    /// The log has no still period to measure the gyro bias.
+    NoRest,
+    /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.
+    NoRotation,
+}
+
+impl std::fmt::Display for OfflineError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OfflineError::Calib { stage, error } => write!(f, "{stage}: {error}"),
+            OfflineError::NoRest => f.write_str("no still period in the log: cannot measure the gyro bias"),
+            OfflineError::NoRotation => {
+                f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run")
+            }
+        }
+    }
+}
+
+fn stage(stage: &'static str) -> impl Fn(Error) -> OfflineError {
+    move |error| OfflineError::Calib { stage, error }
+}
+
+/// The phases found in a log.
+#[derive(Debug, Clone)]
+pub struct Phases {
+    /// Thresholds used (raised to the log's noise floor).
+    pub rest: RestConfig,
+    /// Still segments in time order.
+    pub segments: Vec<Segment>,
+}
+
+/// Shortest still segment used as a pose (s).
+const MIN_SEGMENT_S: f64 = 0.5;
+/// Shortest steady-rate run used as the paper's rotation (s).
+const MIN_ROTATION_S: f64 = 3.0;
+/// Smallest mean rate of a steady-rate run (°/s).
+const MIN_ROTATION_DPS: f64 = 2.0;
+
+fn window_len(rows: &[Row], window_s: f64) -> Vec<(usize, usize)> {
+    let mut out = vec![];
+    let mut start = 0;
+    for i in 0..rows.len() {
+        if rows[i].t_s - rows[start].t_s >= window_s {
+            out.push((start, i));
+            start = i + 1;
+            if start >= rows.len() {
+                break;
+            }
+        }
+    }
+    out
+}
+
+fn stats(rows: &[Row]) -> (Welford3, Welford3) {
+    let (mut a, mut g) = (Welford3::new(), Welford3::new());
+    for r in rows {
+        a.add(r.accel_g);
+        g.add(r.gyro_dps);
+    }
+    (a, g)
+}
+
+fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p) as usize]
+}
+
+/// Finds still segments and the steady-rate rotation.
+pub fn phases(rows: &[Row]) -> Phases {
+    let defaults = RestConfig::default();
+    // Noise floor: the 10th percentile of the per-window standard deviations.
+    let windows = window_len(rows, defaults.window_s as f64);
+    let (mut sa, mut sg) = (vec![], vec![]);
+    for &(a, b) in &windows {
+        let (wa, wg) = stats(&rows[a..=b]);
+        sa.push(wa.max_std());
+        sg.push(wg.max_std());
+    }
+    let (fa, fg) = (percentile(sa, 0.1), percentile(sg, 0.1));
+    let accel_std_max_g = defaults.accel_std_max_g.max((3.0 * fa) as f32);
+    let rest = RestConfig {
+        accel_std_max_g,
+        gyro_std_max_dps: defaults.gyro_std_max_dps.max((3.0 * fg) as f32),
+        accel_drift_max_g: defaults.accel_drift_max_g.max(0.7 * accel_std_max_g),
+        ..defaults
+    };
+
+    let mut det = RestDetector::new(rest);
+    let mut segments: Vec<Segment> = vec![];
+    let mut open: Option<Segment> = None;
+    let mut start = 0;
+    for (i, r) in rows.iter().enumerate() {
+        let Some(w) = det.update(r.t_s, r.accel_g, r.gyro_dps) else { continue };
+        let span = &rows[start..=i];
+        start = i + 1;
+        let servo = servo_of(span);
+        let still = w.still && w.state == RestState::Still && servo.is_some();
+        let servo = servo.flatten();
+        match (&mut open, still) {
+            (Some(seg), true) if seg.servo_deg.is_some() == servo.is_some()
+                && seg.servo_deg.zip(servo).is_none_or(|(a, b)| (a - b).abs() < 0.5) =>
+            {
+                seg.accel.merge(&w.accel);
+                seg.gyro.merge(&w.gyro);
+                seg.last = i;
+            }
+            (_, true) => {
+                close(&mut open, &mut segments, rows);
+                open = Some(Segment { first: i + 1 - span.len(), last: i, accel: w.accel, gyro: w.gyro, servo_deg: servo });
+            }
+            (_, false) => close(&mut open, &mut segments, rows),
+        }
+    }
+    close(&mut open, &mut segments, rows);
+    Phases { rest, segments }
+}
+
+/// The servo value of a window: `Some(None)` all empty, `Some(Some(mean))` all set and within
+/// 0.5°, `None` mixed or moving.
+fn servo_of(rows: &[Row]) -> Option<Option<f32>> {
+    let set: Vec<f32> = rows.iter().filter_map(|r| r.servo_deg).collect();
+    if set.is_empty() {
+        return Some(None);
+    }
+    if set.len() != rows.len() {
+        return None;
+    }
+    let (lo, hi) = set.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), v| (l.min(*v), h.max(*v)));
+    (hi - lo < 0.5).then(|| Some(set.iter().sum::<f32>() / set.len() as f32))
+}
+
+fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) {
+    if let Some(seg) = open.take() {
+        if rows[seg.last].t_s - rows[seg.first].t_s >= MIN_SEGMENT_S {
+            segments.push(seg);
+        }
+    }
+}
+
+/// The longest run of windows whose mean bias-free gyro vector stays within 3 % of the run's
+/// first, above `MIN_ROTATION_DPS`, lasting `MIN_ROTATION_S`; its first and last windows are dropped.
+pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<Rotation> {
+    let windows = window_len(rows, RestConfig::default().window_s as f64);
+    let b = v64(bias_dps);
+    let means: Vec<Vector3<f64>> =
+        windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
+    let mut best: Option<(usize, usize)> = None;
+    let mut i = 0;
+    while i < means.len() {
+        let m0 = means[i];
+        let mut j = i;
+        if m0.norm() > MIN_ROTATION_DPS {
+            while j + 1 < means.len() && (means[j + 1] - m0).norm() <= 0.03 * m0.norm() {
+                j += 1;
+            }
+        }
+        let dur = rows[windows[j].1].t_s - rows[windows[i].0].t_s;
+        if j >= i + 3 && dur >= MIN_ROTATION_S && best.is_none_or(|(a, b)| j - i > b - a) {
+            best = Some((i, j));
+        }
+        i = j + 1;
+    }
+    best.map(|(i, j)| {
+        let rows_range = (windows[i + 1].0, windows[j - 1].1);
+        Rotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 }
+    })
+}
+
+/// Everything the offline calibration found.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// The chosen gyro result.
+    pub gyro: GyroCal,
+    /// Gyro bias.
+    pub bias: Bias,
+    /// Accelerometer calibration (identity when the log has fewer than 6 hand-held poses).
+    pub accel: AccelCal,
+    /// Sweep estimator outcome.
+    pub sweep: Result<GyroCal, Error>,
+    /// Paper estimator outcome (`None` without a steady rotation).
+    pub paper: Option<Result<GyroCal, Error>>,
+    /// The speed the paper estimator used (°/s) and where it came from.
+    pub rotation_rate: Option<(f32, &'static str)>,
+    /// The phases.
+    pub phases: Phases,
+    /// Rig poses and moves used.
+    pub rig_poses: usize,
+    /// Moves used.
+    pub moves: usize,
+    /// Hand-held poses used.
+    pub handheld_poses: usize,
+}
+
+/// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
+pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, OfflineError> {
+    let ph = phases(rows);
+    if ph.segments.is_empty() {
+        return Err(OfflineError::NoRest);
+    }
+    // Bias: every still segment pooled.
+    let mut b = BiasEstimator::new();
+    for s in &ph.segments {
+        b.add_window(&s.gyro, &s.accel);
+    }
+    let limits = BiasLimits {
+        min_samples: 20,
+        max_std_dps: ph.rest.gyro_std_max_dps,
+        max_accel_std_g: f32::INFINITY,
+        ..BiasLimits::default()
+    };
+    let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
+
+    // Accelerometer from the hand-held poses.
+    let mut acc = AccelCalibrator::new();
+    for s in ph.segments.iter().filter(|s| s.servo_deg.is_none()) {
+        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
+            break;
+        }
+    }
+    let accel = match acc.len() {
+        n if n >= 9 => acc.solve9().or_else(|_| acc.solve6()).map_err(stage("accelerometer"))?,
+        n if n >= 6 => acc.solve6().map_err(stage("accelerometer"))?,
+        _ => AccelCal::IDENTITY,
+    };
+
+    // Rig poses and the moves between consecutive ones.
+    let mut poses = Poses::new();
+    let mut moves = Moves::new();
+    let mut prev: Option<(u8, usize)> = None;
+    for s in &ph.segments {
+        let Some(_) = s.servo_deg else {
+            prev = None;
+            continue;
+        };
+        if poses.len() == MAX_POSES {
+            break;
+        }
+        let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
+        if let Some((from, end)) = prev {
+            if moves.len() < MAX_MOVES {
+                let mut it = Integrator::new();
+                for r in &rows[end..=s.last] {
+                    it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
+                }
+                moves.push(from, idx, it.gamma()).map_err(stage("moves"))?;
+            }
+        }
+        prev = Some((idx, s.last));
+    }
+    let lim = GeometryLimits::default();
+    let sweep = sweep::solve(&poses, &moves, &lim);
+
+    // The paper's estimator on the steady rotation, at the commanded rate when the servo column
+    // ramps linearly, else at the rate gravity turns about the axis.
+    let (mut paper, mut rotation_rate) = (None, None);
+    if let Some(rot) = steady_rotation(rows, bias.bias_dps) {
+        let span = &rows[rot.rows.0..=rot.rows.1];
+        let rate = servo_rate(span).map(|w| (w, "servo column")).or_else(|| {
+            let u = poses.geometry(&lim, false).ok()?.u;
+            let mut turn = 0.0;
+            for w in span.windows(2) {
+                let (a, b) = (accel.apply(w[0].accel_g), accel.apply(w[1].accel_g));
+                turn += turn_deg(&u, &v64(a), &v64(b));
+            }
+            let dt = span.last()?.t_s - span.first()?.t_s;
+            Some(((turn.abs() / dt) as f32, "accelerometer"))
+        });
+        if let Some((w, source)) = rate {
+            let gbar = sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps);
+            paper = Some(paper::solve(&poses, gbar, w, &lim));
+            rotation_rate = Some((w, source));
+        }
+    }
+    let chosen = match method {
+        Some(Method::Sweep) => sweep.map_err(stage("sweep estimator"))?,
+        Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation)?.map_err(stage("paper estimator"))?,
+        None => match (sweep, paper) {
+            (Ok(c), _) | (Err(_), Some(Ok(c))) => c,
+            (Err(e), _) => return Err(OfflineError::Calib { stage: "sweep estimator", error: e }),
+        },
+    };
+    Ok(Calibration {
+        gyro: chosen,
+        bias,
+        accel,
+        sweep,
+        paper,
+        rotation_rate,
+        rig_poses: poses.len(),
+        moves: moves.len(),
+        handheld_poses: acc.len(),
+        phases: ph,
+    })
+}
+
+/// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS).
+fn servo_rate(rows: &[Row]) -> Option<f32> {
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| r.servo_deg.map(|s| (r.t_s, s as f64))).collect::<Option<_>>()?;
+    let n = pts.len() as f64;
+    if n < 3.0 {
+        return None;
+    }
+    let (mt, ms) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let stt: f64 = pts.iter().map(|p| (p.0 - mt).powi(2)).sum();
+    let slope = pts.iter().map(|p| (p.0 - mt) * (p.1 - ms)).sum::<f64>() / stt;
+    let rms = (pts.iter().map(|p| (p.1 - ms - slope * (p.0 - mt)).powi(2)).sum::<f64>() / n).sqrt();
+    (rms < 0.5 && slope.abs() > MIN_ROTATION_DPS).then_some(slope.abs() as f32)
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn v64(a: [f32; 3]) -> Vector3<f64> {
+    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
+}
+
+fn spread(s: &Spread) -> Value {
+    json!({"mean": s.mean, "std": s.std, "range": s.range, "relative_std": s.relative_std()})
+}
+
+fn gyro_json(c: &GyroCal) -> Value {
+    let q = &c.quality;
+    json!({
+        "method": c.method.name(), "K_diag": [c.k[0][0], c.k[1][1], c.k[2][2]], "sigma_k": q.sigma_k,
+        "condition": q.condition, "residual_rms": q.residual_rms,
+        "invariant_before": spread(&q.invariant_before), "invariant_after": spread(&q.invariant_after),
+        "axis": q.axis, "tilt_deg": q.tilt_deg, "span_deg": q.span_deg, "min_axis_component": q.min_axis_component,
+        "plane_rms_g": q.plane_rms_g, "poses": q.poses, "rows": q.rows,
+    })
+}
+
+fn outcome_json(r: &Result<GyroCal, Error>) -> Value {
+    match r {
+        Ok(c) => gyro_json(c),
+        Err(e) => json!({"error": e.to_string()}),
+    }
+}
+
+impl Calibration {
+    /// The tool's JSON object: `{"gyro":{"K","bias_dps","method"},"accel":{"M","offset_g"},"quality":{…}}`.
+    pub fn json(&self) -> Value {
+        let a = &self.accel;
+        let model = match a.model {
+            calib_core::accel::AccelModel::None => "none",
+            calib_core::accel::AccelModel::SixParam => "six_param",
+            calib_core::accel::AccelModel::NineParam => "nine_param",
+        };
+        json!({
+            "gyro": {"K": self.gyro.k, "bias_dps": self.bias.bias_dps, "method": self.gyro.method.name()},
+            "accel": {"M": a.m, "offset_g": a.offset_g},
+            "quality": {
+                "gyro": gyro_json(&self.gyro),
+                "bias": {"sigma_dps": self.bias.sigma_dps, "noise_dps": self.bias.noise_dps, "samples": self.bias.samples},
+                "accel": {"model": model, "poses": self.handheld_poses, "rms_before_g": a.rms_before_g,
+                          "rms_after_g": a.rms_after_g, "sigma_offset_g": a.sigma_offset_g, "sigma_gain": a.sigma_gain},
+                "estimators": {
+                    "sweep": outcome_json(&self.sweep),
+                    "paper": self.paper.as_ref().map_or(json!({"error": "no constant-rate rotation in the log"}), outcome_json),
+                },
+                "rotation_rate_dps": self.rotation_rate.map(|r| r.0),
+                "rotation_rate_source": self.rotation_rate.map(|r| r.1),
+                "segments": {"still": self.phases.segments.len(), "handheld_poses": self.handheld_poses,
+                             "rig_poses": self.rig_poses, "moves": self.moves},
+                "rest_thresholds": {"accel_std_g": self.phases.rest.accel_std_max_g,
+                                    "gyro_std_dps": self.phases.rest.gyro_std_max_dps},
+            }
+        })
+    }
+}

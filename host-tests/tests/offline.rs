@@ -1,0 +1,133 @@
+//! The offline `calib` tool: logs written from simulated runs, calibrated back; bad logs named.
+
+use calib_core::gyro::Method;
+use calib_core::procedure::{Config, Procedure};
+use host_tests::csvlog::{self, Row, HEADER};
+use host_tests::offline::{self, OfflineError};
+use host_tests::servo_protocol::Variant;
+use host_tests::session::{run, Faults};
+use host_tests::sim::{Rig, RigConfig, ServoModel};
+use std::process::Command;
+
+/// Runs the procedure on `cfg` and returns the log text and the true K diagonal.
+fn simulated_log(cfg: RigConfig) -> (String, [f64; 3]) {
+    let mut rig = Rig::new(cfg, 3);
+    let mut p = Procedure::new(Config::default(), None);
+    let mut text = format!("# test log\n{HEADER}\n");
+    run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo| {
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
+        csvlog::format_row(&mut text, &row);
+    });
+    let k = rig.truth().gyro_k;
+    (text, [k[(0, 0)], k[(1, 1)], k[(2, 2)]])
+}
+
+fn errors(k: [[f32; 3]; 3], truth: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| k[i][i] as f64 / truth[i] - 1.0)
+}
+
+#[test]
+fn default_method_is_speed_free_and_accurate_despite_servo_scale_error() {
+    for (run_idx, scale) in [(0usize, 0.03), (1, -0.03)] {
+        let mut cfg = Variant::Hobby.config(21, run_idx);
+        if let ServoModel::Positional(p) = &mut cfg.servo {
+            p.scale_error = scale;
+        }
+        let (log, truth) = simulated_log(cfg);
+        let rows = csvlog::parse(&log).unwrap();
+        let c = offline::calibrate(&rows, None).unwrap();
+        assert_eq!(c.gyro.method, Method::Sweep);
+        let e = errors(c.gyro.k, truth);
+        assert!(e.iter().all(|x| x.abs() < 0.003), "servo scale {scale}: errors {e:?}");
+        // The paper estimator, run on the same log at the commanded speed, inherits the servo error.
+        let paper = offline::calibrate(&rows, Some(Method::Paper)).unwrap();
+        let ep = errors(paper.gyro.k, truth);
+        let mean = ep.iter().sum::<f64>() / 3.0;
+        assert!((mean - (1.0 / (1.0 + scale) - 1.0)).abs() < 0.006, "paper errors {ep:?}");
+        assert!(c.accel.rms_after_g < c.accel.rms_before_g / 10.0);
+    }
+}
+
+#[test]
+fn logs_without_the_paper_rotation_still_calibrate_and_paper_is_refused() {
+    let (log, truth) = simulated_log(Variant::Hobby.config(22, 0));
+    // Cut the log before the paper's rotation (the last servo ramp): keep up to the last rig pose.
+    let rows = csvlog::parse(&log).unwrap();
+    let cut = rows.len() - rows.iter().rev().position(|r| r.servo_deg.is_some_and(|s| s > 1.0 && s < 179.0)).unwrap();
+    let rows: Vec<Row> = rows[..cut.saturating_sub(1500)].to_vec();
+    let c = offline::calibrate(&rows, None).unwrap();
+    assert!(errors(c.gyro.k, truth).iter().all(|x| x.abs() < 0.003));
+    assert_eq!(offline::calibrate(&rows, Some(Method::Paper)).unwrap_err(), OfflineError::NoRotation);
+}
+
+#[test]
+fn degenerate_logs_are_named_errors() {
+    // Only a rest: no rig poses.
+    let mut text = format!("{HEADER}\n");
+    for i in 0..500 {
+        let r = Row { t_s: i as f64 / 119.0, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.5, -0.2, 0.1], servo_deg: Some(0.0), tilt_deg: None };
+        csvlog::format_row(&mut text, &r);
+    }
+    let rows = csvlog::parse(&text).unwrap();
+    let e = offline::calibrate(&rows, None).unwrap_err();
+    assert!(matches!(e, OfflineError::Calib { error: calib_core::Error::TooFewPoses { .. }, .. }), "{e}");
+    // A vertical shaft: every rig pose sees the same gravity.
+    let mut cfg = Variant::Hobby.config(23, 0);
+    let axis = cfg.axis_b();
+    cfg.shaft_tilt_deg = 2.0;
+    let (log, _) = simulated_log(cfg.with_axis(axis, 0.0));
+    let e = offline::calibrate(&csvlog::parse(&log).unwrap(), None).unwrap_err();
+    assert!(matches!(e, OfflineError::Calib { error: calib_core::Error::AxisNearVertical { .. }, .. }), "{e}");
+}
+
+fn calib(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_calib")).args(args).output().unwrap();
+    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+#[test]
+fn cli_simulate_then_calibrate_prints_one_json_object() {
+    let dir = std::env::temp_dir().join(format!("calib-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("sim.csv");
+    let log = log.to_str().unwrap();
+    let (code, _, err) = calib(&["--simulate", log, "--seed", "5"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = calib(&[log]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(out.trim().lines().count(), 1);
+    assert_eq!(v["gyro"]["method"], "sweep");
+    assert_eq!(v["gyro"]["K"].as_array().unwrap().len(), 3);
+    assert_eq!(v["gyro"]["bias_dps"].as_array().unwrap().len(), 3);
+    assert_eq!(v["accel"]["M"][2].as_array().unwrap().len(), 3);
+    assert!(v["quality"]["gyro"]["sigma_k"].is_array());
+    let (code, out, _) = calib(&[log, "--method", "paper"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("\"method\":\"paper\""));
+
+    // Bad input: each with a clear message and its exit code, never a panic.
+    let bad = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        calib(&[p.to_str().unwrap()])
+    };
+    let (code, _, err) = bad("missing.csv", "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps\n0,0,0,1,0,0,0\n");
+    assert_eq!(code, 3);
+    assert!(err.contains("missing column \"servo_deg\""), "{err}");
+    let (code, _, err) = bad("time.csv", &format!("{HEADER}\n1,0,0,1,0,0,0,\n0.5,0,0,1,0,0,0,\n"));
+    assert_eq!(code, 3);
+    assert!(err.contains("line 3") && err.contains("does not increase"), "{err}");
+    let (code, _, err) = bad("nan.csv", &format!("{HEADER}\n0,0,nan,1,0,0,0,\n"));
+    assert_eq!(code, 3);
+    assert!(err.contains("NaN"), "{err}");
+    let (code, _, err) = bad("short.csv", &format!("{HEADER}\n0,0,0,1,0,0,0,0\n0.01,0,0,1,0,0,0,0\n"));
+    assert_eq!(code, 1);
+    assert!(err.contains("no still period") || err.contains("too few"), "{err}");
+    let (code, _, _) = calib(&[dir.join("nope.csv").to_str().unwrap()]);
+    assert_eq!(code, 2);
+    let (code, _, _) = calib(&[log, "--method", "magic"]);
+    assert_eq!(code, 2);
+    assert!(!err.contains("panicked"));
+    std::fs::remove_dir_all(&dir).ok();
+}
