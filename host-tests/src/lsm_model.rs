@@ -1,0 +1,300 @@
+//! A register-level model of the LSM9DS1 accelerometer/gyroscope behind the embedded-hal 1.0
+//! `I2c` trait, fed by the rig simulator: what the firmware's driver talks to on the host.
+//!
+//! Modelled from the datasheet (ST DocID025715): WHO_AM_I 0x68 at address 0x6B; register
+//! auto-increment (IF_ADD_INC, CTRL_REG8 bit 2); software reset (CTRL_REG8 bit 0) back to the
+//! defaults; ODR and ranges from CTRL_REG1_G / CTRL_REG6_XL; a 32-slot FIFO (CTRL_REG9 FIFO_EN,
+//! FIFO_CTRL mode) of gyro + accelerometer slots, popped once the gyro registers and then the
+//! accelerometer registers (OUT_Z_H_XL, 0x2D) have been read; FIFO_SRC with the unread count
+//! (FSS), overrun (OVRN, cleared by the next read of a slot) and threshold flags; in continuous
+//! mode a full FIFO drops its oldest slot; the temperature output (16 LSB/°C, 0 at 25 °C).
+//! Samples enter the FIFO at the rig's actual ODR (its error included), in true time.
+
+use crate::sim::Rig;
+use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
+use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, BMI270_CHIP_ID, FIFO_DEPTH, WHO_AM_I_AG};
+use std::collections::VecDeque;
+
+/// A bus failure of the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BusError(pub ErrorKind);
+
+impl embedded_hal::i2c::Error for BusError {
+    fn kind(&self) -> ErrorKind {
+        self.0
+    }
+}
+
+/// What answers on the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Board {
+    /// Nano 33 BLE Rev1: LSM9DS1.
+    Rev1,
+    /// Nano 33 BLE Rev2: BMI270 at 0x68, nothing at 0x6B.
+    Rev2,
+    /// No sensor (unpowered or not fitted).
+    Missing,
+    /// A chip at 0x6B with this WHO_AM_I.
+    OtherChip(u8),
+}
+
+/// A produced sample waiting for its time: true time, FIFO slot, temperature, rig readings.
+type Pending = (f64, Slot, f32, [f32; 3], [f32; 3]);
+
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    gyro: [u8; 6],
+    accel: [u8; 6],
+}
+
+/// The model.
+pub struct Lsm9ds1Model {
+    rig: Rig,
+    board: Board,
+    regs: [u8; 0x80],
+    fifo: VecDeque<Slot>,
+    overrun: bool,
+    /// Bytes of the current slot read (gyro 0..6, accel 6..12).
+    slot_read: u8,
+    now_s: f64,
+    pending: Option<Pending>,
+    /// Every transaction from this count on is NACKed (bus fault injection).
+    pub nack_from: Option<usize>,
+    transactions: usize,
+    produced: usize,
+    dropped: usize,
+    history: Vec<([f32; 3], [f32; 3])>,
+}
+
+const DEFAULT_CTRL_REG8: u8 = 0x04;
+
+impl Lsm9ds1Model {
+    /// A model on `board`, sampling `rig` (whose sensor ranges should match what the firmware
+    /// configures: the counts are the rig's values divided by the configured sensitivity).
+    pub fn new(rig: Rig, board: Board) -> Self {
+        let mut m = Self {
+            rig,
+            board,
+            regs: [0; 0x80],
+            fifo: VecDeque::new(),
+            overrun: false,
+            slot_read: 0,
+            now_s: 0.0,
+            pending: None,
+            nack_from: None,
+            transactions: 0,
+            produced: 0,
+            dropped: 0,
+            history: Vec::new(),
+        };
+        m.reset_registers();
+        m
+    }
+
+    fn reset_registers(&mut self) {
+        self.regs = [0; 0x80];
+        self.regs[reg::WHO_AM_I as usize] = match self.board {
+            Board::OtherChip(id) => id,
+            _ => WHO_AM_I_AG,
+        };
+        self.regs[reg::CTRL_REG8 as usize] = DEFAULT_CTRL_REG8;
+        self.fifo.clear();
+        self.overrun = false;
+        self.slot_read = 0;
+    }
+
+    /// A register value.
+    pub fn reg(&self, r: u8) -> u8 {
+        self.regs[r as usize & 0x7F]
+    }
+
+    /// The rig.
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
+    /// The rig, to command the servo.
+    pub fn rig_mut(&mut self) -> &mut Rig {
+        &mut self.rig
+    }
+
+    /// Samples the sensor produced since configuration, and how many were lost to overrun.
+    pub fn counts(&self) -> (usize, usize) {
+        (self.produced, self.dropped)
+    }
+
+    /// The rig readings (accel g, gyro °/s) of every sample produced, in order.
+    pub fn history(&self) -> &[([f32; 3], [f32; 3])] {
+        &self.history
+    }
+
+    /// True time (s).
+    pub fn now_s(&self) -> f64 {
+        self.now_s
+    }
+
+    fn running(&self) -> bool {
+        self.reg(reg::CTRL_REG1_G) >> 5 != 0
+    }
+
+    fn gyro_lsb_dps(&self) -> f64 {
+        match (self.reg(reg::CTRL_REG1_G) >> 3) & 3 {
+            0 => 0.00875,
+            1 => 0.0175,
+            _ => 0.070,
+        }
+    }
+
+    fn accel_lsb_g(&self) -> f64 {
+        match (self.reg(reg::CTRL_REG6_XL) >> 3) & 3 {
+            0 => 0.000061,
+            1 => 0.000732,
+            2 => 0.000122,
+            _ => 0.000244,
+        }
+    }
+
+    fn counts_le(v: [f32; 3], lsb: f64) -> [u8; 6] {
+        let mut out = [0u8; 6];
+        for (k, x) in v.iter().enumerate() {
+            let c = (*x as f64 / lsb).round().clamp(i16::MIN as f64, i16::MAX as f64) as i16;
+            out[2 * k..2 * k + 2].copy_from_slice(&c.to_le_bytes());
+        }
+        out
+    }
+
+    /// Advances true time to `t_s`: every sample the rig produces by then enters the FIFO (or the
+    /// output registers when the FIFO is off).
+    pub fn advance_to(&mut self, t_s: f64) {
+        loop {
+            let (t, slot, temp, accel, gyro) = match self.pending {
+                Some(p) => p,
+                None => {
+                    let s = self.rig.next_sample();
+                    let slot = Slot {
+                        gyro: Self::counts_le(s.gyro_dps, self.gyro_lsb_dps()),
+                        accel: Self::counts_le(s.accel_g, self.accel_lsb_g()),
+                    };
+                    let p = (self.rig.truth().t_s, slot, s.temp_c, s.accel_g, s.gyro_dps);
+                    self.pending = Some(p);
+                    p
+                }
+            };
+            if t > t_s {
+                break;
+            }
+            self.pending = None;
+            if !self.running() {
+                continue;
+            }
+            self.produced += 1;
+            self.history.push((accel, gyro));
+            let t16 = (((temp - 25.0) * 16.0).round() as i16).to_le_bytes();
+            self.regs[reg::OUT_TEMP_L as usize..reg::OUT_TEMP_L as usize + 2].copy_from_slice(&t16);
+            let fifo_on = self.reg(reg::CTRL_REG9) & 0x02 != 0 && self.reg(reg::FIFO_CTRL) >> 5 != 0;
+            if fifo_on {
+                if self.fifo.len() == FIFO_DEPTH as usize {
+                    self.fifo.pop_front();
+                    self.overrun = true;
+                    self.dropped += 1;
+                }
+                self.fifo.push_back(slot);
+            } else {
+                self.fifo.clear();
+                self.fifo.push_back(slot);
+            }
+        }
+        self.now_s = self.now_s.max(t_s);
+    }
+
+    fn read_byte(&mut self, r: u8) -> u8 {
+        let r = r & 0x7F;
+        match r {
+            0x18..=0x1D | 0x28..=0x2D => {
+                let head = self.fifo.front().copied();
+                let v = match (head, r) {
+                    (Some(s), 0x18..=0x1D) => s.gyro[(r - 0x18) as usize],
+                    (Some(s), _) => s.accel[(r - 0x28) as usize],
+                    (None, _) => self.regs[r as usize],
+                };
+                self.regs[r as usize] = v;
+                if r == 0x2D && head.is_some() {
+                    self.fifo.pop_front();
+                    self.overrun = false;
+                }
+                v
+            }
+            reg::FIFO_SRC => {
+                let fss = self.fifo.len() as u8;
+                let fth = self.reg(reg::FIFO_CTRL) & 0x1F;
+                fss | (u8::from(self.overrun) << 6) | (u8::from(fth > 0 && fss >= fth) << 7)
+            }
+            reg::STATUS_REG => u8::from(!self.fifo.is_empty()) * 0x03,
+            _ => self.regs[r as usize],
+        }
+    }
+
+    fn write_byte(&mut self, r: u8, v: u8) {
+        let r = r & 0x7F;
+        if r == reg::CTRL_REG8 && v & 0x01 != 0 {
+            self.reset_registers();
+            return;
+        }
+        if matches!(r, reg::WHO_AM_I | reg::FIFO_SRC | reg::STATUS_REG) {
+            return; // read-only
+        }
+        self.regs[r as usize] = v;
+    }
+}
+
+impl ErrorType for Lsm9ds1Model {
+    type Error = BusError;
+}
+
+impl I2c for Lsm9ds1Model {
+    fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), BusError> {
+        self.transactions += 1;
+        let present = match self.board {
+            Board::Rev1 | Board::OtherChip(_) => address == ADDR_AG,
+            Board::Rev2 => address == ADDR_BMI270,
+            Board::Missing => false,
+        };
+        if !present || self.nack_from.is_some_and(|n| self.transactions > n) {
+            return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
+        }
+        if self.board == Board::Rev2 {
+            for op in operations.iter_mut() {
+                if let Operation::Read(buf) = op {
+                    buf.fill(0);
+                    buf[0] = BMI270_CHIP_ID;
+                }
+            }
+            return Ok(());
+        }
+        let mut ptr: Option<u8> = None;
+        let inc = self.reg(reg::CTRL_REG8) & 0x04 != 0;
+        for op in operations.iter_mut() {
+            match op {
+                Operation::Write(bytes) => {
+                    let mut it = bytes.iter();
+                    if let Some(&r) = it.next() {
+                        ptr = Some(r);
+                    }
+                    for &b in it {
+                        let r = ptr.unwrap_or(0);
+                        self.write_byte(r, b);
+                        ptr = Some(if inc { r.wrapping_add(1) } else { r });
+                    }
+                }
+                Operation::Read(buf) => {
+                    for b in buf.iter_mut() {
+                        let r = ptr.unwrap_or(0);
+                        *b = self.read_byte(r);
+                        ptr = Some(if inc { r.wrapping_add(1) } else { r });
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}

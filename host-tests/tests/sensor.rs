@@ -1,0 +1,155 @@
+//! The firmware's LSM9DS1 driver, FIFO reading, conversion and timestamps against the register
+//! model fed by the rig simulator; and the button and LED logic.
+
+use calib_core::procedure::{ErrorClass, Led, Phase};
+use gyrocal_fw::button::{Button, Press};
+use gyrocal_fw::led::{render, Show};
+use gyrocal_fw::lsm9ds1::{reg, AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
+use gyrocal_fw::stamp::Stamper;
+use host_tests::lsm_model::{Board, Lsm9ds1Model};
+use host_tests::servo_protocol::Variant;
+use host_tests::sim::{AccelRange, GyroRange, Rig};
+
+fn model(odr: f64, board: Board) -> Lsm9ds1Model {
+    let mut cfg = Variant::Hobby.config(31, 0);
+    cfg.odr_hz = odr;
+    cfg.gyro.range = GyroRange::Dps500;
+    cfg.accel.range = AccelRange::G2;
+    Lsm9ds1Model::new(Rig::new(cfg, 9), board)
+}
+
+fn cfg(odr: Odr) -> SensorConfig {
+    SensorConfig { odr, gyro: GyroScale::Dps500, accel: AccelScale::G2 }
+}
+
+#[test]
+fn init_writes_the_datasheet_configuration() {
+    for (odr, code) in [(Odr::Hz119, 0x60), (Odr::Hz238, 0x80), (Odr::Hz476, 0xA0), (Odr::Hz952, 0xC0)] {
+        let s = Lsm9ds1::init(model(odr.hz() as f64, Board::Rev1), cfg(odr)).map_err(|e| e.0).unwrap();
+        let m = s.release();
+        assert_eq!(m.reg(reg::CTRL_REG1_G), code | 0x08, "{odr:?}"); // FS_G = 500 °/s
+        assert_eq!(m.reg(reg::CTRL_REG6_XL), code, "{odr:?}"); // FS_XL = ±2 g
+        assert_eq!(m.reg(reg::CTRL_REG8), 0x44); // BDU, IF_ADD_INC
+        assert_eq!(m.reg(reg::CTRL_REG9), 0x02); // FIFO_EN
+        assert_eq!(m.reg(reg::FIFO_CTRL), 0xC0); // continuous mode
+    }
+}
+
+#[test]
+fn missing_rev2_and_foreign_chips_are_named() {
+    let err = |b| Lsm9ds1::init(model(119.0, b), cfg(Odr::Hz119)).err().map(|e| e.0);
+    assert!(matches!(err(Board::Missing), Some(SensorError::Missing)));
+    assert!(matches!(err(Board::Rev2), Some(SensorError::Rev2Bmi270)));
+    assert!(matches!(err(Board::OtherChip(0x3D)), Some(SensorError::WrongId(0x3D))));
+}
+
+/// A sample as read: accel (g), gyro (°/s), MCU timestamp (s).
+type Read = ([f32; 3], [f32; 3], f64);
+
+/// Polls the FIFO every `poll_s` of true time for `secs`; returns samples read and overruns seen.
+fn stream(odr: Odr, poll_s: f64, secs: f64) -> (Vec<Read>, usize, Lsm9ds1Model) {
+    let mut s = Lsm9ds1::init(model(odr.hz() as f64, Board::Rev1), cfg(odr)).map_err(|e| e.0).unwrap();
+    let mut m = s.release();
+    m.rig_mut().set_pulse_us(1500.0); // the servo turns while we read
+    s = Lsm9ds1::init(m, cfg(odr)).map_err(|e| e.0).unwrap();
+    let (mut out, mut overruns) = (vec![], 0);
+    let mut stamper = Stamper::new(odr.hz());
+    let mut t = 0.0;
+    while t < secs {
+        t += poll_s;
+        let mut m = s.release();
+        m.advance_to(t);
+        s = Lsm9ds1::init_configured(m, cfg(odr));
+        let st = s.fifo_status().unwrap();
+        overruns += usize::from(st.overrun);
+        let batch = stamper.batch(t, st.level as usize);
+        for i in 0..st.level as usize {
+            let raw = s.read_slot().unwrap();
+            let (a, g) = s.convert(&raw);
+            out.push((a, g, batch.stamp(i)));
+        }
+    }
+    (out, overruns, s.release())
+}
+
+#[test]
+fn no_sample_lost_at_952_hz_and_values_exact() {
+    let (samples, overruns, m) = stream(Odr::Hz952, 0.02, 10.0);
+    let (produced, dropped) = m.counts();
+    assert_eq!((overruns, dropped), (0, 0));
+    // Everything produced was read, except what arrived after the last poll.
+    assert!(produced - samples.len() <= 1, "produced {produced}, read {}", samples.len());
+    // Values: the rig's own readings, in order, reproduced through counts and sensitivity.
+    for (k, ((a, g, _), (ra, rg))) in samples.iter().zip(m.history()).enumerate() {
+        for i in 0..3 {
+            assert!((a[i] - ra[i]).abs() <= 1e-6 + 1e-6 * ra[i].abs(), "sample {k}: accel {a:?} vs {ra:?}");
+            assert!((g[i] - rg[i]).abs() <= 1e-5 + 1e-6 * rg[i].abs(), "sample {k}: gyro {g:?} vs {rg:?}");
+        }
+    }
+    assert!(m.history().iter().any(|(_, g)| g.iter().any(|v| v.abs() > 10.0)), "the servo never turned");
+    // Timestamps: measured period, within 0.5 % of the true one (ODR −4 %), increasing.
+    let n = samples.len();
+    let period = (samples[n - 1].2 - samples[n / 2].2) / (n - 1 - n / 2) as f64;
+    let true_period = 1.0 / (952.0 * 0.96);
+    assert!((period / true_period - 1.0).abs() < 0.005, "period {period} vs {true_period}");
+    assert!(samples.windows(2).all(|w| w[1].2 > w[0].2 - 1e-9));
+}
+
+#[test]
+fn slow_polling_reports_overrun() {
+    let (_, overruns, m) = stream(Odr::Hz952, 0.06, 1.0);
+    assert!(overruns > 0 && m.counts().1 > 0);
+}
+
+#[test]
+fn a_bus_fault_mid_stream_is_an_error_value() {
+    let s = Lsm9ds1::init(model(119.0, Board::Rev1), cfg(Odr::Hz119)).map_err(|e| e.0).unwrap();
+    let mut m = s.release();
+    m.advance_to(0.5);
+    m.nack_from = Some(0);
+    let mut s = Lsm9ds1::init_configured(m, cfg(Odr::Hz119));
+    assert!(matches!(s.fifo_status(), Err(SensorError::Bus(_))));
+    assert!(matches!(s.read_slot(), Err(SensorError::Bus(_))));
+    assert!(matches!(s.temperature_c(), Err(SensorError::Bus(_))));
+}
+
+#[test]
+fn button_debounces_and_tells_long_presses() {
+    let mut b = Button::new();
+    let mut events = vec![];
+    let mut t = 0.0;
+    // Bouncy press: 5 ms toggles, then held 0.5 s, then released.
+    for k in 0..6 {
+        events.extend(b.update(t, k % 2 == 0));
+        t += 0.005;
+    }
+    while t < 0.5 {
+        events.extend(b.update(t, true));
+        t += 0.01;
+    }
+    while t < 0.6 {
+        events.extend(b.update(t, false));
+        t += 0.01;
+    }
+    assert_eq!(events, vec![Press::Short]);
+    while t < 3.0 {
+        events.extend(b.update(t, true));
+        t += 0.01;
+    }
+    events.extend(b.update(3.1, false));
+    events.extend(b.update(3.2, false));
+    assert_eq!(events, vec![Press::Short, Press::Long]);
+}
+
+#[test]
+fn led_patterns_encode_phase_and_error_class() {
+    let count = |show: Show| -> usize {
+        (0..2000).step_by(10).map(|ms| render(show, ms).d13).collect::<Vec<_>>().windows(2).filter(|w| !w[0] && w[1]).count()
+            + usize::from(render(show, 0).d13)
+    };
+    assert_eq!(count(Show::Procedure(Led::Busy(Phase::RigPoses))), 5);
+    assert_eq!(count(Show::Procedure(Led::Error(ErrorClass::Servo))), 3);
+    assert_eq!(count(Show::StorageError), 7);
+    assert!(render(Show::Procedure(Led::Error(ErrorClass::Sensor)), 5).red);
+    assert!(render(Show::Procedure(Led::Done), 777).green);
+}

@@ -1,0 +1,83 @@
+//! LED patterns: the phase and the error class without a probe.
+//!
+//! | pattern | D13 (yellow) | RGB |
+//! |---|---|---|
+//! | idle, waiting for the button | off | green blink 0.1 s every 2 s |
+//! | busy in phase n | n flashes every 2 s | blue on |
+//! | user action needed (hand-held poses, re-clamp) | off | yellow (red + green) blink 2 Hz |
+//! | done: calibration stored and applied | on | green on |
+//! | error of class n | n flashes every 2 s | red on |
+//!
+//! Phase numbers: wait-rest 1, bias 2, hand-held 3, reattach 4, rig-poses 5, rotation 6.
+//! Error classes: sensor 1, motion 2, servo 3, geometry 4, result 5, timeout 6, storage 7.
+
+use calib_core::procedure::{ErrorClass, Led, Phase};
+
+/// On/off state of the four LEDs (logical: `true` = lit).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Lights {
+    /// D13 (P0.13).
+    pub d13: bool,
+    /// Red (P0.24).
+    pub red: bool,
+    /// Green (P0.16).
+    pub green: bool,
+    /// Blue (P0.06).
+    pub blue: bool,
+}
+
+/// What the LEDs show: a procedure pattern, or a storage error (class 7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Show {
+    /// A procedure pattern.
+    Procedure(Led),
+    /// The flash could not be written or read.
+    StorageError,
+}
+
+fn phase_number(p: Phase) -> u8 {
+    match p {
+        Phase::WaitRest => 1,
+        Phase::Bias => 2,
+        Phase::HandHeld => 3,
+        Phase::Reattach => 4,
+        Phase::RigPoses => 5,
+        Phase::Rotation => 6,
+        Phase::Idle | Phase::Done | Phase::Failed => 0,
+    }
+}
+
+fn class_number(c: ErrorClass) -> u8 {
+    match c {
+        ErrorClass::Sensor => 1,
+        ErrorClass::Motion => 2,
+        ErrorClass::Servo => 3,
+        ErrorClass::Geometry => 4,
+        ErrorClass::Result => 5,
+        ErrorClass::Timeout => 6,
+    }
+}
+
+/// `n` flashes of 150 ms on / 150 ms off at the start of every 2 s cycle.
+fn flashes(n: u8, t_ms: u64) -> bool {
+    let x = t_ms % 2000;
+    x / 300 < n as u64 && x % 300 < 150
+}
+
+/// The LED states of a pattern at time `t_ms` (ms).
+pub fn render(show: Show, t_ms: u64) -> Lights {
+    let blink = |period: u64, on: u64| t_ms % period < on;
+    match show {
+        Show::Procedure(Led::Idle) => Lights { green: blink(2000, 100), ..Lights::default() },
+        Show::Procedure(Led::Busy(p)) => Lights { d13: flashes(phase_number(p), t_ms), blue: true, ..Lights::default() },
+        Show::Procedure(Led::WaitUser) => {
+            let on = blink(500, 250);
+            Lights { red: on, green: on, ..Lights::default() }
+        }
+        Show::Procedure(Led::Done) => Lights { d13: true, green: true, ..Lights::default() },
+        Show::Procedure(Led::Error(c)) => Lights { d13: flashes(class_number(c), t_ms), red: true, ..Lights::default() },
+        Show::StorageError => Lights { d13: flashes(7, t_ms), red: true, ..Lights::default() },
+    }
+}

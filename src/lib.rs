@@ -1,0 +1,15 @@
+//! The hardware-independent half of the Nano 33 BLE firmware: everything between the raw
+//! peripherals and `calib_core::procedure`, testable on the host.
+//!
+//! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C.
+//! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
+//! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
+//! - [`button`]: debouncing; [`led`]: the LED patterns.
+#![no_std]
+#![deny(missing_docs)]
+
+pub mod button;
+pub mod led;
+pub mod lsm9ds1;
+pub mod stamp;
+pub mod storage;

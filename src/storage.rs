@@ -1,0 +1,112 @@
+//! Power-fail-safe storage of the calibration record: two slots (A/B), one flash page each.
+//!
+//! A new record always goes to the slot that does *not* hold the newest valid record: that slot
+//! is erased, written and read back. A power cut at any instant of the erase or the write leaves
+//! the other slot, with the previous record, untouched; at boot the valid record with the
+//! highest sequence number wins, and a torn or corrupt slot is never applied (CRC-32, version,
+//! magic and field checks of `calib_core::record`).
+
+use calib_core::record::{DecodeError, Record, LEN};
+use embedded_storage::nor_flash::NorFlash;
+
+/// Number of slots.
+pub const SLOTS: usize = 2;
+
+/// What a slot holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Slot {
+    /// Erased flash.
+    Empty,
+    /// A valid record.
+    Valid(Record),
+    /// Not a valid record (torn write, corruption, unknown version).
+    Invalid(DecodeError),
+}
+
+/// A storage failure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreError {
+    /// The flash driver failed (erase, write or read).
+    Flash,
+    /// The record read back differs from the one written.
+    Verify,
+    /// The region is smaller than two pages.
+    RegionTooSmall,
+}
+
+/// The two record slots in a flash region (offsets relative to the driver's region).
+pub struct Storage<F> {
+    flash: F,
+}
+
+/// `true` when `a` is a later sequence number than `b` (wrapping).
+fn newer(a: u32, b: u32) -> bool {
+    (a.wrapping_sub(b) as i32) > 0
+}
+
+impl<F: NorFlash> Storage<F> {
+    /// Uses the first two erase pages of `flash`.
+    pub fn new(flash: F) -> Result<Self, StoreError> {
+        if flash.capacity() < SLOTS * F::ERASE_SIZE || F::ERASE_SIZE < LEN {
+            return Err(StoreError::RegionTooSmall);
+        }
+        Ok(Self { flash })
+    }
+
+    /// The driver back.
+    pub fn release(self) -> F {
+        self.flash
+    }
+
+    fn offset(slot: usize) -> u32 {
+        (slot * F::ERASE_SIZE) as u32
+    }
+
+    /// Reads and classifies one slot.
+    pub fn slot(&mut self, slot: usize) -> Result<Slot, StoreError> {
+        let mut buf = [0u8; LEN];
+        self.flash.read(Self::offset(slot), &mut buf).map_err(|_| StoreError::Flash)?;
+        if buf.iter().all(|&b| b == 0xFF) {
+            return Ok(Slot::Empty);
+        }
+        Ok(match Record::decode(&buf) {
+            Ok(r) => Slot::Valid(r),
+            Err(e) => Slot::Invalid(e),
+        })
+    }
+
+    /// Both slots.
+    pub fn slots(&mut self) -> Result<[Slot; SLOTS], StoreError> {
+        Ok([self.slot(0)?, self.slot(1)?])
+    }
+
+    /// The newest valid record and its slot, if any.
+    pub fn load(&mut self) -> Result<Option<(usize, Record)>, StoreError> {
+        let mut best: Option<(usize, Record)> = None;
+        for (i, s) in self.slots()?.into_iter().enumerate() {
+            if let Slot::Valid(r) = s {
+                if best.is_none_or(|(_, b)| newer(r.seq, b.seq)) {
+                    best = Some((i, r));
+                }
+            }
+        }
+        Ok(best)
+    }
+
+    /// Stores `rec` in the slot not holding the newest valid record; returns that slot.
+    pub fn store(&mut self, rec: &Record) -> Result<usize, StoreError> {
+        let target = match self.load()? {
+            Some((slot, _)) => 1 - slot,
+            None => 0,
+        };
+        let at = Self::offset(target);
+        self.flash.erase(at, at + F::ERASE_SIZE as u32).map_err(|_| StoreError::Flash)?;
+        self.flash.write(at, &rec.encode()).map_err(|_| StoreError::Flash)?;
+        match self.slot(target)? {
+            Slot::Valid(r) if r == *rec => Ok(target),
+            _ => Err(StoreError::Verify),
+        }
+    }
+}
