@@ -5,7 +5,7 @@
 //! and owns the bus, while this driver needs the FIFO at 952 Hz and runs on the host against a
 //! simulated register map through the same `I2c` trait.
 
-use embedded_hal::i2c::I2c;
+use embedded_hal::i2c::{ErrorKind, I2c};
 
 /// I2C address of the accelerometer/gyroscope (SDO_AG high on the Nano 33 BLE).
 pub const ADDR_AG: u8 = 0x6B;
@@ -213,12 +213,37 @@ impl SensorConfig {
     }
 }
 
+/// What went wrong on the I2C bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BusFault {
+    /// The address or a data byte was not acknowledged.
+    Nack,
+    /// Bus error or lost arbitration (SDA/SCL disturbed).
+    Bus,
+    /// Data overrun.
+    Overrun,
+    /// Any other driver error.
+    Other,
+}
+
+impl BusFault {
+    fn of<E: embedded_hal::i2c::Error>(e: E) -> Self {
+        match e.kind() {
+            ErrorKind::NoAcknowledge(_) => BusFault::Nack,
+            ErrorKind::Bus | ErrorKind::ArbitrationLoss => BusFault::Bus,
+            ErrorKind::Overrun => BusFault::Overrun,
+            _ => BusFault::Other,
+        }
+    }
+}
+
 /// Why the sensor could not be used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum SensorError<E> {
-    /// An I2C transfer failed (NACK, bus error).
-    Bus(E),
+pub enum SensorError {
+    /// An I2C transfer failed.
+    Bus(BusFault),
     /// Nothing answers at 0x6B: sensor unpowered, not fitted, or I2C wiring.
     Missing,
     /// A BMI270 answers at 0x68: this is a Nano 33 BLE Rev2, not supported.
@@ -272,7 +297,7 @@ impl<I: I2c> Lsm9ds1<I> {
     /// Checks the identity (telling a Rev2 board's BMI270 apart), resets and configures the
     /// sensor: ODR and ranges, block data update, FIFO in continuous mode. Bounded: a fixed
     /// number of transfers, no wait loop without limit.
-    pub fn init(mut i2c: I, cfg: SensorConfig) -> Result<Self, (SensorError<I::Error>, I)> {
+    pub fn init(mut i2c: I, cfg: SensorConfig) -> Result<Self, (SensorError, I)> {
         match read_reg(&mut i2c, ADDR_AG, reg::WHO_AM_I) {
             Ok(WHO_AM_I_AG) => {}
             Ok(id) => return Err((SensorError::WrongId(id), i2c)),
@@ -291,7 +316,7 @@ impl<I: I2c> Lsm9ds1<I> {
         }
     }
 
-    fn configure(&mut self) -> Result<(), SensorError<I::Error>> {
+    fn configure(&mut self) -> Result<(), SensorError> {
         self.write(reg::CTRL_REG8, CTRL8_IF_ADD_INC | CTRL8_SW_RESET)?;
         let mut done = false;
         for _ in 0..100 {
@@ -335,37 +360,37 @@ impl<I: I2c> Lsm9ds1<I> {
         self.i2c
     }
 
-    fn read(&mut self, r: u8) -> Result<u8, SensorError<I::Error>> {
-        read_reg(&mut self.i2c, ADDR_AG, r).map_err(SensorError::Bus)
+    fn read(&mut self, r: u8) -> Result<u8, SensorError> {
+        read_reg(&mut self.i2c, ADDR_AG, r).map_err(|e| SensorError::Bus(BusFault::of(e)))
     }
 
-    fn write(&mut self, r: u8, v: u8) -> Result<(), SensorError<I::Error>> {
-        self.i2c.write(ADDR_AG, &[r, v]).map_err(SensorError::Bus)
+    fn write(&mut self, r: u8, v: u8) -> Result<(), SensorError> {
+        self.i2c.write(ADDR_AG, &[r, v]).map_err(|e| SensorError::Bus(BusFault::of(e)))
     }
 
-    fn read6(&mut self, r: u8) -> Result<[u8; 6], SensorError<I::Error>> {
+    fn read6(&mut self, r: u8) -> Result<[u8; 6], SensorError> {
         let mut b = [0u8; 6];
-        self.i2c.write_read(ADDR_AG, &[r], &mut b).map_err(SensorError::Bus)?;
+        self.i2c.write_read(ADDR_AG, &[r], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(b)
     }
 
     /// Unread FIFO slots and the overrun flag.
-    pub fn fifo_status(&mut self) -> Result<FifoStatus, SensorError<I::Error>> {
+    pub fn fifo_status(&mut self) -> Result<FifoStatus, SensorError> {
         let src = self.read(reg::FIFO_SRC)?;
         Ok(FifoStatus { level: (src & 0x3F).min(FIFO_DEPTH), overrun: src & FIFO_SRC_OVRN != 0 })
     }
 
     /// Pops one FIFO slot: the gyro registers, then the accelerometer registers.
-    pub fn read_slot(&mut self) -> Result<RawSample, SensorError<I::Error>> {
+    pub fn read_slot(&mut self) -> Result<RawSample, SensorError> {
         let g = self.read6(reg::OUT_X_L_G)?;
         let a = self.read6(reg::OUT_X_L_XL)?;
         Ok(RawSample { gyro: le3(&g), accel: le3(&a) })
     }
 
     /// Temperature (°C): 16 LSB/°C, 0 at 25 °C.
-    pub fn temperature_c(&mut self) -> Result<f32, SensorError<I::Error>> {
+    pub fn temperature_c(&mut self) -> Result<f32, SensorError> {
         let mut b = [0u8; 2];
-        self.i2c.write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b).map_err(SensorError::Bus)?;
+        self.i2c.write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(25.0 + i16::from_le_bytes(b) as f32 / 16.0)
     }
 

@@ -1,21 +1,349 @@
-//! Nano 33 BLE gyroscope self-calibration firmware (I/O shell around `calib-core`).
+//! Nano 33 BLE gyroscope self-calibration firmware: the thin I/O shell around
+//! `calib_core::procedure`. It moves bytes between the peripherals and the procedure and adds no
+//! calibration logic of its own.
 //!
-//! This is the boot skeleton: clocks up, one defmt line, sleep. The I/O shell that feeds the
-//! calib-core procedure (sensor, servo, button, flash) is tracked in its own issue.
+//! Loop (woken every 2 ms by TIMER2): pet the watchdog, read the button, drain the LSM9DS1 FIFO
+//! (timestamps from the 1 MHz TIMER1 on the crystal), feed the procedure, execute its commands
+//! (servo PWM, LEDs, defmt reports, flash store, apply), refresh the LEDs, sleep.
 #![no_std]
 #![no_main]
 
+use calib_core::procedure::{Command, Config, Procedure, Report, Sample};
+use calib_core::record::Record;
+use cortex_m::peripheral::NVIC;
 use defmt_rtt as _;
+use embedded_hal::digital::{InputPin, OutputPin};
+use gyrocal_fw::button::{Button, Press};
+use gyrocal_fw::led::{render, Lights, Show};
+use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::stamp::Stamper;
+use gyrocal_fw::storage::Storage;
+use hal::gpio::{Level, Output, Pin, PushPull};
+use hal::pac::{self, interrupt};
+use hal::pwm::{Channel, Prescaler, Pwm};
+use hal::{twim, wdt, Timer, Twim};
 use nrf52840_hal as hal;
 use panic_probe as _;
 
+/// Loop period (µs): the FIFO (32 slots) lasts 33 ms at 952 Hz.
+const TICK_US: u32 = 2_000;
+/// FIFO read period (s).
+const FIFO_POLL_S: f64 = 0.010;
+/// Watchdog timeout (s).
+const WATCHDOG_S: u32 = 2;
+/// Servo PWM: 1 µs ticks, 20 ms period.
+const PWM_TOP: u16 = 20_000;
+
+/// The four LEDs (RGB active low).
+struct Leds {
+    d13: Pin<Output<PushPull>>,
+    red: Pin<Output<PushPull>>,
+    green: Pin<Output<PushPull>>,
+    blue: Pin<Output<PushPull>>,
+}
+
+impl Leds {
+    fn show(&mut self, l: Lights) {
+        let set = |p: &mut Pin<Output<PushPull>>, on: bool| {
+            let _ = if on { p.set_high() } else { p.set_low() };
+        };
+        set(&mut self.d13, l.d13);
+        set(&mut self.red, !l.red);
+        set(&mut self.green, !l.green);
+        set(&mut self.blue, !l.blue);
+    }
+}
+
+/// Microseconds since boot from the free-running TIMER1 (wraps every 71 min, extended to 64 bits).
+struct Clock {
+    timer: Timer<pac::TIMER1, hal::timer::Periodic>,
+    last: u32,
+    high: u64,
+}
+
+impl Clock {
+    fn now_us(&mut self) -> u64 {
+        let v = self.timer.read();
+        if v < self.last {
+            self.high += 1 << 32;
+        }
+        self.last = v;
+        self.high + v as u64
+    }
+
+    fn now_s(&mut self) -> f64 {
+        self.now_us() as f64 * 1e-6
+    }
+}
+
+#[interrupt]
+fn TIMER2() {
+    // Only wakes the loop: clear the compare event.
+    // SAFETY: a single write to this timer's own event register.
+    unsafe { (*pac::TIMER2::ptr()).events_compare[0].write(|w| w) };
+}
+
+fn log_report(r: &Report) {
+    match r {
+        Report::Phase(p) => defmt::info!("phase: {}", p.name()),
+        Report::Bias(b) => defmt::info!(
+            "gyro bias [{=f32} {=f32} {=f32}] dps, 1 sigma [{=f32} {=f32} {=f32}], {=u32} samples",
+            b.bias_dps[0], b.bias_dps[1], b.bias_dps[2], b.sigma_dps[0], b.sigma_dps[1], b.sigma_dps[2], b.samples
+        ),
+        Report::AccelPose { index, accel_g } => {
+            defmt::info!("hand-held pose {=u8}: a = [{=f32} {=f32} {=f32}] g", index, accel_g[0], accel_g[1], accel_g[2])
+        }
+        Report::Accel(c) => defmt::info!(
+            "accelerometer {}: | |a| - 1 | rms {=f32} g -> {=f32} g over {=u8} poses; offset [{=f32} {=f32} {=f32}] g",
+            c.model, c.rms_before_g, c.rms_after_g, c.poses, c.offset_g[0], c.offset_g[1], c.offset_g[2]
+        ),
+        Report::RigPose { index, servo_deg, accel_g } => defmt::info!(
+            "rig pose {=u8} at {=f32} deg: A = [{=f32} {=f32} {=f32}] g",
+            index, servo_deg, accel_g[0], accel_g[1], accel_g[2]
+        ),
+        Report::Retake { index, retries } => defmt::warn!("pose {=u8} disturbed: retake {=u8}", index, retries),
+        Report::Move { from, to, gyro_turn_deg } => {
+            defmt::info!("move {=u8} -> {=u8}: gyro turned {=f32} deg", from, to, gyro_turn_deg)
+        }
+        Report::Gyro(c) => {
+            let q = &c.quality;
+            defmt::info!(
+                "{} estimator: K = diag({=f32} {=f32} {=f32}) +- ({=f32} {=f32} {=f32}) 1 sigma; invariant spread {=f32} -> {=f32}; cond {=f32}; tilt {=f32} deg, span {=f32} deg",
+                c.method.name(), c.k[0][0], c.k[1][1], c.k[2][2], q.sigma_k[0], q.sigma_k[1], q.sigma_k[2],
+                q.invariant_before.relative_std(), q.invariant_after.relative_std(), q.condition, q.tilt_deg, q.span_deg
+            )
+        }
+        Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
+        Report::Done(rec) => defmt::info!(
+            "calibration done: record {=u32}, K = diag({=f32} {=f32} {=f32}), b = [{=f32} {=f32} {=f32}] dps",
+            rec.seq, rec.gyro_k[0][0], rec.gyro_k[1][1], rec.gyro_k[2][2], rec.gyro_bias_dps[0], rec.gyro_bias_dps[1], rec.gyro_bias_dps[2]
+        ),
+        Report::Failed(e) => defmt::error!("calibration failed, nothing stored: {}", e),
+    }
+}
+
+fn sensor_error(e: &SensorError) {
+    match e {
+        SensorError::Rev2Bmi270 => defmt::error!("BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported"),
+        SensorError::Missing => defmt::error!("no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision"),
+        other => defmt::error!("LSM9DS1 error: {}", other),
+    }
+}
+
+fn raw_log(s: &Sample, servo_deg: Option<f32>) {
+    let (a, g) = (s.accel_g, s.gyro_dps);
+    match servo_deg {
+        Some(d) => defmt::println!("{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}", s.t_s, a[0], a[1], a[2], g[0], g[1], g[2], d),
+        None => defmt::println!("{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},", s.t_s, a[0], a[1], a[2], g[0], g[1], g[2]),
+    }
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let p = hal::pac::Peripherals::take().unwrap();
-    // High-frequency crystal: the MCU clock is the time base of every gyro integral.
+    let p = pac::Peripherals::take().unwrap();
+    let mut core = cortex_m::Peripherals::take().unwrap();
+    // HFXO: the crystal is the time base of every gyro integral.
     let _clocks = hal::Clocks::new(p.CLOCK).enable_ext_hfosc();
-    defmt::info!("gyrocal-fw {} booted", env!("CARGO_PKG_VERSION"));
+    defmt::info!("gyrocal-fw {=str}", env!("CARGO_PKG_VERSION"));
+
+    let mut wd = match wdt::Watchdog::try_new(p.WDT) {
+        Ok(mut w) => {
+            w.set_lfosc_ticks(WATCHDOG_S * 32_768);
+            w.activate::<wdt::count::One>().handles.0
+        }
+        // Already running after a soft reset: recover its handle.
+        Err(w) => match wdt::Watchdog::try_recover::<wdt::count::One>(w) {
+            Ok(parts) => parts.handles.0,
+            Err(_) => {
+                defmt::error!("watchdog in an unknown state; rebooting");
+                cortex_m::peripheral::SCB::sys_reset();
+            }
+        },
+    };
+
+    let mut clock = Clock { timer: Timer::periodic(p.TIMER1), last: 0, high: 0 };
+    clock.timer.start(u32::MAX);
+    let mut tick = Timer::periodic(p.TIMER2);
+    tick.enable_interrupt();
+    tick.start(TICK_US);
+    // SAFETY: the handler only clears its event; no shared state.
+    unsafe { NVIC::unmask(pac::Interrupt::TIMER2) };
+    core.SCB.clear_sleepdeep();
+
+    let p0 = hal::gpio::p0::Parts::new(p.P0);
+    let p1 = hal::gpio::p1::Parts::new(p.P1);
+    let mut leds = Leds {
+        d13: p0.p0_13.into_push_pull_output(Level::Low).degrade(),
+        red: p0.p0_24.into_push_pull_output(Level::High).degrade(),
+        green: p0.p0_16.into_push_pull_output(Level::High).degrade(),
+        blue: p0.p0_06.into_push_pull_output(Level::High).degrade(),
+    };
+    let mut button_pin = p1.p1_11.into_pullup_input();
+
+    // Sensor power, then (after ~10 ms) the I2C pull-ups: the IMU does not answer before both.
+    let _vdd_env = p0.p0_22.into_push_pull_output(Level::High);
+    let t0 = clock.now_us();
+    while clock.now_us() - t0 < 10_000 {}
+    let _pullups = p1.p1_00.into_push_pull_output(Level::High);
+    let t0 = clock.now_us();
+    while clock.now_us() - t0 < 5_000 {}
+
+    let pins = twim::Pins { scl: p0.p0_15.into_floating_input().degrade(), sda: p0.p0_14.into_floating_input().degrade() };
+    let mut bus = Some(Twim::new(p.TWIM0, pins, twim::Frequency::K400));
+    // nRF52840 erratum 219: at the 400 kHz setting SCL low time is below the I2C minimum;
+    // Nordic's fix is the 390 kHz setting.
+    // SAFETY: a plain register write to the TWIM we own, before any transfer.
+    unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(0x0620_0000)) };
+    let sensor_cfg = SensorConfig::default();
+    let mut sensor: Option<Lsm9ds1<Twim<pac::TWIM0>>> = None;
+
+    // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
+    let pwm = Pwm::new(p.PWM0);
+    pwm.set_prescaler(Prescaler::Div16)
+        .set_max_duty(PWM_TOP)
+        .set_output_pin(Channel::C0, p0.p0_27.into_push_pull_output(Level::Low).degrade())
+        .set_output_pin(Channel::C1, p1.p1_02.into_push_pull_output(Level::Low).degrade());
+    // nRF PWM sequence values: bit 15 set = falling edge first = HIGH for `duty` ticks from the
+    // start of the period. nrf-hal's `set_duty_off` sets bit 15 (`set_duty_on` would invert).
+    pwm.set_duty_off(Channel::C0, 0);
+    pwm.set_duty_off(Channel::C1, 0);
+
+    // Calibration records in the reserved flash region (never the bootloader).
+    extern "C" {
+        static mut __storage_start: u8;
+        static __storage_end: u8;
+    }
+    // SAFETY: the linker reserves this region for us alone; nothing else aliases it.
+    let region: &'static mut [u8] = unsafe {
+        let start = core::ptr::addr_of_mut!(__storage_start);
+        let len = core::ptr::addr_of!(__storage_end) as usize - start as usize;
+        core::slice::from_raw_parts_mut(start, len)
+    };
+    let mut storage = Storage::new(hal::nvmc::Nvmc::new(p.NVMC, region)).ok();
+    let mut applied: Option<Record> = None;
+    match storage.as_mut().map(|s| s.load()) {
+        Some(Ok(Some((slot, rec)))) => {
+            defmt::info!(
+                "loaded calibration record {=u32} from slot {=usize}: K = diag({=f32} {=f32} {=f32}), b = [{=f32} {=f32} {=f32}] dps; applied",
+                rec.seq, slot, rec.gyro_k[0][0], rec.gyro_k[1][1], rec.gyro_k[2][2], rec.gyro_bias_dps[0], rec.gyro_bias_dps[1], rec.gyro_bias_dps[2]
+            );
+            applied = Some(rec);
+        }
+        Some(Ok(None)) => defmt::warn!("no calibration stored: raw gyro readings until the button is pressed"),
+        _ => defmt::error!("calibration storage unreadable"),
+    }
+
+    let cfg = Config {
+        accel_range_g: sensor_cfg.accel.range_g(),
+        gyro_range_dps: sensor_cfg.gyro.range_dps(),
+        ..Config::default()
+    };
+    // The procedure state (poses, moves, queue: ~12 KiB) lives in static RAM, not on the stack.
+    let Some(procedure) = cortex_m::singleton!(: Procedure = Procedure::new(cfg, applied)) else {
+        defmt::error!("procedure already taken");
+        cortex_m::peripheral::SCB::sys_reset();
+    };
+    let mut show = Show::Procedure(calib_core::procedure::Led::Idle);
+    let mut button = Button::new();
+    let mut stamper = Stamper::new(sensor_cfg.odr.hz());
+    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) = (false, 0.0f64, 0.0f64, 0.0f64);
+    let mut rate = calib_core::stats::Welford3::new();
+
     loop {
+        wd.pet();
+        let now = clock.now_s();
+
+        // Sensor: (re)initialise until it answers, then drain its FIFO every 10 ms.
+        if sensor.is_none() && now >= next_sensor_try {
+            if let Some(i2c) = bus.take() {
+                match Lsm9ds1::init(i2c, sensor_cfg) {
+                    Ok(s) => {
+                        defmt::info!("LSM9DS1 ready: {}", sensor_cfg);
+                        stamper.restart();
+                        sensor = Some(s);
+                    }
+                    Err((e, i2c)) => {
+                        sensor_error(&e);
+                        show = Show::Procedure(calib_core::procedure::Led::Error(calib_core::procedure::ErrorClass::Sensor));
+                        bus = Some(i2c);
+                        next_sensor_try = now + 2.0;
+                    }
+                }
+            }
+        }
+        if now - last_poll >= FIFO_POLL_S {
+            last_poll = now;
+            if let Some(s) = sensor.as_mut() {
+                let result = s.fifo_status().and_then(|st| {
+                    if st.overrun {
+                        defmt::warn!("FIFO overrun: samples lost");
+                        stamper.restart();
+                    }
+                    let n = st.level.min(FIFO_DEPTH) as usize;
+                    let batch = stamper.batch(clock.now_s(), n);
+                    let temp_c = s.temperature_c().unwrap_or(f32::NAN);
+                    for i in 0..n {
+                        let raw = s.read_slot()?;
+                        let (accel_g, gyro_dps) = s.convert(&raw);
+                        let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                        if raw_mode {
+                            raw_log(&sample, procedure.servo_deg());
+                        }
+                        if let Some(rec) = applied {
+                            rate.add(rec.apply_gyro(gyro_dps));
+                        }
+                        procedure.handle_sample(&sample);
+                    }
+                    Ok(())
+                });
+                if let Err(e) = result {
+                    defmt::error!("LSM9DS1 read failed: {}; reinitialising", e);
+                    bus = sensor.take().map(|s| s.release());
+                    next_sensor_try = now + 0.5;
+                }
+            }
+        }
+
+        match button.update(now, button_pin.is_low().unwrap_or(false)) {
+            Some(Press::Short) => procedure.handle_button(now),
+            Some(Press::Long) => {
+                raw_mode = !raw_mode;
+                defmt::info!("raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg", raw_mode);
+            }
+            None => {}
+        }
+        procedure.handle_tick(now);
+
+        while let Some(c) = procedure.poll() {
+            match c {
+                Command::Servo { channel, pulse_us } => {
+                    let ch = if channel == 0 { Channel::C0 } else { Channel::C1 };
+                    pwm.set_duty_off(ch, cfg.clamp_pulse(pulse_us as f32));
+                }
+                Command::ServoOff { channel } => pwm.set_duty_off(if channel == 0 { Channel::C0 } else { Channel::C1 }, 0),
+                Command::Led(l) => show = Show::Procedure(l),
+                Command::Report(r) => log_report(&r),
+                Command::Store(rec) => match storage.as_mut().map(|s| s.store(&rec)) {
+                    Some(Ok(slot)) => defmt::info!("record {=u32} stored in slot {=usize}", rec.seq, slot),
+                    Some(Err(e)) => {
+                        defmt::error!("storing the record failed: {}; the previous record is kept", e);
+                        show = Show::StorageError;
+                    }
+                    None => defmt::error!("no storage: record not stored"),
+                },
+                Command::Apply(rec) => applied = Some(rec),
+            }
+        }
+
+        // After calibration: the calibrated rate, averaged, once a second.
+        if applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
+            let m = rate.mean();
+            defmt::info!("rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)", m[0] as f32, m[1] as f32, m[2] as f32);
+            rate = calib_core::stats::Welford3::new();
+            last_rate_line = now;
+        }
+
+        leds.show(render(show, clock.now_us() / 1000));
         cortex_m::asm::wfi();
     }
 }

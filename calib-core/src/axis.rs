@@ -137,11 +137,12 @@ impl Poses {
             (ax + along / n, ra + (a - u * along).norm() / n)
         });
         let tilt_deg = libm::atan2(radial, axial).to_degrees();
-        // Gravity that barely changes between poses means a vertical axis whatever the fit says.
+        // Gravity that barely changes between poses means a vertical axis whatever the fit says
+        // (a circle of radius sin(tilt) ≤ tilt in rad; no trigonometry on the target).
         let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
         let min_tilt = (limits.min_tilt_deg as f64).to_radians();
-        if spread < 0.3 * libm::sin(min_tilt) || tilt_deg < limits.min_tilt_deg as f64 {
-            let tilt = libm::asin((spread / mean.norm().max(1e-9)).min(1.0)).to_degrees().min(tilt_deg);
+        if spread < 0.3 * min_tilt || tilt_deg < limits.min_tilt_deg as f64 {
+            let tilt = libm::atan2(spread, mean.norm()).to_degrees().min(tilt_deg);
             return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
         }
         // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).

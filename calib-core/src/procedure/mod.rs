@@ -523,9 +523,12 @@ impl Procedure {
 
     fn finish_accel_pose(&mut self, capture: &Capture, t_s: f64) {
         let a = capture.accel_mean();
-        let min_cos = libm::cosf(self.cfg.accel_min_separation_deg.to_radians());
-        let new_dir = v64(a).normalize();
-        let distinct = (0..self.accel_poses.len()).all(|i| self.accel_poses.pose(i).normalize().dot(&new_dir) < min_cos as f64);
+        let min_sep = self.cfg.accel_min_separation_deg as f64;
+        let new = v64(a);
+        let distinct = (0..self.accel_poses.len()).all(|i| {
+            let old = self.accel_poses.pose(i);
+            libm::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
+        });
         self.step = Step::HandHeld { capture: Capture::default() };
         if !distinct {
             return;
