@@ -8,6 +8,7 @@
 //! constant-rate middle. The sweep estimator uses the moves, the paper's the rotation.
 
 use crate::moments::Moments;
+use crate::session::handheld_attitudes;
 use crate::sim::{Rig, RigConfig, Sample, ServoModel};
 use calib_core::accel::AccelCalibrator;
 use calib_core::axis::{GeometryLimits, Poses};
@@ -16,7 +17,7 @@ use calib_core::gyro::GyroCal;
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves};
 use calib_core::{paper, sweep, Error};
-use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use nalgebra::Matrix3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value};
@@ -86,17 +87,8 @@ pub fn session(cfg: RigConfig, seed: u64) -> Result<Session, Error> {
     let bias = b.finish(&BiasLimits::default())?.bias_dps;
 
     // Hand-held accelerometer poses: the 12 icosahedron vertices pointing up in turn.
-    let phi = (1.0 + 5f64.sqrt()) / 2.0;
     let mut acc = AccelCalibrator::new();
-    for v in [
-        [-1.0, phi, 0.0], [1.0, phi, 0.0], [-1.0, -phi, 0.0], [1.0, -phi, 0.0],
-        [0.0, -1.0, phi], [0.0, 1.0, phi], [0.0, -1.0, -phi], [0.0, 1.0, -phi],
-        [phi, 0.0, -1.0], [phi, 0.0, 1.0], [-phi, 0.0, -1.0], [-phi, 0.0, 1.0],
-    ] {
-        let up_b = Vector3::from(v).normalize();
-        let q = UnitQuaternion::rotation_between(&up_b, &Vector3::z()).unwrap_or_else(|| {
-            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
-        });
+    for q in handheld_attitudes() {
         rig.detach_to(q, 1.0);
         run_for(&mut rig, 1.5, |_| {});
         let mut w = Welford3::new();

@@ -5,6 +5,7 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
+use crate::csvlog::{self, Row, HEADER};
 use crate::sim::{Rig, Sample as SimSample};
 use calib_core::gyro::GyroCal;
 use calib_core::procedure::{Command, Phase, Procedure, Report, Sample};
@@ -47,17 +48,23 @@ impl Outcome {
     }
 }
 
-/// The 12 icosahedron vertices as board attitudes (body → world) that point them up.
-pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
+/// The 12 icosahedron vertices (unit vectors): Ye et al.'s accelerometer poses.
+pub fn icosahedron() -> [Vector3<f64>; 12] {
     let phi = (1.0 + 5f64.sqrt()) / 2.0;
     [
         [-1.0, phi, 0.0], [1.0, phi, 0.0], [-1.0, -phi, 0.0], [1.0, -phi, 0.0],
         [0.0, -1.0, phi], [0.0, 1.0, phi], [0.0, -1.0, -phi], [0.0, 1.0, -phi],
         [phi, 0.0, -1.0], [phi, 0.0, 1.0], [-phi, 0.0, -1.0], [-phi, 0.0, 1.0],
     ]
+    .map(|v| Vector3::from(v).normalize())
+}
+
+/// Board attitudes (body → world) that point each icosahedron vertex up.
+pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
+    icosahedron()
     .iter()
     .map(|v| {
-        UnitQuaternion::rotation_between(&Vector3::from(*v).normalize(), &Vector3::z())
+        UnitQuaternion::rotation_between(v, &Vector3::z())
             .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI))
     })
     .collect()
@@ -138,4 +145,14 @@ pub fn run(
     }
     out.end_s = t;
     out
+}
+
+/// Runs like [`run`] and records the log (DESIGN §5 CSV, with `header` comment lines first).
+pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, header: &str) -> (String, Outcome) {
+    let mut text = format!("{header}{HEADER}\n");
+    let out = run(rig, proc, faults, 900.0, |s, servo| {
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
+        csvlog::format_row(&mut text, &row);
+    });
+    (text, out)
 }

@@ -232,12 +232,9 @@ proptest! {
         let m = nalgebra::Matrix3::new(d[0], off[0], off[1], 0.0, d[1], off[2], 0.0, 0.0, d[2]);
         let minv = m.try_inverse().unwrap();
         let rot = Rotation3::from_euler_angles(roll, 0.4, -0.3);
-        let phi = (1.0 + 5f64.sqrt()) / 2.0;
         let mut c = AccelCalibrator::new();
-        for v in [[-1.0, phi, 0.0], [1.0, phi, 0.0], [-1.0, -phi, 0.0], [1.0, -phi, 0.0], [0.0, -1.0, phi],
-                  [0.0, 1.0, phi], [0.0, -1.0, -phi], [0.0, 1.0, -phi], [phi, 0.0, -1.0], [phi, 0.0, 1.0],
-                  [-phi, 0.0, -1.0], [-phi, 0.0, 1.0]] {
-            let f = rot * Vector3::from(v).normalize();
+        for v in host_tests::session::icosahedron() {
+            let f = rot * v;
             c.add_pose(f32v(minv * f + Vector3::from(o))).unwrap();
         }
         let cal = c.solve9().unwrap();

@@ -5,7 +5,7 @@ use calib_core::procedure::{Config, Procedure};
 use host_tests::csvlog::{self, Row, HEADER};
 use host_tests::offline::{self, OfflineError};
 use host_tests::servo_protocol::Variant;
-use host_tests::session::{run, Faults};
+use host_tests::session::{record_log, Faults};
 use host_tests::sim::{Rig, RigConfig, ServoModel};
 use std::process::Command;
 
@@ -13,11 +13,7 @@ use std::process::Command;
 fn simulated_log(cfg: RigConfig) -> (String, [f64; 3]) {
     let mut rig = Rig::new(cfg, 3);
     let mut p = Procedure::new(Config::default(), None);
-    let mut text = format!("# test log\n{HEADER}\n");
-    run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
-        csvlog::format_row(&mut text, &row);
-    });
+    let (text, _) = record_log(&mut rig, &mut p, Faults::default(), "# test log\n");
     let k = rig.truth().gyro_k;
     (text, [k[(0, 0)], k[(1, 1)], k[(2, 2)]])
 }

@@ -62,7 +62,7 @@ fn continuous_rotation_servo() {
         let mut cfg = Variant::Hobby.config(13, seed as usize);
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut rng));
         let pcfg = Config {
-            servo: ServoKind::Continuous { neutral_us: 1500, span_us: 500, speed: 0.2, nominal_rate_dps: 60.0, move_s: 1.0 },
+            servo: ServoKind::CONTINUOUS,
             ..Config::default()
         };
         let (out, rig) = calibrate(cfg, pcfg, None, Faults::default());

@@ -26,6 +26,12 @@ pub enum ServoKind {
     },
 }
 
+impl ServoKind {
+    /// A continuous-rotation servo at 20 % speed (≈ 60 °/s for a 300 °/s servo), 1 s moves.
+    pub const CONTINUOUS: ServoKind =
+        ServoKind::Continuous { neutral_us: 1500, span_us: 500, speed: 0.2, nominal_rate_dps: 60.0, move_s: 1.0 };
+}
+
 /// Procedure configuration. Angles in degrees, times in seconds, pulses in µs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -6,11 +6,11 @@
 //! `cargo run --release -p host-tests --target host-tuple --bin calib-bench [--json] [--logs N]`
 
 use calib_core::procedure::{Config, Procedure, ServoKind};
-use host_tests::csvlog::{self, Row, HEADER};
+use host_tests::csvlog;
 use host_tests::moments::Moments;
 use host_tests::offline;
 use host_tests::servo_protocol::Variant;
-use host_tests::session::{run, Faults};
+use host_tests::session::{record_log, Faults};
 use host_tests::sim::{ContinuousServo, Rig, ServoModel};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -32,21 +32,11 @@ fn main() {
                 let mut pcfg = Config::default();
                 if servo == "continuous" {
                     cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(i as u64)));
-                    pcfg.servo = ServoKind::Continuous {
-                        neutral_us: 1500,
-                        span_us: 500,
-                        speed: 0.2,
-                        nominal_rate_dps: 60.0,
-                        move_s: 1.0,
-                    };
+                    pcfg.servo = ServoKind::CONTINUOUS;
                 }
                 let mut rig = Rig::new(cfg, i as u64 + 100);
                 let mut p = Procedure::new(pcfg, None);
-                let mut text = format!("{HEADER}\n");
-                run(&mut rig, &mut p, Faults::default(), 900.0, |s, deg| {
-                    let r = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: deg, tilt_deg: None };
-                    csvlog::format_row(&mut text, &r);
-                });
+                let (text, _) = record_log(&mut rig, &mut p, Faults::default(), "");
                 let k = rig.truth().gyro_k;
                 match csvlog::parse(&text).map_err(|e| e.to_string()).and_then(|r| offline::calibrate(&r, None).map_err(|e| e.to_string())) {
                     Ok(c) => errs.extend((0..3).map(|a| (c.gyro.k[a][a] as f64 / k[(a, a)] - 1.0) * 100.0)),

@@ -6,10 +6,10 @@
 
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure, ServoKind};
-use host_tests::csvlog::{self, Row, HEADER};
+use host_tests::csvlog;
 use host_tests::offline;
 use host_tests::servo_protocol::Variant;
-use host_tests::session::{run, Faults};
+use host_tests::session::{record_log, Faults};
 use host_tests::sim::{ContinuousServo, Rig, ServoModel};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -28,15 +28,12 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool) -> ExitCode {
     let mut pcfg = Config::default();
     if continuous {
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed)));
-        pcfg.servo = ServoKind::Continuous { neutral_us: 1500, span_us: 500, speed: 0.2, nominal_rate_dps: 60.0, move_s: 1.0 };
+        pcfg.servo = ServoKind::CONTINUOUS;
     }
     let mut rig = Rig::new(cfg, seed);
     let mut p = Procedure::new(pcfg, None);
-    let mut out = format!("# simulated by calib --simulate, seed {seed}, ODR {odr} Hz\n{HEADER}\n");
-    let outcome = run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
-        csvlog::format_row(&mut out, &row);
-    });
+    let header = format!("# simulated by calib --simulate, seed {seed}, ODR {odr} Hz\n");
+    let (mut out, outcome) = record_log(&mut rig, &mut p, Faults::default(), &header);
     let k = rig.truth().gyro_k;
     out.push_str(&format!("# true K diagonal: {:.6} {:.6} {:.6}\n", k[(0, 0)], k[(1, 1)], k[(2, 2)]));
     if let Err(e) = std::fs::write(path, out) {
