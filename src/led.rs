@@ -8,7 +8,8 @@
 //! | done: calibration stored and applied | on | green on |
 //! | error of class n | n flashes every 2 s | red on |
 //!
-//! Phase numbers: wait-rest 1, bias 2, hand-held 3, reattach 4, rig-poses 5, rotation 6.
+//! Phase numbers: wait-rest 1, bias 2, accelerometer poses (hand-held or tilt servo) 3,
+//! reattach 4, rig-poses 5, rotation 6.
 //! Error classes: sensor 1, motion 2, servo 3, geometry 4, result 5, timeout 6, storage 7.
 
 use calib_core::procedure::{ErrorClass, Led, Phase};
@@ -41,7 +42,7 @@ fn phase_number(p: Phase) -> u8 {
     match p {
         Phase::WaitRest => 1,
         Phase::Bias => 2,
-        Phase::HandHeld => 3,
+        Phase::HandHeld | Phase::TiltPoses => 3,
         Phase::Reattach => 4,
         Phase::RigPoses => 5,
         Phase::Rotation => 6,

@@ -234,6 +234,9 @@ fn main() -> ! {
     }
 
     let cfg = Config {
+        // With a pan/tilt gimbal (`--features tilt-servo`), the tilt servo on D10 takes the
+        // accelerometer poses instead of the user's hand.
+        tilt_accel: cfg!(feature = "tilt-servo"),
         accel_range_g: sensor_cfg.accel.range_g(),
         gyro_range_dps: sensor_cfg.gyro.range_dps(),
         ..Config::default()

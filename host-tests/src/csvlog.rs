@@ -110,8 +110,17 @@ pub fn parse(text: &str) -> Result<Vec<Row>, LogError> {
     Ok(rows)
 }
 
-/// Formats one row (the header is [`HEADER`]).
-pub fn format_row(out: &mut String, r: &Row) {
+/// The header line (with newline), with the optional `tilt_deg` column.
+pub fn header(tilt: bool) -> String {
+    if tilt {
+        format!("{HEADER},tilt_deg\n")
+    } else {
+        format!("{HEADER}\n")
+    }
+}
+
+/// Formats one row for a header made by [`header`]`(tilt)`.
+pub fn format_row(out: &mut String, r: &Row, tilt: bool) {
     let _ = write!(
         out,
         "{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},",
@@ -119,6 +128,12 @@ pub fn format_row(out: &mut String, r: &Row) {
     );
     if let Some(s) = r.servo_deg {
         let _ = write!(out, "{s:.3}");
+    }
+    if tilt {
+        out.push(',');
+        if let Some(t) = r.tilt_deg {
+            let _ = write!(out, "{t:.3}");
+        }
     }
     out.push('\n');
 }
@@ -156,11 +171,16 @@ mod tests {
     #[test]
     fn format_then_parse_round_trips() {
         let r = Row { t_s: 1.25, accel_g: [0.5, -0.25, 0.75], gyro_dps: [1.5, -2.0, 3.0], servo_deg: Some(30.0), tilt_deg: None };
-        let mut s = format!("{HEADER}\n");
-        format_row(&mut s, &r);
-        format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, ..r });
+        let mut s = header(false);
+        format_row(&mut s, &r, false);
+        format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, ..r }, false);
         let rows = parse(&s).unwrap();
         assert_eq!(rows[0], r);
         assert_eq!(rows[1].servo_deg, None);
+        let mut s = header(true);
+        format_row(&mut s, &Row { tilt_deg: Some(-25.0), ..r }, true);
+        format_row(&mut s, &Row { t_s: 1.5, ..r }, true);
+        let rows = parse(&s).unwrap();
+        assert_eq!((rows[0].tilt_deg, rows[1].tilt_deg), (Some(-25.0), None));
     }
 }

@@ -31,6 +31,16 @@ pub struct Segment {
     pub gyro: Welford3,
     /// Commanded servo angle (°), `None` for a hand-held pose.
     pub servo_deg: Option<f32>,
+    /// Commanded tilt angle (°), when the log has the column.
+    pub tilt_deg: Option<f32>,
+}
+
+impl Segment {
+    /// A rig pose: servo commanded, tilt stage level (or absent). Every other still segment is
+    /// an accelerometer pose (hand-held, or tilted by the tilt servo).
+    pub fn is_rig_pose(&self) -> bool {
+        self.servo_deg.is_some() && self.tilt_deg.is_none_or(|t| t.abs() <= 1.0)
+    }
 }
 
 /// A steady-rate run: the paper's rotation.
@@ -145,20 +155,24 @@ pub fn phases(rows: &[Row]) -> Phases {
         let Some(w) = det.update(r.t_s, r.accel_g, r.gyro_dps) else { continue };
         let span = &rows[start..=i];
         start = i + 1;
-        let servo = servo_of(span);
-        let still = w.still && w.state == RestState::Still && servo.is_some();
-        let servo = servo.flatten();
+        let (servo, tilt) = (column_of(span, |r| r.servo_deg), column_of(span, |r| r.tilt_deg));
+        let still = w.still && w.state == RestState::Still && servo.is_some() && tilt.is_some();
+        let (servo, tilt) = (servo.flatten(), tilt.flatten());
+        let same = |a: Option<f32>, b: Option<f32>| match (a, b) {
+            (None, None) => true,
+            (Some(a), Some(b)) => (a - b).abs() < 0.5,
+            _ => false,
+        };
         match (&mut open, still) {
-            (Some(seg), true) if seg.servo_deg.is_some() == servo.is_some()
-                && seg.servo_deg.zip(servo).is_none_or(|(a, b)| (a - b).abs() < 0.5) =>
-            {
+            (Some(seg), true) if same(seg.servo_deg, servo) && same(seg.tilt_deg, tilt) => {
                 seg.accel.merge(&w.accel);
                 seg.gyro.merge(&w.gyro);
                 seg.last = i;
             }
             (_, true) => {
                 close(&mut open, &mut segments, rows);
-                open = Some(Segment { first: i + 1 - span.len(), last: i, accel: w.accel, gyro: w.gyro, servo_deg: servo });
+                let first = i + 1 - span.len();
+                open = Some(Segment { first, last: i, accel: w.accel, gyro: w.gyro, servo_deg: servo, tilt_deg: tilt });
             }
             (_, false) => close(&mut open, &mut segments, rows),
         }
@@ -167,10 +181,10 @@ pub fn phases(rows: &[Row]) -> Phases {
     Phases { rest, segments }
 }
 
-/// The servo value of a window: `Some(None)` all empty, `Some(Some(mean))` all set and within
-/// 0.5°, `None` mixed or moving.
-fn servo_of(rows: &[Row]) -> Option<Option<f32>> {
-    let set: Vec<f32> = rows.iter().filter_map(|r| r.servo_deg).collect();
+/// A command column over a window: `Some(None)` all empty, `Some(Some(mean))` all set and
+/// within 0.5°, `None` mixed or moving.
+fn column_of(rows: &[Row], col: impl Fn(&Row) -> Option<f32>) -> Option<Option<f32>> {
+    let set: Vec<f32> = rows.iter().filter_map(col).collect();
     if set.is_empty() {
         return Some(None);
     }
@@ -264,7 +278,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
 
     // Accelerometer from the hand-held poses.
     let mut acc = AccelCalibrator::new();
-    for s in ph.segments.iter().filter(|s| s.servo_deg.is_none()) {
+    for s in ph.segments.iter().filter(|s| !s.is_rig_pose()) {
         if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
             break;
         }
@@ -280,10 +294,10 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     let mut moves = Moves::new();
     let mut prev: Option<(u8, usize)> = None;
     for s in &ph.segments {
-        let Some(_) = s.servo_deg else {
+        if !s.is_rig_pose() {
             prev = None;
             continue;
-        };
+        }
         if poses.len() == MAX_POSES {
             break;
         }

@@ -5,7 +5,7 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
-use crate::csvlog::{self, Row, HEADER};
+use crate::csvlog::{self, Row};
 use crate::sim::{Rig, Sample as SimSample};
 use calib_core::gyro::GyroCal;
 use calib_core::procedure::{Command, Phase, Procedure, Report, Sample};
@@ -76,17 +76,18 @@ pub fn to_input(s: &SimSample) -> Sample {
 }
 
 /// Runs `proc` on `rig` until it is done or failed (or `max_s` of MCU time passed).
-/// `log` sees every delivered sample with the commanded servo angle.
+/// `log` sees every delivered sample with the commanded rotation and tilt angles.
 pub fn run(
     rig: &mut Rig,
     proc: &mut Procedure,
     faults: Faults,
     max_s: f64,
-    mut log: impl FnMut(&SimSample, Option<f32>),
+    mut log: impl FnMut(&SimSample, Option<f32>, Option<f32>),
 ) -> Outcome {
     let mut out = Outcome::default();
     let attitudes = handheld_attitudes();
     let mut next_pose = 0usize;
+    let mut handheld = false;
     let mut press_at = Some(1.0);
     let mut last_bump = f64::NEG_INFINITY;
     let mut t = 0.0;
@@ -99,7 +100,7 @@ pub fn run(
         } else {
             let s = rig.next_sample();
             t = s.t_s;
-            log(&s, proc.servo_deg());
+            log(&s, proc.servo_deg(), proc.tilt_deg());
             proc.handle_sample(&to_input(&s));
             out.samples += 1;
         }
@@ -115,19 +116,22 @@ pub fn run(
         while let Some(c) = proc.poll() {
             match c {
                 Command::Servo { channel: 0, pulse_us } => rig.set_pulse_us(pulse_us as f64),
+                Command::Servo { pulse_us, .. } => rig.set_tilt_pulse_us(pulse_us as f64),
                 Command::ServoOff { channel: 0 } => rig.servo_off(),
-                Command::Servo { .. } | Command::ServoOff { .. } | Command::Led(_) => {}
+                Command::ServoOff { .. } | Command::Led(_) => {}
                 Command::Store(r) => out.stored.push(r),
                 Command::Apply(r) => out.applied.push(r),
                 Command::Report(r) => {
+                    handheld |= r == Report::Phase(Phase::HandHeld);
                     match r {
-                        Report::Phase(Phase::HandHeld) | Report::AccelPose { .. } => {
+                        Report::Phase(Phase::HandHeld) | Report::AccelPose { .. } if handheld => {
                             if let Some(q) = attitudes.get(next_pose) {
                                 rig.detach_to(*q, 1.0);
                                 next_pose += 1;
                             }
                         }
                         Report::Phase(Phase::Reattach) => {
+                            handheld = false;
                             rig.attach();
                             press_at = Some(t + rig.config().attach_transition_s + 1.0);
                         }
@@ -147,12 +151,14 @@ pub fn run(
     out
 }
 
-/// Runs like [`run`] and records the log (DESIGN §5 CSV, with `header` comment lines first).
-pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, header: &str) -> (String, Outcome) {
-    let mut text = format!("{header}{HEADER}\n");
-    let out = run(rig, proc, faults, 900.0, |s, servo| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None };
-        csvlog::format_row(&mut text, &row);
+/// Runs like [`run`] and records the log (DESIGN §5 CSV, `comments` first; a `tilt_deg` column
+/// when the rig has a tilt stage).
+pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Outcome) {
+    let tilt = rig.config().tilt.is_some();
+    let mut text = format!("{comments}{}", csvlog::header(tilt));
+    let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
+        csvlog::format_row(&mut text, &row, tilt);
     });
     (text, out)
 }

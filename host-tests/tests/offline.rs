@@ -62,7 +62,7 @@ fn degenerate_logs_are_named_errors() {
     let mut text = format!("{HEADER}\n");
     for i in 0..500 {
         let r = Row { t_s: i as f64 / 119.0, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.5, -0.2, 0.1], servo_deg: Some(0.0), tilt_deg: None };
-        csvlog::format_row(&mut text, &r);
+        csvlog::format_row(&mut text, &r, false);
     }
     let rows = csvlog::parse(&text).unwrap();
     let e = offline::calibrate(&rows, None).unwrap_err();
@@ -126,4 +126,26 @@ fn cli_simulate_then_calibrate_prints_one_json_object() {
     assert_eq!(code, 2);
     assert!(!err.contains("panicked"));
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn tilt_servo_logs_take_accelerometer_poses_from_the_tilt_column() {
+    use host_tests::sim::{PositionalServo, TiltStage};
+    use rand::SeedableRng;
+    let mut cfg = Variant::Hobby.config(25, 0);
+    cfg.tilt = Some(TiltStage {
+        servo: PositionalServo::realistic(&mut rand_chacha::ChaCha8Rng::seed_from_u64(25)),
+        hinge_deg: 60.0,
+    });
+    let mut rig = Rig::new(cfg, 3);
+    let mut p = Procedure::new(Config { tilt_accel: true, ..Config::default() }, None);
+    let (log, out) = record_log(&mut rig, &mut p, Faults::default(), "");
+    assert_eq!(out.error, None);
+    assert!(log.lines().next().unwrap().ends_with(",tilt_deg"));
+    let k = rig.truth().gyro_k;
+    let c = offline::calibrate(&csvlog::parse(&log).unwrap(), None).unwrap();
+    assert!(c.handheld_poses >= 12, "accelerometer poses {}", c.handheld_poses);
+    assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
+    let e = errors(c.gyro.k, [k[(0, 0)], k[(1, 1)], k[(2, 2)]]);
+    assert!(e.iter().all(|x| x.abs() < 0.003), "{e:?}");
 }

@@ -6,14 +6,14 @@ use calib_core::record::Record;
 use calib_core::Error;
 use host_tests::servo_protocol::Variant;
 use host_tests::session::{run, Faults, Outcome};
-use host_tests::sim::{ContinuousServo, GyroRange, Rig, RigConfig, ServoModel};
+use host_tests::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Outcome, Rig) {
     let mut rig = Rig::new(cfg, 5);
     let mut p = Procedure::new(pcfg, stored);
-    let out = run(&mut rig, &mut p, faults, 900.0, |_, _| {});
+    let out = run(&mut rig, &mut p, faults, 900.0, |_, _, _| {});
     (out, rig)
 }
 
@@ -132,4 +132,21 @@ fn sensor_data_stopping_is_an_error() {
         let faults = Faults { sensor_stops_at_s: Some(at), ..Faults::default() };
         expect_failure(Variant::Hobby.config(19, 0), Config::default(), faults, |e| matches!(e, Error::SensorTimeout { .. }));
     }
+}
+
+#[test]
+fn tilt_servo_takes_the_accelerometer_poses() {
+    let mut rng = ChaCha8Rng::seed_from_u64(24);
+    let mut cfg = Variant::Hobby.config(24, 0);
+    cfg.tilt = Some(TiltStage { servo: PositionalServo::realistic(&mut rng), hinge_deg: 30.0 });
+    let pcfg = Config { tilt_accel: true, ..Config::default() };
+    let (out, rig) = calibrate(cfg, pcfg, None, Faults::default());
+    assert_eq!(out.error, None, "{:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>());
+    assert!(out.reports.contains(&Report::Phase(Phase::TiltPoses)));
+    assert!(!out.reports.contains(&Report::Phase(Phase::HandHeld)));
+    let rec = out.stored[0];
+    assert_eq!(rec.accel_model, calib_core::accel::AccelModel::NineParam);
+    assert!(rec.accel_rms_g < 0.002, "accel residual {}", rec.accel_rms_g);
+    let err = max_rel_error(&rec, &rig);
+    assert!(err < 0.003, "max scale error {:.4} %", err * 100.0);
 }

@@ -68,6 +68,14 @@ pub struct Config {
     pub accel_poses: u8,
     /// Smallest angle between two hand-held poses (°).
     pub accel_min_separation_deg: f32,
+    /// Take the accelerometer poses with the tilt servo (channel 1, tilt angle + 90° mapped like
+    /// the rotation servo) instead of by hand: every `accel_pan_deg` × `accel_tilt_deg`.
+    /// Needs a positional rotation servo.
+    pub tilt_accel: bool,
+    /// Rotation-servo angles of the tilt-servo accelerometer poses (°).
+    pub accel_pan_deg: [f32; 3],
+    /// Tilt angles of the tilt-servo accelerometer poses (°, 0 = level).
+    pub accel_tilt_deg: [f32; 4],
     /// Stillness thresholds.
     pub rest: RestConfig,
     /// Bias limits.
@@ -121,6 +129,9 @@ impl Default for Config {
             bias_s: 2.0,
             accel_poses: 12,
             accel_min_separation_deg: 30.0,
+            tilt_accel: false,
+            accel_pan_deg: [0.0, 90.0, 180.0],
+            accel_tilt_deg: [-75.0, -25.0, 25.0, 75.0],
             rest: RestConfig::default(),
             bias: BiasLimits::default(),
             geometry: GeometryLimits::default(),

@@ -54,6 +54,8 @@ pub enum Phase {
     Bias,
     /// Capturing hand-held accelerometer poses.
     HandHeld,
+    /// Capturing accelerometer poses with the tilt servo.
+    TiltPoses,
     /// Waiting for the board to be clamped back on the shaft and the button pressed.
     Reattach,
     /// Static rig poses and the moves between them.
@@ -74,6 +76,7 @@ impl Phase {
             Phase::WaitRest => "wait-rest",
             Phase::Bias => "bias",
             Phase::HandHeld => "hand-held",
+            Phase::TiltPoses => "tilt-poses",
             Phase::Reattach => "reattach",
             Phase::RigPoses => "rig-poses",
             Phase::Rotation => "rotation",
@@ -144,6 +147,8 @@ enum Step {
     WaitRest,
     Bias { capture: Capture },
     HandHeld { capture: Capture },
+    /// Capturing tilt-servo accelerometer pose `n`, commanded at `since`.
+    TiltPose { n: u8, capture: Capture, since: f64 },
     Reattach,
     /// Moving to rig step `k` (started at `t0`).
     Move { k: u16, ramp: Ramp },
@@ -187,6 +192,9 @@ impl Rotation {
     }
 }
 
+/// Time for the servos to start moving after a tilt-pose command (s).
+const TILT_SETTLE_S: f64 = 0.3;
+
 /// Head room of the rotation's averaging window: skipped after the start and before the end (s).
 const ROTATION_SKIP_START_S: f64 = 1.0;
 const ROTATION_SKIP_END_S: f64 = 0.5;
@@ -202,6 +210,7 @@ pub struct Procedure {
     rest: RestDetector,
     tainted: bool,
     servo_deg: Option<f32>,
+    tilt_deg: Option<f32>,
     last_pulse: Option<u16>,
     bias: Option<Bias>,
     accel_cal: AccelCal,
@@ -227,6 +236,7 @@ impl Procedure {
             rest: RestDetector::new(cfg.rest),
             tainted: false,
             servo_deg: None,
+            tilt_deg: None,
             last_pulse: None,
             bias: None,
             accel_cal: AccelCal::IDENTITY,
@@ -248,6 +258,7 @@ impl Procedure {
             Step::WaitRest => Phase::WaitRest,
             Step::Bias { .. } => Phase::Bias,
             Step::HandHeld { .. } => Phase::HandHeld,
+            Step::TiltPose { .. } => Phase::TiltPoses,
             Step::Reattach => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
             Step::Rotation { .. } => Phase::Rotation,
@@ -260,6 +271,12 @@ impl Procedure {
     /// nominal angle, commanded speed × time.
     pub fn servo_deg(&self) -> Option<f32> {
         self.servo_deg
+    }
+
+    /// The commanded tilt angle (°, 0 = level), `None` without a tilt servo: the optional
+    /// `tilt_deg` column of the raw log.
+    pub fn tilt_deg(&self) -> Option<f32> {
+        self.tilt_deg
     }
 
     /// Next command for the shell.
@@ -347,6 +364,16 @@ impl Procedure {
                     }
                 }
             }
+            Step::TiltPose { n, mut capture, since } => {
+                // Windows that began before the servos could move are not this pose.
+                if let Some(w) = window.filter(|w| w.t_start_s >= since + TILT_SETTLE_S) {
+                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
+                        CaptureStep::Pending => self.step = Step::TiltPose { n, capture, since },
+                        CaptureStep::Disturbed => self.retake(n, capture, |c| Step::TiltPose { n, capture: c, since }),
+                        CaptureStep::Done => self.finish_tilt_pose(n, &capture, s.t_s),
+                    }
+                }
+            }
             Step::Move { k, ramp } => {
                 if saturated {
                     return self.fail(Error::Saturated);
@@ -411,6 +438,9 @@ impl Procedure {
         let queue = core::mem::take(&mut self.queue);
         *self = Self::new(cfg, stored);
         self.queue = queue;
+        if cfg.tilt_accel {
+            self.set_tilt(0.0);
+        }
         if let Some(acc) = stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
             self.accel_cal = acc;
         }
@@ -489,6 +519,7 @@ impl Procedure {
         let (since, limit) = match self.step {
             Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
             Step::HandHeld { .. } => (self.phase_t0, c.handheld_timeout_s),
+            Step::TiltPose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
             Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
@@ -508,7 +539,11 @@ impl Procedure {
             Ok(b) => {
                 self.bias = Some(b);
                 self.push(Command::Report(Report::Bias(b)));
-                if self.accel_cal.model == AccelModel::None {
+                let tilt = self.cfg.tilt_accel && self.cfg.servo == ServoKind::Positional;
+                if self.accel_cal.model == AccelModel::None && tilt {
+                    self.enter(Step::TiltPose { n: 0, capture: Capture::default(), since: t_s }, t_s);
+                    self.command_tilt_pose(0);
+                } else if self.accel_cal.model == AccelModel::None {
                     self.servo_deg = None;
                     self.last_pulse = None;
                     self.push(Command::ServoOff { channel: 0 });
@@ -541,18 +576,58 @@ impl Procedure {
         if self.accel_poses.len() < self.cfg.accel_poses.max(6) as usize {
             return;
         }
+        match self.fit_accel() {
+            Ok(()) => self.enter(Step::Reattach, t_s),
+            Err(e) => self.fail(e),
+        }
+    }
+
+    /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.
+    fn fit_accel(&mut self) -> Result<(), Error> {
         let fit = if self.accel_poses.len() >= 9 {
             self.accel_poses.solve9().or_else(|_| self.accel_poses.solve6())
         } else {
             self.accel_poses.solve6()
-        };
-        match fit {
-            Ok(cal) if cal.rms_after_g <= self.cfg.max_accel_rms_g => {
-                self.accel_cal = cal;
-                self.push(Command::Report(Report::Accel(cal)));
-                self.enter(Step::Reattach, t_s);
+        }?;
+        if !(fit.rms_after_g <= self.cfg.max_accel_rms_g) {
+            return Err(Error::AccelFitFailed);
+        }
+        self.accel_cal = fit;
+        self.push(Command::Report(Report::Accel(fit)));
+        Ok(())
+    }
+
+    /// Tilt-servo accelerometer poses: pan `accel_pan_deg[n / 4]`, tilt `accel_tilt_deg[n % 4]`.
+    const TILT_POSES: u8 = 12;
+
+    fn command_tilt_pose(&mut self, n: u8) {
+        let (pan, tilt) = (self.cfg.accel_pan_deg[(n / 4) as usize % 3], self.cfg.accel_tilt_deg[(n % 4) as usize]);
+        self.set_angle(pan);
+        self.set_tilt(tilt);
+    }
+
+    fn set_tilt(&mut self, deg: f32) {
+        self.tilt_deg = Some(deg);
+        let pulse = self.cfg.pulse_for_deg(deg + 90.0);
+        self.push(Command::Servo { channel: 1, pulse_us: pulse });
+    }
+
+    fn finish_tilt_pose(&mut self, n: u8, capture: &Capture, t_s: f64) {
+        let a = capture.accel_mean();
+        if let Err(e) = self.accel_poses.add_pose(a) {
+            return self.fail(e);
+        }
+        self.push(Command::Report(Report::AccelPose { index: n, accel_g: a }));
+        if n + 1 < Self::TILT_POSES {
+            self.command_tilt_pose(n + 1);
+            self.step = Step::TiltPose { n: n + 1, capture: Capture::default(), since: t_s };
+            return;
+        }
+        match self.fit_accel() {
+            Ok(()) => {
+                self.set_tilt(0.0);
+                self.begin_rig(t_s);
             }
-            Ok(_) => self.fail(Error::AccelFitFailed),
             Err(e) => self.fail(e),
         }
     }

@@ -10,22 +10,27 @@ use host_tests::csvlog;
 use host_tests::offline;
 use host_tests::servo_protocol::Variant;
 use host_tests::session::{record_log, Faults};
-use host_tests::sim::{ContinuousServo, Rig, ServoModel};
+use host_tests::sim::{ContinuousServo, PositionalServo, Rig, ServoModel, TiltStage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::process::ExitCode;
 
-const USAGE: &str = "usage: calib LOG.csv [--method paper|sweep]\n       calib --simulate OUT.csv [--seed N] [--odr 119|238|476|952] [--servo positional|continuous]";
+const USAGE: &str = "usage: calib LOG.csv [--method paper|sweep]\n       calib --simulate OUT.csv [--seed N] [--odr 119|238|476|952] [--servo positional|continuous] [--tilt]";
 
 fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
     eprintln!("calib: {msg}");
     ExitCode::from(code)
 }
 
-fn simulate(path: &str, seed: u64, odr: f64, continuous: bool) -> ExitCode {
+fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> ExitCode {
     let mut cfg = Variant::Hobby.config(seed, 0);
     cfg.odr_hz = odr;
     let mut pcfg = Config::default();
+    if tilt {
+        let servo = PositionalServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed + 1));
+        cfg.tilt = Some(TiltStage { servo, hinge_deg: 45.0 });
+        pcfg.tilt_accel = true;
+    }
     if continuous {
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed)));
         pcfg.servo = ServoKind::CONTINUOUS;
@@ -53,7 +58,8 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool) -> ExitCode {
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let (mut log, mut method, mut sim, mut seed, mut odr, mut continuous) = (None, None, None, 1u64, 119.0, false);
+    let (mut log, mut method, mut sim, mut seed, mut odr) = (None, None, None, 1u64, 119.0);
+    let (mut continuous, mut tilt) = (false, false);
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().cloned().ok_or(format!("{name} needs a value"));
@@ -76,6 +82,7 @@ fn main() -> ExitCode {
                         s => return Err(format!("unknown servo {s:?} (positional or continuous)")),
                     }
                 }
+                "--tilt" => tilt = true,
                 "-h" | "--help" => return Err(USAGE.into()),
                 s if s.starts_with("--") => return Err(format!("unknown option {s}\n{USAGE}")),
                 s => log = Some(s.to_string()),
@@ -87,7 +94,7 @@ fn main() -> ExitCode {
         }
     }
     if let Some(path) = sim {
-        return simulate(&path, seed, odr, continuous);
+        return simulate(&path, seed, odr, continuous, tilt);
     }
     let Some(path) = log else { return fail(2, USAGE) };
     let text = match std::fs::read_to_string(&path) {

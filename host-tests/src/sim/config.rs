@@ -34,6 +34,18 @@ pub struct RigConfig {
     pub temp_drift_c_per_s: f64,
     /// Duration of the smooth move back onto the shaft in `Rig::attach` (s).
     pub attach_transition_s: f64,
+    /// Optional tilt stage of a pan/tilt gimbal between the shaft and the board.
+    pub tilt: Option<TiltStage>,
+}
+
+/// A tilt servo mounted on the rotation shaft: it turns the board about a hinge perpendicular to
+/// the shaft by `servo angle − 90°` (1500 µs ≈ level).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TiltStage {
+    /// The tilt servo (positional).
+    pub servo: PositionalServo,
+    /// Direction of the hinge about the shaft, from an arbitrary perpendicular (deg).
+    pub hinge_deg: f64,
 }
 
 impl RigConfig {
@@ -55,6 +67,7 @@ impl RigConfig {
             temp_c: 25.0,
             temp_drift_c_per_s: 0.0,
             attach_transition_s: 1.0,
+            tilt: None,
         }
         .with_axis(Vector3::new(2.0, -3.0, 6.0), 25.0)
     }
@@ -87,6 +100,7 @@ impl RigConfig {
             temp_c: rng.random_range(20.0..30.0),
             temp_drift_c_per_s: rng.random_range(0.0..0.005),
             attach_transition_s: 1.0,
+            tilt: None,
         }
         .with_axis(axis_b, twist_deg)
     }

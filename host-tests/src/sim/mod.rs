@@ -17,7 +17,7 @@ mod rig;
 mod sensor;
 mod servo;
 
-pub use config::RigConfig;
+pub use config::{RigConfig, TiltStage};
 pub use kinematics::{tilted_axis, G0};
 pub use rig::{Rig, Sample, Truth};
 pub use sensor::{AccelModel, AccelRange, GyroModel, GyroRange};

@@ -5,7 +5,7 @@ use super::config::RigConfig;
 use super::kinematics::{
     lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble,
 };
-use super::servo::Servo;
+use super::servo::{Servo, ServoModel};
 use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -44,7 +44,8 @@ pub struct Truth {
     pub accel_c: Matrix3<f64>,
     /// Accelerometer offset `o` (g).
     pub accel_offset_g: Vector3<f64>,
-    /// Shaft axis in B (unit), the rotation axis whenever the board is on the shaft.
+    /// Shaft axis in B (unit) at the current tilt, the rotation axis whenever the board is on
+    /// the shaft.
     pub axis_b: Vector3<f64>,
     /// Sensor position from the shaft axis (m, in B), perpendicular to `axis_b`.
     pub lever_b_m: Vector3<f64>,
@@ -72,6 +73,8 @@ pub struct Rig {
     axis_b: Vector3<f64>,
     lever_b: Vector3<f64>,
     servo: Servo,
+    /// The tilt servo and its hinge axis in W at shaft angle 0.
+    tilt: Option<(Servo, Unit<Vector3<f64>>)>,
     /// Some(resting attitude) while the board is off the shaft.
     hand: Option<UnitQuaternion<f64>>,
     transition: Option<Transition>,
@@ -114,6 +117,13 @@ impl Rig {
             axis_b,
             lever_b: perpendicular(&axis_b) * cfg.radius_m,
             servo: Servo::new(cfg.servo, stream(1)),
+            tilt: cfg.tilt.map(|t| {
+                let hinge = UnitQuaternion::from_axis_angle(&axis_w, t.hinge_deg.to_radians())
+                    * perpendicular(&axis_w.into_inner());
+                // The stage starts level (servo at 90°).
+                let servo = Servo::new(ServoModel::Positional(t.servo), stream(5)).starting_at(90.0);
+                (servo, Unit::new_normalize(hinge))
+            }),
             hand: None,
             transition: None,
             wobbles: Vec::new(),
@@ -135,6 +145,13 @@ impl Rig {
     /// Servo pulse width (µs), picked up at the next 20 ms PWM frame.
     pub fn set_pulse_us(&mut self, us: f64) {
         self.servo.set_pulse_us(us);
+    }
+
+    /// Tilt servo pulse width (µs); ignored without a tilt stage.
+    pub fn set_tilt_pulse_us(&mut self, us: f64) {
+        if let Some((tilt, _)) = &mut self.tilt {
+            tilt.set_pulse_us(us);
+        }
     }
 
     /// No more servo pulses (from the next 20 ms frame): the motor idles.
@@ -188,6 +205,9 @@ impl Rig {
         let substeps = (dt_s * SUBSTEP_HZ).ceil().max(1.0);
         for _ in 0..substeps as u32 {
             self.servo.step(dt_s / substeps);
+            if let Some((tilt, _)) = &mut self.tilt {
+                tilt.step(dt_s / substeps);
+            }
         }
 
         let q_wb = self.attitude(t_s);
@@ -241,7 +261,7 @@ impl Rig {
             gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c),
             accel_c: self.cfg.accel.matrix(),
             accel_offset_g: self.cfg.accel.offset_g,
-            axis_b: self.axis_b,
+            axis_b: self.current_axis_b(),
             lever_b_m: self.lever_b,
             shaft_deg: self.servo.angle().to_degrees(),
             shaft_rate_dps: self.servo.rate().to_degrees(),
@@ -265,12 +285,24 @@ impl Rig {
     /// Attitude at true time `t_s` (shaft state as integrated up to `t_s`), without wobbles.
     fn base_attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
         let target = self.hand.unwrap_or_else(|| {
-            UnitQuaternion::from_axis_angle(&self.axis_w, self.servo.angle()) * self.cfg.mount
+            UnitQuaternion::from_axis_angle(&self.axis_w, self.servo.angle()) * self.tilt_rotation() * self.cfg.mount
         });
         match &self.transition {
             Some(tr) => tr.attitude(t_s, &target),
             None => target,
         }
+    }
+
+    /// Rotation of the tilt stage (in W at shaft angle 0): the hinge by `angle − 90°`.
+    fn tilt_rotation(&self) -> UnitQuaternion<f64> {
+        self.tilt.as_ref().map_or(UnitQuaternion::identity(), |(servo, hinge)| {
+            UnitQuaternion::from_axis_angle(hinge, servo.angle() - std::f64::consts::FRAC_PI_2)
+        })
+    }
+
+    /// The shaft axis in B for the current tilt.
+    fn current_axis_b(&self) -> Vector3<f64> {
+        (self.tilt_rotation() * self.cfg.mount).inverse() * self.axis_w.into_inner()
     }
 
     fn attitude(&self, t_s: f64) -> UnitQuaternion<f64> {

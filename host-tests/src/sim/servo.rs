@@ -194,6 +194,12 @@ impl Servo {
         }
     }
 
+    /// The same servo with its shaft at `deg` (°) instead of 0.
+    pub fn starting_at(mut self, deg: f64) -> Self {
+        self.angle = deg.to_radians();
+        self
+    }
+
     /// New pulse width; the servo picks it up at the next PWM frame.
     pub fn set_pulse_us(&mut self, us: f64) {
         self.pulse_cmd_us = Some(us);
