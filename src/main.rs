@@ -194,7 +194,10 @@ fn main() -> ! {
     // Nordic's fix is the 390 kHz setting.
     // SAFETY: a plain register write to the TWIM we own, before any transfer.
     unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(0x0620_0000)) };
-    let sensor_cfg = SensorConfig::default();
+    let sensor_cfg = SensorConfig {
+        odr: if cfg!(feature = "odr952") { gyrocal_fw::lsm9ds1::Odr::Hz952 } else { gyrocal_fw::lsm9ds1::Odr::Hz119 },
+        ..SensorConfig::default()
+    };
     let mut sensor: Option<Lsm9ds1<Twim<pac::TWIM0>>> = None;
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.

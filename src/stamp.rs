@@ -1,67 +1,88 @@
 //! Timestamps for FIFO batches from the MCU clock.
 //!
-//! A batch of `n` samples read at MCU time `t` ends with the newest sample; the samples are
-//! spaced by the sensor's *measured* period (MCU time elapsed over samples received since the
-//! first batch), never the nominal ODR, which is several percent off on real boards.
+//! The sensor samples on its own oscillator, several percent off the nominal ODR but steady: the
+//! time of sample `k` is `t₀ + k·P`. Each FIFO read at MCU time `t` bounds the newest sample
+//! (`t₀ + k·P ≤ t < t₀ + (k+1)·P` plus the read latency); a least-squares line through
+//! (newest index, read time) over every batch gives `P` and `t₀` (offset by the mean latency, a
+//! constant that no integral sees). So samples get evenly spaced times at the measured period,
+//! never the nominal ODR, and not the batch-to-batch jitter of the read times.
+
+use calib_core::lsq::NormalEquations;
 
 /// Assigns MCU timestamps to FIFO samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stamper {
     nominal_period_s: f64,
-    first: Option<(f64, u64)>,
+    /// Rows `[1, k_newest] · [t₀, P] ≈ t_read`, indices from the first sample since (re)start.
+    fit: NormalEquations<2>,
+    first_read_s: Option<f64>,
     received: u64,
-    last: Option<f64>,
+    line: Option<(f64, f64)>,
 }
 
+/// Reads needed before the line is trusted.
+const MIN_BATCHES: u32 = 8;
+
 impl Stamper {
-    /// `nominal_hz` is used only until two batches have been seen.
+    /// `nominal_hz` is used only until the period has been measured.
     pub fn new(nominal_hz: f32) -> Self {
-        Self { nominal_period_s: 1.0 / nominal_hz.max(1.0) as f64, first: None, received: 0, last: None }
+        Self {
+            nominal_period_s: 1.0 / nominal_hz.max(1.0) as f64,
+            fit: NormalEquations::new(),
+            first_read_s: None,
+            received: 0,
+            line: None,
+        }
     }
 
     /// The measured sample period (s), or the nominal one before it can be measured.
     pub fn period_s(&self) -> f64 {
-        match self.first {
-            Some((t0, n0)) if self.received > n0 + 16 => {
-                let t = self.last.unwrap_or(t0);
-                if t > t0 {
-                    (t - t0) / (self.received - n0) as f64
-                } else {
-                    self.nominal_period_s
-                }
-            }
-            _ => self.nominal_period_s,
-        }
+        self.line.map_or(self.nominal_period_s, |(_, p)| p)
     }
 
     /// Registers a batch of `n` samples read at `t_read_s`; `stamp(i)` of the returned batch gives
     /// the time of sample `i` (0 = oldest).
     pub fn batch(&mut self, t_read_s: f64, n: usize) -> Batch {
-        if self.first.is_none() && n > 0 {
-            self.first = Some((t_read_s, n as u64));
-        }
+        let t0 = *self.first_read_s.get_or_insert(t_read_s);
+        let first_index = self.received;
         self.received += n as u64;
-        self.last = Some(t_read_s);
-        Batch { t_read_s, n, period_s: self.period_s() }
+        if n > 0 {
+            // Times relative to the first read keep the sums well conditioned.
+            let _ = self.fit.add_row(&[1.0, (self.received - 1) as f64], t_read_s - t0, 1.0);
+            if self.fit.rows() >= MIN_BATCHES {
+                if let Ok(s) = self.fit.solve() {
+                    if s.x[1] > 0.5 * self.nominal_period_s && s.x[1] < 2.0 * self.nominal_period_s {
+                        self.line = Some((t0 + s.x[0], s.x[1]));
+                    }
+                }
+            }
+        }
+        match self.line {
+            Some((a, p)) => Batch { origin_s: a + first_index as f64 * p, period_s: p },
+            // Before the fit: the newest sample at the read time, nominal spacing.
+            None => Batch {
+                origin_s: t_read_s - n.saturating_sub(1) as f64 * self.nominal_period_s,
+                period_s: self.nominal_period_s,
+            },
+        }
     }
 
-    /// Forgets the history (after a FIFO overrun, the count no longer matches the time).
+    /// Forgets the history (after a FIFO overrun the sample count no longer matches the time).
     pub fn restart(&mut self) {
-        *self = Self { nominal_period_s: self.nominal_period_s, first: None, received: 0, last: None };
+        *self = Self::new((1.0 / self.nominal_period_s) as f32);
     }
 }
 
 /// Timestamps of one batch.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Batch {
-    t_read_s: f64,
-    n: usize,
+    origin_s: f64,
     period_s: f64,
 }
 
 impl Batch {
     /// Time (s) of sample `i` of the batch (0 = oldest).
     pub fn stamp(&self, i: usize) -> f64 {
-        self.t_read_s - (self.n.saturating_sub(1 + i)) as f64 * self.period_s
+        self.origin_s + i as f64 * self.period_s
     }
 }

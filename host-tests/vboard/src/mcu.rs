@@ -1,0 +1,460 @@
+//! The emulated nRF52840: Unicorn's Cortex-M4 with the peripheral models, exception entry and
+//! return done by the host (Unicorn has no NVIC), virtual time from the instruction count at
+//! 64 MHz, `wfi` skipping to the next event, and the defmt log read from the RTT buffer.
+
+use crate::elf::Firmware;
+use crate::periph::{Dma, Periph, CPU_HZ, STORAGE};
+use std::cell::{Cell, RefCell};
+use std::collections::HashSet;
+use std::rc::Rc;
+use unicorn_engine::{Arch, Mode, Prot, RegisterARM, Unicorn};
+
+const FLASH_END: u64 = STORAGE.0;
+const RAM: (u64, u64) = (0x2000_0000, 0x2004_0000);
+/// Instructions per emulation slice (1 ms at 64 MHz).
+const SLICE: u64 = 64_000;
+/// Unicorn interrupt number of a v7-M exception return.
+const EXCP_EXCEPTION_EXIT: u32 = 8;
+/// Unicorn interrupt number of a prefetch abort.
+const EXCP_PREFETCH_ABORT: u32 = 3;
+
+/// Why a run stopped.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Stop {
+    /// The requested time was reached.
+    Time,
+    /// The firmware faulted (undefined instruction, e.g. a panic) or touched an unmodelled address.
+    Fault(String),
+    /// The injected power cut happened.
+    PowerCut,
+}
+
+struct Exception {
+    fp: Vec<u64>,
+}
+
+/// The board.
+pub struct Mcu {
+    uc: Unicorn<'static, ()>,
+    /// The peripherals, shared with the MMIO callbacks.
+    pub periph: Rc<RefCell<Periph>>,
+    instructions: Rc<Cell<u64>>,
+    wfi_hit: Rc<Cell<bool>>,
+    fault: Rc<RefCell<Option<String>>>,
+    firmware: Firmware,
+    table: Option<defmt_decoder::Table>,
+    rtt_bytes: Vec<u8>,
+    /// Decoded defmt log lines, in order.
+    pub log: Vec<String>,
+    exception: Option<Exception>,
+    wfi_addrs: HashSet<u64>,
+    /// Resets so far (watchdog, software).
+    pub resets: u32,
+    /// Instructions spent in `Procedure::handle_sample` and its calls, and calls counted.
+    pub handle_sample: Rc<Cell<(u64, u64)>>,
+}
+
+struct UcDma<'a, 'b>(&'a mut Unicorn<'b, ()>);
+
+impl Dma for UcDma<'_, '_> {
+    fn read(&mut self, addr: u64, buf: &mut [u8]) {
+        let _ = self.0.mem_read(addr, buf);
+    }
+    fn write(&mut self, addr: u64, data: &[u8]) {
+        let _ = self.0.mem_write(addr, data);
+    }
+}
+
+fn err<E: std::fmt::Debug>(what: &str) -> impl Fn(E) -> String + '_ {
+    move |e| format!("{what}: {e:?}")
+}
+
+impl Mcu {
+    /// Powers the board on with `firmware`.
+    pub fn new(firmware: Firmware, periph: Periph) -> Result<Self, String> {
+        let instructions = periph.instructions.clone();
+        let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::MCLASS, ()).map_err(err("unicorn"))?;
+        uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32).map_err(err("cpu model"))?;
+        uc.mem_map(0, FLASH_END, Prot::ALL).map_err(err("map flash"))?;
+        uc.mem_map(RAM.0, RAM.1 - RAM.0, Prot::ALL).map_err(err("map RAM"))?;
+        let periph = Rc::new(RefCell::new(periph));
+        let fault = Rc::new(RefCell::new(None));
+        // Storage flash and peripherals: MMIO into the models.
+        let p = periph.clone();
+        let p2 = periph.clone();
+        uc.mmio_map(
+            STORAGE.0,
+            STORAGE.1 - STORAGE.0,
+            Some(move |_: &mut Unicorn<()>, off: u64, size: usize| p.borrow_mut().flash_read(STORAGE.0 + off, size)),
+            Some(move |_: &mut Unicorn<()>, off: u64, size: usize, v: u64| {
+                p2.borrow_mut().flash_write(STORAGE.0 + off, size, v)
+            }),
+        )
+        .map_err(err("map storage"))?;
+        for (base, size) in [(0x4000_0000u64, 0x8_0000u64), (0x5000_0000, 0x1000), (0x1000_0000, 0x2000), (0xE000_E000, 0x1000)] {
+            let (pr, pw) = (periph.clone(), periph.clone());
+            uc.mmio_map(
+                base,
+                size,
+                Some(move |_: &mut Unicorn<()>, off: u64, _size: usize| pr.borrow_mut().read(base + off)),
+                Some(move |uc: &mut Unicorn<()>, off: u64, _size: usize, v: u64| {
+                    let mut dma = UcDma(uc);
+                    pw.borrow_mut().write(base + off, v, &mut dma)
+                }),
+            )
+            .map_err(err("map peripherals"))?;
+        }
+        for (addr, data) in &firmware.segments {
+            if *addr < FLASH_END {
+                uc.mem_write(*addr, data).map_err(err("load"))?;
+            }
+        }
+        // Every instruction counts for the clock; a `wfi` ends the slice.
+        let wfi = wfi_addresses(&firmware);
+        let wfi_addrs = wfi.clone();
+        let (count, wfi_hit) = (instructions.clone(), Rc::new(Cell::new(false)));
+        let (hit, pc_of) = (wfi_hit.clone(), periph.clone());
+        // Instructions inside `Procedure::handle_sample` (callees included): from its entry to
+        // the return address found in LR at the entry.
+        let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
+        let (hs, entry) = (handle_sample.clone(), firmware.handle_sample.map(|r| r.0));
+        let open: Cell<Option<(u64, u64)>> = Cell::new(None);
+        uc.add_code_hook(0x1_0000, FLASH_END, move |uc, addr, _size| {
+            let n = count.get() + 1;
+            count.set(n);
+            if let Ok(mut p) = pc_of.try_borrow_mut() {
+                p.pc = addr;
+            }
+            if Some(addr) == entry {
+                let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
+                open.set(Some((n, lr)));
+            } else if let Some((n0, ret)) = open.get() {
+                if addr == ret {
+                    let (i, calls) = hs.get();
+                    hs.set((i + n - n0, calls + 1));
+                    open.set(None);
+                }
+            }
+            if wfi.contains(&addr) {
+                hit.set(true);
+                let _ = uc.emu_stop();
+            }
+        })
+        .map_err(err("code hook"))?;
+        let f = fault.clone();
+        uc.add_intr_hook(move |uc, intno| {
+            let pc = uc.reg_read(RegisterARM::PC).unwrap_or(0);
+            // A branch to EXC_RETURN arrives as an exception exit (or a prefetch abort at
+            // 0xFFFFFFFx): the run loop unstacks the frame.
+            let exception_return = intno == EXCP_EXCEPTION_EXIT || (intno == EXCP_PREFETCH_ABORT && pc >= 0xFFFF_FF00);
+            if !exception_return {
+                *f.borrow_mut() = Some(format!("CPU exception {intno} at PC 0x{pc:08X} (1 = undefined instruction: a firmware panic)"));
+            }
+            let _ = uc.emu_stop();
+        })
+        .map_err(err("intr hook"))?;
+        let table = defmt_decoder::Table::parse(&firmware.bytes).ok().flatten();
+        let mut mcu = Self {
+            uc,
+            periph,
+            instructions,
+            wfi_hit,
+            fault,
+            firmware,
+            table,
+            rtt_bytes: vec![],
+            log: vec![],
+            exception: None,
+            wfi_addrs,
+            resets: 0,
+            handle_sample,
+        };
+        mcu.reset()?;
+        Ok(mcu)
+    }
+
+    /// Current PC (diagnostics).
+    pub fn pc(&self) -> u64 {
+        self.uc.reg_read(RegisterARM::PC).unwrap_or(0)
+    }
+
+    /// Virtual time (s).
+    pub fn now(&self) -> f64 {
+        self.periph.borrow().now()
+    }
+
+    /// Instructions executed.
+    pub fn instructions(&self) -> u64 {
+        self.instructions.get()
+    }
+
+    /// The firmware.
+    pub fn firmware(&self) -> &Firmware {
+        &self.firmware
+    }
+
+    /// A reset: peripherals to their reset state, the CPU from the application's vector table.
+    pub fn reset(&mut self) -> Result<(), String> {
+        self.periph.borrow_mut().reset();
+        self.periph.borrow_mut().vtor = 0x1_0000; // what the Arduino bootloader leaves
+        self.exception = None;
+        let mut v = [0u8; 8];
+        self.uc.mem_read(0x1_0000, &mut v).map_err(err("vector table"))?;
+        let sp = u32::from_le_bytes([v[0], v[1], v[2], v[3]]) as u64;
+        let pc = u32::from_le_bytes([v[4], v[5], v[6], v[7]]) as u64;
+        self.uc.reg_write(RegisterARM::MSP, sp).map_err(err("msp"))?;
+        self.uc.reg_write(RegisterARM::SP, sp).map_err(err("sp"))?;
+        self.uc.reg_write(RegisterARM::CONTROL, 0).map_err(err("control"))?;
+        self.uc.reg_write(RegisterARM::PRIMASK, 0).map_err(err("primask"))?;
+        self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFFF).map_err(err("lr"))?;
+        self.uc.reg_write(RegisterARM::PC, pc & !1).map_err(err("pc"))?;
+        Ok(())
+    }
+
+    /// Paints the free stack with a pattern (for the peak-stack measurement).
+    pub fn paint_stack(&mut self) {
+        if let Some((lo, hi)) = self.firmware.stack {
+            let sp = self.uc.reg_read(RegisterARM::SP).unwrap_or(hi);
+            let top = sp.min(hi).saturating_sub(64);
+            if top > lo {
+                let _ = self.uc.mem_write(lo, &vec![0xA5; (top - lo) as usize]);
+            }
+        }
+    }
+
+    /// Peak stack use (bytes): the painted bytes that were overwritten.
+    pub fn peak_stack(&self) -> Option<u64> {
+        let (lo, hi) = self.firmware.stack?;
+        let mem = self.uc.mem_read_as_vec(lo, (hi - lo) as usize).ok()?;
+        let untouched = mem.iter().take_while(|&&b| b == 0xA5).count() as u64;
+        Some(hi - lo - untouched)
+    }
+
+    fn drain_rtt(&mut self) {
+        let Some(cb) = self.firmware.rtt else { return };
+        let mut h = [0u8; 48];
+        if self.uc.mem_read(cb, &mut h).is_err() {
+            return;
+        }
+        let u = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]) as u64;
+        let (buf, size, write, read) = (u(28), u(32), u(36), u(40));
+        if size == 0 || write == read || write >= size || read >= size {
+            return;
+        }
+        let take = |from: u64, to: u64, v: &mut Vec<u8>| {
+            if let Ok(b) = self.uc.mem_read_as_vec(buf + from, (to - from) as usize) {
+                v.extend(b);
+            }
+        };
+        let mut bytes = vec![];
+        if write > read {
+            take(read, write, &mut bytes);
+        } else {
+            take(read, size, &mut bytes);
+            take(0, write, &mut bytes);
+        }
+        let _ = self.uc.mem_write(cb + 40, &(write as u32).to_le_bytes());
+        self.rtt_bytes.extend(bytes);
+        if let Some(table) = &self.table {
+            let mut dec = table.new_stream_decoder();
+            dec.received(&self.rtt_bytes);
+            let mut consumed_frames = vec![];
+            loop {
+                match dec.decode() {
+                    Ok(frame) => consumed_frames.push(frame.display(false).to_string()),
+                    Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+                    Err(defmt_decoder::DecodeError::Malformed) => {
+                        consumed_frames.push("<malformed defmt frame>".into());
+                        break;
+                    }
+                }
+            }
+            // Keep only the undecoded tail: re-encode nothing, just count what was consumed.
+            if !consumed_frames.is_empty() {
+                self.rtt_bytes = remaining_after(table, &self.rtt_bytes, consumed_frames.len());
+                self.log.extend(consumed_frames);
+            }
+        }
+    }
+
+    fn deliver_interrupt(&mut self) -> Result<(), String> {
+        if self.exception.is_some() || self.uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0 {
+            return Ok(());
+        }
+        let (pending, vtor) = {
+            let p = self.periph.borrow();
+            (p.nvic_pending & p.nvic_enabled, p.vtor)
+        };
+        if pending == 0 {
+            return Ok(());
+        }
+        let irq = pending.trailing_zeros() as u64;
+        self.periph.borrow_mut().nvic_pending &= !(1 << irq);
+        let mut v = [0u8; 4];
+        self.uc.mem_read(vtor as u64 + 4 * (16 + irq), &mut v).map_err(err("vector"))?;
+        let handler = u32::from_le_bytes(v) as u64;
+        let r = |uc: &Unicorn<()>, reg| uc.reg_read(reg).unwrap_or(0) as u32;
+        let xpsr = r(&self.uc, RegisterARM::XPSR);
+        let frame = [
+            r(&self.uc, RegisterARM::R0),
+            r(&self.uc, RegisterARM::R1),
+            r(&self.uc, RegisterARM::R2),
+            r(&self.uc, RegisterARM::R3),
+            r(&self.uc, RegisterARM::R12),
+            r(&self.uc, RegisterARM::LR),
+            r(&self.uc, RegisterARM::PC),
+            xpsr,
+        ];
+        let sp = r(&self.uc, RegisterARM::SP) as u64;
+        let mut new_sp = sp - 32;
+        let mut frame = frame;
+        if new_sp & 4 != 0 {
+            new_sp -= 4;
+            frame[7] |= 1 << 9;
+        }
+        let bytes: Vec<u8> = frame.iter().flat_map(|w| w.to_le_bytes()).collect();
+        self.uc.mem_write(new_sp, &bytes).map_err(err("stack frame"))?;
+        // FP context: kept by the host, restored on return (the handler may use the FPU).
+        let fp = (0..16).map(|i| self.uc.reg_read(RegisterARM::S0 as i32 + i).unwrap_or(0)).chain([self.uc.reg_read(RegisterARM::FPSCR).unwrap_or(0)]).collect();
+        self.exception = Some(Exception { fp });
+        self.uc.reg_write(RegisterARM::SP, new_sp).map_err(err("sp"))?;
+        self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFF9).map_err(err("lr"))?;
+        self.uc.reg_write(RegisterARM::IPSR, 16 + irq).map_err(err("ipsr"))?;
+        self.uc.reg_write(RegisterARM::PC, handler & !1).map_err(err("pc"))?;
+        Ok(())
+    }
+
+    fn exception_return(&mut self) -> Result<(), String> {
+        let sp = self.uc.reg_read(RegisterARM::SP).map_err(err("sp"))?;
+        let mut b = [0u8; 32];
+        self.uc.mem_read(sp, &mut b).map_err(err("unstack"))?;
+        let w = |i: usize| u32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]) as u64;
+        for (i, reg) in [RegisterARM::R0, RegisterARM::R1, RegisterARM::R2, RegisterARM::R3, RegisterARM::R12, RegisterARM::LR].into_iter().enumerate() {
+            self.uc.reg_write(reg, w(i)).map_err(err("restore"))?;
+        }
+        let xpsr = w(7);
+        let new_sp = sp + 32 + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
+        self.uc.reg_write(RegisterARM::SP, new_sp).map_err(err("sp"))?;
+        self.uc.reg_write(RegisterARM::XPSR, xpsr & !(1 << 9) & !0x1FF).map_err(err("xpsr"))?;
+        if let Some(e) = self.exception.take() {
+            for (i, v) in e.fp.iter().take(16).enumerate() {
+                let _ = self.uc.reg_write(RegisterARM::S0 as i32 + i as i32, *v);
+            }
+            let _ = self.uc.reg_write(RegisterARM::FPSCR, e.fp[16]);
+        }
+        self.uc.reg_write(RegisterARM::PC, w(6) & !1).map_err(err("pc"))?;
+        Ok(())
+    }
+
+    /// Runs until virtual time `t_end` (s), or a fault or power cut.
+    pub fn run_until(&mut self, t_end: f64) -> Stop {
+        loop {
+            self.periph.borrow_mut().update();
+            self.drain_rtt();
+            {
+                let mut p = self.periph.borrow_mut();
+                if let Some(f) = p.fault.take() {
+                    return Stop::Fault(f);
+                }
+                if p.power_cut {
+                    return Stop::PowerCut;
+                }
+                if p.watchdog_reset || p.reset_request {
+                    let wd = p.watchdog_reset;
+                    drop(p);
+                    self.log.push(format!("[vboard] {} reset at {:.3} s", if wd { "watchdog" } else { "software" }, self.now()));
+                    self.resets += 1;
+                    if let Err(e) = self.reset() {
+                        return Stop::Fault(e);
+                    }
+                    continue;
+                }
+            }
+            if let Some(f) = self.fault.borrow_mut().take() {
+                return Stop::Fault(f);
+            }
+            let now = self.now();
+            if now >= t_end {
+                return Stop::Time;
+            }
+            if let Err(e) = self.deliver_interrupt() {
+                return Stop::Fault(e);
+            }
+            let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
+            if pc >= 0xFFFF_FF00 {
+                if let Err(e) = self.exception_return() {
+                    return Stop::Fault(e);
+                }
+                continue;
+            }
+            let budget = (((t_end - now) * CPU_HZ).ceil() as u64).clamp(1, SLICE);
+            self.wfi_hit.set(false);
+            let result = self.uc.emu_start(pc | 1, 0, 0, budget as usize);
+            if let Err(e) = result {
+                let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
+                if pc >= 0xFFFF_FF00 {
+                    // Exception return (EXC_RETURN branch): unstack.
+                    if let Err(e) = self.exception_return() {
+                        return Stop::Fault(e);
+                    }
+                    continue;
+                }
+                return Stop::Fault(format!("emulation error {e:?} at PC 0x{pc:08X}"));
+            }
+            let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
+            if pc >= 0xFFFF_FF00 {
+                if let Err(e) = self.exception_return() {
+                    return Stop::Fault(e);
+                }
+                continue;
+            }
+            if self.wfi_hit.get() {
+                // The hook stopped the CPU on the `wfi`: execution resumes after it, once an
+                // event has woken the CPU. Asleep until the next event (or the end of the run).
+                if self.wfi_addrs.contains(&pc) {
+                    let _ = self.uc.reg_write(RegisterARM::PC, pc + 2);
+                }
+                let mut p = self.periph.borrow_mut();
+                let now = p.now();
+                let wake = p.next_event().unwrap_or(t_end).min(t_end);
+                if wake > now {
+                    p.skipped_s += wake - now;
+                }
+            }
+        }
+    }
+}
+
+/// Addresses of `wfi` (0xBF30) halfwords in the loaded flash segments.
+fn wfi_addresses(fw: &Firmware) -> HashSet<u64> {
+    let mut set = HashSet::new();
+    for (addr, data) in &fw.segments {
+        if *addr >= 0x1_0000 && *addr < FLASH_END {
+            for (i, h) in data.chunks_exact(2).enumerate() {
+                if h == [0x30, 0xBF] {
+                    set.insert(addr + 2 * i as u64);
+                }
+            }
+        }
+    }
+    set
+}
+
+/// The bytes left after decoding `frames` frames from `bytes`.
+fn remaining_after(table: &defmt_decoder::Table, bytes: &[u8], frames: usize) -> Vec<u8> {
+    // Decode frame by frame on growing prefixes to find where the last complete frame ends.
+    let mut end = 0;
+    let mut found = 0;
+    for cut in 1..=bytes.len() {
+        let mut dec = table.new_stream_decoder();
+        dec.received(&bytes[end..cut]);
+        if dec.decode().is_ok() {
+            found += 1;
+            end = cut;
+            if found == frames {
+                break;
+            }
+        }
+    }
+    bytes[end..].to_vec()
+}
