@@ -48,6 +48,7 @@ struct Slot {
 }
 
 /// The model.
+#[derive(Clone)]
 pub struct Lsm9ds1Model {
     rig: Rig,
     board: Board,

@@ -36,6 +36,7 @@ impl NorFlashError for NorError {
 }
 
 /// The simulated flash region.
+#[derive(Clone)]
 pub struct NorSim {
     mem: Vec<u8>,
     steps: usize,

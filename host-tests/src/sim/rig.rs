@@ -67,6 +67,7 @@ pub struct Truth {
     pub temp_c: f64,
 }
 
+#[derive(Clone)]
 pub struct Rig {
     cfg: RigConfig,
     axis_w: Unit<Vector3<f64>>,

@@ -159,6 +159,7 @@ impl ServoModel {
 }
 
 /// Shaft state. Angles in rad, true time in s. The shaft starts at 0 with no pulse (motor idle).
+#[derive(Clone)]
 pub(crate) struct Servo {
     model: ServoModel,
     stalled: bool,

@@ -93,6 +93,21 @@ impl Bench {
         stop
     }
 
+    /// Runs in 50 ms steps until a log line contains `text` (true) or `max_s` passes (false).
+    pub fn run_until_line(&mut self, text: &str, max_s: f64) -> bool {
+        let t_end = self.mcu.now() + max_s;
+        while self.mcu.now() < t_end {
+            let t = self.mcu.now() + 0.05;
+            if self.mcu.run_until(t) != Stop::Time {
+                return false;
+            }
+            if self.new_lines().iter().any(|l| l.contains(text)) {
+                return true;
+            }
+        }
+        false
+    }
+
     /// Holds the button for `secs`.
     pub fn press(&mut self, secs: f64) -> Stop {
         self.mcu.periph.borrow_mut().button = true;

@@ -29,8 +29,19 @@ pub enum Stop {
     PowerCut,
 }
 
+#[derive(Clone)]
 struct Exception {
     fp: Vec<u64>,
+}
+
+/// A saved state of the whole board (CPU, RAM, peripherals, sensor, rig, flash).
+pub struct Snapshot {
+    context: unicorn_engine::Context,
+    ram: Vec<u8>,
+    periph: Periph,
+    instructions: u64,
+    exception: Option<Exception>,
+    rtt_bytes: Vec<u8>,
 }
 
 /// The board.
@@ -208,6 +219,31 @@ impl Mcu {
         self.uc.reg_write(RegisterARM::PRIMASK, 0).map_err(err("primask"))?;
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFFF).map_err(err("lr"))?;
         self.uc.reg_write(RegisterARM::PC, pc & !1).map_err(err("pc"))?;
+        Ok(())
+    }
+
+    /// Saves the board's state.
+    pub fn snapshot(&self) -> Result<Snapshot, String> {
+        let mut context = self.uc.context_init().map_err(err("context"))?;
+        self.uc.context_save(&mut context).map_err(err("context save"))?;
+        Ok(Snapshot {
+            context,
+            ram: self.uc.mem_read_as_vec(RAM.0, (RAM.1 - RAM.0) as usize).map_err(err("RAM"))?,
+            periph: self.periph.borrow().clone(),
+            instructions: self.instructions.get(),
+            exception: self.exception.clone(),
+            rtt_bytes: self.rtt_bytes.clone(),
+        })
+    }
+
+    /// Goes back to a saved state (the log keeps growing).
+    pub fn restore(&mut self, s: &Snapshot) -> Result<(), String> {
+        self.uc.context_restore(&s.context).map_err(err("context restore"))?;
+        self.uc.mem_write(RAM.0, &s.ram).map_err(err("RAM"))?;
+        *self.periph.borrow_mut() = s.periph.clone();
+        self.instructions.set(s.instructions);
+        self.exception = s.exception.clone();
+        self.rtt_bytes = s.rtt_bytes.clone();
         Ok(())
     }
 

@@ -87,6 +87,7 @@ struct Twim {
 }
 
 /// Everything outside the CPU.
+#[derive(Clone)]
 pub struct Periph {
     /// Instructions executed since power-on (counted by the CPU's code hook).
     pub instructions: Rc<Cell<u64>>,
