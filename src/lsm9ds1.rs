@@ -127,7 +127,7 @@ impl GyroScale {
     }
 
     /// Nominal full scale (°/s).
-    pub fn range_dps(self) -> f32 {
+    pub const fn range_dps(self) -> f32 {
         match self {
             GyroScale::Dps245 => 245.0,
             GyroScale::Dps500 => 500.0,
@@ -172,7 +172,7 @@ impl AccelScale {
     }
 
     /// Nominal full scale (g).
-    pub fn range_g(self) -> f32 {
+    pub const fn range_g(self) -> f32 {
         match self {
             AccelScale::G2 => 2.0,
             AccelScale::G4 => 4.0,

@@ -15,7 +15,7 @@ use defmt_rtt as _;
 use embedded_hal::digital::{InputPin, OutputPin};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::{render, Lights, Show};
-use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::Storage;
 use hal::gpio::{Level, Output, Pin, PushPull};
@@ -33,6 +33,32 @@ const FIFO_POLL_S: f64 = 0.010;
 const WATCHDOG_S: u32 = 2;
 /// Servo PWM: 1 µs ticks, 20 ms period.
 const PWM_TOP: u16 = 20_000;
+
+/// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
+const SENSOR: SensorConfig = SensorConfig {
+    odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 },
+    gyro: GyroScale::Dps500,
+    accel: AccelScale::G2,
+};
+
+/// The procedure's configuration: the defaults, the sensor's ranges, and with a pan/tilt gimbal
+/// (`--features tilt-servo`) the tilt servo on D10 takes the accelerometer poses.
+const CONFIG: Config = Config {
+    tilt_accel: cfg!(feature = "tilt-servo"),
+    accel_range_g: SENSOR.accel.range_g(),
+    gyro_range_dps: SENSOR.gyro.range_dps(),
+    ..Config::DEFAULT
+};
+
+/// The procedure state (poses, moves, queue: ~11 KiB) in static RAM. Built once at boot in its
+/// own stack frame, so that the main loop's frame does not keep room for a copy of it.
+#[inline(never)]
+fn procedure(stored: Option<Record>) -> &'static mut Procedure {
+    match cortex_m::singleton!(: Procedure = Procedure::new(CONFIG, stored)) {
+        Some(p) => p,
+        None => cortex_m::peripheral::SCB::sys_reset(),
+    }
+}
 
 /// The four LEDs (RGB active low).
 struct Leds {
@@ -194,10 +220,7 @@ fn main() -> ! {
     // Nordic's fix is the 390 kHz setting.
     // SAFETY: a plain register write to the TWIM we own, before any transfer.
     unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(0x0620_0000)) };
-    let sensor_cfg = SensorConfig {
-        odr: if cfg!(feature = "odr952") { gyrocal_fw::lsm9ds1::Odr::Hz952 } else { gyrocal_fw::lsm9ds1::Odr::Hz119 },
-        ..SensorConfig::default()
-    };
+    let sensor_cfg = SENSOR;
     let mut sensor: Option<Lsm9ds1<Twim<pac::TWIM0>>> = None;
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
@@ -236,19 +259,8 @@ fn main() -> ! {
         _ => defmt::error!("calibration storage unreadable"),
     }
 
-    let cfg = Config {
-        // With a pan/tilt gimbal (`--features tilt-servo`), the tilt servo on D10 takes the
-        // accelerometer poses instead of the user's hand.
-        tilt_accel: cfg!(feature = "tilt-servo"),
-        accel_range_g: sensor_cfg.accel.range_g(),
-        gyro_range_dps: sensor_cfg.gyro.range_dps(),
-        ..Config::default()
-    };
-    // The procedure state (poses, moves, queue: ~12 KiB) lives in static RAM, not on the stack.
-    let Some(procedure) = cortex_m::singleton!(: Procedure = Procedure::new(cfg, applied)) else {
-        defmt::error!("procedure already taken");
-        cortex_m::peripheral::SCB::sys_reset();
-    };
+    let cfg = CONFIG;
+    let procedure = procedure(applied);
     let mut show = Show::Procedure(calib_core::procedure::Led::Idle);
     let mut button = Button::new();
     let mut stamper = Stamper::new(sensor_cfg.odr.hz());

@@ -112,6 +112,13 @@ impl AccelCalibrator {
         self.n == 0
     }
 
+    /// Forgets every pose.
+    pub fn clear(&mut self) {
+        self.n = 0;
+        self.lin6 = NormalEquations::new();
+        self.lin9 = NormalEquations::new();
+    }
+
     /// Pose `i` (raw g); the last pose for an out-of-range index, zero when empty.
     pub fn pose(&self, i: usize) -> nalgebra::Vector3<f64> {
         let a = if self.n == 0 { [0.0; 3] } else { self.poses[i.min(self.n - 1)] };

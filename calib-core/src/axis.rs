@@ -29,16 +29,21 @@ pub struct GeometryLimits {
     pub max_plane_rms_g: f32,
 }
 
-impl Default for GeometryLimits {
-    fn default() -> Self {
-        Self {
+impl GeometryLimits {
+    /// The defaults (also as `Default`).
+    pub const DEFAULT: GeometryLimits = GeometryLimits {
             min_poses: 4,
             min_tilt_deg: 10.0,
             max_tilt_deg_paper: 80.0,
             min_axis_component: 0.1,
             min_span_deg: 90.0,
             max_plane_rms_g: 0.01,
-        }
+        };
+}
+
+impl Default for GeometryLimits {
+    fn default() -> Self {
+        Self::DEFAULT
     }
 }
 
@@ -84,6 +89,11 @@ impl Poses {
     /// True when empty.
     pub fn is_empty(&self) -> bool {
         self.n == 0
+    }
+
+    /// Forgets every pose.
+    pub fn clear(&mut self) {
+        self.n = 0;
     }
 
     /// Adds a pose (calibrated specific force, g); returns its index.

@@ -17,9 +17,14 @@ pub struct BiasLimits {
     pub max_accel_std_g: f32,
 }
 
+impl BiasLimits {
+    /// The defaults (also as `Default`).
+    pub const DEFAULT: BiasLimits = BiasLimits { min_samples: 100, max_bias_dps: 30.0, max_std_dps: 0.8, max_accel_std_g: 0.006 };
+}
+
 impl Default for BiasLimits {
     fn default() -> Self {
-        Self { min_samples: 100, max_bias_dps: 30.0, max_std_dps: 0.8, max_accel_std_g: 0.006 }
+        Self::DEFAULT
     }
 }
 

@@ -96,6 +96,11 @@ impl Moves {
         self.n == 0
     }
 
+    /// Forgets every move.
+    pub fn clear(&mut self) {
+        self.n = 0;
+    }
+
     /// Records a move from pose `from` to pose `to` with its gyro integral.
     pub fn push(&mut self, from: u8, to: u8, gamma_deg: [f64; 3]) -> Result<(), Error> {
         if !gamma_deg.iter().all(|v| v.is_finite()) {

@@ -108,11 +108,11 @@ pub struct Config {
     pub max_accel_rms_g: f32,
 }
 
-impl Default for Config {
+impl Config {
     /// SG90-class positional servo on D9, LSM9DS1 at ±2 g / ±500 °/s: 7 poses over 0–180°
     /// there and back at 30 °/s, then a 20 °/s rotation; 12 hand-held accelerometer poses.
-    fn default() -> Self {
-        Self {
+    /// The defaults (also as `Default`).
+    pub const DEFAULT: Config = Config {
             servo: ServoKind::Positional,
             pulse_min_us: 1000,
             pulse_max_us: 2000,
@@ -132,9 +132,9 @@ impl Default for Config {
             tilt_accel: false,
             accel_pan_deg: [0.0, 90.0, 180.0],
             accel_tilt_deg: [-75.0, -25.0, 25.0, 75.0],
-            rest: RestConfig::default(),
-            bias: BiasLimits::default(),
-            geometry: GeometryLimits::default(),
+            rest: RestConfig::DEFAULT,
+            bias: BiasLimits::DEFAULT,
+            geometry: GeometryLimits::DEFAULT,
             pose_retries: 3,
             rest_timeout_s: 20.0,
             handheld_timeout_s: 300.0,
@@ -147,7 +147,12 @@ impl Default for Config {
             k_max: 1.2,
             max_sigma_k: 0.005,
             max_accel_rms_g: 0.01,
-        }
+        };
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self::DEFAULT
     }
 }
 

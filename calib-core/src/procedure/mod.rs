@@ -225,8 +225,8 @@ pub struct Procedure {
 impl Procedure {
     /// A procedure in `Idle`; `stored` is the valid record found in flash, if any (its
     /// accelerometer calibration is reused and its sequence number continued).
-    pub fn new(cfg: Config, stored: Option<Record>) -> Self {
-        let mut p = Self {
+    pub const fn new(cfg: Config, stored: Option<Record>) -> Self {
+        Self {
             cfg,
             stored,
             step: Step::Idle,
@@ -246,10 +246,9 @@ impl Procedure {
             integ: Integrator::new(),
             gbar: None,
             temp: Welford3::new(),
-        };
-        p.push(Command::Led(Led::Idle));
-        p
+        }
     }
+
 
     /// The current phase.
     pub fn phase(&self) -> Phase {
@@ -436,17 +435,27 @@ impl Procedure {
     }
 
     fn start(&mut self, t_s: f64) {
-        let (cfg, stored) = (self.cfg, self.stored);
-        let queue = core::mem::take(&mut self.queue);
-        *self = Self::new(cfg, stored);
-        self.queue = queue;
-        if cfg.tilt_accel {
+        // Cleared in place: no second copy of the (large) state on the stack.
+        self.last_sample_t = None;
+        self.rest.reset();
+        self.tainted = false;
+        self.servo_deg = None;
+        self.tilt_deg = None;
+        self.last_pulse = None;
+        self.bias = None;
+        self.accel_cal = AccelCal::IDENTITY;
+        self.accel_poses.clear();
+        self.poses.clear();
+        self.moves.clear();
+        self.integ = Integrator::new();
+        self.gbar = None;
+        self.temp = Welford3::new();
+        if self.cfg.tilt_accel {
             self.set_tilt(0.0);
         }
-        if let Some(acc) = stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
+        if let Some(acc) = self.stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
             self.accel_cal = acc;
         }
-        self.last_sample_t = None;
         self.park_servo();
         self.enter(Step::WaitRest, t_s);
     }
@@ -637,8 +646,8 @@ impl Procedure {
     fn begin_rig(&mut self, t_s: f64) {
         self.rest.reset();
         self.park_servo();
-        self.poses = Poses::new();
-        self.moves = Moves::new();
+        self.poses.clear();
+        self.moves.clear();
         self.integ = Integrator::new();
         self.enter(Step::WaitRest, t_s);
     }

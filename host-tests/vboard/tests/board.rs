@@ -21,6 +21,8 @@ fn calibrates_stores_and_reloads_after_reset() {
     let mut b = bench(Board::Rev1, Variant::Hobby.config(3, 0), 3);
     b.mcu.paint_stack();
     assert_eq!(b.run_for(2.0), Stop::Time);
+    let boot_stack = b.mcu.peak_stack();
+    b.mcu.paint_stack();
     assert!(has(&b, "no calibration stored"));
     assert_eq!(b.calibrate(600.0), Outcome::Done, "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
     let rec = b.stored().expect("a record in flash");
@@ -28,7 +30,7 @@ fn calibrates_stores_and_reloads_after_reset() {
     assert!(err <= 0.1, "max scale error {err:.4} %");
     let (instr, calls) = b.mcu.handle_sample.get();
     println!(
-        "MEASURED instructions_per_sample={:.0} peak_stack_bytes={:?} max_scale_error_pct={err:.4}",
+        "MEASURED instructions_per_sample={:.0} peak_stack_bytes_boot={boot_stack:?} peak_stack_bytes_calibration={:?} max_scale_error_pct={err:.4}",
         instr as f64 / calls.max(1) as f64,
         b.mcu.peak_stack()
     );
