@@ -164,6 +164,17 @@ impl Mcu {
             let _ = uc.emu_stop();
         })
         .map_err(err("intr hook"))?;
+        // `wfe`, `yield` and `sev` are hints Unicorn may not decode: executed as no-ops.
+        uc.add_insn_invalid_hook(|uc| {
+            let pc = uc.reg_read(RegisterARM::PC).unwrap_or(0);
+            let mut op = [0u8; 2];
+            let hint = uc.mem_read(pc, &mut op).is_ok() && matches!(u16::from_le_bytes(op), 0xBF10 | 0xBF20 | 0xBF40);
+            if hint {
+                let _ = uc.reg_write(RegisterARM::PC, pc + 2);
+            }
+            hint
+        })
+        .map_err(err("invalid-instruction hook"))?;
         let table = defmt_decoder::Table::parse(&firmware.bytes).ok().flatten();
         let mut mcu = Self {
             uc,
