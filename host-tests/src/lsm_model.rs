@@ -8,7 +8,8 @@
 //! accelerometer registers (OUT_Z_H_XL, 0x2D) have been read; FIFO_SRC with the unread count
 //! (FSS), overrun (OVRN, cleared by the next read of a slot) and threshold flags; in continuous
 //! mode a full FIFO drops its oldest slot; the temperature output (16 LSB/°C, 0 at 25 °C).
-//! Samples enter the FIFO at the rig's actual ODR (its error included), in true time.
+//! Samples enter the FIFO at the ODR configured in CTRL_REG1_G times the rig's ODR error, in
+//! true time.
 
 use crate::sim::Rig;
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
@@ -243,6 +244,11 @@ impl Lsm9ds1Model {
         }
         if matches!(r, reg::WHO_AM_I | reg::FIFO_SRC | reg::STATUS_REG) {
             return; // read-only
+        }
+        if r == reg::CTRL_REG1_G {
+            // The sensor samples at the configured ODR (with the rig's ODR error).
+            let hz = [0.0, 14.9, 59.5, 119.0, 238.0, 476.0, 952.0, 0.0][(v >> 5) as usize];
+            self.rig.set_odr_hz(hz);
         }
         self.regs[r as usize] = v;
     }

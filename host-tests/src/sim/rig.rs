@@ -148,6 +148,14 @@ impl Rig {
         self.servo.set_pulse_us(us);
     }
 
+    /// Changes the sensor's nominal ODR (Hz) from the next sample on; the relative ODR error
+    /// stays (the sensor's oscillator).
+    pub fn set_odr_hz(&mut self, hz: f64) {
+        if hz > 0.0 {
+            self.cfg.odr_hz = hz;
+        }
+    }
+
     /// Tilt servo pulse width (µs); ignored without a tilt stage.
     pub fn set_tilt_pulse_us(&mut self, us: f64) {
         if let Some((tilt, _)) = &mut self.tilt {
@@ -201,7 +209,7 @@ impl Rig {
     /// Advances to the next sensor sample and returns it.
     pub fn next_sample(&mut self) -> Sample {
         self.k += 1;
-        let t_s = self.k as f64 / self.cfg.actual_odr_hz();
+        let t_s = self.t_s + 1.0 / self.cfg.actual_odr_hz();
         let dt_s = t_s - self.t_s;
         let substeps = (dt_s * SUBSTEP_HZ).ceil().max(1.0);
         for _ in 0..substeps as u32 {
