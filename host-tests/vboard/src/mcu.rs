@@ -41,7 +41,6 @@ pub struct Snapshot {
     periph: Periph,
     instructions: u64,
     exception: Option<Exception>,
-    rtt_bytes: Vec<u8>,
 }
 
 /// The board.
@@ -53,8 +52,8 @@ pub struct Mcu {
     wfi_hit: Rc<Cell<bool>>,
     fault: Rc<RefCell<Option<String>>>,
     firmware: Firmware,
-    table: Option<defmt_decoder::Table>,
-    rtt_bytes: Vec<u8>,
+    table: Option<&'static defmt_decoder::Table>,
+    decoder: Option<Box<dyn defmt_decoder::StreamDecoder>>,
     /// Decoded defmt log lines, in order.
     pub log: Vec<String>,
     exception: Option<Exception>,
@@ -175,7 +174,10 @@ impl Mcu {
             hint
         })
         .map_err(err("invalid-instruction hook"))?;
-        let table = defmt_decoder::Table::parse(&firmware.bytes).ok().flatten();
+        // The defmt table lives as long as the process (a test bench); a fresh stream decoder
+        // per power-on, so that a frame cut by a reset does not garble the next ones.
+        let table: Option<&'static defmt_decoder::Table> =
+            defmt_decoder::Table::parse(&firmware.bytes).ok().flatten().map(|t| &*Box::leak(Box::new(t)));
         let mut mcu = Self {
             uc,
             periph,
@@ -184,7 +186,7 @@ impl Mcu {
             fault,
             firmware,
             table,
-            rtt_bytes: vec![],
+            decoder: None,
             log: vec![],
             exception: None,
             wfi_addrs,
@@ -220,6 +222,7 @@ impl Mcu {
         self.periph.borrow_mut().reset();
         self.periph.borrow_mut().vtor = 0x1_0000; // what the Arduino bootloader leaves
         self.exception = None;
+        self.decoder = self.table.map(|t| t.new_stream_decoder() as Box<dyn defmt_decoder::StreamDecoder>);
         let mut v = [0u8; 8];
         self.uc.mem_read(0x1_0000, &mut v).map_err(err("vector table"))?;
         let sp = u32::from_le_bytes([v[0], v[1], v[2], v[3]]) as u64;
@@ -243,7 +246,6 @@ impl Mcu {
             periph: self.periph.borrow().clone(),
             instructions: self.instructions.get(),
             exception: self.exception.clone(),
-            rtt_bytes: self.rtt_bytes.clone(),
         })
     }
 
@@ -254,7 +256,7 @@ impl Mcu {
         *self.periph.borrow_mut() = s.periph.clone();
         self.instructions.set(s.instructions);
         self.exception = s.exception.clone();
-        self.rtt_bytes = s.rtt_bytes.clone();
+        self.decoder = self.table.map(|t| t.new_stream_decoder() as Box<dyn defmt_decoder::StreamDecoder>);
         Ok(())
     }
 
@@ -301,25 +303,17 @@ impl Mcu {
             take(0, write, &mut bytes);
         }
         let _ = self.uc.mem_write(cb + 40, &(write as u32).to_le_bytes());
-        self.rtt_bytes.extend(bytes);
-        if let Some(table) = &self.table {
-            let mut dec = table.new_stream_decoder();
-            dec.received(&self.rtt_bytes);
-            let mut consumed_frames = vec![];
+        if let Some(dec) = self.decoder.as_mut() {
+            dec.received(&bytes);
             loop {
                 match dec.decode() {
-                    Ok(frame) => consumed_frames.push(frame.display(false).to_string()),
+                    Ok(frame) => self.log.push(frame.display(false).to_string()),
                     Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
                     Err(defmt_decoder::DecodeError::Malformed) => {
-                        consumed_frames.push("<malformed defmt frame>".into());
+                        self.log.push("[vboard] malformed defmt frame".into());
                         break;
                     }
                 }
-            }
-            // Keep only the undecoded tail: re-encode nothing, just count what was consumed.
-            if !consumed_frames.is_empty() {
-                self.rtt_bytes = remaining_after(table, &self.rtt_bytes, consumed_frames.len());
-                self.log.extend(consumed_frames);
             }
         }
     }
@@ -485,23 +479,4 @@ fn wfi_addresses(fw: &Firmware) -> HashSet<u64> {
         }
     }
     set
-}
-
-/// The bytes left after decoding `frames` frames from `bytes`.
-fn remaining_after(table: &defmt_decoder::Table, bytes: &[u8], frames: usize) -> Vec<u8> {
-    // Decode frame by frame on growing prefixes to find where the last complete frame ends.
-    let mut end = 0;
-    let mut found = 0;
-    for cut in 1..=bytes.len() {
-        let mut dec = table.new_stream_decoder();
-        dec.received(&bytes[end..cut]);
-        if dec.decode().is_ok() {
-            found += 1;
-            end = cut;
-            if found == frames {
-                break;
-            }
-        }
-    }
-    bytes[end..].to_vec()
 }
