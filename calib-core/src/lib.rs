@@ -57,6 +57,7 @@ pub mod record;
 pub mod rest;
 pub mod stats;
 pub mod sweep;
+pub mod vec3;
 
 pub use error::Error;
 

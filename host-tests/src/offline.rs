@@ -14,6 +14,7 @@ use calib_core::gyro::{GyroCal, Method};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::stats::{Spread, Welford3};
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
+use calib_core::vec3::{sub, to_f64 as v64};
 use calib_core::{paper, sweep, Error};
 use nalgebra::Vector3;
 use serde_json::{json, Value};
@@ -373,13 +374,6 @@ fn servo_rate(rows: &[Row]) -> Option<f32> {
     (rms < 0.5 && slope.abs() > MIN_ROTATION_DPS).then_some(slope.abs() as f32)
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn v64(a: [f32; 3]) -> Vector3<f64> {
-    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
 
 fn spread(s: &Spread) -> Value {
     json!({"mean": s.mean, "std": s.std, "range": s.range, "relative_std": s.relative_std()})

@@ -16,6 +16,7 @@ use calib_core::bias::{BiasEstimator, BiasLimits};
 use calib_core::gyro::GyroCal;
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves};
+use calib_core::vec3::sub;
 use calib_core::{paper, sweep, Error};
 use nalgebra::Matrix3;
 use rand::SeedableRng;
@@ -72,9 +73,6 @@ fn ramp(rig: &mut Rig, from_deg: f64, to_deg: f64, rate_dps: f64, mut f: impl Fn
     }
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
 
 /// Runs the scripted session on a rig.
 pub fn session(cfg: RigConfig, seed: u64) -> Result<Session, Error> {

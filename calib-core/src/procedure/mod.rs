@@ -24,6 +24,7 @@ use crate::record::Record;
 use crate::rest::{RestDetector, RestState, Window};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
+use crate::vec3::{sub, to_f64 as v64};
 use crate::{paper, sweep, Error, Vec3};
 use heapless::Deque;
 use nalgebra::Vector3;
@@ -780,10 +781,3 @@ impl Procedure {
     }
 }
 
-fn sub(a: Vec3, b: Vec3) -> Vec3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn v64(a: Vec3) -> Vector3<f64> {
-    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
