@@ -5,11 +5,13 @@
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
+//! - [`rtt`]: the never-blocking defmt RTT logger.
 #![no_std]
 #![deny(missing_docs)]
 
 pub mod button;
 pub mod led;
 pub mod lsm9ds1;
+pub mod rtt;
 pub mod stamp;
 pub mod storage;

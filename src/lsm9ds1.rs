@@ -5,6 +5,7 @@
 //! and owns the bus, while this driver needs the FIFO at 952 Hz and runs on the host against a
 //! simulated register map through the same `I2c` trait.
 
+use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::{ErrorKind, I2c};
 
 /// I2C address of the accelerometer/gyroscope (SDO_AG high on the Nano 33 BLE).
@@ -17,6 +18,11 @@ pub const WHO_AM_I_AG: u8 = 0x68;
 pub const BMI270_CHIP_ID: u8 = 0x24;
 /// FIFO depth (slots of gyro + accel).
 pub const FIFO_DEPTH: u8 = 32;
+/// Wait after SW_RESET before the first poll (ms): Arduino's LSM9DS1 library waits 10 ms.
+pub const RESET_WAIT_MS: u32 = 10;
+/// Longest the part may take to come back from SW_RESET (ms); Zephyr allows 50 ms after BOOT.
+/// A NACK before then means "not ready yet".
+pub const RESET_TIMEOUT_MS: u32 = 50;
 
 /// Register addresses.
 pub mod reg {
@@ -197,7 +203,11 @@ pub struct SensorConfig {
 impl Default for SensorConfig {
     /// 119 Hz, ±500 °/s, ±2 g.
     fn default() -> Self {
-        Self { odr: Odr::Hz119, gyro: GyroScale::Dps500, accel: AccelScale::G2 }
+        Self {
+            odr: Odr::Hz119,
+            gyro: GyroScale::Dps500,
+            accel: AccelScale::G2,
+        }
     }
 }
 
@@ -259,7 +269,8 @@ pub enum SensorError {
         /// Value read back.
         read: u8,
     },
-    /// The software reset did not complete.
+    /// The part did not come back from its software reset within [`RESET_TIMEOUT_MS`]
+    /// (NACKs, or SW_RESET never cleared).
     ResetTimeout,
 }
 
@@ -287,17 +298,28 @@ pub struct FifoStatus {
 pub struct Lsm9ds1<I> {
     i2c: I,
     cfg: SensorConfig,
+    /// FIFO slots still to throw away: ST, "the first sample acquired must be discarded"
+    /// after the FIFO is (re)enabled.
+    discard: u8,
 }
 
 fn le3(b: &[u8; 6]) -> [i16; 3] {
-    [i16::from_le_bytes([b[0], b[1]]), i16::from_le_bytes([b[2], b[3]]), i16::from_le_bytes([b[4], b[5]])]
+    [
+        i16::from_le_bytes([b[0], b[1]]),
+        i16::from_le_bytes([b[2], b[3]]),
+        i16::from_le_bytes([b[4], b[5]]),
+    ]
 }
 
 impl<I: I2c> Lsm9ds1<I> {
     /// Checks the identity (telling a Rev2 board's BMI270 apart), resets and configures the
-    /// sensor: ODR and ranges, block data update, FIFO in continuous mode. Bounded: a fixed
-    /// number of transfers, no wait loop without limit.
-    pub fn init(mut i2c: I, cfg: SensorConfig) -> Result<Self, (SensorError, I)> {
+    /// sensor: ODR and ranges, block data update, FIFO in continuous mode. Bounded: at most
+    /// [`RESET_TIMEOUT_MS`] of waiting for the reset, a fixed number of transfers otherwise.
+    pub fn init(
+        mut i2c: I,
+        cfg: SensorConfig,
+        delay: &mut impl DelayNs,
+    ) -> Result<Self, (SensorError, I)> {
         match read_reg(&mut i2c, ADDR_AG, reg::WHO_AM_I) {
             Ok(WHO_AM_I_AG) => {}
             Ok(id) => return Err((SensorError::WrongId(id), i2c)),
@@ -309,25 +331,35 @@ impl<I: I2c> Lsm9ds1<I> {
                 return Err((e, i2c));
             }
         }
-        let mut s = Self { i2c, cfg };
-        match s.configure() {
+        let mut s = Self {
+            i2c,
+            cfg,
+            discard: 0,
+        };
+        match s.configure(delay) {
             Ok(()) => Ok(s),
             Err(e) => Err((e, s.i2c)),
         }
     }
 
-    fn configure(&mut self) -> Result<(), SensorError> {
+    /// Software reset: the part does not answer for a while (NACK = not ready yet), then
+    /// SW_RESET reads back 0. Polled every millisecond after [`RESET_WAIT_MS`], up to
+    /// [`RESET_TIMEOUT_MS`].
+    fn reset(&mut self, delay: &mut impl DelayNs) -> Result<(), SensorError> {
         self.write(reg::CTRL_REG8, CTRL8_IF_ADD_INC | CTRL8_SW_RESET)?;
-        let mut done = false;
-        for _ in 0..100 {
-            if self.read(reg::CTRL_REG8)? & CTRL8_SW_RESET == 0 {
-                done = true;
-                break;
+        delay.delay_ms(RESET_WAIT_MS);
+        for _ in RESET_WAIT_MS..=RESET_TIMEOUT_MS {
+            match self.read(reg::CTRL_REG8) {
+                Ok(v) if v & CTRL8_SW_RESET == 0 => return Ok(()),
+                Ok(_) | Err(SensorError::Bus(BusFault::Nack)) => delay.delay_ms(1),
+                Err(e) => return Err(e),
             }
         }
-        if !done {
-            return Err(SensorError::ResetTimeout);
-        }
+        Err(SensorError::ResetTimeout)
+    }
+
+    fn configure(&mut self, delay: &mut impl DelayNs) -> Result<(), SensorError> {
+        self.reset(delay)?;
         let c = self.cfg;
         for (r, v) in [
             (reg::CTRL_REG8, CTRL8_BDU | CTRL8_IF_ADD_INC),
@@ -339,15 +371,16 @@ impl<I: I2c> Lsm9ds1<I> {
             self.write(r, v)?;
             let read = self.read(r)?;
             if read != v {
-                return Err(SensorError::ConfigMismatch { reg: r, wrote: v, read });
+                return Err(SensorError::ConfigMismatch {
+                    reg: r,
+                    wrote: v,
+                    read,
+                });
             }
         }
+        // The FIFO was just enabled: its first slot is junk.
+        self.discard = 1;
         Ok(())
-    }
-
-    /// Wraps a bus whose sensor is already configured with `cfg` (no transfer).
-    pub fn init_configured(i2c: I, cfg: SensorConfig) -> Self {
-        Self { i2c, cfg }
     }
 
     /// The settings in use.
@@ -360,37 +393,64 @@ impl<I: I2c> Lsm9ds1<I> {
         self.i2c
     }
 
+    /// The bus, borrowed (e.g. to recover it after an error).
+    pub fn bus_mut(&mut self) -> &mut I {
+        &mut self.i2c
+    }
+
     fn read(&mut self, r: u8) -> Result<u8, SensorError> {
         read_reg(&mut self.i2c, ADDR_AG, r).map_err(|e| SensorError::Bus(BusFault::of(e)))
     }
 
     fn write(&mut self, r: u8, v: u8) -> Result<(), SensorError> {
-        self.i2c.write(ADDR_AG, &[r, v]).map_err(|e| SensorError::Bus(BusFault::of(e)))
+        self.i2c
+            .write(ADDR_AG, &[r, v])
+            .map_err(|e| SensorError::Bus(BusFault::of(e)))
     }
 
     fn read6(&mut self, r: u8) -> Result<[u8; 6], SensorError> {
         let mut b = [0u8; 6];
-        self.i2c.write_read(ADDR_AG, &[r], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
+        self.i2c
+            .write_read(ADDR_AG, &[r], &mut b)
+            .map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(b)
     }
 
-    /// Unread FIFO slots and the overrun flag.
+    /// Unread FIFO slots (not counting a slot still to be discarded) and the overrun flag.
     pub fn fifo_status(&mut self) -> Result<FifoStatus, SensorError> {
         let src = self.read(reg::FIFO_SRC)?;
-        Ok(FifoStatus { level: (src & 0x3F).min(FIFO_DEPTH), overrun: src & FIFO_SRC_OVRN != 0 })
+        let level = (src & 0x3F).min(FIFO_DEPTH);
+        Ok(FifoStatus {
+            level: level.saturating_sub(self.discard),
+            overrun: src & FIFO_SRC_OVRN != 0,
+        })
     }
 
-    /// Pops one FIFO slot: the gyro registers, then the accelerometer registers.
+    /// Pops one FIFO slot (after throwing away the junk first slot, if still due): the gyro
+    /// registers, then the accelerometer registers.
     pub fn read_slot(&mut self) -> Result<RawSample, SensorError> {
+        while self.discard > 0 {
+            self.pop()?;
+            self.discard -= 1;
+        }
+        self.pop()
+    }
+
+    fn pop(&mut self) -> Result<RawSample, SensorError> {
         let g = self.read6(reg::OUT_X_L_G)?;
         let a = self.read6(reg::OUT_X_L_XL)?;
-        Ok(RawSample { gyro: le3(&g), accel: le3(&a) })
+        Ok(RawSample {
+            gyro: le3(&g),
+            accel: le3(&a),
+        })
     }
 
     /// Temperature (°C): 16 LSB/°C, 0 at 25 °C.
     pub fn temperature_c(&mut self) -> Result<f32, SensorError> {
         let mut b = [0u8; 2];
-        self.i2c.write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
+        self.i2c
+            .write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b)
+            .map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(25.0 + i16::from_le_bytes(b) as f32 / 16.0)
     }
 
@@ -403,7 +463,10 @@ impl<I: I2c> Lsm9ds1<I> {
 /// Converts counts to accelerometer (g) and gyro (°/s) for `cfg`.
 pub fn convert(cfg: &SensorConfig, raw: &RawSample) -> ([f32; 3], [f32; 3]) {
     let (ga, gg) = (cfg.accel.g_per_lsb(), cfg.gyro.dps_per_lsb());
-    (raw.accel.map(|c| c as f32 * ga), raw.gyro.map(|c| c as f32 * gg))
+    (
+        raw.accel.map(|c| c as f32 * ga),
+        raw.gyro.map(|c| c as f32 * gg),
+    )
 }
 
 fn read_reg<I: I2c>(i2c: &mut I, addr: u8, r: u8) -> Result<u8, I::Error> {

@@ -2,23 +2,28 @@
 //! `calib_core::procedure`. It moves bytes between the peripherals and the procedure and adds no
 //! calibration logic of its own.
 //!
-//! Loop (woken every 2 ms by TIMER2): pet the watchdog, read the button, drain the LSM9DS1 FIFO
-//! (timestamps from the 1 MHz TIMER1 on the crystal), feed the procedure, execute its commands
-//! (servo PWM, LEDs, defmt reports, flash store, apply), refresh the LEDs, sleep.
+//! Boot: put what the Arduino bootloader leaves running into a known state, start the crystal,
+//! the watchdog, the clocks, the sensor rail. Loop (woken every 2 ms by TIMER2): pet the
+//! watchdog, read the button, drain the LSM9DS1 FIFO (timestamps from the 1 MHz TIMER1 on the
+//! crystal), feed the procedure, execute its commands (servo PWM, LEDs, defmt reports, flash
+//! store, apply), refresh the LEDs, sleep. Logging never blocks (`gyrocal_fw::rtt`).
 #![no_std]
 #![no_main]
 
 use calib_core::procedure::{Command, Config, Procedure, Report, Sample};
 use calib_core::record::Record;
 use cortex_m::peripheral::NVIC;
-use defmt_rtt as _;
+use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{InputPin, OutputPin};
+use embedded_hal::i2c::{ErrorType, I2c, Operation};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::{render, Lights, Show};
-use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1::{
+    AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH,
+};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::Storage;
-use hal::gpio::{Level, Output, Pin, PushPull};
+use hal::gpio::{DriveConfig, Level, Output, Pin, PushPull};
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
 use hal::{twim, wdt, Timer, Twim};
@@ -33,10 +38,23 @@ const FIFO_POLL_S: f64 = 0.010;
 const WATCHDOG_S: u32 = 2;
 /// Servo PWM: 1 µs ticks, 20 ms period.
 const PWM_TOP: u16 = 20_000;
+/// Polls of EVENTS_HFCLKSTARTED before giving up on the crystal (≥ 10 ms at 64 MHz; the
+/// crystal starts in ≈ 0.36 ms).
+const HFXO_POLLS: u32 = 200_000;
+/// Polls of UARTE0's EVENTS_RXTO after STOPRX (≥ 1 ms at 64 MHz; one character at 115 200 Bd
+/// is 87 µs).
+const UARTE_STOP_POLLS: u32 = 20_000;
+/// TWIM0 FREQUENCY: nRF52840 erratum 219 (at the 400 kHz setting the SCL low time is below the
+/// I2C minimum); Nordic's fix is this 390 kHz value.
+const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
 
 /// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
 const SENSOR: SensorConfig = SensorConfig {
-    odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 },
+    odr: if cfg!(feature = "odr952") {
+        Odr::Hz952
+    } else {
+        Odr::Hz119
+    },
     gyro: GyroScale::Dps500,
     accel: AccelScale::G2,
 };
@@ -80,16 +98,37 @@ impl Leds {
     }
 }
 
-/// Microseconds since boot from the free-running TIMER1 (wraps every 71 min, extended to 64 bits).
+/// Microseconds since boot from TIMER1, free-running at 1 MHz in 32-bit mode with no shortcut,
+/// so that it wraps at exactly 2³² µs (71.6 min); extended to 64 bits (read more often than
+/// that: the loop runs every 2 ms).
 struct Clock {
-    timer: Timer<pac::TIMER1, hal::timer::Periodic>,
+    timer: pac::TIMER1,
     last: u32,
     high: u64,
 }
 
 impl Clock {
+    fn start(timer: pac::TIMER1) -> Self {
+        // SAFETY (all writes): TIMER1 is ours; values from the PS (PRESCALER 4: 16 MHz / 2⁴).
+        timer.tasks_stop.write(|w| unsafe { w.bits(1) });
+        timer.shorts.reset();
+        timer.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+        timer.mode.write(|w| w.mode().timer());
+        timer.bitmode.write(|w| w.bitmode()._32bit());
+        timer.prescaler.write(|w| unsafe { w.prescaler().bits(4) });
+        timer.tasks_clear.write(|w| unsafe { w.bits(1) });
+        timer.tasks_start.write(|w| unsafe { w.bits(1) });
+        Self {
+            timer,
+            last: 0,
+            high: 0,
+        }
+    }
+
     fn now_us(&mut self) -> u64 {
-        let v = self.timer.read();
+        // SAFETY: CAPTURE[0] copies the counter into CC[0].
+        self.timer.tasks_capture[0].write(|w| unsafe { w.bits(1) });
+        let v = self.timer.cc[0].read().bits();
         if v < self.last {
             self.high += 1 << 32;
         }
@@ -102,11 +141,123 @@ impl Clock {
     }
 }
 
+/// Busy waits on [`Clock`] (the sensor's reset; at most tens of ms, below the watchdog's 2 s).
+struct Wait<'a>(&'a mut Clock);
+
+impl DelayNs for Wait<'_> {
+    fn delay_ns(&mut self, ns: u32) {
+        let end = self.0.now_us() + (ns as u64).div_ceil(1000);
+        while self.0.now_us() < end {}
+    }
+}
+
+/// TWIM0 as the sensor's bus. After a failed transfer (e.g. an address NACK) the TWIM is
+/// disabled and enabled again before the next one: a TWIM that received a STOP task while idle
+/// fails the transfers that follow (embassy-rs/embassy #6722), which would spoil the Rev2 probe
+/// at 0x68 that follows a NACK at 0x6B.
+struct Bus(Twim<pac::TWIM0>);
+
+impl ErrorType for Bus {
+    type Error = twim::Error;
+}
+
+impl I2c for Bus {
+    fn transaction(
+        &mut self,
+        address: u8,
+        operations: &mut [Operation<'_>],
+    ) -> Result<(), Self::Error> {
+        let r = self.0.transaction(address, operations);
+        if r.is_err() {
+            self.0.disable();
+            // Let the bus go idle: 30 µs at 64 MHz, more than one byte time at 390 kHz (23 µs).
+            cortex_m::asm::delay(64 * 30);
+            self.0.enable();
+        }
+        r
+    }
+}
+
 #[interrupt]
 fn TIMER2() {
-    // Only wakes the loop: clear the compare event.
-    // SAFETY: a single write to this timer's own event register.
-    unsafe { (*pac::TIMER2::ptr()).events_compare[0].write(|w| w) };
+    // Only wakes the loop: clear the compare event, and read it back so that the write has
+    // reached the peripheral before the handler returns (else the interrupt fires again).
+    // SAFETY: this timer's own event register.
+    let t = unsafe { &*pac::TIMER2::ptr() };
+    t.events_compare[0].write(|w| unsafe { w.bits(0) });
+    let _ = t.events_compare[0].read().bits();
+}
+
+/// Puts what the stock Arduino bootloader leaves running into a known state: it jumps here
+/// with the MPU on (flash read/execute only: a store to the record pages would fault), UARTE0
+/// receiving, PWM0 driving P0.13, RTC1 running with its interrupt enabled, and interrupts
+/// enabled in the NVIC whose handlers this firmware does not have. Nothing here relies on a
+/// reset value.
+fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
+    // SAFETY (whole function): writes to peripherals this firmware owns, values from the PS and
+    // the ARMv7-M ARM; no other code runs yet.
+    unsafe {
+        core.MPU.ctrl.write(0);
+        core.SYST.csr.write(0);
+        for i in 0..2 {
+            core.NVIC.icer[i].write(u32::MAX);
+            core.NVIC.icpr[i].write(u32::MAX);
+        }
+        // ICSR.PENDSTCLR: no stale SysTick.
+        core.SCB.icsr.write(1 << 25);
+    }
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+
+    let u = &p.UARTE0;
+    if u.enable.read().bits() != 0 {
+        u.events_rxto.write(|w| unsafe { w.bits(0) });
+        u.tasks_stoprx.write(|w| unsafe { w.bits(1) });
+        u.tasks_stoptx.write(|w| unsafe { w.bits(1) });
+        for _ in 0..UARTE_STOP_POLLS {
+            if u.events_rxto.read().bits() != 0 {
+                break;
+            }
+        }
+    }
+    u.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+    u.enable.write(|w| w.enable().disabled());
+    // Pins disconnected (PSEL.CONNECT = 1).
+    u.psel.txd.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.rxd.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.rts.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.cts.write(|w| unsafe { w.bits(u32::MAX) });
+
+    let r = &p.RTC1;
+    r.tasks_stop.write(|w| unsafe { w.bits(1) });
+    r.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+    r.evtenclr.write(|w| unsafe { w.bits(u32::MAX) });
+
+    let pwm = &p.PWM0;
+    pwm.tasks_stop.write(|w| unsafe { w.bits(1) });
+    pwm.enable.write(|w| w.enable().disabled());
+    for out in pwm.psel.out.iter() {
+        out.write(|w| unsafe { w.bits(u32::MAX) });
+    }
+
+    // P1.00 (the I2C pull-ups' enable) is also TRACEDATA0: no trace on the pins.
+    p.CLOCK.traceconfig.write(|w| unsafe { w.bits(0) });
+}
+
+/// Starts the 32 MHz crystal, the time base of every gyro integral, clearing a stale
+/// HFCLKSTARTED first (the bootloader may have started it already). Bounded.
+fn start_hfxo(clock: &pac::CLOCK) -> bool {
+    // SAFETY: CLOCK is ours; event and task registers take 0 / 1.
+    clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
+    clock.tasks_hfclkstart.write(|w| unsafe { w.bits(1) });
+    for _ in 0..HFXO_POLLS {
+        if clock.events_hfclkstarted.read().bits() != 0 {
+            clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
+            let stat = clock.hfclkstat.read();
+            return stat.src().is_xtal() && stat.state().is_running();
+        }
+    }
+    false
 }
 
 fn log_report(r: &Report) {
@@ -159,18 +310,49 @@ fn sensor_error(e: &SensorError) {
 fn raw_log(s: &Sample, servo_deg: Option<f32>) {
     let (a, g) = (s.accel_g, s.gyro_dps);
     match servo_deg {
-        Some(d) => defmt::println!("{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}", s.t_s, a[0], a[1], a[2], g[0], g[1], g[2], d),
-        None => defmt::println!("{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},", s.t_s, a[0], a[1], a[2], g[0], g[1], g[2]),
+        Some(d) => defmt::println!(
+            "{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
+            s.t_s,
+            a[0],
+            a[1],
+            a[2],
+            g[0],
+            g[1],
+            g[2],
+            d
+        ),
+        None => defmt::println!(
+            "{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},",
+            s.t_s,
+            a[0],
+            a[1],
+            a[2],
+            g[0],
+            g[1],
+            g[2]
+        ),
     }
 }
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let p = pac::Peripherals::take().unwrap();
-    let mut core = cortex_m::Peripherals::take().unwrap();
-    // HFXO: the crystal is the time base of every gyro integral.
-    let _clocks = hal::Clocks::new(p.CLOCK).enable_ext_hfosc();
-    defmt::info!("gyrocal-fw {=str}", env!("CARGO_PKG_VERSION"));
+    let (Some(p), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take())
+    else {
+        cortex_m::peripheral::SCB::sys_reset();
+    };
+    quiesce(&p, &mut core);
+    let reset_reason = p.POWER.resetreas.read().bits();
+    // SAFETY: RESETREAS bits are cleared by writing 1.
+    p.POWER.resetreas.write(|w| unsafe { w.bits(reset_reason) });
+    defmt::info!(
+        "gyrocal-fw {=str}; reset reason 0x{=u32:08X}",
+        env!("CARGO_PKG_VERSION"),
+        reset_reason
+    );
+    if !start_hfxo(&p.CLOCK) {
+        defmt::error!("the 32 MHz crystal did not start: gyro integrals would be timed by the RC oscillator (1.5 %); resetting");
+        cortex_m::peripheral::SCB::sys_reset();
+    }
 
     let mut wd = match wdt::Watchdog::try_new(p.WDT) {
         Ok(mut w) => {
@@ -187,8 +369,7 @@ fn main() -> ! {
         },
     };
 
-    let mut clock = Clock { timer: Timer::periodic(p.TIMER1), last: 0, high: 0 };
-    clock.timer.start(u32::MAX);
+    let mut clock = Clock::start(p.TIMER1);
     let mut tick = Timer::periodic(p.TIMER2);
     tick.enable_interrupt();
     tick.start(TICK_US);
@@ -206,29 +387,43 @@ fn main() -> ! {
     };
     let mut button_pin = p1.p1_11.into_pullup_input();
 
-    // Sensor power, then (after ~10 ms) the I2C pull-ups: the IMU does not answer before both.
-    let _vdd_env = p0.p0_22.into_push_pull_output(Level::High);
+    // Sensor power (high drive, as Arduino's core does, against a voltage drop on the sensor
+    // rail), then (after ~10 ms) the I2C pull-ups: the IMU does not answer before both.
+    let _vdd_env = p0
+        .p0_22
+        .into_push_pull_output_drive(Level::High, DriveConfig::HighDrive0HighDrive1);
     let t0 = clock.now_us();
     while clock.now_us() - t0 < 10_000 {}
     let _pullups = p1.p1_00.into_push_pull_output(Level::High);
     let t0 = clock.now_us();
     while clock.now_us() - t0 < 5_000 {}
 
-    let pins = twim::Pins { scl: p0.p0_15.into_floating_input().degrade(), sda: p0.p0_14.into_floating_input().degrade() };
-    let mut bus = Some(Twim::new(p.TWIM0, pins, twim::Frequency::K400));
-    // nRF52840 erratum 219: at the 400 kHz setting SCL low time is below the I2C minimum;
-    // Nordic's fix is the 390 kHz setting.
+    let pins = twim::Pins {
+        scl: p0.p0_15.into_floating_input().degrade(),
+        sda: p0.p0_14.into_floating_input().degrade(),
+    };
+    let mut bus = Some(Bus(Twim::new(p.TWIM0, pins, twim::Frequency::K400)));
     // SAFETY: a plain register write to the TWIM we own, before any transfer.
-    unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(0x0620_0000)) };
+    unsafe {
+        (*pac::TWIM0::ptr())
+            .frequency
+            .write(|w| w.bits(TWIM_FREQUENCY_390K))
+    };
     let sensor_cfg = SENSOR;
-    let mut sensor: Option<Lsm9ds1<Twim<pac::TWIM0>>> = None;
+    let mut sensor: Option<Lsm9ds1<Bus>> = None;
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
     let pwm = Pwm::new(p.PWM0);
     pwm.set_prescaler(Prescaler::Div16)
         .set_max_duty(PWM_TOP)
-        .set_output_pin(Channel::C0, p0.p0_27.into_push_pull_output(Level::Low).degrade())
-        .set_output_pin(Channel::C1, p1.p1_02.into_push_pull_output(Level::Low).degrade());
+        .set_output_pin(
+            Channel::C0,
+            p0.p0_27.into_push_pull_output(Level::Low).degrade(),
+        )
+        .set_output_pin(
+            Channel::C1,
+            p1.p1_02.into_push_pull_output(Level::Low).degrade(),
+        );
     // nRF PWM sequence values: bit 15 set = falling edge first = HIGH for `duty` ticks from the
     // start of the period. nrf-hal's `set_duty_off` sets bit 15 (`set_duty_on` would invert).
     pwm.set_duty_off(Channel::C0, 0);
@@ -255,7 +450,9 @@ fn main() -> ! {
             );
             applied = Some(rec);
         }
-        Some(Ok(None)) => defmt::warn!("no calibration stored: raw gyro readings until the button is pressed"),
+        Some(Ok(None)) => {
+            defmt::warn!("no calibration stored: raw gyro readings until the button is pressed")
+        }
         _ => defmt::error!("calibration storage unreadable"),
     }
 
@@ -264,7 +461,9 @@ fn main() -> ! {
     let mut show = Show::Procedure(calib_core::procedure::Led::Idle);
     let mut button = Button::new();
     let mut stamper = Stamper::new(sensor_cfg.odr.hz());
-    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) = (false, 0.0f64, 0.0f64, 0.0f64);
+    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) =
+        (false, 0.0f64, 0.0f64, 0.0f64);
+    let (mut last_drop_check, mut dropped_reported) = (0.0f64, 0u32);
     let mut rate = calib_core::stats::Welford3::new();
 
     loop {
@@ -274,7 +473,7 @@ fn main() -> ! {
         // Sensor: (re)initialise until it answers, then drain its FIFO every 10 ms.
         if sensor.is_none() && now >= next_sensor_try {
             if let Some(i2c) = bus.take() {
-                match Lsm9ds1::init(i2c, sensor_cfg) {
+                match Lsm9ds1::init(i2c, sensor_cfg, &mut Wait(&mut clock)) {
                     Ok(s) => {
                         defmt::info!("LSM9DS1 ready: {}", sensor_cfg);
                         stamper.restart();
@@ -282,7 +481,9 @@ fn main() -> ! {
                     }
                     Err((e, i2c)) => {
                         sensor_error(&e);
-                        show = Show::Procedure(calib_core::procedure::Led::Error(calib_core::procedure::ErrorClass::Sensor));
+                        show = Show::Procedure(calib_core::procedure::Led::Error(
+                            calib_core::procedure::ErrorClass::Sensor,
+                        ));
                         bus = Some(i2c);
                         next_sensor_try = now + 2.0;
                     }
@@ -303,7 +504,12 @@ fn main() -> ! {
                     for i in 0..n {
                         let raw = s.read_slot()?;
                         let (accel_g, gyro_dps) = s.convert(&raw);
-                        let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                        let sample = Sample {
+                            t_s: batch.stamp(i),
+                            accel_g,
+                            gyro_dps,
+                            temp_c,
+                        };
                         if raw_mode {
                             raw_log(&sample, procedure.servo_deg());
                         }
@@ -326,7 +532,10 @@ fn main() -> ! {
             Some(Press::Short) => procedure.handle_button(now),
             Some(Press::Long) => {
                 raw_mode = !raw_mode;
-                defmt::info!("raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg", raw_mode);
+                defmt::info!(
+                    "raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg",
+                    raw_mode
+                );
             }
             None => {}
         }
@@ -335,16 +544,32 @@ fn main() -> ! {
         while let Some(c) = procedure.poll() {
             match c {
                 Command::Servo { channel, pulse_us } => {
-                    let ch = if channel == 0 { Channel::C0 } else { Channel::C1 };
+                    let ch = if channel == 0 {
+                        Channel::C0
+                    } else {
+                        Channel::C1
+                    };
                     pwm.set_duty_off(ch, cfg.clamp_pulse(pulse_us as f32));
                 }
-                Command::ServoOff { channel } => pwm.set_duty_off(if channel == 0 { Channel::C0 } else { Channel::C1 }, 0),
+                Command::ServoOff { channel } => pwm.set_duty_off(
+                    if channel == 0 {
+                        Channel::C0
+                    } else {
+                        Channel::C1
+                    },
+                    0,
+                ),
                 Command::Led(l) => show = Show::Procedure(l),
                 Command::Report(r) => log_report(&r),
                 Command::Store(rec) => match storage.as_mut().map(|s| s.store(&rec)) {
-                    Some(Ok(slot)) => defmt::info!("record {=u32} stored in slot {=usize}", rec.seq, slot),
+                    Some(Ok(slot)) => {
+                        defmt::info!("record {=u32} stored in slot {=usize}", rec.seq, slot)
+                    }
                     Some(Err(e)) => {
-                        defmt::error!("storing the record failed: {}; the previous record is kept", e);
+                        defmt::error!(
+                            "storing the record failed: {}; the previous record is kept",
+                            e
+                        );
                         show = Show::StorageError;
                     }
                     None => defmt::error!("no storage: record not stored"),
@@ -356,9 +581,27 @@ fn main() -> ! {
         // After calibration: the calibrated rate, averaged, once a second.
         if applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
             let m = rate.mean();
-            defmt::info!("rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)", m[0] as f32, m[1] as f32, m[2] as f32);
+            defmt::info!(
+                "rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)",
+                m[0] as f32,
+                m[1] as f32,
+                m[2] as f32
+            );
             rate = calib_core::stats::Welford3::new();
             last_rate_line = now;
+        }
+
+        // Log bytes lost while no host read RTT: said once the host reads again.
+        if now - last_drop_check >= 1.0 {
+            last_drop_check = now;
+            let dropped = gyrocal_fw::rtt::dropped_bytes();
+            if dropped != dropped_reported {
+                defmt::warn!(
+                    "RTT: {=u32} log bytes dropped since boot (no host was reading)",
+                    dropped
+                );
+                dropped_reported = dropped;
+            }
         }
 
         leds.show(render(show, clock.now_us() / 1000));

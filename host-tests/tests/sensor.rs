@@ -9,13 +9,52 @@ use gyrocal_fw::stamp::Stamper;
 use host_tests::lsm_model::{Board, Lsm9ds1Model};
 use host_tests::servo_protocol::Variant;
 use host_tests::sim::{AccelRange, GyroRange, Rig};
+use std::cell::RefCell;
+use std::rc::Rc;
 
-fn model(odr: f64, board: Board) -> Lsm9ds1Model {
+/// The register model on a bus shared with [`ModelDelay`], so that the driver's waits pass
+/// the model's time.
+#[derive(Clone)]
+struct Bus(Rc<RefCell<Lsm9ds1Model>>);
+
+impl embedded_hal::i2c::ErrorType for Bus {
+    type Error = <Lsm9ds1Model as embedded_hal::i2c::ErrorType>::Error;
+}
+
+impl embedded_hal::i2c::I2c for Bus {
+    fn transaction(&mut self, address: u8, operations: &mut [embedded_hal::i2c::Operation<'_>]) -> Result<(), Self::Error> {
+        self.0.borrow_mut().transaction(address, operations)
+    }
+}
+
+impl Bus {
+    fn advance_to(&self, t: f64) {
+        self.0.borrow_mut().advance_to(t);
+    }
+}
+
+/// A delay that advances the model's clock.
+struct ModelDelay(Bus);
+
+impl embedded_hal::delay::DelayNs for ModelDelay {
+    fn delay_ns(&mut self, ns: u32) {
+        let m = &self.0 .0;
+        let t = m.borrow().now_s() + ns as f64 * 1e-9;
+        m.borrow_mut().advance_to(t);
+    }
+}
+
+fn model(odr: f64, board: Board) -> Bus {
     let mut cfg = Variant::Hobby.config(31, 0);
     cfg.odr_hz = odr;
     cfg.gyro.range = GyroRange::Dps500;
     cfg.accel.range = AccelRange::G2;
-    Lsm9ds1Model::new(Rig::new(cfg, 9), board)
+    Bus(Rc::new(RefCell::new(Lsm9ds1Model::new(Rig::new(cfg, 9), board))))
+}
+
+/// The driver initialised on `bus`, its waits passing the model's time.
+fn init(bus: &Bus, c: SensorConfig) -> Result<Lsm9ds1<Bus>, SensorError> {
+    Lsm9ds1::init(bus.clone(), c, &mut ModelDelay(bus.clone())).map_err(|e| e.0)
 }
 
 fn cfg(odr: Odr) -> SensorConfig {
@@ -25,8 +64,9 @@ fn cfg(odr: Odr) -> SensorConfig {
 #[test]
 fn init_writes_the_datasheet_configuration() {
     for (odr, code) in [(Odr::Hz119, 0x60), (Odr::Hz238, 0x80), (Odr::Hz476, 0xA0), (Odr::Hz952, 0xC0)] {
-        let s = Lsm9ds1::init(model(odr.hz() as f64, Board::Rev1), cfg(odr)).map_err(|e| e.0).unwrap();
-        let m = s.release();
+        let bus = model(odr.hz() as f64, Board::Rev1);
+        init(&bus, cfg(odr)).unwrap();
+        let m = bus.0.borrow();
         assert_eq!(m.reg(reg::CTRL_REG1_G), code | 0x08, "{odr:?}"); // FS_G = 500 °/s
         assert_eq!(m.reg(reg::CTRL_REG6_XL), code, "{odr:?}"); // FS_XL = ±2 g
         assert_eq!(m.reg(reg::CTRL_REG8), 0x44); // BDU, IF_ADD_INC
@@ -37,7 +77,7 @@ fn init_writes_the_datasheet_configuration() {
 
 #[test]
 fn missing_rev2_and_foreign_chips_are_named() {
-    let err = |b| Lsm9ds1::init(model(119.0, b), cfg(Odr::Hz119)).err().map(|e| e.0);
+    let err = |b| init(&model(119.0, b), cfg(Odr::Hz119)).err();
     assert!(matches!(err(Board::Missing), Some(SensorError::Missing)));
     assert!(matches!(err(Board::Rev2), Some(SensorError::Rev2Bmi270)));
     assert!(matches!(err(Board::OtherChip(0x3D)), Some(SensorError::WrongId(0x3D))));
@@ -48,18 +88,16 @@ type Read = ([f32; 3], [f32; 3], f64);
 
 /// Polls the FIFO every `poll_s` of true time for `secs`; returns samples read and overruns seen.
 fn stream(odr: Odr, poll_s: f64, secs: f64) -> (Vec<Read>, usize, Lsm9ds1Model) {
-    let mut s = Lsm9ds1::init(model(odr.hz() as f64, Board::Rev1), cfg(odr)).map_err(|e| e.0).unwrap();
-    let mut m = s.release();
-    m.rig_mut().set_pulse_us(1500.0); // the servo turns while we read
-    s = Lsm9ds1::init(m, cfg(odr)).map_err(|e| e.0).unwrap();
+    let bus = model(odr.hz() as f64, Board::Rev1);
+    bus.0.borrow_mut().rig_mut().set_pulse_us(1500.0); // the servo turns while we read
+    let mut s = init(&bus, cfg(odr)).unwrap();
     let (mut out, mut overruns) = (vec![], 0);
     let mut stamper = Stamper::new(odr.hz());
-    let mut t = 0.0;
-    while t < secs {
+    let mut t = bus.0.borrow().now_s();
+    let end = t + secs;
+    while t < end {
         t += poll_s;
-        let mut m = s.release();
-        m.advance_to(t);
-        s = Lsm9ds1::init_configured(m, cfg(odr));
+        bus.advance_to(t);
         let st = s.fifo_status().unwrap();
         overruns += usize::from(st.overrun);
         let batch = stamper.batch(t, st.level as usize);
@@ -69,7 +107,9 @@ fn stream(odr: Odr, poll_s: f64, secs: f64) -> (Vec<Read>, usize, Lsm9ds1Model) 
             out.push((a, g, batch.stamp(i)));
         }
     }
-    (out, overruns, s.release())
+    drop(s);
+    let m = Rc::try_unwrap(bus.0).ok().expect("one owner").into_inner();
+    (out, overruns, m)
 }
 
 #[test]
@@ -103,11 +143,10 @@ fn slow_polling_reports_overrun() {
 
 #[test]
 fn a_bus_fault_mid_stream_is_an_error_value() {
-    let s = Lsm9ds1::init(model(119.0, Board::Rev1), cfg(Odr::Hz119)).map_err(|e| e.0).unwrap();
-    let mut m = s.release();
-    m.advance_to(0.5);
-    m.nack_from = Some(0);
-    let mut s = Lsm9ds1::init_configured(m, cfg(Odr::Hz119));
+    let bus = model(119.0, Board::Rev1);
+    let mut s = init(&bus, cfg(Odr::Hz119)).unwrap();
+    bus.advance_to(0.5);
+    bus.0.borrow_mut().nack_from = Some(0);
     assert!(matches!(s.fifo_status(), Err(SensorError::Bus(BusFault::Nack))));
     assert!(matches!(s.read_slot(), Err(SensorError::Bus(BusFault::Nack))));
     assert!(matches!(s.temperature_c(), Err(SensorError::Bus(BusFault::Nack))));
