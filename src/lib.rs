@@ -1,6 +1,7 @@
 //! The hardware-independent half of the Nano 33 BLE firmware: everything between the raw
 //! peripherals and `calib_core::procedure`, testable on the host.
 //!
+//! - [`bootloader`]: which Arduino bootloader, and whether the record pages are safe to write.
 //! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
@@ -9,6 +10,7 @@
 #![no_std]
 #![deny(missing_docs)]
 
+pub mod bootloader;
 pub mod button;
 pub mod led;
 pub mod lsm9ds1;

@@ -16,6 +16,7 @@ use cortex_m::peripheral::NVIC;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_hal::i2c::{ErrorType, I2c, Operation};
+use gyrocal_fw::bootloader::FlashMap;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::{render, Lights, Show};
 use gyrocal_fw::lsm9ds1::{
@@ -244,6 +245,16 @@ fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
     p.CLOCK.traceconfig.write(|w| unsafe { w.bits(0) });
 }
 
+/// What the UICR and the start of the flash say about the bootloader.
+fn flash_map(uicr: &pac::UICR) -> FlashMap {
+    let nrffw0 = uicr.nrffw[0].read().bits();
+    // SAFETY: aligned reads of mapped flash (0x4: the vector table at 0x0; a bootloader's
+    // vector table only where UICR says one starts, inside the 1 MiB flash).
+    let word = |a: u32| unsafe { core::ptr::read_volatile(a as *const u32) };
+    let bootloader_entry = (nrffw0 < 0x10_0000 && nrffw0 % 4 == 0).then(|| word(nrffw0 + 4));
+    FlashMap { nrffw0, nrffw1: uicr.nrffw[1].read().bits(), reset_vector_0: word(4), bootloader_entry }
+}
+
 /// Starts the 32 MHz crystal, the time base of every gyro integral, clearing a stale
 /// HFCLKSTARTED first (the bootloader may have started it already). Bounded.
 fn start_hfxo(clock: &pac::CLOCK) -> bool {
@@ -440,7 +451,16 @@ fn main() -> ! {
         let len = core::ptr::addr_of!(__storage_end) as usize - start as usize;
         core::slice::from_raw_parts_mut(start, len)
     };
-    let mut storage = Storage::new(hal::nvmc::Nvmc::new(p.NVMC, region)).ok();
+    let map = flash_map(&p.UICR);
+    let bootloader = map.bootloader();
+    defmt::info!("bootloader: {}", bootloader);
+    let mut storage = match map.records_safe() {
+        Ok(()) => Storage::new(hal::nvmc::Nvmc::new(p.NVMC, region)).ok(),
+        Err(c) => {
+            defmt::error!("calibration records disabled: the pages at 0xF8000 may belong to the bootloader ({}); nothing will be written", c);
+            None
+        }
+    };
     let mut applied: Option<Record> = None;
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {
