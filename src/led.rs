@@ -9,7 +9,7 @@
 //! | error of class n | n flashes every 2 s | red on |
 //!
 //! Phase numbers: wait-rest 1, bias 2, accelerometer poses (hand-held or tilt servo) 3,
-//! reattach 4, rig-poses 5, rotation 6.
+//! reattach 4, rig-poses 5, rotation 6, storing the record 7.
 //! Error classes: sensor 1, motion 2, servo 3, geometry 4, result 5, timeout 6, storage 7.
 
 use calib_core::procedure::{ErrorClass, Led, Phase};
@@ -28,16 +28,6 @@ pub struct Lights {
     pub blue: bool,
 }
 
-/// What the LEDs show: a procedure pattern, or a storage error (class 7).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Show {
-    /// A procedure pattern.
-    Procedure(Led),
-    /// The flash could not be written or read.
-    StorageError,
-}
-
 fn phase_number(p: Phase) -> u8 {
     match p {
         Phase::WaitRest => 1,
@@ -46,6 +36,7 @@ fn phase_number(p: Phase) -> u8 {
         Phase::Reattach => 4,
         Phase::RigPoses => 5,
         Phase::Rotation => 6,
+        Phase::Store => 7,
         Phase::Idle | Phase::Done | Phase::Failed => 0,
     }
 }
@@ -58,6 +49,7 @@ fn class_number(c: ErrorClass) -> u8 {
         ErrorClass::Geometry => 4,
         ErrorClass::Result => 5,
         ErrorClass::Timeout => 6,
+        ErrorClass::Storage => 7,
     }
 }
 
@@ -68,17 +60,16 @@ fn flashes(n: u8, t_ms: u64) -> bool {
 }
 
 /// The LED states of a pattern at time `t_ms` (ms).
-pub fn render(show: Show, t_ms: u64) -> Lights {
+pub fn render(led: Led, t_ms: u64) -> Lights {
     let blink = |period: u64, on: u64| t_ms % period < on;
-    match show {
-        Show::Procedure(Led::Idle) => Lights { green: blink(2000, 100), ..Lights::default() },
-        Show::Procedure(Led::Busy(p)) => Lights { d13: flashes(phase_number(p), t_ms), blue: true, ..Lights::default() },
-        Show::Procedure(Led::WaitUser) => {
+    match led {
+        Led::Idle => Lights { green: blink(2000, 100), ..Lights::default() },
+        Led::Busy(p) => Lights { d13: flashes(phase_number(p), t_ms), blue: true, ..Lights::default() },
+        Led::WaitUser => {
             let on = blink(500, 250);
             Lights { red: on, green: on, ..Lights::default() }
         }
-        Show::Procedure(Led::Done) => Lights { d13: true, green: true, ..Lights::default() },
-        Show::Procedure(Led::Error(c)) => Lights { d13: flashes(class_number(c), t_ms), red: true, ..Lights::default() },
-        Show::StorageError => Lights { d13: flashes(7, t_ms), red: true, ..Lights::default() },
+        Led::Done => Lights { d13: true, green: true, ..Lights::default() },
+        Led::Error(c) => Lights { d13: flashes(class_number(c), t_ms), red: true, ..Lights::default() },
     }
 }

@@ -10,7 +10,7 @@
 #![no_std]
 #![no_main]
 
-use calib_core::procedure::{Command, Config, Procedure, Report, Sample};
+use calib_core::procedure::{Config, ErrorClass, Led, Procedure, Report, Sample, Shell};
 use calib_core::record::Record;
 use cortex_m::peripheral::NVIC;
 use embedded_hal::delay::DelayNs;
@@ -18,12 +18,12 @@ use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_hal::i2c::{ErrorType, I2c, Operation};
 use gyrocal_fw::bootloader::FlashMap;
 use gyrocal_fw::button::{Button, Press};
-use gyrocal_fw::led::{render, Lights, Show};
+use gyrocal_fw::led::{render, Lights};
 use gyrocal_fw::lsm9ds1::{
     AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH,
 };
 use gyrocal_fw::stamp::Stamper;
-use gyrocal_fw::storage::Storage;
+use gyrocal_fw::storage::{Storage, StoreError};
 use hal::gpio::{DriveConfig, Level, Output, Pin, PushPull};
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
@@ -345,6 +345,51 @@ fn raw_log(s: &Sample, servo_deg: Option<f32>) {
     }
 }
 
+/// The outputs the procedure drives: servo PWM, LEDs, the record storage, the applied
+/// calibration.
+struct Io {
+    pwm: Pwm<pac::PWM0>,
+    storage: Option<Storage<hal::nvmc::Nvmc<pac::NVMC>>>,
+    led: Led,
+    applied: Option<Record>,
+}
+
+fn channel(ch: u8) -> Channel {
+    if ch == 0 {
+        Channel::C0
+    } else {
+        Channel::C1
+    }
+}
+
+impl Shell for Io {
+    fn servo(&mut self, ch: u8, pulse_us: u16) {
+        self.pwm.set_duty_off(channel(ch), CONFIG.clamp_pulse(pulse_us as f32));
+    }
+
+    fn servo_off(&mut self, ch: u8) {
+        self.pwm.set_duty_off(channel(ch), 0);
+    }
+
+    fn led(&mut self, led: Led) {
+        self.led = led;
+    }
+
+    fn report(&mut self, report: &Report) {
+        log_report(report);
+    }
+
+    fn store(&mut self, rec: &Record) -> Result<(), StoreError> {
+        let slot = self.storage.as_mut().ok_or(StoreError::Unavailable)?.store(rec)?;
+        defmt::info!("record {=u32} stored in slot {=usize} and verified", rec.seq, slot);
+        Ok(())
+    }
+
+    fn apply(&mut self, rec: &Record) {
+        self.applied = Some(*rec);
+    }
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     let (Some(p), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take())
@@ -476,13 +521,11 @@ fn main() -> ! {
         _ => defmt::error!("calibration storage unreadable"),
     }
 
-    let cfg = CONFIG;
     let procedure = procedure(applied);
-    let mut show = Show::Procedure(calib_core::procedure::Led::Idle);
+    let mut io = Io { pwm, storage, led: Led::Idle, applied };
     let mut button = Button::new();
     let mut stamper = Stamper::new(sensor_cfg.odr.hz());
-    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) =
-        (false, 0.0f64, 0.0f64, 0.0f64);
+    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) = (false, 0.0f64, 0.0f64, 0.0f64);
     let (mut last_drop_check, mut dropped_reported) = (0.0f64, 0u32);
     let mut rate = calib_core::stats::Welford3::new();
 
@@ -501,9 +544,7 @@ fn main() -> ! {
                     }
                     Err((e, i2c)) => {
                         sensor_error(&e);
-                        show = Show::Procedure(calib_core::procedure::Led::Error(
-                            calib_core::procedure::ErrorClass::Sensor,
-                        ));
+                        io.led = Led::Error(ErrorClass::Sensor);
                         bus = Some(i2c);
                         next_sensor_try = now + 2.0;
                     }
@@ -520,23 +561,20 @@ fn main() -> ! {
                     }
                     let n = st.level.min(FIFO_DEPTH) as usize;
                     let batch = stamper.batch(clock.now_s(), n);
-                    let temp_c = s.temperature_c().unwrap_or(f32::NAN);
+                    // One reading per batch; a failed one leaves the samples without it.
+                    let temp_c = s.temperature_c().ok();
                     for i in 0..n {
                         let raw = s.read_slot()?;
                         let (accel_g, gyro_dps) = s.convert(&raw);
-                        let sample = Sample {
-                            t_s: batch.stamp(i),
-                            accel_g,
-                            gyro_dps,
-                            temp_c,
-                        };
+                        let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                         if raw_mode {
                             raw_log(&sample, procedure.servo_deg());
                         }
-                        if let Some(rec) = applied {
+                        if let Some(rec) = io.applied {
                             rate.add(rec.apply_gyro(gyro_dps));
                         }
                         procedure.handle_sample(&sample);
+                        procedure.drive(sample.t_s, &mut io);
                     }
                     Ok(())
                 });
@@ -552,61 +590,18 @@ fn main() -> ! {
             Some(Press::Short) => procedure.handle_button(now),
             Some(Press::Long) => {
                 raw_mode = !raw_mode;
-                defmt::info!(
-                    "raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg",
-                    raw_mode
-                );
+                defmt::info!("raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg", raw_mode);
             }
             None => {}
         }
+        procedure.drive(now, &mut io);
         procedure.handle_tick(now);
-
-        while let Some(c) = procedure.poll() {
-            match c {
-                Command::Servo { channel, pulse_us } => {
-                    let ch = if channel == 0 {
-                        Channel::C0
-                    } else {
-                        Channel::C1
-                    };
-                    pwm.set_duty_off(ch, cfg.clamp_pulse(pulse_us as f32));
-                }
-                Command::ServoOff { channel } => pwm.set_duty_off(
-                    if channel == 0 {
-                        Channel::C0
-                    } else {
-                        Channel::C1
-                    },
-                    0,
-                ),
-                Command::Led(l) => show = Show::Procedure(l),
-                Command::Report(r) => log_report(&r),
-                Command::Store(rec) => match storage.as_mut().map(|s| s.store(&rec)) {
-                    Some(Ok(slot)) => {
-                        defmt::info!("record {=u32} stored in slot {=usize}", rec.seq, slot)
-                    }
-                    Some(Err(e)) => {
-                        defmt::error!(
-                            "storing the record failed: {}; the previous record is kept",
-                            e
-                        );
-                        show = Show::StorageError;
-                    }
-                    None => defmt::error!("no storage: record not stored"),
-                },
-                Command::Apply(rec) => applied = Some(rec),
-            }
-        }
+        procedure.drive(now, &mut io);
 
         // After calibration: the calibrated rate, averaged, once a second.
-        if applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
+        if io.applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
             let m = rate.mean();
-            defmt::info!(
-                "rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)",
-                m[0] as f32,
-                m[1] as f32,
-                m[2] as f32
-            );
+            defmt::info!("rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)", m[0] as f32, m[1] as f32, m[2] as f32);
             rate = calib_core::stats::Welford3::new();
             last_rate_line = now;
         }
@@ -616,15 +611,12 @@ fn main() -> ! {
             last_drop_check = now;
             let dropped = gyrocal_fw::rtt::dropped_bytes();
             if dropped != dropped_reported {
-                defmt::warn!(
-                    "RTT: {=u32} log bytes dropped since boot (no host was reading)",
-                    dropped
-                );
+                defmt::warn!("RTT: {=u32} log bytes dropped since boot (no host was reading)", dropped);
                 dropped_reported = dropped;
             }
         }
 
-        leds.show(render(show, clock.now_us() / 1000));
+        leds.show(render(io.led, clock.now_us() / 1000));
         cortex_m::asm::wfi();
     }
 }

@@ -6,6 +6,7 @@
 //! highest sequence number wins, and a torn or corrupt slot is never applied (CRC-32, version,
 //! magic and field checks of `calib_core::record`).
 
+pub use calib_core::record::StoreError;
 use calib_core::record::{DecodeError, Record, LEN};
 use embedded_storage::nor_flash::NorFlash;
 
@@ -22,18 +23,6 @@ pub enum Slot {
     Valid(Record),
     /// Not a valid record (torn write, corruption, unknown version).
     Invalid(DecodeError),
-}
-
-/// A storage failure.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum StoreError {
-    /// The flash driver failed (erase, write or read).
-    Flash,
-    /// The record read back differs from the one written.
-    Verify,
-    /// The region is smaller than two pages.
-    RegionTooSmall,
 }
 
 /// The two record slots in a flash region (offsets relative to the driver's region).

@@ -1,6 +1,7 @@
 //! The one error type of the crate: every failure names the requirement that was not met.
 
 use crate::procedure::Phase;
+use crate::record::StoreError;
 use core::fmt;
 
 /// Why a calibration step failed. Values in the variants are in the units their names state.
@@ -56,6 +57,12 @@ pub enum Error {
     Saturated,
     /// The calibration result failed validation (scale out of range or too uncertain).
     ResultRejected { axis: u8, k: f32, sigma: f32 },
+    /// The record could not be stored; the previous one is kept.
+    Storage(StoreError),
+    /// The shell did not drain the command queue: a command would have been lost.
+    CommandQueueFull,
+    /// Not one temperature reading during the whole calibration.
+    NoTemperature,
 }
 
 impl fmt::Display for Error {
@@ -124,6 +131,9 @@ impl fmt::Display for Error {
                 "result rejected: axis {} scale {k:.4} (1 sigma {sigma:.4}) outside the accepted range",
                 ["x", "y", "z"][axis as usize % 3]
             ),
+            Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
+            Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
+            Error::NoTemperature => f.write_str("no temperature reading during the calibration: sensor or I2C bus failing"),
         }
     }
 }

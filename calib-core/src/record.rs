@@ -33,6 +33,31 @@ pub enum DecodeError {
     InvalidField,
 }
 
+/// Why a record could not be stored (the shell's storage reports it to the procedure).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StoreError {
+    /// The flash driver failed (erase, write or read).
+    Flash,
+    /// The record read back differs from the one written.
+    Verify,
+    /// The storage region is too small for two record pages.
+    RegionTooSmall,
+    /// No storage to write to (the region may belong to the bootloader, or it failed at boot).
+    Unavailable,
+}
+
+impl core::fmt::Display for StoreError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            StoreError::Flash => "the flash could not be erased, written or read",
+            StoreError::Verify => "the record read back differs from the one written",
+            StoreError::RegionTooSmall => "the storage region is smaller than two pages",
+            StoreError::Unavailable => "no storage available",
+        })
+    }
+}
+
 /// Everything a calibration stores and applies.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

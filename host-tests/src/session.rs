@@ -8,8 +8,8 @@
 use crate::csvlog::{self, Row};
 use crate::sim::{Rig, Sample as SimSample};
 use calib_core::gyro::GyroCal;
-use calib_core::procedure::{Command, Phase, Procedure, Report, Sample};
-use calib_core::record::Record;
+use calib_core::procedure::{Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -22,6 +22,11 @@ pub struct Faults {
     pub disturb_rig_poses: bool,
     /// The servo stalls once the first rig pose is captured.
     pub stall_after_first_pose: bool,
+    /// Every store fails with this error.
+    pub store_fails: Option<StoreError>,
+    /// Every n-th sample has no temperature reading (1 = none has one); the others after such
+    /// a gap read NaN once (a garbled transfer) before reading right again.
+    pub temp_missing_every: Option<usize>,
 }
 
 /// What a run produced.
@@ -29,7 +34,7 @@ pub struct Faults {
 pub struct Outcome {
     /// Every report, in order.
     pub reports: Vec<Report>,
-    /// Records the procedure asked to store.
+    /// Records stored (the shell's store succeeded).
     pub stored: Vec<Record>,
     /// Records the procedure asked to apply.
     pub applied: Vec<Record>,
@@ -37,6 +42,8 @@ pub struct Outcome {
     pub error: Option<Error>,
     /// Samples delivered.
     pub samples: usize,
+    /// The last LED pattern shown.
+    pub led: Option<Led>,
     /// MCU time at the end (s).
     pub end_s: f64,
 }
@@ -72,7 +79,74 @@ pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
 
 /// Converts a simulator sample to the procedure's input.
 pub fn to_input(s: &SimSample) -> Sample {
-    Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: s.temp_c }
+    Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: Some(s.temp_c) }
+}
+
+/// The simulated board's outputs and its operator: servo commands go to the rig, reports move
+/// the operator (typed reports, not log wording), stores go to `out` (or fail as injected).
+struct SimBoard<'a> {
+    rig: &'a mut Rig,
+    out: &'a mut Outcome,
+    faults: Faults,
+    attitudes: Vec<UnitQuaternion<f64>>,
+    next_pose: usize,
+    handheld: bool,
+    press_at: Option<f64>,
+    t: f64,
+}
+
+impl Shell for SimBoard<'_> {
+    fn servo(&mut self, channel: u8, pulse_us: u16) {
+        match channel {
+            0 => self.rig.set_pulse_us(pulse_us as f64),
+            _ => self.rig.set_tilt_pulse_us(pulse_us as f64),
+        }
+    }
+
+    fn servo_off(&mut self, channel: u8) {
+        if channel == 0 {
+            self.rig.servo_off();
+        }
+    }
+
+    fn led(&mut self, led: Led) {
+        self.out.led = Some(led);
+    }
+
+    fn report(&mut self, r: &Report) {
+        self.handheld |= *r == Report::Phase(Phase::HandHeld);
+        match *r {
+            Report::Phase(Phase::HandHeld) | Report::AccelPose { .. } if self.handheld => {
+                if let Some(q) = self.attitudes.get(self.next_pose) {
+                    self.rig.detach_to(*q, 1.0);
+                    self.next_pose += 1;
+                }
+            }
+            Report::Phase(Phase::Reattach) => {
+                self.handheld = false;
+                self.rig.attach();
+                self.press_at = Some(self.t + self.rig.config().attach_transition_s + 1.0);
+            }
+            Report::RigPose { index: 0, .. } if self.faults.stall_after_first_pose => self.rig.stall(true),
+            Report::Failed(e) => self.out.error = Some(e),
+            _ => {}
+        }
+        self.out.reports.push(*r);
+    }
+
+    fn store(&mut self, r: &Record) -> Result<(), StoreError> {
+        match self.faults.store_fails {
+            Some(e) => Err(e),
+            None => {
+                self.out.stored.push(*r);
+                Ok(())
+            }
+        }
+    }
+
+    fn apply(&mut self, r: &Record) {
+        self.out.applied.push(*r);
+    }
 }
 
 /// Runs `proc` on `rig` until it is done or failed (or `max_s` of MCU time passed).
@@ -85,68 +159,47 @@ pub fn run(
     mut log: impl FnMut(&SimSample, Option<f32>, Option<f32>),
 ) -> Outcome {
     let mut out = Outcome::default();
-    let attitudes = handheld_attitudes();
-    let mut next_pose = 0usize;
-    let mut handheld = false;
-    let mut press_at = Some(1.0);
     let mut last_bump = f64::NEG_INFINITY;
-    let mut t = 0.0;
     let mut started = false;
-    while t < max_s {
-        let stopped = faults.sensor_stops_at_s.is_some_and(|ts| t >= ts);
+    let mut samples = 0;
+    let mut b = SimBoard { rig, out: &mut out, faults, attitudes: handheld_attitudes(), next_pose: 0, handheld: false, press_at: Some(1.0), t: 0.0 };
+    while b.t < max_s {
+        let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);
         if stopped {
-            t += 0.01;
-            proc.handle_tick(t);
+            b.t += 0.01;
+            proc.handle_tick(b.t);
         } else {
-            let s = rig.next_sample();
-            t = s.t_s;
+            let s = b.rig.next_sample();
+            b.t = s.t_s;
             log(&s, proc.servo_deg(), proc.tilt_deg());
-            proc.handle_sample(&to_input(&s));
-            out.samples += 1;
-        }
-        if press_at.is_some_and(|tp| t >= tp) {
-            press_at = None;
-            started = true;
-            proc.handle_button(t);
-        }
-        if faults.disturb_rig_poses && proc.phase() == Phase::RigPoses && t - last_bump > 1.6 {
-            rig.disturb(0.3, 20.0);
-            last_bump = t;
-        }
-        while let Some(c) = proc.poll() {
-            match c {
-                Command::Servo { channel: 0, pulse_us } => rig.set_pulse_us(pulse_us as f64),
-                Command::Servo { pulse_us, .. } => rig.set_tilt_pulse_us(pulse_us as f64),
-                Command::ServoOff { channel: 0 } => rig.servo_off(),
-                Command::ServoOff { .. } | Command::Led(_) => {}
-                Command::Store(r) => out.stored.push(r),
-                Command::Apply(r) => out.applied.push(r),
-                Command::Report(r) => {
-                    handheld |= r == Report::Phase(Phase::HandHeld);
-                    match r {
-                        Report::Phase(Phase::HandHeld) | Report::AccelPose { .. } if handheld => {
-                            if let Some(q) = attitudes.get(next_pose) {
-                                rig.detach_to(*q, 1.0);
-                                next_pose += 1;
-                            }
-                        }
-                        Report::Phase(Phase::Reattach) => {
-                            handheld = false;
-                            rig.attach();
-                            press_at = Some(t + rig.config().attach_transition_s + 1.0);
-                        }
-                        Report::RigPose { index: 0, .. } if faults.stall_after_first_pose => rig.stall(true),
-                        Report::Failed(e) => out.error = Some(e),
-                        _ => {}
-                    }
-                    out.reports.push(r);
-                }
+            let mut input = to_input(&s);
+            if let Some(n) = faults.temp_missing_every {
+                input.temp_c = match samples % n.max(1) {
+                    0 => None,
+                    1 => Some(f32::NAN),
+                    _ => input.temp_c,
+                };
             }
+            proc.handle_sample(&input);
+            samples += 1;
+        }
+        proc.drive(b.t, &mut b);
+        if b.press_at.is_some_and(|tp| b.t >= tp) {
+            b.press_at = None;
+            started = true;
+            proc.handle_button(b.t);
+            proc.drive(b.t, &mut b);
+        }
+        if faults.disturb_rig_poses && proc.phase() == Phase::RigPoses && b.t - last_bump > 1.6 {
+            b.rig.disturb(0.3, 20.0);
+            last_bump = b.t;
         }
         if started && matches!(proc.phase(), Phase::Done | Phase::Failed) {
             break;
         }
     }
+    let t = b.t;
+    out.samples = samples;
     out.end_s = t;
     out
 }

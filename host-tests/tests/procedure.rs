@@ -1,8 +1,8 @@
 //! The calibration procedure end to end on the simulated rig: button press to stored record,
 //! and every failure ending in its own error with nothing stored.
 
-use calib_core::procedure::{Config, Phase, Procedure, Report, ServoKind};
-use calib_core::record::Record;
+use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, ServoKind};
+use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use host_tests::servo_protocol::Variant;
 use host_tests::session::{run, Faults, Outcome};
@@ -149,4 +149,61 @@ fn tilt_servo_takes_the_accelerometer_poses() {
     assert!(rec.accel_rms_g < 0.002, "accel residual {}", rec.accel_rms_g);
     let err = max_rel_error(&rec, &rig);
     assert!(err < 0.003, "max scale error {:.4} %", err * 100.0);
+}
+
+#[test]
+fn a_failed_store_is_a_failure_nothing_applied_and_the_sequence_unchanged() {
+    let cfg = Variant::Hobby.config(12, 0);
+    let (first, _) = calibrate(cfg, Config::default(), None, Faults::default());
+    let previous = first.stored[0];
+    let mut rig = Rig::new(cfg, 6);
+    let mut p = Procedure::new(Config::default(), Some(previous));
+    let faults = Faults { store_fails: Some(StoreError::Verify), ..Faults::default() };
+    let out = run(&mut rig, &mut p, faults, 900.0, |_, _, _| {});
+    assert_eq!(out.error, Some(Error::Storage(StoreError::Verify)));
+    assert_eq!(ErrorClass::of(&Error::Storage(StoreError::Verify)), ErrorClass::Storage);
+    assert_eq!(out.led, Some(Led::Error(ErrorClass::Storage)), "the LEDs show the storage error, not done");
+    assert!(out.applied.is_empty() && out.stored.is_empty());
+    assert!(!out.reports.iter().any(|r| matches!(r, Report::Done(_))), "no Done before a verified store");
+    assert_eq!(p.phase(), Phase::Failed);
+    // The same procedure again, with a working store: the sequence continues from the record
+    // that is really in flash.
+    let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+    assert_eq!(out.error, None);
+    assert_eq!(out.stored.len(), 1);
+    assert_eq!(out.stored[0].seq, previous.seq + 1);
+    assert_eq!(out.led, Some(Led::Done));
+    assert_eq!(out.applied, out.stored);
+}
+
+#[test]
+fn temperature_reads_that_fail_never_reach_the_record() {
+    let cfg = Variant::Hobby.config(16, 0);
+    let faults = Faults { temp_missing_every: Some(7), ..Faults::default() };
+    let (out, rig) = calibrate(cfg, Config::default(), None, faults);
+    assert_eq!(out.error, None);
+    let rec = out.stored[0];
+    assert!(rec.temp_c.is_finite() && (rec.temp_c as f64 - rig.config().temp_c).abs() < 2.0, "temp {}", rec.temp_c);
+    assert_eq!(Record::decode(&rec.encode()), Ok(rec));
+    // Not a single reading: a named error, nothing stored.
+    let faults = Faults { temp_missing_every: Some(1), ..Faults::default() };
+    expect_failure(cfg, Config::default(), faults, |e| *e == Error::NoTemperature);
+}
+
+#[test]
+fn a_shell_that_never_drains_the_queue_gets_a_failure_not_lost_commands() {
+    let mut rig = Rig::new(Variant::Hobby.config(17, 0), 7);
+    let mut p = Procedure::new(Config::default(), None);
+    // Start, lose the sensor (a timeout failure), start again, ... and never poll.
+    let mut t = 0.0;
+    for _ in 0..10 {
+        p.handle_button(t);
+        let s = rig.next_sample();
+        p.handle_sample(&host_tests::session::to_input(&s));
+        t = s.t_s + 10.0;
+        p.handle_tick(t);
+    }
+    let cmds: Vec<_> = std::iter::from_fn(|| p.poll()).collect();
+    assert!(cmds.len() <= 16);
+    assert!(cmds.contains(&calib_core::procedure::Command::Report(Report::Failed(Error::CommandQueueFull))), "{cmds:?}");
 }

@@ -3,7 +3,7 @@
 
 use calib_core::procedure::{ErrorClass, Led, Phase};
 use gyrocal_fw::button::{Button, Press};
-use gyrocal_fw::led::{render, Show};
+use gyrocal_fw::led::render;
 use gyrocal_fw::lsm9ds1::{reg, BusFault, AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
 use gyrocal_fw::stamp::Stamper;
 use host_tests::lsm_model::{Board, Lsm9ds1Model};
@@ -182,13 +182,15 @@ fn button_debounces_and_tells_long_presses() {
 
 #[test]
 fn led_patterns_encode_phase_and_error_class() {
-    let count = |show: Show| -> usize {
-        (0..2000).step_by(10).map(|ms| render(show, ms).d13).collect::<Vec<_>>().windows(2).filter(|w| !w[0] && w[1]).count()
-            + usize::from(render(show, 0).d13)
+    let count = |led: Led| -> usize {
+        (0..2000).step_by(10).map(|ms| render(led, ms).d13).collect::<Vec<_>>().windows(2).filter(|w| !w[0] && w[1]).count()
+            + usize::from(render(led, 0).d13)
     };
-    assert_eq!(count(Show::Procedure(Led::Busy(Phase::RigPoses))), 5);
-    assert_eq!(count(Show::Procedure(Led::Error(ErrorClass::Servo))), 3);
-    assert_eq!(count(Show::StorageError), 7);
-    assert!(render(Show::Procedure(Led::Error(ErrorClass::Sensor)), 5).red);
-    assert!(render(Show::Procedure(Led::Done), 777).green);
+    assert_eq!(count(Led::Busy(Phase::RigPoses)), 5);
+    assert_eq!(count(Led::Busy(Phase::Store)), 7);
+    assert_eq!(count(Led::Error(ErrorClass::Servo)), 3);
+    assert_eq!(count(Led::Error(ErrorClass::Storage)), 7);
+    assert!(render(Led::Error(ErrorClass::Sensor), 5).red);
+    assert!(render(Led::Error(ErrorClass::Storage), 5).red && !render(Led::Error(ErrorClass::Storage), 5).green);
+    assert!(render(Led::Done, 777).green);
 }

@@ -4,7 +4,7 @@ use super::Phase;
 use crate::accel::AccelCal;
 use crate::bias::Bias;
 use crate::gyro::{GyroCal, Method};
-use crate::record::Record;
+use crate::record::{Record, StoreError};
 use crate::{Error, Vec3};
 
 /// LED patterns (the shell maps them to pins and blink timing).
@@ -39,6 +39,8 @@ pub enum ErrorClass {
     Result,
     /// A phase timed out.
     Timeout,
+    /// The record could not be stored (the previous one is kept).
+    Storage,
 }
 
 impl ErrorClass {
@@ -56,7 +58,17 @@ impl ErrorClass {
             | Error::AngleSpanTooSmall { .. }
             | Error::TooFewPoses { .. } => ErrorClass::Geometry,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
-            _ => ErrorClass::Result,
+            Error::Storage(_) => ErrorClass::Storage,
+            Error::NoTemperature => ErrorClass::Sensor,
+            Error::TooFewRows { .. }
+            | Error::Singular
+            | Error::IllConditioned { .. }
+            | Error::CapacityExceeded { .. }
+            | Error::ImplausibleScale { .. }
+            | Error::TooFewSamples { .. }
+            | Error::AccelFitFailed
+            | Error::ResultRejected { .. }
+            | Error::CommandQueueFull => ErrorClass::Result,
         }
     }
 }
@@ -84,7 +96,7 @@ pub enum Report {
     Gyro(GyroCal),
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },
-    /// The calibration was stored and applied.
+    /// The calibration was stored (verified) and is applied from now on.
     Done(Record),
     /// The calibration failed; nothing was stored.
     Failed(Error),
@@ -103,8 +115,27 @@ pub enum Command {
     Led(Led),
     /// Log a report.
     Report(Report),
-    /// Store this record in flash (power-fail safe; keep the previous one until it is written).
+    /// Store this record in flash (power-fail safe; keep the previous one until it is written),
+    /// then tell the procedure how it went: [`super::Procedure::handle_stored`].
     Store(Record),
     /// Apply this calibration to every reading from now on.
     Apply(Record),
+}
+
+/// What a shell does with the procedure's commands: the one dispatch of every shell (the
+/// firmware, the simulated rig, the offline tool). [`super::Procedure::drive`] drains the queue
+/// into it and feeds the store's result back.
+pub trait Shell {
+    /// Drives servo `channel` (0 = rotation, 1 = tilt) with a pulse (µs, already clamped).
+    fn servo(&mut self, channel: u8, pulse_us: u16);
+    /// Stops driving servo `channel`.
+    fn servo_off(&mut self, channel: u8);
+    /// Shows an LED pattern.
+    fn led(&mut self, led: Led);
+    /// Logs a report.
+    fn report(&mut self, report: &Report);
+    /// Stores a record (power-fail safe) and says whether it is now in flash, read back.
+    fn store(&mut self, record: &Record) -> Result<(), StoreError>;
+    /// Applies a (stored) calibration to every reading from now on.
+    fn apply(&mut self, record: &Record);
 }

@@ -5,22 +5,25 @@
 //! Phases: wait for rest → gyro bias → accelerometer (hand-held poses, skipped when a valid
 //! stored calibration exists) → re-clamp and press → static rig poses and the moves between
 //! them, there and back → the paper's constant-rate rotation → solve both estimators →
-//! validate → store → report → apply.
+//! validate → store → (verified) report → apply.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
-//! (one call queues at most 8 commands; the queue holds 16).
+//! (one call queues at most 8 commands; the queue holds 16; a full queue fails the calibration
+//! with [`Error::CommandQueueFull`]). A [`Command::Store`] is answered with
+//! [`Procedure::handle_stored`]; only then are the result reported, applied and shown as done.
+//! [`Procedure::drive`] does both for a [`Shell`].
 
 mod command;
 mod config;
 
-pub use command::{Command, ErrorClass, Led, Report};
+pub use command::{Command, ErrorClass, Led, Report, Shell};
 pub use config::{Config, ServoKind};
 
 use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::{turn_deg, Poses};
 use crate::bias::{Bias, BiasEstimator};
 use crate::gyro::{GyroCal, Method};
-use crate::record::Record;
+use crate::record::{Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
@@ -39,8 +42,8 @@ pub struct Sample {
     pub accel_g: Vec3,
     /// Raw gyro (°/s).
     pub gyro_dps: Vec3,
-    /// Sensor temperature (°C).
-    pub temp_c: f32,
+    /// Sensor temperature (°C), `None` if it could not be read (a sample needs none).
+    pub temp_c: Option<f32>,
 }
 
 /// The phase the procedure is in.
@@ -63,6 +66,8 @@ pub enum Phase {
     RigPoses,
     /// The paper's constant-rate rotation.
     Rotation,
+    /// Waiting for the shell to store the record.
+    Store,
     /// Calibration stored and applied.
     Done,
     /// Calibration failed; nothing stored.
@@ -81,6 +86,7 @@ impl Phase {
             Phase::Reattach => "reattach",
             Phase::RigPoses => "rig-poses",
             Phase::Rotation => "rotation",
+            Phase::Store => "store",
             Phase::Done => "done",
             Phase::Failed => "failed",
         }
@@ -157,6 +163,8 @@ enum Step {
     Pose { k: u16, capture: Capture, since: f64 },
     /// The paper's constant-rate rotation.
     Rotation { rot: Rotation },
+    /// `record` was handed to the shell to store; waiting for [`Procedure::handle_stored`].
+    Storing { record: Record },
     Finished(Phase),
 }
 
@@ -192,6 +200,9 @@ impl Rotation {
         }
     }
 }
+
+/// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
+const STORE_TIMEOUT_S: f32 = 5.0;
 
 /// Time for the servos to start moving after a tilt-pose command (s).
 const TILT_SETTLE_S: f64 = 0.3;
@@ -262,6 +273,7 @@ impl Procedure {
             Step::Reattach => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
             Step::Rotation { .. } => Phase::Rotation,
+            Step::Storing { .. } => Phase::Store,
             Step::Finished(p) => p,
         }
     }
@@ -336,9 +348,11 @@ impl Procedure {
             self.tainted = false;
         }
         let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
-        self.temp.add([s.temp_c, 0.0, 0.0]);
+        if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
+            self.temp.add([t, 0.0, 0.0]);
+        }
         match self.step {
-            Step::Idle | Step::Finished(_) | Step::Reattach => {}
+            Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
                     if self.bias.is_none() {
@@ -431,8 +445,12 @@ impl Procedure {
     }
 
     fn push(&mut self, c: Command) {
-        // Bounded by the contract (≤ 8 per call, drained after each); never blocks.
-        let _ = self.queue.push_back(c);
+        // Bounded by the contract (≤ 8 per call, drained after each). A shell that breaks it
+        // fails the calibration: the queue is emptied for the failure's own commands.
+        if self.queue.push_back(c).is_err() {
+            self.queue.clear();
+            self.fail(Error::CommandQueueFull);
+        }
     }
 
     fn start(&mut self, t_s: f64) {
@@ -536,6 +554,7 @@ impl Procedure {
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
             Step::Rotation { rot } => (rot.ramp.t0, rot.ramp.duration_s as f32 + c.rest_timeout_s),
+            Step::Storing { .. } => (self.phase_t0, STORE_TIMEOUT_S),
             Step::Idle | Step::Finished(_) => return,
         };
         if t_s - since > limit as f64 {
@@ -737,14 +756,48 @@ impl Procedure {
         if let Err(e) = self.validate(&chosen) {
             return self.fail(e);
         }
-        let record = self.record(&chosen);
+        let record = match self.record(&chosen) {
+            Ok(r) => r,
+            Err(e) => return self.fail(e),
+        };
+        self.enter(Step::Storing { record }, t_s);
         self.push(Command::Store(record));
-        self.push(Command::Report(Report::Done(record)));
-        self.push(Command::Apply(record));
-        self.push(Command::Led(Led::Done));
-        self.stored = Some(record);
-        self.phase_t0 = t_s;
-        self.step = Step::Finished(Phase::Done);
+    }
+
+    /// The shell's answer to [`Command::Store`]: only a verified store reports the result,
+    /// applies it, shows it as done and moves the sequence number on; a failed one fails the
+    /// calibration with [`Error::Storage`] (the previous record stays in use).
+    pub fn handle_stored(&mut self, t_s: f64, result: Result<(), StoreError>) {
+        let Step::Storing { record } = self.step else { return };
+        match result {
+            Ok(()) => {
+                self.stored = Some(record);
+                self.phase_t0 = t_s;
+                self.step = Step::Finished(Phase::Done);
+                self.push(Command::Report(Report::Done(record)));
+                self.push(Command::Apply(record));
+                self.push(Command::Led(Led::Done));
+            }
+            Err(e) => self.fail(Error::Storage(e)),
+        }
+    }
+
+    /// Drains the commands into `shell`, answering each store with [`Self::handle_stored`]
+    /// (the one dispatch loop of every shell). Call after every `handle_*`.
+    pub fn drive(&mut self, t_s: f64, shell: &mut impl Shell) {
+        while let Some(c) = self.poll() {
+            match c {
+                Command::Servo { channel, pulse_us } => shell.servo(channel, pulse_us),
+                Command::ServoOff { channel } => shell.servo_off(channel),
+                Command::Led(l) => shell.led(l),
+                Command::Report(r) => shell.report(&r),
+                Command::Store(rec) => {
+                    let result = shell.store(&rec);
+                    self.handle_stored(t_s, result);
+                }
+                Command::Apply(rec) => shell.apply(&rec),
+            }
+        }
     }
 
     fn validate(&self, cal: &GyroCal) -> Result<(), Error> {
@@ -757,9 +810,12 @@ impl Procedure {
         Ok(())
     }
 
-    fn record(&self, cal: &GyroCal) -> Record {
+    fn record(&self, cal: &GyroCal) -> Result<Record, Error> {
         let q = &cal.quality;
-        Record {
+        if self.temp.count() == 0 {
+            return Err(Error::NoTemperature);
+        }
+        Ok(Record {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
             temp_c: self.temp.mean()[0] as f32,
             gyro_k: cal.k,
@@ -777,7 +833,7 @@ impl Procedure {
             tilt_deg: q.tilt_deg,
             span_deg: q.span_deg,
             accel_rms_g: self.accel_cal.rms_after_g,
-        }
+        })
     }
 }
 
