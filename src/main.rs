@@ -318,30 +318,24 @@ fn sensor_error(e: &SensorError) {
     }
 }
 
-fn raw_log(s: &Sample, servo_deg: Option<f32>) {
-    let (a, g) = (s.accel_g, s.gyro_dps);
-    match servo_deg {
-        Some(d) => defmt::println!(
-            "{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
-            s.t_s,
-            a[0],
-            a[1],
-            a[2],
-            g[0],
-            g[1],
-            g[2],
-            d
-        ),
-        None => defmt::println!(
-            "{=f64},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},",
-            s.t_s,
-            a[0],
-            a[1],
-            a[2],
-            g[0],
-            g[1],
-            g[2]
-        ),
+/// Raw-log mode (a long press toggles it): every sample as a row of `calib_core::log` after its
+/// header line; the end marker when it is switched off. The other log lines in between are not
+/// rows (`calib` skips and counts them), so the message text alone
+/// (`probe-rs run --log-format "{s}"`) is a log `calib` reads.
+/// Switches raw-log mode: the header line on, the end marker off.
+fn set_raw_log(on: bool) {
+    if on {
+        defmt::println!("{=str}", calib_core::log::HEADER);
+    } else {
+        defmt::println!("{=str}", calib_core::log::END);
+    }
+}
+
+fn raw_log(s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
+    let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
+    let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
+    if calib_core::log::write_row(&mut line, &row).is_ok() {
+        defmt::println!("{=str}", line.as_str());
     }
 }
 
@@ -568,7 +562,7 @@ fn main() -> ! {
                         let (accel_g, gyro_dps) = s.convert(&raw);
                         let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                         if raw_mode {
-                            raw_log(&sample, procedure.servo_deg());
+                            raw_log(&sample, procedure.servo_deg(), procedure.tilt_deg());
                         }
                         if let Some(rec) = io.applied {
                             rate.add(rec.apply_gyro(gyro_dps));
@@ -590,7 +584,7 @@ fn main() -> ! {
             Some(Press::Short) => procedure.handle_button(now),
             Some(Press::Long) => {
                 raw_mode = !raw_mode;
-                defmt::info!("raw log {=bool}: CSV t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg", raw_mode);
+                set_raw_log(raw_mode);
             }
             None => {}
         }

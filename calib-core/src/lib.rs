@@ -12,6 +12,7 @@
 //! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
 //! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
 //! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
+//! - [`log`]: the recorded log's format (the firmware's raw-log mode and the offline tool).
 //!
 //! ```
 //! use calib_core::axis::{GeometryLimits, Poses};
@@ -50,6 +51,7 @@ pub mod bias;
 mod error;
 pub mod gyro;
 mod linalg;
+pub mod log;
 pub mod lsq;
 pub mod paper;
 pub mod procedure;

@@ -204,14 +204,12 @@ pub fn run(
     out
 }
 
-/// Runs like [`run`] and records the log (DESIGN §5 CSV, `comments` first; a `tilt_deg` column
-/// when the rig has a tilt stage).
+/// Runs like [`run`] and records the log ([`calib_core::log`], `comments` first).
 pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Outcome) {
-    let tilt = rig.config().tilt.is_some();
-    let mut text = format!("{comments}{}", csvlog::header(tilt));
+    let mut text = format!("{comments}{}", csvlog::header());
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
         let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
-        csvlog::format_row(&mut text, &row, tilt);
+        csvlog::format_row(&mut text, &row);
     });
     (text, out)
 }

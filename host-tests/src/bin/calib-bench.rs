@@ -38,7 +38,7 @@ fn main() {
                 let mut p = Procedure::new(pcfg, None);
                 let (text, _) = record_log(&mut rig, &mut p, Faults::default(), "");
                 let k = rig.truth().gyro_k;
-                match csvlog::parse(&text).map_err(|e| e.to_string()).and_then(|r| offline::calibrate(&r, None).map_err(|e| e.to_string())) {
+                match csvlog::parse(&text).map_err(|e| e.to_string()).and_then(|l| offline::calibrate(&l.rows, None).map_err(|e| e.to_string())) {
                     Ok(c) => errs.extend((0..3).map(|a| (c.gyro.k[a][a] as f64 / k[(a, a)] - 1.0) * 100.0)),
                     Err(e) => failed.push(e),
                 }

@@ -102,7 +102,7 @@ fn main() -> ExitCode {
         Err(e) => return fail(2, format!("{path}: {e}")),
     };
     let rows = match csvlog::parse(&text) {
-        Ok(r) => r,
+        Ok(l) => l.rows,
         Err(e) => return fail(3, format!("{path}: {e}")),
     };
     match offline::calibrate(&rows, method) {

@@ -1,0 +1,237 @@
+//! The recorded log, defined once for the firmware's raw-log mode and the offline tool: one CSV
+//! row per IMU sample under the header
+//! `t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg`.
+//!
+//! - `t_s`: MCU timestamp (s); `a*_g`: raw accelerometer (g); `g*_dps`: raw gyro (°/s);
+//!   `servo_deg`, `tilt_deg`: the commanded rotation and tilt servo angles (°), empty while that
+//!   servo is not commanded. Rows with both empty are hand-held.
+//! - Lines starting with `#` are comments. Lines before the header are ignored (a logger's
+//!   preamble); [`END`] ends the data (what follows is ignored). After the header, a line whose
+//!   first character cannot start a number is a log message (the firmware's other log lines in
+//!   raw-log mode), skipped and counted; any other line must be a valid row. Columns are found
+//!   by name, `tilt_deg` may be absent, extra columns are ignored.
+//!
+//! Numbers are written with fixed decimals (µs, µg, 10 µ°/s, 0.01°) by integer arithmetic, so
+//! the firmware needs no float-formatting code.
+
+use core::fmt::{self, Write};
+
+/// The header line.
+pub const HEADER: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg";
+/// The comment line that ends a raw log (raw-log mode switched off).
+pub const END: &str = "# end of raw log";
+/// Column names, in the order written.
+pub const COLUMNS: [&str; 9] = ["t_s", "ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "servo_deg", "tilt_deg"];
+/// Longest row [`write_row`] writes (bytes, without the newline).
+pub const MAX_ROW: usize = 128;
+
+/// One IMU sample of a log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Row {
+    /// MCU timestamp (s).
+    pub t_s: f64,
+    /// Raw accelerometer (g).
+    pub accel_g: [f32; 3],
+    /// Raw gyro (°/s).
+    pub gyro_dps: [f32; 3],
+    /// Commanded rotation-servo angle (°); `None` while no servo is commanded.
+    pub servo_deg: Option<f32>,
+    /// Commanded tilt-servo angle (°); `None` without a tilt servo (or no column).
+    pub tilt_deg: Option<f32>,
+}
+
+/// Decimals written per column group: time, accelerometer, gyro, servo angles.
+const DECIMALS: (u32, u32, u32, u32) = (6, 6, 5, 2);
+
+/// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
+/// written as `nan`, which the parser rejects. Digits by hand: no `core::fmt` number code.
+fn fixed(w: &mut impl Write, v: f64, decimals: u32) -> fmt::Result {
+    let scaled = v * 10u64.pow(decimals) as f64;
+    if !(scaled.abs() < 9.2e18) {
+        return w.write_str("nan");
+    }
+    // Round half away from zero without libm.
+    let r = if scaled >= 0.0 { (scaled + 0.5) as i64 } else { (scaled - 0.5) as i64 };
+    let mut m = r.unsigned_abs();
+    // Digits, least significant first, with the decimal point after `decimals` of them.
+    let mut buf = [0u8; 24];
+    let mut n = 0;
+    while n < decimals as usize || m > 0 || n <= decimals as usize {
+        if n == decimals as usize && decimals > 0 {
+            buf[n] = b'.';
+            n += 1;
+        }
+        buf[n] = b'0' + (m % 10) as u8;
+        m /= 10;
+        n += 1;
+    }
+    if r < 0 {
+        buf[n] = b'-';
+        n += 1;
+    }
+    buf[..n].iter().rev().try_for_each(|&b| w.write_char(b as char))
+}
+
+/// Writes one row (no newline).
+pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
+    let (dt, da, dg, ds) = DECIMALS;
+    fixed(w, r.t_s, dt)?;
+    for a in r.accel_g {
+        w.write_char(',')?;
+        fixed(w, a as f64, da)?;
+    }
+    for g in r.gyro_dps {
+        w.write_char(',')?;
+        fixed(w, g as f64, dg)?;
+    }
+    for s in [r.servo_deg, r.tilt_deg] {
+        w.write_char(',')?;
+        if let Some(s) = s {
+            fixed(w, s as f64, ds)?;
+        }
+    }
+    Ok(())
+}
+
+/// Why a log line cannot be read. Lines are 1-based.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogError {
+    /// No header line.
+    NoHeader,
+    /// A required column is missing from the header.
+    MissingColumn(&'static str),
+    /// A row has fewer fields than the header.
+    ShortRow {
+        /// Line number.
+        line: u32,
+        /// Fields found.
+        have: u16,
+        /// Fields the header names.
+        need: u16,
+    },
+    /// A field is not a number (or NaN / infinite).
+    BadNumber {
+        /// Line number.
+        line: u32,
+        /// Column name.
+        column: &'static str,
+    },
+    /// Time does not increase.
+    NonMonotonicTime {
+        /// Line number.
+        line: u32,
+    },
+    /// The log has no data rows.
+    Empty,
+}
+
+impl fmt::Display for LogError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            LogError::NoHeader => write!(f, "no header line (expected {HEADER})"),
+            LogError::MissingColumn(c) => write!(f, "missing column {c:?} in the header (expected {HEADER})"),
+            LogError::ShortRow { line, have, need } => write!(f, "line {line}: {have} fields, the header has {need}"),
+            LogError::BadNumber { line, column } => write!(f, "line {line}: column {column} is not a finite number"),
+            LogError::NonMonotonicTime { line } => write!(f, "line {line}: time does not increase"),
+            LogError::Empty => f.write_str("the log has no data rows"),
+        }
+    }
+}
+
+/// Where each column is in a header.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Columns {
+    /// Field index of the first eight columns of [`COLUMNS`].
+    idx: [usize; 8],
+    /// Field index of `tilt_deg`, if present.
+    tilt: Option<usize>,
+    /// Fields in the header.
+    count: usize,
+}
+
+impl Columns {
+    /// Whether the header has `tilt_deg`.
+    pub fn has_tilt(&self) -> bool {
+        self.tilt.is_some()
+    }
+}
+
+/// Whether `line` (trimmed) is the header of this format: it names `t_s` first.
+pub fn is_header(line: &str) -> bool {
+    line.trim().split(',').next().map(str::trim) == Some("t_s")
+}
+
+/// Reads a header line.
+pub fn parse_header(line: &str) -> Result<Columns, LogError> {
+    let mut idx = [0usize; 8];
+    for (slot, name) in idx.iter_mut().zip(COLUMNS) {
+        *slot = line.split(',').position(|n| n.trim() == name).ok_or(LogError::MissingColumn(name))?;
+    }
+    let tilt = line.split(',').position(|n| n.trim() == COLUMNS[8]);
+    Ok(Columns { idx, tilt, count: line.split(',').count() })
+}
+
+/// Reads a data row (line number `line` for errors).
+pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError> {
+    let have = text.split(',').count();
+    if have < cols.count {
+        return Err(LogError::ShortRow { line, have: have as u16, need: cols.count as u16 });
+    }
+    let field = |i: usize| text.split(',').nth(i).unwrap_or("").trim();
+    let num = |c: usize| -> Result<f64, LogError> {
+        let i = if c == 8 { cols.tilt.unwrap_or(usize::MAX) } else { cols.idx[c] };
+        match field(i).parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(LogError::BadNumber { line, column: COLUMNS[c] }),
+        }
+    };
+    let opt = |c: usize| -> Result<Option<f32>, LogError> {
+        let i = if c == 8 {
+            match cols.tilt {
+                Some(i) => i,
+                None => return Ok(None),
+            }
+        } else {
+            cols.idx[c]
+        };
+        if field(i).is_empty() {
+            Ok(None)
+        } else {
+            num(c).map(|v| Some(v as f32))
+        }
+    };
+    Ok(Row {
+        t_s: num(0)?,
+        accel_g: [num(1)? as f32, num(2)? as f32, num(3)? as f32],
+        gyro_dps: [num(4)? as f32, num(5)? as f32, num(6)? as f32],
+        servo_deg: opt(7)?,
+        tilt_deg: opt(8)?,
+    })
+}
+
+/// What a line of a log is, once the header has been seen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Line {
+    /// Blank or a comment.
+    Skip,
+    /// The end of the raw log.
+    End,
+    /// A log message between rows (not a number first).
+    Message,
+    /// A sample.
+    Row(Row),
+}
+
+/// Classifies and reads one line after the header.
+pub fn parse_line(text: &str, cols: &Columns, line: u32) -> Result<Line, LogError> {
+    let t = text.trim();
+    if t == END {
+        Ok(Line::End)
+    } else if t.is_empty() || t.starts_with('#') {
+        Ok(Line::Skip)
+    } else if !t.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) {
+        Ok(Line::Message)
+    } else {
+        parse_row(t, cols, line).map(Line::Row)
+    }
+}
