@@ -12,6 +12,7 @@
 //! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
 //! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
 //! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
+//! - [`pipeline`]: the decisions the procedure and the offline tool share (fit choice, gates).
 //! - [`log`]: the recorded log's format (the firmware's raw-log mode and the offline tool).
 //!
 //! ```
@@ -54,6 +55,7 @@ mod linalg;
 pub mod log;
 pub mod lsq;
 pub mod paper;
+pub mod pipeline;
 pub mod procedure;
 pub mod record;
 pub mod rest;

@@ -15,7 +15,8 @@ use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::stats::{Spread, Welford3};
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
-use calib_core::{paper, sweep, Error};
+use calib_core::procedure::Config;
+use calib_core::{paper, pipeline, sweep, Error};
 use nalgebra::Vector3;
 use serde_json::{json, Value};
 
@@ -284,9 +285,9 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
             break;
         }
     }
+    let acceptance = Config::DEFAULT.acceptance;
     let accel = match acc.len() {
-        n if n >= 9 => acc.solve9().or_else(|_| acc.solve6()).map_err(stage("accelerometer"))?,
-        n if n >= 6 => acc.solve6().map_err(stage("accelerometer"))?,
+        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
         _ => AccelCal::IDENTITY,
     };
 
@@ -341,11 +342,10 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     let chosen = match method {
         Some(Method::Sweep) => sweep.map_err(stage("sweep estimator"))?,
         Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation)?.map_err(stage("paper estimator"))?,
-        None => match (sweep, paper) {
-            (Ok(c), _) | (Err(_), Some(Ok(c))) => c,
-            (Err(e), _) => return Err(OfflineError::Calib { stage: "sweep estimator", error: e }),
-        },
+        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator"))?,
     };
+    // The firmware's acceptance: a result it would not store is not printed either.
+    pipeline::validate(&chosen, &acceptance).map_err(stage("validation"))?;
     Ok(Calibration {
         gyro: chosen,
         bias,

@@ -1,36 +1,21 @@
-//! A scripted hobby-servo session on the simulated rig, solved by both gyro estimators: the
-//! realistic benchmark of `paper-tables` (servo angle-scale error up to ±3 %, ODR −4 %,
-//! accelerometer calibrated by our own 9-parameter fit on 12 hand-held poses).
-//!
-//! Script (MCU time): rest 2 s (bias) → 12 hand-held icosahedron poses → back on the shaft →
-//! 7 static poses 0°…180° every 30° and back (settle 0.7 s, average 1 s), each move commanded
-//! at 30 °/s → the paper's rotation: 0° → 180° commanded at 20 °/s, `ḡ` averaged over its
-//! constant-rate middle. The sweep estimator uses the moves, the paper's the rotation.
+//! The realistic benchmark of `paper-tables`: the firmware's procedure (the code that ships) on
+//! simulated hobby-servo rigs (servo angle-scale error up to ±3 %, ODR −4 %, accelerometer
+//! calibrated by the 9-parameter fit on 12 hand-held poses), both gyro estimators compared.
 
 use crate::moments::Moments;
-use crate::session::handheld_attitudes;
-use crate::sim::{Rig, RigConfig, Sample, ServoModel};
-use calib_core::accel::AccelCalibrator;
-use calib_core::axis::{GeometryLimits, Poses};
-use calib_core::bias::{BiasEstimator, BiasLimits};
-use calib_core::gyro::GyroCal;
-use calib_core::stats::Welford3;
-use calib_core::sweep::{Integrator, Moves};
-use calib_core::vec3::sub;
-use calib_core::{paper, sweep, Error};
+use crate::session::{run, Faults};
+use crate::sim::{Rig, RigConfig, ServoModel};
+use calib_core::gyro::{GyroCal, Method};
+use calib_core::procedure::{Config, Procedure, Report};
+use calib_core::Error;
 use nalgebra::Matrix3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value};
 
-/// Pulse (µs) for a nominal servo angle (°): 1000–2000 µs ↔ 0–180°.
-pub fn pulse_for_deg(deg: f64) -> f64 {
-    1000.0 + deg / 0.18
-}
-
-/// Both estimators' results and the truth of one session.
+/// Both estimators' results and the truth of one trial.
 #[derive(Debug, Clone, Copy)]
-pub struct Session {
+pub struct Trial {
     /// Sweep estimator.
     pub sweep: Result<GyroCal, Error>,
     /// Paper estimator with the nominal (commanded) speed.
@@ -39,110 +24,31 @@ pub struct Session {
     pub k_true: [f64; 3],
 }
 
-impl Session {
+impl Trial {
     /// Relative scale errors `K̂_ii / K_ii − 1` of a result.
     pub fn rel_errors(&self, cal: &Result<GyroCal, Error>) -> Option<[f64; 3]> {
         cal.as_ref().ok().map(|c| std::array::from_fn(|i| c.k[i][i] as f64 / self.k_true[i] - 1.0))
     }
 }
 
-/// Feeds samples to `f` for `secs` seconds of MCU time.
-fn run_for(rig: &mut Rig, secs: f64, mut f: impl FnMut(&Sample)) {
-    let t0 = rig.next_sample().t_s;
-    loop {
-        let s = rig.next_sample();
-        if s.t_s - t0 >= secs {
-            break;
-        }
-        f(&s);
-    }
-}
-
-/// Ramps the pulse from `from_deg` to `to_deg` at `rate_dps` (nominal), feeding every sample.
-fn ramp(rig: &mut Rig, from_deg: f64, to_deg: f64, rate_dps: f64, mut f: impl FnMut(&Sample)) {
-    let dur = (to_deg - from_deg).abs() / rate_dps;
-    let t0 = rig.next_sample().t_s;
-    loop {
-        let s = rig.next_sample();
-        let x = ((s.t_s - t0) / dur).min(1.0);
-        rig.set_pulse_us(pulse_for_deg(from_deg + (to_deg - from_deg) * x));
-        f(&s);
-        if x >= 1.0 {
-            break;
-        }
-    }
-}
-
-
-/// Runs the scripted session on a rig.
-pub fn session(cfg: RigConfig, seed: u64) -> Result<Session, Error> {
+/// Runs the firmware's own procedure (calib-core, default configuration) on a rig, with the
+/// simulated operator, and takes both estimators' reports.
+pub fn trial(cfg: RigConfig, seed: u64) -> Result<Trial, Error> {
     let mut rig = Rig::new(cfg, seed);
     let k_true = std::array::from_fn(|i| rig.truth().gyro_k[(i, i)]);
-    rig.set_pulse_us(pulse_for_deg(0.0));
-    run_for(&mut rig, 1.5, |_| {});
-    let mut b = BiasEstimator::new();
-    run_for(&mut rig, 2.0, |s| b.add(s.gyro_dps, s.accel_g));
-    let bias = b.finish(&BiasLimits::default())?.bias_dps;
-
-    // Hand-held accelerometer poses: the 12 icosahedron vertices pointing up in turn.
-    let mut acc = AccelCalibrator::new();
-    for q in handheld_attitudes() {
-        rig.detach_to(q, 1.0);
-        run_for(&mut rig, 1.5, |_| {});
-        let mut w = Welford3::new();
-        run_for(&mut rig, 1.0, |s| w.add(s.accel_g));
-        acc.add_pose(w.mean().map(|x| x as f32))?;
+    let mut p = Procedure::new(Config::default(), None);
+    let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+    let result = |m: Method| {
+        out.reports.iter().find_map(|r| match *r {
+            Report::Gyro(c) if c.method == m => Some(Ok(c)),
+            Report::EstimatorFailed { method, error } if method == m => Some(Err(error)),
+            _ => None,
+        })
+    };
+    match (result(Method::Sweep), result(Method::Paper)) {
+        (Some(sweep), Some(paper)) => Ok(Trial { sweep, paper, k_true }),
+        _ => Err(out.error.unwrap_or(Error::NoUsableMove)),
     }
-    let accel = acc.solve9()?;
-    rig.attach();
-    run_for(&mut rig, 2.5, |_| {});
-
-    // Static poses and the moves between them.
-    let angles: Vec<f64> = (0..=6).map(|i| 30.0 * i as f64).chain((0..6).rev().map(|i| 30.0 * i as f64)).collect();
-    let (mut poses, mut moves) = (Poses::new(), Moves::new());
-    let mut integ = Integrator::new();
-    let mut prev: Option<(u8, f64)> = None;
-    for &deg in &angles {
-        if let Some((_, from)) = prev {
-            ramp(&mut rig, from, deg, 30.0, |s| integ.add(s.t_s, sub(s.gyro_dps, bias)));
-        }
-        run_for(&mut rig, 0.7, |s| integ.add(s.t_s, sub(s.gyro_dps, bias)));
-        let mut w = Welford3::new();
-        let mut last = None;
-        run_for(&mut rig, 1.0, |s| {
-            w.add(s.accel_g);
-            last = Some(*s);
-        });
-        let idx = poses.push(accel.apply(w.mean().map(|x| x as f32)))?;
-        if let Some((from, _)) = prev {
-            moves.push(from, idx, integ.gamma())?;
-        }
-        // The next move starts where this pose's averaging window ends.
-        integ = Integrator::new();
-        if let Some(s) = last {
-            integ.add(s.t_s, sub(s.gyro_dps, bias));
-        }
-        prev = Some((idx, deg));
-    }
-
-    // The paper's constant-rate rotation, 0° → 180° at a commanded 20 °/s.
-    let omega_n = 20.0;
-    rig.set_pulse_us(pulse_for_deg(0.0));
-    run_for(&mut rig, 1.5, |_| {});
-    let (mut rot, mut t_start) = (Welford3::new(), None::<f64>);
-    ramp(&mut rig, 0.0, 180.0, omega_n, |s| {
-        let t0 = *t_start.get_or_insert(s.t_s);
-        if s.t_s - t0 > 1.5 && s.t_s - t0 < 180.0 / omega_n - 0.5 {
-            rot.add(sub(s.gyro_dps, bias));
-        }
-    });
-    let limits = GeometryLimits::default();
-    let gbar = rot.mean().map(|x| x as f32);
-    Ok(Session {
-        sweep: sweep::solve(&poses, &moves, &limits),
-        paper: paper::solve(&poses, gbar, omega_n as f32, &limits),
-        k_true,
-    })
 }
 
 /// The rig variants of the benchmark.
@@ -189,16 +95,16 @@ impl Variant {
 pub fn compare(runs: usize, seed: u64) -> Value {
     println!("\nHobby-servo rig ({runs} random rigs per variant; simulated LSM9DS1 at 119 Hz with ODR -4 %, scale,");
     println!("bias, noise, quantisation; servo lag, slew, dead band, vibration; MCU timestamps; accelerometer by our");
-    println!("9-parameter fit on 12 hand-held poses). Script: rest 2 s (bias); 12 hand-held poses; on the shaft,");
-    println!("13 static poses 0..180..0 deg every 30 deg (settle 0.7 s, average 1 s), moves commanded at 30 deg/s (sweep);");
-    println!("rotation 0 -> 180 deg commanded at 20 deg/s (paper, w_n = 20 deg/s). Error of diag(K) against truth, in %:");
+    println!("9-parameter fit on 12 hand-held poses). The firmware's procedure (calib-core, default configuration),");
+    println!("with a simulated operator: rest and bias; 12 hand-held poses; on the shaft, static poses 0..180..0 deg, moves");
+    println!("commanded at 30 deg/s (sweep); rotation commanded at 20 deg/s (paper, w_n = 20 deg/s). Error of diag(K), in %:");
     println!("{:<24}{:<8}{:>10}{:>10}{:>10}{:>8}", "variant", "method", "RMS", "max|e|", "mean", "failed");
     let mut out = serde_json::Map::new();
     for variant in [Variant::Hobby, Variant::ExactServo, Variant::HobbyMisaligned] {
         let (mut e_sweep, mut e_paper) = (vec![], vec![]);
         let (mut f_sweep, mut f_paper) = (vec![], vec![]);
         for r in 0..runs {
-            match session(variant.config(seed, r), r as u64 + 1) {
+            match trial(variant.config(seed, r), r as u64 + 1) {
                 Ok(s) => {
                     for (errs, cal, f) in [(&mut e_sweep, &s.sweep, &mut f_sweep), (&mut e_paper, &s.paper, &mut f_paper)] {
                         match s.rel_errors(cal) {

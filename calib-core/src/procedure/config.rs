@@ -3,6 +3,7 @@
 
 use crate::axis::GeometryLimits;
 use crate::bias::BiasLimits;
+use crate::pipeline::Acceptance;
 use crate::rest::RestConfig;
 
 /// The rotation servo.
@@ -98,14 +99,8 @@ pub struct Config {
     pub accel_range_g: f32,
     /// Gyro full scale (°/s).
     pub gyro_range_dps: f32,
-    /// Accepted range of each scale factor.
-    pub k_min: f32,
-    /// See `k_min`.
-    pub k_max: f32,
-    /// Largest accepted 1σ of a scale factor.
-    pub max_sigma_k: f32,
-    /// Largest accepted accelerometer residual after calibration (g).
-    pub max_accel_rms_g: f32,
+    /// What a result must meet to be stored.
+    pub acceptance: Acceptance,
 }
 
 impl Config {
@@ -143,10 +138,7 @@ impl Config {
             min_turn_fraction: 0.5,
             accel_range_g: 2.0,
             gyro_range_dps: 500.0,
-            k_min: 0.8,
-            k_max: 1.2,
-            max_sigma_k: 0.005,
-            max_accel_rms_g: 0.01,
+            acceptance: Acceptance { k_min: 0.8, k_max: 1.2, max_sigma_k: 0.005, max_accel_rms_g: 0.01 },
         };
 }
 

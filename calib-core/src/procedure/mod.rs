@@ -28,7 +28,7 @@ use crate::rest::{RestDetector, RestState, Window};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
-use crate::{paper, sweep, Error, Vec3};
+use crate::{paper, pipeline, sweep, Error, Vec3};
 use heapless::Deque;
 use nalgebra::Vector3;
 
@@ -615,14 +615,7 @@ impl Procedure {
 
     /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.
     fn fit_accel(&mut self) -> Result<(), Error> {
-        let fit = if self.accel_poses.len() >= 9 {
-            self.accel_poses.solve9().or_else(|_| self.accel_poses.solve6())
-        } else {
-            self.accel_poses.solve6()
-        }?;
-        if !(fit.rms_after_g <= self.cfg.max_accel_rms_g) {
-            return Err(Error::AccelFitFailed);
-        }
+        let fit = pipeline::fit_accel(&self.accel_poses, &self.cfg.acceptance)?;
         self.accel_cal = fit;
         self.push(Command::Report(Report::Accel(fit)));
         Ok(())
@@ -749,13 +742,10 @@ impl Procedure {
                 None => {}
             }
         }
-        let chosen = match (sweep, paper) {
-            (Ok(c), _) | (Err(_), Some(Ok(c))) => c,
-            (Err(e), _) => return self.fail(e),
+        let chosen = match pipeline::choose(sweep, paper).and_then(|c| pipeline::validate(&c, &self.cfg.acceptance).map(|_| c)) {
+            Ok(c) => c,
+            Err(e) => return self.fail(e),
         };
-        if let Err(e) = self.validate(&chosen) {
-            return self.fail(e);
-        }
         let record = match self.record(&chosen) {
             Ok(r) => r,
             Err(e) => return self.fail(e),
@@ -798,16 +788,6 @@ impl Procedure {
                 Command::Apply(rec) => shell.apply(&rec),
             }
         }
-    }
-
-    fn validate(&self, cal: &GyroCal) -> Result<(), Error> {
-        for i in 0..3 {
-            let (k, sigma) = (cal.k[i][i], cal.quality.sigma_k[i]);
-            if !(k >= self.cfg.k_min && k <= self.cfg.k_max && sigma <= self.cfg.max_sigma_k) {
-                return Err(Error::ResultRejected { axis: i as u8, k, sigma });
-            }
-        }
-        Ok(())
     }
 
     fn record(&self, cal: &GyroCal) -> Result<Record, Error> {
