@@ -20,6 +20,8 @@ const GAUSS_NEWTON_STEPS: usize = 12;
 /// Which accelerometer model a calibration uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum AccelModel {
     /// Identity: no calibration applied.
     None,
@@ -32,6 +34,7 @@ pub enum AccelModel {
 /// An accelerometer calibration `f = M (a − o)` (g, sensor frame) with its fit quality.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct AccelCal {
     /// Gain matrix `M` (row-major).
     pub m: Mat3,

@@ -31,6 +31,7 @@ impl Default for BiasLimits {
 /// A gyro bias estimate (raw units: °/s in the sensor frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Bias {
     /// Mean gyro reading at rest (°/s).
     pub bias_dps: Vec3,

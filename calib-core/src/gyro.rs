@@ -6,6 +6,8 @@ use crate::{Mat3, Vec3};
 /// Which gyro estimator produced a result.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "lowercase"))]
 pub enum Method {
     /// The paper's estimator: constant-rate rotation at a known servo speed (DESIGN §4.1).
     Paper,
@@ -26,6 +28,7 @@ impl Method {
 /// Everything known about how good a gyro calibration is.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct GyroQuality {
     /// Spread over poses of the invariant `A·ḡ` (°/s·g) with the raw gyro (`K = I`).
     pub invariant_before: Spread,
@@ -56,6 +59,7 @@ pub struct GyroQuality {
 /// A gyro scale calibration: `ω = K (g − b)`, `K` in the 6-parameter (diagonal) model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct GyroCal {
     /// Scale matrix `K` (row-major, dimensionless).
     pub k: Mat3,

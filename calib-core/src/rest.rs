@@ -9,6 +9,7 @@ use crate::Vec3;
 /// Thresholds of the rest detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RestConfig {
     /// Length of one analysis window (s).
     pub window_s: f32,

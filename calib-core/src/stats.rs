@@ -73,6 +73,7 @@ impl Welford3 {
 /// invariant in the quality report.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Spread {
     /// Number of values.
     pub n: u32,

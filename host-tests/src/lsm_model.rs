@@ -10,6 +10,16 @@
 //! mode a full FIFO drops its oldest slot; the temperature output (16 LSB/°C, 0 at 25 °C).
 //! Samples enter the FIFO at the ODR configured in CTRL_REG1_G times the rig's ODR error, in
 //! true time.
+//!
+//! Strict where the part is: while it boots (power-up, SW_RESET, BOOT) it does not acknowledge
+//! its address (the datasheet's I2C section: a slave that "is performing some real-time
+//! function" leaves the acknowledge out) for [`BOOT_S`]; unpowered it NACKs everything and loses
+//! its registers; with the FIFO enabled, a burst read auto-incremented past OUT_Z_H_XL (0x2D)
+//! wraps back to OUT_X_L_G (0x18), so one transaction can pull many slots; the first slot after
+//! the FIFO is (re)enabled is junk (ST: "the first sample acquired must be discarded"): zeros,
+//! which no driver that keeps it can mistake for a real pose (|a| = 0 g). That slot is not a
+//! sample of the rig ([`Lsm9ds1Model::history`] does not list it; [`Lsm9ds1Model::junk`] counts
+//! it).
 
 use crate::sim::Rig;
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
@@ -66,9 +76,25 @@ pub struct Lsm9ds1Model {
     produced: usize,
     dropped: usize,
     history: Vec<([f32; 3], [f32; 3])>,
+    /// The part does not answer before this time (booting).
+    busy_until: f64,
+    powered: bool,
+    /// The next slot entering the FIFO is the junk first sample after enabling it.
+    junk_next: bool,
+    junk: usize,
+    /// Each transaction advances true time by its bus time at this rate (Hz), if set.
+    pub bus_hz: Option<f64>,
+    /// External clock (s): every transaction first advances true time to it.
+    pub clock: Option<std::rc::Rc<std::cell::Cell<f64>>>,
 }
 
 const DEFAULT_CTRL_REG8: u8 = 0x04;
+
+/// How long the part does not answer after power-up, SW_RESET or BOOT (s). DocID025715 gives no
+/// figure for it; 10 ms is what Arduino's LSM9DS1 library waits after its reset on this very
+/// board (Zephyr waits 50 ms after BOOT), so a driver that waits that long, or polls with NACK
+/// as "not ready" under a timeout, works, and one that polls at once does not.
+pub const BOOT_S: f64 = 0.010;
 
 impl Lsm9ds1Model {
     /// A model on `board`, sampling `rig` (whose sensor ranges should match what the firmware
@@ -88,9 +114,52 @@ impl Lsm9ds1Model {
             produced: 0,
             dropped: 0,
             history: Vec::new(),
+            busy_until: 0.0,
+            powered: true,
+            junk_next: false,
+            junk: 0,
+            bus_hz: None,
+            clock: None,
         };
         m.reset_registers();
         m
+    }
+
+    /// Powers the part on or off (the board's VDD_ENV). Off: it NACKs and loses its registers;
+    /// on: it boots for [`BOOT_S`] first.
+    pub fn set_powered(&mut self, on: bool) {
+        if on == self.powered {
+            return;
+        }
+        self.powered = on;
+        self.reset_registers();
+        if on {
+            self.busy_until = self.now_s + BOOT_S;
+        }
+    }
+
+    /// Powered.
+    pub fn powered(&self) -> bool {
+        self.powered
+    }
+
+    /// Junk first slots produced (after each FIFO enable).
+    pub fn junk(&self) -> usize {
+        self.junk
+    }
+
+    /// Whether the part acknowledges `address` now.
+    pub fn acks(&self, address: u8) -> bool {
+        let present = match self.board {
+            Board::Rev1 | Board::OtherChip(_) => address == ADDR_AG,
+            Board::Rev2 => address == ADDR_BMI270,
+            Board::Missing => false,
+        };
+        present && self.powered && self.now_s >= self.busy_until && !self.nack_from.is_some_and(|n| self.transactions >= n)
+    }
+
+    fn fifo_on(&self) -> bool {
+        self.reg(reg::CTRL_REG9) & 0x02 != 0 && self.reg(reg::FIFO_CTRL) >> 5 != 0
     }
 
     fn reset_registers(&mut self) {
@@ -103,6 +172,7 @@ impl Lsm9ds1Model {
         self.fifo.clear();
         self.overrun = false;
         self.slot_read = 0;
+        self.junk_next = false;
     }
 
     /// A register value.
@@ -186,14 +256,25 @@ impl Lsm9ds1Model {
                 break;
             }
             self.pending = None;
-            if !self.running() {
+            if !self.running() || !self.powered {
+                continue;
+            }
+            let fifo_on = self.fifo_on();
+            if fifo_on && self.junk_next {
+                // The first acquisition after enabling the FIFO: junk, not a sample.
+                self.junk_next = false;
+                self.junk += 1;
+                if self.fifo.len() == FIFO_DEPTH as usize {
+                    self.fifo.pop_front();
+                    self.overrun = true;
+                }
+                self.fifo.push_back(Slot { gyro: [0; 6], accel: [0; 6] });
                 continue;
             }
             self.produced += 1;
             self.history.push((accel, gyro));
             let t16 = (((temp - 25.0) * 16.0).round() as i16).to_le_bytes();
             self.regs[reg::OUT_TEMP_L as usize..reg::OUT_TEMP_L as usize + 2].copy_from_slice(&t16);
-            let fifo_on = self.reg(reg::CTRL_REG9) & 0x02 != 0 && self.reg(reg::FIFO_CTRL) >> 5 != 0;
             if fifo_on {
                 if self.fifo.len() == FIFO_DEPTH as usize {
                     self.fifo.pop_front();
@@ -238,8 +319,13 @@ impl Lsm9ds1Model {
 
     fn write_byte(&mut self, r: u8, v: u8) {
         let r = r & 0x7F;
-        if r == reg::CTRL_REG8 && v & 0x01 != 0 {
-            self.reset_registers();
+        if r == reg::CTRL_REG8 && v & 0x81 != 0 {
+            // SW_RESET (bit 0) or BOOT (bit 7): the part reboots and does not answer meanwhile;
+            // both bits clear themselves.
+            if v & 0x01 != 0 {
+                self.reset_registers();
+            }
+            self.busy_until = self.now_s + BOOT_S;
             return;
         }
         if matches!(r, reg::WHO_AM_I | reg::FIFO_SRC | reg::STATUS_REG) {
@@ -250,7 +336,12 @@ impl Lsm9ds1Model {
             let hz = [0.0, 14.9, 59.5, 119.0, 238.0, 476.0, 952.0, 0.0][(v >> 5) as usize];
             self.rig.set_odr_hz(hz);
         }
+        let was_on = self.fifo_on();
         self.regs[r as usize] = v;
+        if !was_on && self.fifo_on() {
+            self.fifo.clear();
+            self.junk_next = true;
+        }
     }
 }
 
@@ -260,13 +351,20 @@ impl ErrorType for Lsm9ds1Model {
 
 impl I2c for Lsm9ds1Model {
     fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), BusError> {
+        if let Some(c) = self.clock.clone() {
+            self.advance_to(c.get());
+        }
+        if let Some(hz) = self.bus_hz {
+            let bytes: usize = operations.iter().map(|op| 1 + match op {
+                Operation::Write(b) => b.len(),
+                Operation::Read(b) => b.len(),
+            }).sum();
+            let t = self.now_s + bytes as f64 * 9.0 / hz;
+            self.advance_to(t);
+        }
+        let acked = self.acks(address);
         self.transactions += 1;
-        let present = match self.board {
-            Board::Rev1 | Board::OtherChip(_) => address == ADDR_AG,
-            Board::Rev2 => address == ADDR_BMI270,
-            Board::Missing => false,
-        };
-        if !present || self.nack_from.is_some_and(|n| self.transactions > n) {
+        if !acked {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
         }
         if self.board == Board::Rev2 {
@@ -280,6 +378,14 @@ impl I2c for Lsm9ds1Model {
         }
         let mut ptr: Option<u8> = None;
         let inc = self.reg(reg::CTRL_REG8) & 0x04 != 0;
+        let next = |m: &Self, r: u8| -> u8 {
+            match (inc, r) {
+                (false, r) => r,
+                // FIFO read pattern: past OUT_Z_H_XL the address wraps to OUT_X_L_G.
+                (true, 0x2D) if m.fifo_on() => reg::OUT_X_L_G,
+                (true, r) => r.wrapping_add(1),
+            }
+        };
         for op in operations.iter_mut() {
             match op {
                 Operation::Write(bytes) => {
@@ -290,14 +396,14 @@ impl I2c for Lsm9ds1Model {
                     for &b in it {
                         let r = ptr.unwrap_or(0);
                         self.write_byte(r, b);
-                        ptr = Some(if inc { r.wrapping_add(1) } else { r });
+                        ptr = Some(next(self, r));
                     }
                 }
                 Operation::Read(buf) => {
                     for b in buf.iter_mut() {
                         let r = ptr.unwrap_or(0);
                         *b = self.read_byte(r);
-                        ptr = Some(if inc { r.wrapping_add(1) } else { r });
+                        ptr = Some(next(self, r));
                     }
                 }
             }

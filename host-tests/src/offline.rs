@@ -10,15 +10,16 @@ use crate::csvlog::Row;
 use calib_core::accel::{AccelCal, AccelCalibrator};
 use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
-use calib_core::gyro::{GyroCal, Method};
+use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
-use calib_core::stats::{Spread, Welford3};
+use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
 use calib_core::procedure::Config;
 use calib_core::{paper, pipeline, sweep, Error};
 use nalgebra::Vector3;
-use serde_json::{json, Value};
+use calib_core::{Mat3, Vec3};
+use serde::Serialize;
 
 /// A still segment: consecutive still windows.
 #[derive(Debug, Clone, Copy)]
@@ -375,56 +376,135 @@ fn servo_rate(rows: &[Row]) -> Option<f32> {
 }
 
 
-fn spread(s: &Spread) -> Value {
-    json!({"mean": s.mean, "std": s.std, "range": s.range, "relative_std": s.relative_std()})
+/// The tool's JSON output: the calibration to apply, then everything about its quality.
+#[derive(Debug, Clone, Serialize)]
+pub struct Output<'a> {
+    /// `ω = K (g − b)`.
+    pub gyro: GyroOut,
+    /// `f = M (a − o)`.
+    pub accel: AccelOut,
+    /// Quality of every part.
+    pub quality: QualityOut<'a>,
 }
 
-fn gyro_json(c: &GyroCal) -> Value {
-    let q = &c.quality;
-    json!({
-        "method": c.method.name(), "K_diag": [c.k[0][0], c.k[1][1], c.k[2][2]], "sigma_k": q.sigma_k,
-        "condition": q.condition, "residual_rms": q.residual_rms,
-        "invariant_before": spread(&q.invariant_before), "invariant_after": spread(&q.invariant_after),
-        "axis": q.axis, "tilt_deg": q.tilt_deg, "span_deg": q.span_deg, "min_axis_component": q.min_axis_component,
-        "plane_rms_g": q.plane_rms_g, "poses": q.poses, "rows": q.rows,
-    })
+/// The gyro calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct GyroOut {
+    /// Scale matrix (row-major).
+    #[serde(rename = "K")]
+    pub k: Mat3,
+    /// Bias (raw °/s).
+    pub bias_dps: Vec3,
+    /// The estimator used.
+    pub method: Method,
 }
 
-fn outcome_json(r: &Result<GyroCal, Error>) -> Value {
-    match r {
-        Ok(c) => gyro_json(c),
-        Err(e) => json!({"error": e.to_string()}),
+/// The accelerometer calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccelOut {
+    /// Gain matrix (row-major).
+    #[serde(rename = "M")]
+    pub m: Mat3,
+    /// Offset (raw g).
+    pub offset_g: Vec3,
+}
+
+/// One estimator's outcome: its result, or why it failed.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum EstimatorOut<'a> {
+    /// The result.
+    Ok(&'a GyroCal),
+    /// The failure.
+    Failed {
+        /// What went wrong.
+        error: String,
+    },
+}
+
+impl<'a> EstimatorOut<'a> {
+    fn of(r: &'a Result<GyroCal, Error>) -> Self {
+        match r {
+            Ok(c) => EstimatorOut::Ok(c),
+            Err(e) => EstimatorOut::Failed { error: e.to_string() },
+        }
     }
 }
 
+/// Both estimators.
+#[derive(Debug, Clone, Serialize)]
+pub struct Estimators<'a> {
+    /// The speed-free sweep estimator.
+    pub sweep: EstimatorOut<'a>,
+    /// The paper's estimator.
+    pub paper: EstimatorOut<'a>,
+}
+
+/// What the phase detection found.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Segments {
+    /// Still segments.
+    pub still: usize,
+    /// Accelerometer poses (hand-held or tilt servo).
+    pub handheld_poses: usize,
+    /// Rig poses.
+    pub rig_poses: usize,
+    /// Moves between rig poses.
+    pub moves: usize,
+}
+
+/// Quality of every part of the calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct QualityOut<'a> {
+    /// The chosen gyro result's quality report.
+    pub gyro: &'a GyroQuality,
+    /// The bias.
+    pub bias: &'a Bias,
+    /// The accelerometer fit.
+    pub accel: &'a AccelCal,
+    /// Both estimators' outcomes.
+    pub estimators: Estimators<'a>,
+    /// The rotation rate the paper estimator used (°/s).
+    pub rotation_rate_dps: Option<f32>,
+    /// Where it came from (`servo column` or `accelerometer`).
+    pub rotation_rate_source: Option<&'static str>,
+    /// Phases found.
+    pub segments: Segments,
+    /// The rest thresholds used (raised to the log's noise floor).
+    pub rest_thresholds: &'a RestConfig,
+}
+
+const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: MIN_ROTATION_DPS as f32 });
+
 impl Calibration {
-    /// The tool's JSON object: `{"gyro":{"K","bias_dps","method"},"accel":{"M","offset_g"},"quality":{…}}`.
-    pub fn json(&self) -> Value {
-        let a = &self.accel;
-        let model = match a.model {
-            calib_core::accel::AccelModel::None => "none",
-            calib_core::accel::AccelModel::SixParam => "six_param",
-            calib_core::accel::AccelModel::NineParam => "nine_param",
-        };
-        json!({
-            "gyro": {"K": self.gyro.k, "bias_dps": self.bias.bias_dps, "method": self.gyro.method.name()},
-            "accel": {"M": a.m, "offset_g": a.offset_g},
-            "quality": {
-                "gyro": gyro_json(&self.gyro),
-                "bias": {"sigma_dps": self.bias.sigma_dps, "noise_dps": self.bias.noise_dps, "samples": self.bias.samples},
-                "accel": {"model": model, "poses": self.handheld_poses, "rms_before_g": a.rms_before_g,
-                          "rms_after_g": a.rms_after_g, "sigma_offset_g": a.sigma_offset_g, "sigma_gain": a.sigma_gain},
-                "estimators": {
-                    "sweep": outcome_json(&self.sweep),
-                    "paper": self.paper.as_ref().map_or(json!({"error": "no constant-rate rotation in the log"}), outcome_json),
+    /// The tool's output.
+    pub fn output(&self) -> Output<'_> {
+        Output {
+            gyro: GyroOut { k: self.gyro.k, bias_dps: self.bias.bias_dps, method: self.gyro.method },
+            accel: AccelOut { m: self.accel.m, offset_g: self.accel.offset_g },
+            quality: QualityOut {
+                gyro: &self.gyro.quality,
+                bias: &self.bias,
+                accel: &self.accel,
+                estimators: Estimators {
+                    sweep: EstimatorOut::of(&self.sweep),
+                    paper: EstimatorOut::of(self.paper.as_ref().unwrap_or(&NO_ROTATION)),
                 },
-                "rotation_rate_dps": self.rotation_rate.map(|r| r.0),
-                "rotation_rate_source": self.rotation_rate.map(|r| r.1),
-                "segments": {"still": self.phases.segments.len(), "handheld_poses": self.handheld_poses,
-                             "rig_poses": self.rig_poses, "moves": self.moves},
-                "rest_thresholds": {"accel_std_g": self.phases.rest.accel_std_max_g,
-                                    "gyro_std_dps": self.phases.rest.gyro_std_max_dps},
-            }
-        })
+                rotation_rate_dps: self.rotation_rate.map(|r| r.0),
+                rotation_rate_source: self.rotation_rate.map(|r| r.1),
+                segments: Segments {
+                    still: self.phases.segments.len(),
+                    handheld_poses: self.handheld_poses,
+                    rig_poses: self.rig_poses,
+                    moves: self.moves,
+                },
+                rest_thresholds: &self.phases.rest,
+            },
+        }
+    }
+
+    /// The output as one line of JSON.
+    pub fn json(&self) -> String {
+        serde_json::to_string(&self.output()).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
     }
 }

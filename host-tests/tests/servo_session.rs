@@ -1,7 +1,7 @@
-//! The scripted hobby-servo session end to end on the simulated rig: the sweep estimator is
+//! The firmware's procedure on a hobby-servo rig: the sweep estimator is
 //! immune to the servo's angle-scale error, the paper's estimator inherits it one to one.
 
-use host_tests::servo_protocol::{session, Variant};
+use host_tests::servo_protocol::{trial, Variant};
 use host_tests::sim::ServoModel;
 
 #[test]
@@ -9,7 +9,7 @@ fn sweep_ignores_servo_scale_error_paper_inherits_it() {
     let mut cfg = Variant::Hobby.config(7, 0);
     let ServoModel::Positional(servo) = &mut cfg.servo else { panic!("positional servo expected") };
     servo.scale_error = 0.03;
-    let s = session(cfg, 1).unwrap();
+    let s = trial(cfg, 1).unwrap();
     let sweep = s.rel_errors(&s.sweep).unwrap();
     let paper = s.rel_errors(&s.paper).unwrap();
     for i in 0..3 {

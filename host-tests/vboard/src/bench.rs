@@ -170,6 +170,72 @@ impl Bench {
         Outcome::Timeout
     }
 
+    /// Presses the button and plays an operator who cannot read the log (no probe): they go by
+    /// the LEDs and the procedure's timeline only. Yellow blinking (red + green together) means
+    /// "your turn": they hold the board in the hand-held orientations one after the other, 3 s
+    /// each (a pose is captured after 1 s of stillness), then clamp it back and press the button
+    /// until the yellow stops; green with D13 lit is done, red without green is an error (class
+    /// = D13 flashes). Returns the outcome as the LEDs tell it.
+    pub fn calibrate_by_leds(&mut self, max_s: f64) -> Outcome {
+        const HOLD_S: f64 = 3.0;
+        let attitudes = handheld_attitudes();
+        let t_end = self.mcu.now() + max_s;
+        if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
+            return Outcome::Stopped(s);
+        }
+        // (time the state was first seen, state) of the last LED observations.
+        let (mut red_since, mut done_since, mut yellow_seen) = (None::<f64>, None::<f64>, false);
+        let (mut next, mut next_at, mut reattached_at) = (0usize, 0.0f64, None::<f64>);
+        while self.mcu.now() < t_end {
+            let stop = self.run_for(0.05);
+            if stop != Stop::Time {
+                return Outcome::Stopped(stop);
+            }
+            let now = self.mcu.now();
+            let l = self.mcu.periph.borrow().leds();
+            if l.red && l.green {
+                yellow_seen = true;
+            }
+            red_since = if l.red && !l.green { red_since.or(Some(now)) } else { None };
+            done_since = if l.green && l.d13 && !l.red && !l.blue { done_since.or(Some(now)) } else { None };
+            if red_since.is_some_and(|t| now - t > 0.6) {
+                return Outcome::Failed("red LED".into());
+            }
+            if done_since.is_some_and(|t| now - t > 0.6) {
+                return Outcome::Done;
+            }
+            if !yellow_seen {
+                continue;
+            }
+            // The user's turn: hand-held poses on a timeline, then re-clamp and press.
+            if next < attitudes.len() {
+                if now >= next_at {
+                    let mut p = self.mcu.periph.borrow_mut();
+                    p.sensor.rig_mut().detach_to(attitudes[next], 1.0);
+                    next += 1;
+                    next_at = now + HOLD_S;
+                }
+            } else if now >= next_at {
+                match reattached_at {
+                    None => {
+                        let mut p = self.mcu.periph.borrow_mut();
+                        let rig = p.sensor.rig_mut();
+                        rig.attach();
+                        reattached_at = Some(now + rig.config().attach_transition_s + 1.0);
+                    }
+                    Some(t) if now >= t && l.red && l.green => {
+                        if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
+                            return Outcome::Stopped(s);
+                        }
+                        reattached_at = Some(self.mcu.now() + 2.0);
+                    }
+                    _ => {}
+                }
+            }
+        }
+        Outcome::Timeout
+    }
+
     /// The newest valid record in the emulated flash (the firmware's A/B slots).
     pub fn stored(&self) -> Option<Record> {
         let p = self.mcu.periph.borrow();

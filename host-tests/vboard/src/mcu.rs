@@ -3,7 +3,7 @@
 //! 64 MHz, `wfi` skipping to the next event, and the defmt log read from the RTT buffer.
 
 use crate::elf::Firmware;
-use crate::periph::{Dma, Periph, CPU_HZ, STORAGE};
+use crate::periph::{mpu, Dma, Periph, ResetKind, CPU_HZ, STORAGE};
 use std::cell::{Cell, RefCell};
 use std::collections::HashSet;
 use std::rc::Rc;
@@ -32,6 +32,31 @@ pub enum Stop {
 #[derive(Clone)]
 struct Exception {
     fp: Vec<u64>,
+    irq: u32,
+}
+
+/// SEGGER RTT up-buffer flags: mode bits 1:0; 2 = BLOCK_IF_FULL (the target waits for room).
+const RTT_MODE_MASK: u32 = 0b11;
+/// SEGGER RTT BLOCK_IF_FULL.
+const RTT_BLOCK_IF_FULL: u32 = 2;
+
+/// The debug host on the other end of RTT.
+///
+/// By default an ideal reader drains up-channel 0 after every slice and never touches its
+/// flags. [`Mcu::rtt_attach`] models `probe-rs run`: on attach it sets the channel's mode to
+/// BLOCK_IF_FULL (SEGGER RTT flags bits 1:0 = 2; defmt-rtt then waits for room instead of
+/// overwriting) and reads; [`Mcu::rtt_detach`] stops reading (the probe is unplugged or
+/// `probe-rs` is killed) and leaves the flags as they are, as a real host does.
+#[derive(Debug, Clone, Default)]
+pub struct RttHost {
+    /// The host reads the buffer.
+    pub reading: bool,
+    /// An attach is waiting for the control block to be initialised to write the mode.
+    mode_pending: bool,
+    /// Bytes the firmware wrote to the up buffer (from its write-offset updates).
+    pub written: u64,
+    /// Bytes the host read.
+    pub read: u64,
 }
 
 /// A saved state of the whole board (CPU, RAM, peripherals, sensor, rig, flash).
@@ -60,6 +85,11 @@ pub struct Mcu {
     wfi_addrs: HashSet<u64>,
     /// Resets so far (watchdog, software).
     pub resets: u32,
+    /// Watchdog resets so far.
+    pub watchdog_resets: u32,
+    /// The RTT host.
+    pub rtt: RttHost,
+    rtt_write_seen: Rc<Cell<(u64, u64)>>,
     /// Instructions spent in `Procedure::handle_sample` and its calls, and calls counted.
     pub handle_sample: Rc<Cell<(u64, u64)>>,
 }
@@ -85,7 +115,8 @@ impl Mcu {
         let instructions = periph.instructions.clone();
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB | Mode::MCLASS, ()).map_err(err("unicorn"))?;
         uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32).map_err(err("cpu model"))?;
-        uc.mem_map(0, FLASH_END, Prot::ALL).map_err(err("map flash"))?;
+        // Flash is read/execute for the CPU: it is written only through the NVMC (storage).
+        uc.mem_map(0, FLASH_END, Prot::READ | Prot::EXEC).map_err(err("map flash"))?;
         uc.mem_map(RAM.0, RAM.1 - RAM.0, Prot::ALL).map_err(err("map RAM"))?;
         let periph = Rc::new(RefCell::new(periph));
         let fault = Rc::new(RefCell::new(None));
@@ -151,6 +182,34 @@ impl Mcu {
             }
         })
         .map_err(err("code hook"))?;
+        // The MPU (ours, not Unicorn's): an instruction fetch from SRAM it marks XN faults.
+        let (mp, mf) = (periph.clone(), fault.clone());
+        uc.add_code_hook(RAM.0, RAM.1, move |uc, addr, _size| {
+            let denied = mp.try_borrow().ok().and_then(|p| p.scs.mpu.check(addr, mpu::Check::Exec).err());
+            if let Some(e) = denied {
+                *mf.borrow_mut() = Some(e);
+                let _ = uc.emu_stop();
+            }
+        })
+        .map_err(err("RAM code hook"))?;
+        // RTT: every update of the up-channel's write offset counts the bytes written.
+        let rtt_write_seen = Rc::new(Cell::new((0u64, 0u64)));
+        if let Some(cb) = firmware.rtt {
+            let seen = rtt_write_seen.clone();
+            uc.add_mem_hook(unicorn_engine::HookType::MEM_WRITE, cb + 36, cb + 39, move |uc, _, _addr, _size, value| {
+                let mut sz = [0u8; 4];
+                if uc.mem_read(cb + 32, &mut sz).is_ok() {
+                    let size = u32::from_le_bytes(sz) as u64;
+                    let (last, total) = seen.get();
+                    let v = value as u64;
+                    if size > 0 && v < size {
+                        seen.set((v, total + (v + size - last % size) % size));
+                    }
+                }
+                true
+            })
+            .map_err(err("RTT hook"))?;
+        }
         let f = fault.clone();
         uc.add_intr_hook(move |uc, intno| {
             let pc = uc.reg_read(RegisterARM::PC).unwrap_or(0);
@@ -191,6 +250,9 @@ impl Mcu {
             exception: None,
             wfi_addrs,
             resets: 0,
+            watchdog_resets: 0,
+            rtt: RttHost { reading: true, ..RttHost::default() },
+            rtt_write_seen,
             handle_sample,
         };
         mcu.reset()?;
@@ -217,11 +279,18 @@ impl Mcu {
         &self.firmware
     }
 
-    /// A reset: peripherals to their reset state, the CPU from the application's vector table.
+    /// A power-on reset (see [`Mcu::reset_with`]).
     pub fn reset(&mut self) -> Result<(), String> {
-        self.periph.borrow_mut().reset();
-        self.periph.borrow_mut().vtor = 0x1_0000; // what the Arduino bootloader leaves
+        self.reset_with(ResetKind::PowerOn)
+    }
+
+    /// A reset of `kind`: peripherals to their reset state (the watchdog survives a soft
+    /// reset), then the CPU from the application's vector table at 0x10000, with what the
+    /// bootloader leaves unless `periph.bootloader` is false.
+    pub fn reset_with(&mut self, kind: ResetKind) -> Result<(), String> {
+        self.periph.borrow_mut().reset(kind);
         self.exception = None;
+        self.rtt_write_seen.set((0, self.rtt_write_seen.get().1));
         self.decoder = self.table.map(|t| t.new_stream_decoder() as Box<dyn defmt_decoder::StreamDecoder>);
         let mut v = [0u8; 8];
         self.uc.mem_read(0x1_0000, &mut v).map_err(err("vector table"))?;
@@ -279,7 +348,71 @@ impl Mcu {
         Some(hi - lo - untouched)
     }
 
+    /// The host attaches like `probe-rs run`: sets the up channel to BLOCK_IF_FULL (once the
+    /// control block is initialised) and reads it.
+    pub fn rtt_attach(&mut self) {
+        self.rtt.reading = true;
+        self.rtt.mode_pending = true;
+        self.rtt_poll_attach();
+    }
+
+    /// The host stops reading (unplugged); the channel's flags stay as they are.
+    pub fn rtt_detach(&mut self) {
+        self.rtt.reading = false;
+    }
+
+    /// Bytes the firmware wrote to the RTT up buffer so far.
+    pub fn rtt_written(&self) -> u64 {
+        self.rtt_write_seen.get().1
+    }
+
+    /// The up channel's flags word (None before the control block is initialised).
+    pub fn rtt_flags(&self) -> Option<u32> {
+        let cb = self.firmware.rtt?;
+        let mut h = [0u8; 48];
+        self.uc.mem_read(cb, &mut h).ok()?;
+        (&h[..10] == b"SEGGER RTT").then(|| u32::from_le_bytes([h[44], h[45], h[46], h[47]]))
+    }
+
+    fn rtt_poll_attach(&mut self) {
+        if !self.rtt.mode_pending {
+            return;
+        }
+        let (Some(cb), Some(flags)) = (self.firmware.rtt, self.rtt_flags()) else { return };
+        let f = (flags & !RTT_MODE_MASK) | RTT_BLOCK_IF_FULL;
+        let _ = self.uc.mem_write(cb + 44, &f.to_le_bytes());
+        self.rtt.mode_pending = false;
+    }
+
+    /// The defmt lines in the RTT up buffer as it is now (oldest to newest, the first partial
+    /// frame skipped): what a host that attaches at the end can still read.
+    pub fn rtt_tail(&self) -> Vec<String> {
+        let (Some(cb), Some(table)) = (self.firmware.rtt, self.table) else { return vec![] };
+        let mut h = [0u8; 48];
+        if self.uc.mem_read(cb, &mut h).is_err() {
+            return vec![];
+        }
+        let u = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]) as u64;
+        let (buf, size, write) = (u(28), u(32), u(36));
+        let Ok(mem) = self.uc.mem_read_as_vec(buf, size as usize) else { return vec![] };
+        // Ring order from the write offset: the oldest byte first.
+        let ring: Vec<u8> = mem[write as usize..].iter().chain(&mem[..write as usize]).copied().collect();
+        // Frames end with a 0x00 delimiter (rzCOBS): start after the first one.
+        let start = ring.iter().position(|&b| b == 0).map_or(ring.len(), |i| i + 1);
+        let mut dec = table.new_stream_decoder();
+        dec.received(&ring[start..]);
+        let mut out = vec![];
+        while let Ok(frame) = dec.decode() {
+            out.push(frame.display(false).to_string());
+        }
+        out
+    }
+
     fn drain_rtt(&mut self) {
+        self.rtt_poll_attach();
+        if !self.rtt.reading {
+            return;
+        }
         let Some(cb) = self.firmware.rtt else { return };
         let mut h = [0u8; 48];
         if self.uc.mem_read(cb, &mut h).is_err() {
@@ -303,6 +436,7 @@ impl Mcu {
             take(0, write, &mut bytes);
         }
         let _ = self.uc.mem_write(cb + 40, &(write as u32).to_le_bytes());
+        self.rtt.read += bytes.len() as u64;
         if let Some(dec) = self.decoder.as_mut() {
             dec.received(&bytes);
             loop {
@@ -324,13 +458,17 @@ impl Mcu {
         }
         let (pending, vtor) = {
             let p = self.periph.borrow();
-            (p.nvic_pending & p.nvic_enabled, p.vtor)
+            (p.scs.nvic_pending & p.scs.nvic_enabled, p.scs.vtor)
         };
         if pending == 0 {
             return Ok(());
         }
         let irq = pending.trailing_zeros() as u64;
-        self.periph.borrow_mut().nvic_pending &= !(1 << irq);
+        {
+            let mut p = self.periph.borrow_mut();
+            p.scs.nvic_pending &= !(1 << irq);
+            p.active_irq = Some(irq as u32);
+        }
         let mut v = [0u8; 4];
         self.uc.mem_read(vtor as u64 + 4 * (16 + irq), &mut v).map_err(err("vector"))?;
         let handler = u32::from_le_bytes(v) as u64;
@@ -357,7 +495,7 @@ impl Mcu {
         self.uc.mem_write(new_sp, &bytes).map_err(err("stack frame"))?;
         // FP context: kept by the host, restored on return (the handler may use the FPU).
         let fp = (0..16).map(|i| self.uc.reg_read(RegisterARM::S0 as i32 + i).unwrap_or(0)).chain([self.uc.reg_read(RegisterARM::FPSCR).unwrap_or(0)]).collect();
-        self.exception = Some(Exception { fp });
+        self.exception = Some(Exception { fp, irq: irq as u32 });
         self.uc.reg_write(RegisterARM::SP, new_sp).map_err(err("sp"))?;
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFF9).map_err(err("lr"))?;
         self.uc.reg_write(RegisterARM::IPSR, 16 + irq).map_err(err("ipsr"))?;
@@ -382,6 +520,7 @@ impl Mcu {
                 let _ = self.uc.reg_write(RegisterARM::S0 as i32 + i as i32, *v);
             }
             let _ = self.uc.reg_write(RegisterARM::FPSCR, e.fp[16]);
+            self.periph.borrow_mut().exception_return(e.irq);
         }
         self.uc.reg_write(RegisterARM::PC, w(6) & !1).map_err(err("pc"))?;
         Ok(())
@@ -400,12 +539,13 @@ impl Mcu {
                 if p.power_cut {
                     return Stop::PowerCut;
                 }
-                if p.watchdog_reset || p.reset_request {
+                if p.watchdog_reset || p.scs.reset_request {
                     let wd = p.watchdog_reset;
                     drop(p);
                     self.log.push(format!("[vboard] {} reset at {:.3} s", if wd { "watchdog" } else { "software" }, self.now()));
                     self.resets += 1;
-                    if let Err(e) = self.reset() {
+                    self.watchdog_resets += u32::from(wd);
+                    if let Err(e) = self.reset_with(if wd { ResetKind::Watchdog } else { ResetKind::Soft }) {
                         return Stop::Fault(e);
                     }
                     continue;

@@ -55,7 +55,7 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
         assert!(b.mcu.log.iter().filter(|l| l.contains(text)).count() >= 2);
         assert_eq!(b.mcu.resets, 0);
         // The red LED (P0.24, active low) is lit.
-        assert_eq!(b.mcu.periph.borrow().gpio_out[0] & (1 << 24), 0);
+        assert_eq!(b.mcu.periph.borrow().gpio.port[0].out & (1 << 24), 0);
     }
 }
 
@@ -90,11 +90,11 @@ fn disconnected_servo_fails_and_stores_nothing() {
 fn a_hung_bus_ends_in_a_watchdog_reset() {
     let mut b = bench(Board::Rev1, Variant::Hobby.config(7, 0), 7);
     b.run_for(2.0);
-    b.mcu.periph.borrow_mut().twim_hang = true;
+    b.mcu.periph.borrow_mut().twim.hang = true;
     b.run_for(3.0);
     assert_eq!(b.mcu.resets, 1, "{:?}", b.mcu.log);
     assert!(has(&b, "watchdog reset"));
-    b.mcu.periph.borrow_mut().twim_hang = false;
+    b.mcu.periph.borrow_mut().twim.hang = false;
     b.run_for(3.0);
     assert_eq!(b.mcu.log.iter().filter(|l| l.contains("LSM9DS1 ready")).count(), 2);
 }

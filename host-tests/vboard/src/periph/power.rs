@@ -1,0 +1,162 @@
+//! POWER (nRF52840 PS v1.7 §5.3): RESETREAS (cumulative reset reasons, cleared by writing 1),
+//! DCDCEN/DCDCEN0, POFCON, GPREGRET, RAM power. Shares its address block with CLOCK.
+
+use super::{off, Access};
+
+/// Why the chip reset (PS §5.3.6 "Reset behavior").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ResetKind {
+    /// Power-on or brown-out: everything resets, RESETREAS reads 0.
+    PowerOn,
+    /// The reset pin (the Nano's button): resets the WDT too.
+    Pin,
+    /// The watchdog fired: resets the WDT too.
+    Watchdog,
+    /// AIRCR.SYSRESETREQ: the WDT keeps running.
+    Soft,
+    /// CPU lock-up: the WDT keeps running.
+    Lockup,
+}
+
+impl ResetKind {
+    /// RESETREAS bit (0 for power-on, which clears the register).
+    fn resetreas_bit(self) -> u32 {
+        match self {
+            ResetKind::PowerOn => 0,
+            ResetKind::Pin => 1 << 0,
+            ResetKind::Watchdog => 1 << 1,
+            ResetKind::Soft => 1 << 2,
+            ResetKind::Lockup => 1 << 3,
+        }
+    }
+
+    /// Whether this reset resets the watchdog (PS: not by soft reset or CPU lock-up).
+    pub fn resets_wdt(self) -> bool {
+        !matches!(self, ResetKind::Soft | ResetKind::Lockup)
+    }
+}
+
+/// POWER state.
+#[derive(Debug, Clone)]
+pub struct Power {
+    /// RESETREAS.
+    pub resetreas: u32,
+    /// DCDCEN (REG1 DC/DC).
+    pub dcdcen: u32,
+    /// DCDCEN0 (REG0 DC/DC).
+    pub dcdcen0: u32,
+    pofcon: u32,
+    gpregret: u32,
+    gpregret2: u32,
+    inten: u32,
+    ram_power: [u32; 9],
+}
+
+impl Power {
+    /// At power-on.
+    pub fn new() -> Self {
+        Self { resetreas: 0, dcdcen: 0, dcdcen0: 0, pofcon: 0, gpregret: 0, gpregret2: 0, inten: 0, ram_power: [0xFFFF; 9] }
+    }
+
+    /// After a reset of `kind`: RESETREAS accumulates; GPREGRET and DCDCEN survive all but
+    /// power-on (retained registers).
+    pub fn reset(&mut self, kind: ResetKind) {
+        if kind == ResetKind::PowerOn {
+            *self = Self::new();
+        } else {
+            self.resetreas |= kind.resetreas_bit();
+            self.pofcon = 0;
+            self.inten = 0;
+        }
+    }
+
+    /// Whether offset `o` of the 0x4000_0000 block is a POWER register.
+    pub fn claims(o: u32) -> bool {
+        let ram0 = off!(power, ram0);
+        [
+            off!(power, tasks_constlat),
+            off!(power, tasks_lowpwr),
+            off!(power, events_pofwarn),
+            off!(power, events_sleepenter),
+            off!(power, events_sleepexit),
+            off!(power, events_usbdetected),
+            off!(power, events_usbremoved),
+            off!(power, events_usbpwrrdy),
+            off!(power, resetreas),
+            off!(power, ramstatus),
+            off!(power, usbregstatus),
+            off!(power, systemoff),
+            off!(power, pofcon),
+            off!(power, gpregret),
+            off!(power, gpregret2),
+            off!(power, dcdcen),
+            off!(power, dcdcen0),
+            off!(power, mainregstatus),
+        ]
+        .contains(&o)
+            || (ram0..ram0 + 9 * 16).contains(&o)
+            // INTENSET/INTENCLR are shared with CLOCK (one register): CLOCK models them.
+    }
+
+    /// A register access at offset `o`.
+    pub fn access(&mut self, o: u32, a: Access) -> Result<u32, String> {
+        let ram0 = off!(power, ram0);
+        Ok(match o {
+            o if o == off!(power, tasks_constlat) || o == off!(power, tasks_lowpwr) => 0,
+            o if o == off!(power, events_pofwarn)
+                || o == off!(power, events_sleepenter)
+                || o == off!(power, events_sleepexit)
+                || o == off!(power, events_usbdetected)
+                || o == off!(power, events_usbremoved)
+                || o == off!(power, events_usbpwrrdy) =>
+            {
+                0
+            }
+            o if o == off!(power, resetreas) => {
+                if let Access::Write(v) = a {
+                    self.resetreas &= !v; // write 1 to clear
+                }
+                self.resetreas
+            }
+            o if o == off!(power, ramstatus) => 0xF,
+            o if o == off!(power, usbregstatus) => 0,
+            o if o == off!(power, systemoff) => {
+                if a.is_write() {
+                    return Err("POWER.SYSTEMOFF written (System OFF is not modelled)".into());
+                }
+                0
+            }
+            o if o == off!(power, pofcon) => a.rw(&mut self.pofcon),
+            o if o == off!(power, gpregret) => a.rw(&mut self.gpregret),
+            o if o == off!(power, gpregret2) => a.rw(&mut self.gpregret2),
+            o if o == off!(power, dcdcen) => a.rw(&mut self.dcdcen),
+            o if o == off!(power, dcdcen0) => a.rw(&mut self.dcdcen0),
+            o if o == off!(power, mainregstatus) => 0, // normal voltage mode (VDD, not VDDH)
+            o if (ram0..ram0 + 9 * 16).contains(&o) => {
+                let (n, r) = (((o - ram0) / 16) as usize, (o - ram0) % 16);
+                match (r, a) {
+                    (0, a) => a.rw(&mut self.ram_power[n]),
+                    (4, Access::Write(v)) => {
+                        self.ram_power[n] |= v;
+                        self.ram_power[n]
+                    }
+                    (8, Access::Write(v)) => {
+                        self.ram_power[n] &= !v;
+                        self.ram_power[n]
+                    }
+                    _ => self.ram_power[n],
+                }
+            }
+            _ => {
+                let _ = self.inten;
+                return Err(format!("POWER register 0x{o:03X}"));
+            }
+        })
+    }
+}
+
+impl Default for Power {
+    fn default() -> Self {
+        Self::new()
+    }
+}

@@ -1,0 +1,88 @@
+//! The firmware ELF from the state the Arduino bootloader leaves (and from a cold power-on), a
+//! soft reset with the watchdog running, and an RTT host that detaches. Short runs (seconds of
+//! board time, no calibration).
+
+use host_tests::lsm_model::Board;
+use host_tests::nor::NorSim;
+use host_tests::servo_protocol::Variant;
+use vboard::bench::{build_firmware, Bench};
+use vboard::mcu::Stop;
+
+fn bench(seed: u64, bootloader: bool) -> Bench {
+    let elf = build_firmware(&[]).unwrap();
+    let mut b = Bench::new(elf, Variant::Hobby.config(seed, 0), seed, Board::Rev1, NorSim::new(8, seed), false).unwrap();
+    if !bootloader {
+        b.mcu.periph.borrow_mut().bootloader = false;
+        b.mcu.reset().unwrap();
+    }
+    b
+}
+
+fn count(b: &Bench, text: &str) -> usize {
+    b.mcu.log.iter().filter(|l| l.contains(text)).count()
+}
+
+#[test]
+fn boots_from_the_bootloader_state_and_from_cold() {
+    for bootloader in [true, false] {
+        let mut b = bench(11, bootloader);
+        assert_eq!(b.run_for(3.0), Stop::Time, "{:?}", b.mcu.log);
+        let p = b.mcu.periph.borrow();
+        let what = if bootloader { "bootloader" } else { "cold" };
+        assert_eq!(b.mcu.resets, 0, "{what}: {:?}", b.mcu.log);
+        assert_eq!(count(&b, "LSM9DS1 ready"), 1, "{what}: {:?}", b.mcu.log);
+        // The sensor supply is driven with high drive; no voltage drop.
+        assert!(p.sensor_powered() && !p.vdd_env_drop, "{what}: P0.22 PIN_CNF 0x{:08X}", p.gpio.cnf(0, 22));
+        // UARTE0 (the bootloader's, receiving): stopped (RXTO) and then disabled.
+        assert!(!p.uarte.receiving() && p.uarte.enable == 0 && !p.uarte.disabled_while_receiving, "{what}: UARTE0 {:?} ENABLE {}, disabled while receiving {}", p.uarte.rx, p.uarte.enable, p.uarte.disabled_while_receiving);
+        // The HFXO start waited for a fresh EVENTS_HFCLKSTARTED, not the bootloader's.
+        assert_eq!(p.clock.stale_event_reads, 0, "{what}: stale HFCLKSTARTED read");
+        assert!(p.clock.hfxo_running);
+        // The tick interrupt's event clear is complete before the handler returns.
+        let spurious: u32 = p.timers.iter().map(|t| t.spurious).sum();
+        assert_eq!(spurious, 0, "{what}: spurious timer interrupts (event clear not read back)");
+        // No STOP issued to an idle TWIM; the watchdog is fed.
+        assert_eq!((p.twim.idle_stops, p.twim.broken_transfers), (0, 0), "{what}");
+        assert!(p.wdt.running && p.wdt.reloads > 100, "{what}");
+    }
+}
+
+#[test]
+fn a_soft_reset_with_the_watchdog_running_recovers_it() {
+    let mut b = bench(12, true);
+    b.run_for(1.0);
+    assert!(b.mcu.periph.borrow().wdt.running);
+    // AIRCR.SYSRESETREQ: the WDT keeps running (PS: a soft reset does not reset it); the
+    // firmware must find it running (Watchdog::try_recover) and keep feeding it.
+    b.mcu.periph.borrow_mut().scs.reset_request = true;
+    let reloads = b.mcu.periph.borrow().wdt.reloads;
+    assert_eq!(b.run_for(6.0), Stop::Time);
+    let p = b.mcu.periph.borrow();
+    assert_eq!((b.mcu.resets, b.mcu.watchdog_resets), (1, 0), "{:?}", b.mcu.log);
+    assert!(p.wdt.running && p.wdt.reloads > reloads + 100);
+    assert_eq!(count(&b, "reset reason 0x00000004"), 1, "RESETREAS.SREQ seen after the soft reset: {:?}", b.mcu.log);
+    assert_eq!(count(&b, "LSM9DS1 ready"), 2, "{:?}", b.mcu.log);
+}
+
+#[test]
+fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
+    let mut b = bench(13, true);
+    // probe-rs run: attaches at boot (BLOCK_IF_FULL) and reads.
+    b.mcu.rtt_attach();
+    b.run_for(1.0);
+    assert_eq!(b.mcu.rtt_flags().map(|f| f & 3), Some(2), "the host set BLOCK_IF_FULL");
+    assert!(count(&b, "LSM9DS1 ready") == 1);
+    // The probe is unplugged; the user holds the button 2 s (raw-log mode: a CSV line per
+    // sample, far more than the 1 KiB buffer holds) and leaves the board alone for 8 s.
+    b.mcu.rtt_detach();
+    let written0 = b.mcu.rtt_written();
+    b.press(2.3);
+    b.run_for(8.0);
+    let written = b.mcu.rtt_written() - written0;
+    let tail = b.mcu.rtt_tail();
+    println!("MEASURED rtt_detached_bytes_written={written} watchdog_resets={} tail_lines={}", b.mcu.watchdog_resets, tail.len());
+    assert_eq!(b.mcu.watchdog_resets, 0, "the firmware stalled on a full RTT buffer: {:?}", b.mcu.log.iter().rev().take(3).collect::<Vec<_>>());
+    assert!(written > 4096, "only {written} bytes written while detached");
+    // Read at the end: the buffer holds whole defmt frames (raw CSV lines).
+    assert!(tail.iter().any(|l| l.matches(',').count() >= 6), "{tail:?}");
+}

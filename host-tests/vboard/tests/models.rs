@@ -1,0 +1,433 @@
+//! The peripheral and sensor models against the PS / datasheet rules they enforce, driven at the
+//! register level (no firmware): fast, and each one fails if the model loses its strictness.
+
+use embedded_hal::i2c::{I2c, Operation};
+use host_tests::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
+use host_tests::nor::NorSim;
+use host_tests::servo_protocol::Variant;
+use host_tests::sim::Rig;
+use std::cell::Cell;
+use std::collections::HashMap;
+use std::rc::Rc;
+use vboard::periph::clock::Clock;
+use vboard::periph::mpu::{Check, Mpu};
+use vboard::periph::{Dma, Periph, ResetKind};
+
+#[derive(Default)]
+struct Ram(HashMap<u64, u8>);
+
+impl Dma for Ram {
+    fn read(&mut self, addr: u64, buf: &mut [u8]) {
+        for (i, b) in buf.iter_mut().enumerate() {
+            *b = *self.0.get(&(addr + i as u64)).unwrap_or(&0);
+        }
+    }
+    fn write(&mut self, addr: u64, data: &[u8]) {
+        for (i, b) in data.iter().enumerate() {
+            self.0.insert(addr + i as u64, *b);
+        }
+    }
+}
+
+fn periph(board: Board, bootloader: bool) -> Periph {
+    let sensor = Lsm9ds1Model::new(Rig::new(Variant::Hobby.config(1, 0), 1), board);
+    let mut p = Periph::new(sensor, NorSim::new(8, 1), Rc::new(Cell::new(0)));
+    p.bootloader = bootloader;
+    p.reset(ResetKind::PowerOn);
+    p
+}
+
+const P0: u64 = 0x5000_0000;
+const P1: u64 = 0x5000_0300;
+const TWIM: u64 = 0x4000_3000;
+
+fn w(p: &mut Periph, ram: &mut Ram, addr: u64, v: u32) {
+    p.write(addr, v as u64, ram);
+}
+
+fn r(p: &mut Periph, addr: u64) -> u32 {
+    p.read(addr) as u32
+}
+
+fn wait(p: &mut Periph, s: f64) {
+    p.skipped_s += s;
+    p.update();
+}
+
+/// Sensor power as the Nano needs it, TWIM0 as nrf-hal sets it up (pins S0D1 with pull-ups).
+fn power_and_twim(p: &mut Periph, ram: &mut Ram, vdd_drive: u32, frequency: u32) {
+    w(p, ram, P0 + 0x508, 1 << 22); // OUTSET
+    w(p, ram, P0 + 0x700 + 4 * 22, 1 | 2 | (vdd_drive << 8));
+    w(p, ram, P1 + 0x508, 1);
+    w(p, ram, P1 + 0x700, 1 | 2);
+    for pin in [14, 15] {
+        w(p, ram, P0 + 0x700 + 4 * pin, (3 << 2) | (6 << 8)); // input, connected, pull-up, S0D1
+    }
+    w(p, ram, TWIM + 0x508, 15);
+    w(p, ram, TWIM + 0x50C, 14);
+    w(p, ram, TWIM + 0x500, 6);
+    w(p, ram, TWIM + 0x524, frequency);
+    wait(p, 0.02);
+}
+
+#[derive(Debug, PartialEq)]
+enum Xfer {
+    AddressNack,
+    Transmit,
+    Hang,
+}
+
+/// Waits like nrf-hal's `wait()`: STOPPED or SUSPENDED ends it; ERROR → STOP (and, with
+/// `extra_stop`, one more STOP as embassy did before #6726).
+fn hal_wait(p: &mut Periph, ram: &mut Ram, extra_stop: bool) -> Result<(), Xfer> {
+    for _ in 0..50 {
+        if r(p, TWIM + 0x104) != 0 {
+            w(p, ram, TWIM + 0x104, 0);
+            return Ok(());
+        }
+        if r(p, TWIM + 0x148) != 0 {
+            w(p, ram, TWIM + 0x148, 0);
+            return Ok(());
+        }
+        if r(p, TWIM + 0x124) != 0 {
+            w(p, ram, TWIM + 0x124, 0);
+            w(p, ram, TWIM + 0x014, 1);
+            if extra_stop {
+                w(p, ram, TWIM + 0x014, 1);
+            }
+        }
+    }
+    Err(Xfer::Hang)
+}
+
+/// nrf-hal 0.19's `transaction([Write(&[reg]), Read(&mut [_; 1])])`.
+fn read_reg(p: &mut Periph, ram: &mut Ram, addr: u8, reg: u8, extra_stop: bool) -> Result<u8, Xfer> {
+    ram.write(0x2000_0000, &[reg]);
+    w(p, ram, TWIM + 0x588, addr as u32);
+    for (ev, _) in [(0x104, ()), (0x124, ()), (0x160, ()), (0x15C, ())] {
+        w(p, ram, TWIM + ev, 0);
+    }
+    w(p, ram, TWIM + 0x4C4, 7);
+    w(p, ram, TWIM + 0x544, 0x2000_0000);
+    w(p, ram, TWIM + 0x548, 1);
+    w(p, ram, TWIM + 0x200, 1 << 8); // LASTTX_SUSPEND
+    w(p, ram, TWIM + 0x008, 1);
+    w(p, ram, TWIM + 0x020, 1);
+    hal_wait(p, ram, extra_stop)?;
+    if r(p, TWIM + 0x4C4) & 2 != 0 {
+        return Err(Xfer::AddressNack);
+    }
+    if r(p, TWIM + 0x54C) != 1 {
+        return Err(Xfer::Transmit);
+    }
+    w(p, ram, TWIM + 0x534, 0x2000_0100);
+    w(p, ram, TWIM + 0x538, 1);
+    w(p, ram, TWIM + 0x200, 1 << 12); // LASTRX_STOP
+    w(p, ram, TWIM + 0x000, 1);
+    w(p, ram, TWIM + 0x020, 1);
+    hal_wait(p, ram, extra_stop)?;
+    if r(p, TWIM + 0x4C4) & 2 != 0 {
+        return Err(Xfer::AddressNack);
+    }
+    let mut b = [0u8];
+    ram.read(0x2000_0100, &mut b);
+    Ok(b[0])
+}
+
+#[test]
+fn twim_rev2_probe_after_a_nack_needs_exactly_one_stop() {
+    let (mut p, mut ram) = (periph(Board::Rev2, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    // One STOP after the error (nrf-hal): the probe at 0x68 finds the BMI270.
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    assert_eq!(read_reg(&mut p, &mut ram, 0x68, 0x00, false), Ok(0x24));
+    // A second STOP while idle (embassy-rs/embassy#6722): the next transfer moves nothing.
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, true), Err(Xfer::AddressNack));
+    assert_eq!(read_reg(&mut p, &mut ram, 0x68, 0x00, false), Err(Xfer::Transmit));
+    assert_eq!(p.twim.broken_transfers, 1);
+    // ...but it recovers after a while.
+    wait(&mut p, 1e-3);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x68, 0x00, false), Ok(0x24));
+}
+
+#[test]
+fn twim_without_stop_after_an_error_holds_the_bus() {
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    w(&mut p, &mut ram, TWIM + 0x588, 0x50); // nobody there
+    ram.write(0x2000_0000, &[0]);
+    w(&mut p, &mut ram, TWIM + 0x544, 0x2000_0000);
+    w(&mut p, &mut ram, TWIM + 0x548, 1);
+    w(&mut p, &mut ram, TWIM + 0x200, 1 << 9);
+    w(&mut p, &mut ram, TWIM + 0x008, 1);
+    assert_eq!(r(&mut p, TWIM + 0x124), 1, "ERROR");
+    assert_eq!(r(&mut p, TWIM + 0x104), 0, "the TWIM does not stop by itself after an error");
+    // No STOP: the next start does nothing at all.
+    w(&mut p, &mut ram, TWIM + 0x124, 0);
+    w(&mut p, &mut ram, TWIM + 0x588, 0x6B);
+    w(&mut p, &mut ram, TWIM + 0x008, 1);
+    assert_eq!((r(&mut p, TWIM + 0x104), r(&mut p, TWIM + 0x124), r(&mut p, TWIM + 0x160)), (0, 0, 0));
+}
+
+#[test]
+fn twim_rejects_what_the_part_rejects() {
+    // A FREQUENCY value the PS does not list stops the run.
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0500_0000);
+    let _ = read_reg(&mut p, &mut ram, 0x6B, 0x0F, false);
+    assert!(p.fault.as_deref().is_some_and(|f| f.contains("FREQUENCY")), "{:?}", p.fault);
+    // Every PS value works.
+    for f in [0x0198_0000, 0x0400_0000, 0x0640_0000, 0x0620_0000] {
+        let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+        power_and_twim(&mut p, &mut ram, 3, f);
+        assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Ok(0x68), "FREQUENCY 0x{f:08X}");
+        assert!(p.fault.is_none());
+    }
+    // SCL/SDA on other pins, or not open-drain: nobody acknowledges.
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    w(&mut p, &mut ram, P0 + 0x700 + 4 * 15, 1 | 2); // SCL as push-pull output
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    w(&mut p, &mut ram, TWIM + 0x508, 16);
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    w(&mut p, &mut ram, TWIM + 0x500, 0);
+    w(&mut p, &mut ram, TWIM + 0x508, 27);
+    w(&mut p, &mut ram, TWIM + 0x500, 6);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    // Not enabled (ENABLE != 6): tasks do nothing, a driver waits forever.
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    w(&mut p, &mut ram, TWIM + 0x500, 5);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::Hang));
+}
+
+#[test]
+fn the_sensor_needs_vdd_env_with_high_drive_and_the_pullups() {
+    // Standard drive on P0.22: the supply sags, the sensor never answers, the drop is flagged.
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 0, 0x0620_0000);
+    assert!(p.vdd_env_drop);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    // High drive on '1' (H0H1): it answers once booted.
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    power_and_twim(&mut p, &mut ram, 3, 0x0620_0000);
+    assert!(!p.vdd_env_drop);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Ok(0x68));
+    // Pull-ups off: nothing on the bus answers.
+    w(&mut p, &mut ram, P1 + 0x50C, 1);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    w(&mut p, &mut ram, P1 + 0x508, 1);
+    // Power cycled: registers lost, and the part boots for BOOT_S before it answers.
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Ok(0x68));
+    w(&mut p, &mut ram, P0 + 0x50C, 1 << 22);
+    wait(&mut p, 0.01);
+    w(&mut p, &mut ram, P0 + 0x508, 1 << 22);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Err(Xfer::AddressNack));
+    wait(&mut p, BOOT_S);
+    assert_eq!(read_reg(&mut p, &mut ram, 0x6B, 0x0F, false), Ok(0x68));
+}
+
+#[test]
+fn wdt_timeout_locks_reload_enables_and_survives_a_soft_reset() {
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+    const WDT: u64 = 0x4001_0000;
+    w(&mut p, &mut ram, WDT + 0x504, 15); // CRV
+    w(&mut p, &mut ram, WDT + 0x508, 0b11); // RREN: RR0 and RR1
+    let t0 = p.now();
+    w(&mut p, &mut ram, WDT, 1);
+    assert_eq!(p.wdt.deadline(), Some(t0 + 16.0 / 32768.0), "timeout (CRV + 1) / 32768 s");
+    // Locked while running.
+    w(&mut p, &mut ram, WDT + 0x504, 1000);
+    w(&mut p, &mut ram, WDT + 0x508, 1);
+    assert_eq!((r(&mut p, WDT + 0x504), r(&mut p, WDT + 0x508), p.wdt.locked_writes), (15, 0b11, 2));
+    // A reload needs every enabled RR; RR2 (not enabled) does nothing.
+    wait(&mut p, 10.0 / 32768.0);
+    w(&mut p, &mut ram, WDT + 0x608, 0x6E52_4635);
+    w(&mut p, &mut ram, WDT + 0x600, 0x6E52_4635);
+    assert_eq!(p.wdt.deadline(), Some(t0 + 16.0 / 32768.0), "RR0 alone does not reload");
+    w(&mut p, &mut ram, WDT + 0x604, 0x6E52_4635);
+    let t1 = p.now();
+    assert_eq!(p.wdt.deadline(), Some(t1 + 16.0 / 32768.0));
+    assert_eq!(p.wdt.disabled_rr_writes, 1);
+    // A soft reset keeps it running with its configuration; its own timeout resets it.
+    p.reset(ResetKind::Soft);
+    assert!(p.wdt.running && p.wdt.crv == 15 && p.wdt.rren == 0b11);
+    assert_eq!(p.power.resetreas, 1 << 2, "RESETREAS.SREQ");
+    wait(&mut p, 1e-3);
+    assert!(p.watchdog_reset);
+    p.reset(ResetKind::Watchdog);
+    assert!(!p.wdt.running && p.wdt.crv == 0xFFFF_FFFF);
+    assert_eq!(p.power.resetreas, (1 << 2) | (1 << 1), "RESETREAS accumulates: SREQ | DOG");
+    p.reset(ResetKind::PowerOn);
+    assert_eq!(p.power.resetreas, 0);
+}
+
+#[test]
+fn timer_interrupt_reenters_unless_the_event_clear_is_read_back() {
+    for read_back in [false, true] {
+        let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+        const T2: u64 = 0x4000_A000;
+        p.scs.nvic_enabled |= 1 << 10;
+        w(&mut p, &mut ram, T2 + 0x510, 4); // 1 MHz
+        w(&mut p, &mut ram, T2 + 0x540, 2000);
+        w(&mut p, &mut ram, T2 + 0x200, 1); // COMPARE0_CLEAR
+        w(&mut p, &mut ram, T2 + 0x304, 1 << 16);
+        w(&mut p, &mut ram, T2, 1);
+        wait(&mut p, 2.5e-3);
+        assert_ne!(p.scs.nvic_pending & (1 << 10), 0);
+        // The handler: entry, clear the event, (read back), return two cycles later.
+        p.scs.nvic_pending &= !(1 << 10);
+        p.active_irq = Some(10);
+        w(&mut p, &mut ram, T2 + 0x140, 0);
+        if read_back {
+            assert_eq!(r(&mut p, T2 + 0x140), 0);
+        }
+        p.instructions.set(p.instructions.get() + 2);
+        p.exception_return(10);
+        let again = p.scs.nvic_pending & (1 << 10) != 0;
+        assert_eq!(again, !read_back, "read back {read_back}");
+        assert_eq!(p.timers[2].spurious, u32::from(!read_back));
+        // An event left set keeps the line asserted (level interrupt).
+        let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
+        p.scs.nvic_enabled |= 1 << 10;
+        w(&mut p, &mut ram, T2 + 0x540, 2000);
+        w(&mut p, &mut ram, T2 + 0x200, 1);
+        w(&mut p, &mut ram, T2 + 0x304, 1 << 16);
+        w(&mut p, &mut ram, T2, 1);
+        wait(&mut p, 1e-3);
+        p.scs.nvic_pending = 0;
+        p.active_irq = Some(10);
+        p.exception_return(10);
+        assert_ne!(p.scs.nvic_pending & (1 << 10), 0);
+    }
+}
+
+#[test]
+fn hfclkstarted_is_stale_after_the_bootloader() {
+    // Start without clearing: the 1 read back is the bootloader's, counted as a stale read.
+    let mut c = Clock::new(true);
+    use vboard::periph::Access::{Read, Write};
+    c.access(0x000, Write(1), 0.0).unwrap();
+    assert_eq!(c.access(0x100, Read, 1e-6).unwrap(), 1);
+    assert_eq!(c.stale_event_reads, 1);
+    // Clear, start, wait: a fresh event.
+    let mut c = Clock::new(true);
+    c.access(0x100, Write(0), 0.0).unwrap();
+    c.access(0x000, Write(1), 0.0).unwrap();
+    assert_eq!(c.access(0x100, Read, 1e-6).unwrap(), 0);
+    assert_eq!(c.access(0x100, Read, 1e-3).unwrap(), 1);
+    assert_eq!(c.stale_event_reads, 0);
+    // Cold: the crystal takes its start-up time.
+    let mut c = Clock::new(false);
+    c.access(0x000, Write(1), 0.0).unwrap();
+    assert_eq!(c.access(0x40C, Read, 0.1e-3).unwrap() & 1, 0);
+    assert_eq!(c.access(0x40C, Read, 0.5e-3).unwrap() & 1, 1);
+}
+
+#[test]
+fn mpu_as_the_bootloader_leaves_it() {
+    let m = Mpu::new(true);
+    assert!(m.check(0x2000_1000, Check::Exec).is_err(), "SRAM is execute-never");
+    assert!(m.check(0x0001_2000, Check::Exec).is_ok());
+    assert!(m.check(0x000F_8000, Check::Write).is_err(), "flash is privileged read-only");
+    assert!(m.check(0x2000_1000, Check::Write).is_ok());
+    assert!(m.check(0x4000_3000, Check::Write).is_ok(), "PRIVDEFENA: peripherals by the default map");
+    let mut off = m.clone();
+    off.write(0xD94, 0);
+    assert!(off.check(0x2000_1000, Check::Exec).is_ok() && off.check(0x000F_8000, Check::Write).is_ok());
+    assert!(Mpu::new(false).check(0x2000_1000, Check::Exec).is_ok());
+}
+
+#[test]
+fn uarte_must_be_stopped_before_it_is_disabled() {
+    use vboard::periph::uarte::{Rx, Uarte};
+    use vboard::periph::Access::{Read, Write};
+    let mut u = Uarte::new(true);
+    assert!(u.receiving() && u.enable == 8);
+    u.access(0x004, Write(1), 0.0).unwrap(); // STOPRX
+    assert_eq!(u.access(0x144, Read, 1e-6).unwrap(), 0, "RXTO comes a character time later");
+    assert_eq!(u.access(0x144, Read, 1e-3).unwrap(), 1);
+    u.access(0x500, Write(0), 1e-3).unwrap();
+    assert!(!u.disabled_while_receiving && u.rx == Rx::Idle);
+    let mut u = Uarte::new(true);
+    u.access(0x500, Write(0), 0.0).unwrap();
+    assert!(u.disabled_while_receiving);
+}
+
+fn lsm(board: Board) -> Lsm9ds1Model {
+    let mut cfg = Variant::Hobby.config(31, 0);
+    cfg.gyro.range = host_tests::sim::GyroRange::Dps500;
+    cfg.accel.range = host_tests::sim::AccelRange::G2;
+    Lsm9ds1Model::new(Rig::new(cfg, 9), board)
+}
+
+fn rd(m: &mut Lsm9ds1Model, r: u8, buf: &mut [u8]) -> Result<(), ()> {
+    m.transaction(0x6B, &mut [Operation::Write(&[r]), Operation::Read(buf)]).map_err(|_| ())
+}
+
+#[test]
+fn lsm9ds1_nacks_while_it_resets() {
+    let mut m = lsm(Board::Rev1);
+    m.advance_to(0.1);
+    m.write(0x6B, &[0x22, 0x05]).unwrap(); // IF_ADD_INC | SW_RESET
+    let mut b = [0u8];
+    assert!(rd(&mut m, 0x22, &mut b).is_err(), "no ACK while it boots");
+    m.advance_to(0.1 + BOOT_S * 0.9);
+    assert!(rd(&mut m, 0x22, &mut b).is_err());
+    m.advance_to(0.1 + BOOT_S);
+    rd(&mut m, 0x22, &mut b).unwrap();
+    assert_eq!(b[0] & 1, 0, "SW_RESET clears itself");
+    // BOOT too.
+    m.write(0x6B, &[0x22, 0x84]).unwrap();
+    assert!(rd(&mut m, 0x0F, &mut b).is_err());
+    m.advance_to(0.2 + BOOT_S);
+    rd(&mut m, 0x0F, &mut b).unwrap();
+    assert_eq!(b[0], 0x68);
+}
+
+#[test]
+fn lsm9ds1_fifo_burst_wraps_and_its_first_sample_is_junk() {
+    let mut m = lsm(Board::Rev1);
+    for (r, v) in [(0x22u8, 0x44u8), (0x10, 0x68), (0x20, 0x60), (0x23, 0x02), (0x2E, 0xC0)] {
+        m.write(0x6B, &[r, v]).unwrap();
+    }
+    m.advance_to(0.1); // ~11 samples at 119 Hz
+    let mut src = [0u8];
+    rd(&mut m, 0x2F, &mut src).unwrap();
+    let n = (src[0] & 0x3F) as usize;
+    assert!(n >= 10, "{n} slots");
+    // One burst from OUT_X_L_G over n slots: 0x18..=0x2D (22 bytes) per slot, then it wraps.
+    let mut buf = vec![0u8; 22 * n];
+    rd(&mut m, 0x18, &mut buf).unwrap();
+    rd(&mut m, 0x2F, &mut src).unwrap();
+    assert_eq!(src[0] & 0x3F, 0, "the burst popped every slot");
+    let slot = |k: usize| -> ([i16; 3], [i16; 3]) {
+        let s = &buf[22 * k..22 * k + 22];
+        let v = |o: usize| i16::from_le_bytes([s[o], s[o + 1]]);
+        ([v(0), v(2), v(4)], [v(16), v(18), v(20)])
+    };
+    // The first slot after enabling the FIFO is junk (zeros); the others are the rig's samples.
+    assert_eq!(slot(0), ([0; 3], [0; 3]));
+    assert_eq!(m.junk(), 1);
+    let hist = m.history().to_vec();
+    assert_eq!(hist.len(), n - 1);
+    for k in 1..n {
+        let (g, a) = slot(k);
+        let (ra, rg) = hist[k - 1];
+        for i in 0..3 {
+            assert!((a[i] as f32 * 0.000061 - ra[i]).abs() < 1e-4, "slot {k}: accel");
+            assert!((g[i] as f32 * 0.0175 - rg[i]).abs() < 0.02, "slot {k}: gyro");
+        }
+        let norm = (a.iter().map(|&c| (c as f32 * 0.000061).powi(2)).sum::<f32>()).sqrt();
+        assert!((norm - 1.0).abs() < 0.1);
+    }
+    // Re-enabling the FIFO (bypass, then continuous) makes a new junk first sample.
+    m.write(0x6B, &[0x2E, 0x00]).unwrap();
+    m.write(0x6B, &[0x2E, 0xC0]).unwrap();
+    m.advance_to(0.2);
+    let mut one = [0u8; 22];
+    rd(&mut m, 0x18, &mut one).unwrap();
+    assert_eq!(&one[..6], &[0; 6]);
+    assert_eq!(m.junk(), 2);
+}
