@@ -86,3 +86,32 @@ fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
     // Read at the end: the buffer holds whole defmt frames (raw CSV lines).
     assert!(tail.iter().any(|l| l.matches(',').count() >= 6), "{tail:?}");
 }
+
+#[test]
+fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
+    let elf = build_firmware(&["odr952"]).unwrap();
+    let mut b = Bench::new(elf, Variant::Hobby.config(14, 0), 14, Board::Rev1, NorSim::new(8, 14), false).unwrap();
+    // probe-rs run, reading all along (the vboard drains the buffer every millisecond).
+    b.mcu.rtt_attach();
+    b.run_for(1.0);
+    let before = b.mcu.log.len();
+    b.press(2.3);
+    let (w0, t0) = (b.mcu.rtt_written(), b.mcu.now());
+    b.run_for(5.0);
+    let bytes_per_s = (b.mcu.rtt_written() - w0) as f64 / (b.mcu.now() - t0);
+    // The lines as `probe-rs run --log-format "{s}"` prints them: the message text.
+    let message = |l: &str| match l.split_once(' ') {
+        Some((level, m)) if ["TRACE", "DEBUG", "INFO", "WARN", "ERROR"].contains(&level) => m.to_string(),
+        _ => l.to_string(),
+    };
+    let text: String = b.mcu.log[before..].iter().map(|l| message(l) + "\n").collect();
+    let log = host_tests::csvlog::parse(&text).expect("the raw log parses");
+    let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t_s - log.rows[0].t_s);
+    let buffer_s = gyrocal_fw::rtt::BUF_SIZE as f64 / bytes_per_s;
+    println!("MEASURED raw_log_bytes_per_s={bytes_per_s:.0} rows={} sample_rate_hz={rate:.1} rtt_buffer_s={buffer_s:.3}", log.rows.len());
+    assert!(rate > 900.0, "{rate} Hz");
+    assert!(log.rows.len() as f64 > 4.5 * rate, "rows lost: {}", log.rows.len());
+    assert!(!b.mcu.log.iter().any(|l| l.contains("bytes dropped")), "bytes dropped with a host reading");
+    // The buffer holds at least 0.1 s of raw log: several of probe-rs' polls.
+    assert!(buffer_s >= 0.1, "{buffer_s} s");
+}
