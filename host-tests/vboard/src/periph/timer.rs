@@ -50,12 +50,29 @@ impl Timer {
             return 0;
         }
         let ticks = ((t - self.t0) * self.hz()).max(0.0) as u64;
-        // SHORTS COMPARE0_CLEAR: the counter runs 0..CC0.
+        // BITMODE: 16 (reset value), 8, 24 or 32 bits; SHORTS COMPARE0_CLEAR: 0..CC0.
+        let mask = match self.bitmode & 3 {
+            0 => 0xFFFF,
+            1 => 0xFF,
+            2 => 0xFF_FFFF,
+            _ => 0xFFFF_FFFF,
+        };
         if self.shorts & 1 != 0 && self.cc[0] > 0 {
-            ticks % self.cc[0] as u64
+            (ticks % self.cc[0] as u64) & mask
         } else {
-            ticks & 0xFFFF_FFFF
+            ticks & mask
         }
+    }
+
+    /// The counter at virtual time `t` (s).
+    pub fn counter_at(&self, t: f64) -> u64 {
+        self.counter(t)
+    }
+
+    /// Moves the counter `ticks` ahead (tests: bring a wrap of the counter near).
+    pub fn advance(&mut self, ticks: u64) {
+        self.t0 -= ticks as f64 / self.hz();
+        self.last_event = self.last_event.min(self.t0);
     }
 
     /// Time of the next COMPARE0 event after `t` (periodic timers only).
