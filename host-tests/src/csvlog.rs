@@ -56,6 +56,73 @@ pub fn format_row(out: &mut String, r: &Row) {
     out.push('\n');
 }
 
+/// One column of `--columns`: this log column from that source column, times a factor.
+#[derive(Debug, Clone, PartialEq)]
+struct Source {
+    name: String,
+    factor: f64,
+}
+
+/// Converts a CSV log with other column names or units into this format. `spec` is a comma
+/// list of `COLUMN=SOURCE`, `COLUMN=SOURCE*F` or `COLUMN=SOURCE/F` (e.g.
+/// `t_s=time/1000,ax_g=acc_x/9.80665,gx_dps=gyr_x*57.29578`); a column not named is taken from a
+/// source column of its own name, if any (servo columns may be absent: hand-held). The source's
+/// header is its first line that is neither empty nor a `#` comment.
+pub fn remap(text: &str, spec: &str) -> Result<String, String> {
+    let mut map: Vec<(usize, Source)> = vec![];
+    for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let (col, src) = item.split_once('=').ok_or(format!("--columns: {item:?} is not COLUMN=SOURCE"))?;
+        let at = log::COLUMNS.iter().position(|c| *c == col.trim()).ok_or(format!("--columns: unknown column {col:?} (one of {HEADER})"))?;
+        let (name, factor) = match src.find(['*', '/']) {
+            Some(i) => {
+                let f: f64 = src[i + 1..].trim().parse().map_err(|_| format!("--columns: {:?} is not a number", &src[i + 1..]))?;
+                if !(f.is_finite() && f != 0.0) {
+                    return Err(format!("--columns: factor {f} must be finite and non-zero"));
+                }
+                (src[..i].trim(), if &src[i..i + 1] == "*" { f } else { 1.0 / f })
+            }
+            None => (src.trim(), 1.0),
+        };
+        map.push((at, Source { name: name.to_string(), factor }));
+    }
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim().starts_with('#'));
+    let (_, source_header) = lines.next().ok_or("--columns: the log has no header line")?;
+    let names: Vec<&str> = source_header.split(',').map(str::trim).collect();
+    let mut from: [Option<(usize, f64)>; 9] = [None; 9];
+    for (i, col) in log::COLUMNS.iter().enumerate() {
+        let src = map.iter().find(|(at, _)| *at == i).map(|(_, s)| s.clone()).unwrap_or(Source { name: col.to_string(), factor: 1.0 });
+        from[i] = match names.iter().position(|n| *n == src.name) {
+            Some(k) => Some((k, src.factor)),
+            None if i >= 7 => None,
+            None => return Err(format!("--columns: no source column {:?} for {col} in the header {source_header:?}", src.name)),
+        };
+    }
+    let mut out = header();
+    for (n, l) in lines {
+        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+        let mut v = [None; 9];
+        for (i, src) in from.iter().enumerate() {
+            if let Some((k, factor)) = *src {
+                let text = f.get(k).copied().unwrap_or("");
+                if !text.is_empty() {
+                    let x: f64 = text.parse().map_err(|_| format!("line {}: column {:?}: {text:?} is not a number", n + 1, names[k]))?;
+                    v[i] = Some(x * factor);
+                }
+            }
+        }
+        let need = |i: usize| v[i].ok_or(format!("line {}: no value for {}", n + 1, log::COLUMNS[i]));
+        let row = Row {
+            t_s: need(0)?,
+            accel_g: [need(1)? as f32, need(2)? as f32, need(3)? as f32],
+            gyro_dps: [need(4)? as f32, need(5)? as f32, need(6)? as f32],
+            servo_deg: v[7].map(|x| x as f32),
+            tilt_deg: v[8].map(|x| x as f32),
+        };
+        format_row(&mut out, &row);
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -102,6 +169,20 @@ mod tests {
         assert_eq!(rows.len(), 2);
         assert_eq!(rows[0], r);
         assert_eq!((rows[1].servo_deg, rows[1].tilt_deg), (None, Some(-25.0)));
+    }
+
+    #[test]
+    fn other_tools_logs_convert_by_name_and_unit() {
+        let text = "# from another tool\ntime_ms,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z\n0,0,0,9.80665,0.01,0,0\n10,0,9.80665,0,0,0.02,0\n";
+        let spec = "t_s=time_ms/1000,ax_g=acc_x/9.80665,ay_g=acc_y/9.80665,az_g=acc_z/9.80665,gx_dps=gyr_x*57.29578,gy_dps=gyr_y*57.29578,gz_dps=gyr_z*57.29578";
+        let rows = parse(&remap(text, spec).unwrap()).unwrap().rows;
+        assert_eq!(rows.len(), 2);
+        assert_eq!(rows[1].t_s, 0.01);
+        assert_eq!(rows[0].accel_g, [0.0, 0.0, 1.0]);
+        assert!((rows[0].gyro_dps[0] - 0.5729578).abs() < 1e-5 && rows[1].servo_deg.is_none());
+        assert!(remap(text, "t_s=nope").unwrap_err().contains("no source column \"nope\""));
+        assert!(remap(text, "x=time_ms").unwrap_err().contains("unknown column"));
+        assert!(remap(text, "t_s=time_ms/0").is_err());
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! steady gyro rate is the paper's constant-rate rotation.
 
 use crate::csvlog::Row;
-use calib_core::accel::{AccelCal, AccelCalibrator};
+use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
 use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
@@ -64,6 +64,27 @@ pub enum OfflineError {
     NoRest,
     /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.
     NoRotation,
+    /// The sample rate is not one the LSM9DS1 can have; `hint` names the likely mistake.
+    TimeBase {
+        /// Median sample rate of the log (Hz).
+        rate_hz: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
+    /// The accelerometer at rest does not read 1 g; `hint` names the likely mistake.
+    AccelUnits {
+        /// Mean |a| over the still segments.
+        norm: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
+    /// The gyro scale comes out near a unit conversion factor: the column is in other units.
+    GyroUnits {
+        /// The scale factor found (mean of the diagonal).
+        k: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
 }
 
 impl std::fmt::Display for OfflineError {
@@ -74,6 +95,9 @@ impl std::fmt::Display for OfflineError {
             OfflineError::NoRotation => {
                 f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run")
             }
+            OfflineError::TimeBase { rate_hz, hint } => write!(f, "sample rate {rate_hz:.4} Hz is not an LSM9DS1 output data rate: {hint}"),
+            OfflineError::AccelUnits { norm, hint } => write!(f, "the accelerometer reads {norm:.3} at rest, not 1 g: {hint}"),
+            OfflineError::GyroUnits { k, hint } => write!(f, "gyro scale factor {k:.3}: {hint}"),
         }
     }
 }
@@ -238,8 +262,8 @@ pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<Rotation> {
 /// Everything the offline calibration found.
 #[derive(Debug, Clone)]
 pub struct Calibration {
-    /// The chosen gyro result.
-    pub gyro: GyroCal,
+    /// The chosen gyro result, validated as the firmware would; or why there is none.
+    pub gyro: Result<GyroCal, OfflineError>,
     /// Gyro bias.
     pub bias: Bias,
     /// Accelerometer calibration (identity when the log has fewer than 6 hand-held poses).
@@ -260,12 +284,80 @@ pub struct Calibration {
     pub handheld_poses: usize,
 }
 
+/// The LSM9DS1's output data rates (Hz): gyro 14.9, 59.5, 119, 238, 476, 952; accelerometer
+/// alone also 10 and 50.
+const ODRS_HZ: [f64; 8] = [10.0, 14.9, 50.0, 59.5, 119.0, 238.0, 476.0, 952.0];
+/// How far a real ODR may be from nominal (the datasheet gives none; boards show several %).
+const ODR_TOLERANCE: f64 = 0.1;
+
+fn is_odr(rate_hz: f64) -> bool {
+    ODRS_HZ.iter().any(|o| (rate_hz / o - 1.0).abs() <= ODR_TOLERANCE)
+}
+
+/// Checks the time column: the median sample rate must be an LSM9DS1 ODR (within 10 %).
+pub fn check_time_base(rows: &[Row]) -> Result<f64, OfflineError> {
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    if dt.is_empty() {
+        return Ok(0.0);
+    }
+    dt.sort_by(f64::total_cmp);
+    let rate_hz = 1.0 / dt[dt.len() / 2];
+    if is_odr(rate_hz) {
+        return Ok(rate_hz);
+    }
+    let hint = if is_odr(rate_hz * 1e3) {
+        "the time column looks like milliseconds: t_s must be in seconds (divide by 1000, or --columns t_s=NAME/1000)"
+    } else if is_odr(rate_hz * 1e6) {
+        "the time column looks like microseconds: t_s must be in seconds (divide by 1e6, or --columns t_s=NAME/1e6)"
+    } else {
+        "samples missing, duplicated, or not from an LSM9DS1 at a standard rate"
+    };
+    Err(OfflineError::TimeBase { rate_hz, hint })
+}
+
+/// Checks the accelerometer's units from the still segments: |a| ≈ 1 g.
+fn check_accel_units(ph: &Phases) -> Result<(), OfflineError> {
+    let norms: Vec<f64> = ph.segments.iter().map(|s| Vector3::from(s.accel.mean()).norm()).collect();
+    let norm = norms.iter().sum::<f64>() / norms.len().max(1) as f64;
+    if (0.8..=1.25).contains(&norm) {
+        return Ok(());
+    }
+    let hint = if (8.0..=12.0).contains(&norm) {
+        "the accelerometer columns look like m/s²: they must be in g (divide by 9.80665, or --columns ax_g=NAME/9.80665 …)"
+    } else if (800.0..=1250.0).contains(&norm) {
+        "the accelerometer columns look like mg: divide by 1000"
+    } else {
+        "raw counts? apply the sensitivity (e.g. 0.061 mg/LSB at ±2 g: --columns ax_g=NAME*0.000061 …)"
+    };
+    Err(OfflineError::AccelUnits { norm, hint })
+}
+
+/// Names a gyro unit mistake from the scale factor found (K ≈ 180/π: rad/s; ≈ 1e3: m°/s).
+fn gyro_units(k: f64) -> Option<OfflineError> {
+    let near = |v: f64| (k / v - 1.0).abs() < 0.15;
+    let hint = if near(180.0 / std::f64::consts::PI) {
+        "K ≈ 180/π: the gyro columns are in rad/s; they must be in °/s (multiply by 57.29578, or --columns gx_dps=NAME*57.29578 …)"
+    } else if near(1e-3) {
+        "K ≈ 1/1000: the gyro columns look like m°/s; divide by 1000"
+    } else if near(1e3) {
+        "K ≈ 1000: the gyro columns look like k°/s or wrongly scaled counts"
+    } else {
+        return None;
+    };
+    Some(OfflineError::GyroUnits { k, hint })
+}
+
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
+/// Fails only if nothing at all can be calibrated (no rest, wrong units); a log that supports
+/// only part of the calibration gives what it can, with the gyro's error in
+/// [`Calibration::gyro`].
 pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, OfflineError> {
+    check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
         return Err(OfflineError::NoRest);
     }
+    check_accel_units(&ph)?;
     // Bias: every still segment pooled.
     let mut b = BiasEstimator::new();
     for s in &ph.segments {
@@ -341,14 +433,26 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         }
     }
     let chosen = match method {
-        Some(Method::Sweep) => sweep.map_err(stage("sweep estimator"))?,
-        Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation)?.map_err(stage("paper estimator"))?,
-        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator"))?,
+        Some(Method::Sweep) => sweep.map_err(stage("sweep estimator")),
+        Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation).and_then(|p| p.map_err(stage("paper estimator"))),
+        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
     };
-    // The firmware's acceptance: a result it would not store is not printed either.
-    pipeline::validate(&chosen, &acceptance).map_err(stage("validation"))?;
+    // The firmware's acceptance: a result it would not store is not given either; a scale near
+    // a unit factor names the mistake.
+    let scale = match &chosen {
+        Ok(c) => Some((c.k[0][0] + c.k[1][1] + c.k[2][2]) as f64 / 3.0),
+        Err(OfflineError::Calib { error: Error::ImplausibleScale { value, .. }, .. }) => Some(*value as f64),
+        Err(_) => None,
+    };
+    let gyro = match scale.and_then(gyro_units) {
+        Some(e) => Err(e),
+        None => chosen.and_then(|c| pipeline::validate(&c, &acceptance).map(|_| c).map_err(stage("validation"))),
+    };
+    if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
+        return Err(e);
+    }
     Ok(Calibration {
-        gyro: chosen,
+        gyro,
         bias,
         accel,
         sweep,
@@ -379,8 +483,8 @@ fn servo_rate(rows: &[Row]) -> Option<f32> {
 /// The tool's JSON output: the calibration to apply, then everything about its quality.
 #[derive(Debug, Clone, Serialize)]
 pub struct Output<'a> {
-    /// `ω = K (g − b)`.
-    pub gyro: GyroOut,
+    /// `ω = K (g − b)`; `null` when the log does not support it (see `quality.missing`).
+    pub gyro: Option<GyroOut>,
     /// `f = M (a − o)`.
     pub accel: AccelOut,
     /// Quality of every part.
@@ -456,8 +560,10 @@ pub struct Segments {
 /// Quality of every part of the calibration.
 #[derive(Debug, Clone, Serialize)]
 pub struct QualityOut<'a> {
+    /// The parts of the calibration the log did not support, each with the reason.
+    pub missing: Vec<String>,
     /// The chosen gyro result's quality report.
-    pub gyro: &'a GyroQuality,
+    pub gyro: Option<&'a GyroQuality>,
     /// The bias.
     pub bias: &'a Bias,
     /// The accelerometer fit.
@@ -472,18 +578,38 @@ pub struct QualityOut<'a> {
     pub segments: Segments,
     /// The rest thresholds used (raised to the log's noise floor).
     pub rest_thresholds: &'a RestConfig,
+    /// Log messages between the rows that were skipped.
+    pub log_messages: usize,
 }
 
 const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: MIN_ROTATION_DPS as f32 });
 
 impl Calibration {
-    /// The tool's output.
-    pub fn output(&self) -> Output<'_> {
+    /// The parts the log did not support, each with the reason (empty: a full calibration).
+    pub fn missing(&self) -> Vec<String> {
+        let mut m = vec![];
+        if let Err(e) = &self.gyro {
+            m.push(format!("gyro: {e}"));
+        }
+        if self.accel.model == AccelModel::None {
+            m.push(format!(
+                "accelerometer: {} accelerometer poses, need {} (hand-held or tilt-servo poses; the identity is used)",
+                self.handheld_poses,
+                pipeline::SIX_PARAM_POSES
+            ));
+        }
+        m
+    }
+
+    /// The tool's output; `log_messages` lines of the log were skipped as messages.
+    pub fn output(&self, log_messages: usize) -> Output<'_> {
+        let gyro = self.gyro.as_ref().ok();
         Output {
-            gyro: GyroOut { k: self.gyro.k, bias_dps: self.bias.bias_dps, method: self.gyro.method },
+            gyro: gyro.map(|g| GyroOut { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
             accel: AccelOut { m: self.accel.m, offset_g: self.accel.offset_g },
             quality: QualityOut {
-                gyro: &self.gyro.quality,
+                missing: self.missing(),
+                gyro: gyro.map(|g| &g.quality),
                 bias: &self.bias,
                 accel: &self.accel,
                 estimators: Estimators {
@@ -499,12 +625,13 @@ impl Calibration {
                     moves: self.moves,
                 },
                 rest_thresholds: &self.phases.rest,
+                log_messages,
             },
         }
     }
 
     /// The output as one line of JSON.
-    pub fn json(&self) -> String {
-        serde_json::to_string(&self.output()).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
+    pub fn json(&self, log_messages: usize) -> String {
+        serde_json::to_string(&self.output(log_messages)).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
     }
 }

@@ -32,12 +32,12 @@ fn default_method_is_speed_free_and_accurate_despite_servo_scale_error() {
         let (log, truth) = simulated_log(cfg);
         let rows = csvlog::parse(&log).unwrap().rows;
         let c = offline::calibrate(&rows, None).unwrap();
-        assert_eq!(c.gyro.method, Method::Sweep);
-        let e = errors(c.gyro.k, truth);
+        assert_eq!(c.gyro.as_ref().unwrap().method, Method::Sweep);
+        let e = errors(c.gyro.as_ref().unwrap().k, truth);
         assert!(e.iter().all(|x| x.abs() < 0.003), "servo scale {scale}: errors {e:?}");
         // The paper estimator, run on the same log at the commanded speed, inherits the servo error.
         let paper = offline::calibrate(&rows, Some(Method::Paper)).unwrap();
-        let ep = errors(paper.gyro.k, truth);
+        let ep = errors(paper.gyro.as_ref().unwrap().k, truth);
         let mean = ep.iter().sum::<f64>() / 3.0;
         assert!((mean - (1.0 / (1.0 + scale) - 1.0)).abs() < 0.006, "paper errors {ep:?}");
         assert!(c.accel.rms_after_g < c.accel.rms_before_g / 10.0);
@@ -52,8 +52,8 @@ fn logs_without_the_paper_rotation_still_calibrate_and_paper_is_refused() {
     let cut = rows.len() - rows.iter().rev().position(|r| r.servo_deg.is_some_and(|s| s > 1.0 && s < 179.0)).unwrap();
     let rows: Vec<Row> = rows[..cut.saturating_sub(1500)].to_vec();
     let c = offline::calibrate(&rows, None).unwrap();
-    assert!(errors(c.gyro.k, truth).iter().all(|x| x.abs() < 0.003));
-    assert_eq!(offline::calibrate(&rows, Some(Method::Paper)).unwrap_err(), OfflineError::NoRotation);
+    assert!(errors(c.gyro.as_ref().unwrap().k, truth).iter().all(|x| x.abs() < 0.003));
+    assert_eq!(offline::calibrate(&rows, Some(Method::Paper)).unwrap().gyro.unwrap_err(), OfflineError::NoRotation);
 }
 
 #[test]
@@ -65,14 +65,14 @@ fn degenerate_logs_are_named_errors() {
         csvlog::format_row(&mut text, &r);
     }
     let rows = csvlog::parse(&text).unwrap().rows;
-    let e = offline::calibrate(&rows, None).unwrap_err();
+    let e = offline::calibrate(&rows, None).unwrap().gyro.unwrap_err();
     assert!(matches!(e, OfflineError::Calib { error: calib_core::Error::TooFewPoses { .. }, .. }), "{e}");
     // A vertical shaft: every rig pose sees the same gravity.
     let mut cfg = Variant::Hobby.config(23, 0);
     let axis = cfg.axis_b();
     cfg.shaft_tilt_deg = 2.0;
     let (log, _) = simulated_log(cfg.with_axis(axis, 0.0));
-    let e = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap_err();
+    let e = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap().gyro.unwrap_err();
     assert!(matches!(e, OfflineError::Calib { error: calib_core::Error::AxisNearVertical { .. }, .. }), "{e}");
 }
 
@@ -117,13 +117,18 @@ fn cli_simulate_then_calibrate_prints_one_json_object() {
     let (code, _, err) = bad("nan.csv", &format!("{HEADER}\n0,0,nan,1,0,0,0,,\n"));
     assert_eq!(code, 3);
     assert!(err.contains("ay_g is not a finite number"), "{err}");
-    let (code, _, err) = bad("short.csv", &format!("{HEADER}\n0,0,0,1,0,0,0,0,\n0.01,0,0,1,0,0,0,0,\n"));
+    let (code, _, err) = bad("short.csv", &format!("{HEADER}\n0,0,0,1,0,0,0,0,\n0.0084,0,0,1,0,0,0,0,\n"));
     assert_eq!(code, 1);
     assert!(err.contains("no still period") || err.contains("too few"), "{err}");
     let (code, _, _) = calib(&[dir.join("nope.csv").to_str().unwrap()]);
     assert_eq!(code, 2);
     let (code, _, _) = calib(&[log, "--method", "magic"]);
     assert_eq!(code, 2);
+    let (code, _, err) = calib(&["--simulate", log, "--seed", "abc"]);
+    assert_eq!(code, 2, "a bad value is a usage error, never a default: {err}");
+    let (code, out, _) = calib(&["--help"]);
+    assert_eq!(code, 0);
+    assert!(out.contains("--columns") && out.contains("Exit codes"));
     assert!(!err.contains("panicked"));
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -147,6 +152,85 @@ fn tilt_servo_logs_take_accelerometer_poses_from_the_tilt_column() {
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
     assert!(c.handheld_poses >= 12, "accelerometer poses {}", c.handheld_poses);
     assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
-    let e = errors(c.gyro.k, [k[(0, 0)], k[(1, 1)], k[(2, 2)]]);
+    let e = errors(c.gyro.as_ref().unwrap().k, [k[(0, 0)], k[(1, 1)], k[(2, 2)]]);
     assert!(e.iter().all(|x| x.abs() < 0.003), "{e:?}");
+}
+
+/// A simulated log rewritten row by row.
+fn rewrite(log: &str, f: impl Fn(&mut Row) -> bool) -> String {
+    let mut text = csvlog::header();
+    for mut r in csvlog::parse(log).unwrap().rows {
+        if f(&mut r) {
+            csvlog::format_row(&mut text, &r);
+        }
+    }
+    text
+}
+
+#[test]
+fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
+    let dir = std::env::temp_dir().join(format!("calib-mistakes-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (log, truth) = simulated_log(Variant::Hobby.config(26, 0));
+    let write = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    // Time in milliseconds: named, never a wrong K.
+    let ms = write("ms.csv", &rewrite(&log, |r| {
+        r.t_s *= 1000.0;
+        true
+    }));
+    let (code, out, err) = calib(&[&ms]);
+    assert_eq!((code, out.as_str()), (1, ""), "{err}");
+    assert!(err.contains("milliseconds"), "{err}");
+    // Gyro in rad/s: named.
+    let rad = write("rad.csv", &rewrite(&log, |r| {
+        r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
+        true
+    }));
+    let (code, _, err) = calib(&[&rad]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("rad/s") && err.contains("57.29578"), "{err}");
+    // Accelerometer in m/s²: named.
+    let ms2 = write("ms2.csv", &rewrite(&log, |r| {
+        r.accel_g = r.accel_g.map(|a| a * 9.80665);
+        true
+    }));
+    let (code, _, err) = calib(&[&ms2]);
+    assert_eq!(code, 1);
+    assert!(err.contains("m/s²"), "{err}");
+    // The same two mistakes converted with --columns: the same K as the log in our units.
+    let (code, good, _) = calib(&[write("good.csv", &log).as_str()]);
+    assert_eq!(code, 0);
+    let both = write("both.csv", &rewrite(&log, |r| {
+        r.accel_g = r.accel_g.map(|a| a * 9.80665);
+        r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
+        true
+    }).replacen("ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps", "ax,ay,az,wx,wy,wz", 1));
+    let map = "ax_g=ax/9.80665,ay_g=ay/9.80665,az_g=az/9.80665,gx_dps=wx*57.29577951308232,gy_dps=wy*57.29577951308232,gz_dps=wz*57.29577951308232";
+    let (code, conv, err) = calib(&[&both, "--columns", map]);
+    assert_eq!(code, 0, "{err}");
+    let k = |text: &str| -> Vec<f64> {
+        let v: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+        (0..3).map(|i| v["gyro"]["K"][i][i].as_f64().unwrap()).collect()
+    };
+    for (a, b) in k(&good).iter().zip(k(&conv)) {
+        assert!((a - b).abs() < 2e-4, "{a} vs {b}");
+    }
+    for (a, t) in k(&good).iter().zip(truth) {
+        assert!((a / t - 1.0).abs() < 0.003);
+    }
+    // Hand-held poses only (no servo at all): the accelerometer calibration, exit 4, the gyro
+    // named as missing.
+    let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none()));
+    let (code, out, err) = calib(&[&hand]);
+    assert_eq!(code, 4, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert!(v["gyro"].is_null());
+    assert_eq!(v["quality"]["accel"]["model"], "nine_param");
+    assert!(v["quality"]["missing"][0].as_str().unwrap().starts_with("gyro:"), "{v}");
+    assert!(err.contains("partial calibration"));
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -14,12 +14,24 @@ use host_tests::session::{record_log, Faults};
 use host_tests::sim::{ContinuousServo, Rig, ServoModel};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use clap::Parser;
 use serde_json::json;
 
+/// The offline `calib` path on simulated logs, error of diag(K) per ODR and servo type.
+#[derive(Parser, Debug)]
+#[command(name = "calib-bench")]
+struct Args {
+    /// Simulated logs per row.
+    #[arg(long, default_value_t = 10)]
+    logs: usize,
+    /// Print a JSON summary as the last line.
+    #[arg(long)]
+    json: bool,
+}
+
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let json_out = args.iter().any(|a| a == "--json");
-    let logs: usize = args.iter().position(|a| a == "--logs").and_then(|i| args.get(i + 1)?.parse().ok()).unwrap_or(10);
+    let args = Args::parse_from(host_tests::cli_args());
+    let (json_out, logs) = (args.json, args.logs);
     println!("calib-bench: {logs} simulated logs per row; error of diag(K) in % against the simulator's truth");
     println!("{:<12}{:>6}{:>10}{:>10}{:>10}{:>8}", "servo", "ODR", "RMS", "max|e|", "mean", "failed");
     let mut rows_json = vec![];
@@ -38,8 +50,12 @@ fn main() {
                 let mut p = Procedure::new(pcfg, None);
                 let (text, _) = record_log(&mut rig, &mut p, Faults::default(), "");
                 let k = rig.truth().gyro_k;
-                match csvlog::parse(&text).map_err(|e| e.to_string()).and_then(|l| offline::calibrate(&l.rows, None).map_err(|e| e.to_string())) {
-                    Ok(c) => errs.extend((0..3).map(|a| (c.gyro.k[a][a] as f64 / k[(a, a)] - 1.0) * 100.0)),
+                let gyro = csvlog::parse(&text)
+                    .map_err(|e| e.to_string())
+                    .and_then(|l| offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
+                    .and_then(|c| c.gyro.map_err(|e| e.to_string()));
+                match gyro {
+                    Ok(g) => errs.extend((0..3).map(|a| (g.k[a][a] as f64 / k[(a, a)] - 1.0) * 100.0)),
                     Err(e) => failed.push(e),
                 }
             }

@@ -1,8 +1,10 @@
-//! `calib LOG.csv [--method paper|sweep]`: calibrates a recorded log with calib-core and prints
-//! one JSON object. `calib --simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous]`
-//! writes a log of a simulated calibration run (the firmware's procedure on the rig simulator).
+//! `calib LOG.csv [--method paper|sweep] [--columns MAP]`: calibrates a recorded log with
+//! calib-core and prints one JSON object. `calib --simulate OUT.csv [--seed N] [--odr HZ]
+//! [--servo positional|continuous] [--tilt]` writes a log of a simulated calibration run (the
+//! firmware's procedure on the rig simulator). `calib --help` says everything.
 //!
-//! Exit codes: 0 success, 1 calibration failed, 2 usage or I/O error, 3 malformed log.
+//! Exit codes: 0 a full calibration, 4 partial, 1 nothing calibrated, 2 usage or I/O error,
+//! 3 malformed log.
 
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure, ServoKind};
@@ -13,9 +15,9 @@ use host_tests::session::{record_log, Faults};
 use host_tests::sim::{ContinuousServo, PositionalServo, Rig, ServoModel, TiltStage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use calib_core::accel::AccelModel;
+use clap::{Parser, ValueEnum};
 use std::process::ExitCode;
-
-const USAGE: &str = "usage: calib LOG.csv [--method paper|sweep]\n       calib --simulate OUT.csv [--seed N] [--odr 119|238|476|952] [--servo positional|continuous] [--tilt]";
 
 fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
     eprintln!("calib: {msg}");
@@ -56,60 +58,96 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> Ex
     }
 }
 
+/// Gyro and accelerometer calibration of a recorded log with the firmware's own calib-core code.
+///
+/// Exit codes: 0 a full calibration; 4 partial (the log supports only part of it: the JSON has
+/// what could be calibrated and `quality.missing` names the rest); 1 nothing could be
+/// calibrated; 2 usage or file error; 3 malformed log.
+#[derive(Parser, Debug)]
+#[command(name = "calib", version)]
+struct Args {
+    /// The log to calibrate (CSV: t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg[,tilt_deg]).
+    #[arg(required_unless_present = "simulate")]
+    log: Option<String>,
+    /// Use only this gyro estimator (default: sweep, else paper).
+    #[arg(long, value_enum)]
+    method: Option<MethodArg>,
+    /// Read a log with other column names or units: COLUMN=SOURCE[*F|/F],… e.g.
+    /// `t_s=time/1000,ax_g=acc_x/9.80665,gx_dps=gyr_x*57.29578`.
+    #[arg(long, value_name = "MAP")]
+    columns: Option<String>,
+    /// Instead: write the log of a simulated calibration run (the firmware's procedure on the
+    /// rig simulator) to this file.
+    #[arg(long, value_name = "OUT.csv", conflicts_with_all = ["log", "method", "columns"])]
+    simulate: Option<String>,
+    /// Simulation: random seed of the rig.
+    #[arg(long, default_value_t = 1, requires = "simulate")]
+    seed: u64,
+    /// Simulation: output data rate (Hz).
+    #[arg(long, default_value = "119", value_parser = ["119", "238", "476", "952"], requires = "simulate")]
+    odr: String,
+    /// Simulation: rotation servo type.
+    #[arg(long, value_enum, default_value_t = ServoArg::Positional, requires = "simulate")]
+    servo: ServoArg,
+    /// Simulation: a tilt servo takes the accelerometer poses.
+    #[arg(long, requires = "simulate")]
+    tilt: bool,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum MethodArg {
+    Paper,
+    Sweep,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
+enum ServoArg {
+    Positional,
+    Continuous,
+}
+
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let (mut log, mut method, mut sim, mut seed, mut odr) = (None, None, None, 1u64, 119.0);
-    let (mut continuous, mut tilt) = (false, false);
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().cloned().ok_or(format!("{name} needs a value"));
-        let r: Result<(), String> = (|| {
-            match a.as_str() {
-                "--method" => {
-                    method = Some(match value("--method")?.as_str() {
-                        "paper" => Method::Paper,
-                        "sweep" => Method::Sweep,
-                        m => return Err(format!("unknown method {m:?} (paper or sweep)")),
-                    })
-                }
-                "--simulate" => sim = Some(value("--simulate")?),
-                "--seed" => seed = value("--seed")?.parse().map_err(|_| "--seed needs an integer")?,
-                "--odr" => odr = value("--odr")?.parse().map_err(|_| "--odr needs a number")?,
-                "--servo" => {
-                    continuous = match value("--servo")?.as_str() {
-                        "positional" => false,
-                        "continuous" => true,
-                        s => return Err(format!("unknown servo {s:?} (positional or continuous)")),
-                    }
-                }
-                "--tilt" => tilt = true,
-                "-h" | "--help" => return Err(USAGE.into()),
-                s if s.starts_with("--") => return Err(format!("unknown option {s}\n{USAGE}")),
-                s => log = Some(s.to_string()),
-            }
-            Ok(())
-        })();
-        if let Err(e) = r {
-            return fail(2, e);
-        }
+    let args = Args::parse_from(host_tests::cli_args());
+    if let Some(path) = args.simulate {
+        let odr: f64 = args.odr.parse().unwrap_or(119.0);
+        return simulate(&path, args.seed, odr, args.servo == ServoArg::Continuous, args.tilt);
     }
-    if let Some(path) = sim {
-        return simulate(&path, seed, odr, continuous, tilt);
-    }
-    let Some(path) = log else { return fail(2, USAGE) };
-    let text = match std::fs::read_to_string(&path) {
+    let Some(path) = args.log else { return fail(2, "no log given") };
+    let method = args.method.map(|m| match m {
+        MethodArg::Paper => Method::Paper,
+        MethodArg::Sweep => Method::Sweep,
+    });
+    let mut text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
         Err(e) => return fail(2, format!("{path}: {e}")),
     };
-    let rows = match csvlog::parse(&text) {
-        Ok(l) => l.rows,
+    if let Some(spec) = &args.columns {
+        text = match csvlog::remap(&text, spec) {
+            Ok(t) => t,
+            Err(e) => return fail(3, format!("{path}: {e}")),
+        };
+    }
+    let log = match csvlog::parse(&text) {
+        Ok(l) => l,
         Err(e) => return fail(3, format!("{path}: {e}")),
     };
-    match offline::calibrate(&rows, method) {
-        Ok(c) => {
-            println!("{}", c.json());
-            ExitCode::SUCCESS
+    let c = match offline::calibrate(&log.rows, method) {
+        Ok(c) => c,
+        Err(e) => return fail(1, format!("{path}: {e}")),
+    };
+    let missing = c.missing();
+    match &c.gyro {
+        Err(e) if c.accel.model == AccelModel::None => fail(1, format!("{path}: {e}")),
+        _ => {
+            println!("{}", c.json(log.messages));
+            for m in &missing {
+                eprintln!("calib: {path}: partial calibration, missing {m}");
+            }
+            if missing.is_empty() {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(4)
+            }
         }
-        Err(e) => fail(1, format!("{path}: {e}")),
     }
 }

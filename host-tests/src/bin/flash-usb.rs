@@ -11,14 +11,11 @@ use object::Endianness;
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
+use clap::{ArgGroup, Parser};
 use std::time::{Duration, Instant};
 
-const USAGE: &str = "\
-cargo flash-usb: flash the firmware over USB through the Arduino bootloader (no SWD probe)
-
-usage: cargo flash-usb --port PORT [--features F] [--bossac PATH] [--dry-run] [--wait SECS] [--out OUT.bin]
-       cargo flash-usb --bin-only OUT.bin [--features F] [--port PORT]
-
+/// What `--help` says after the options.
+const ABOUT: &str = "\
 What it does:
   1. builds the release firmware: cargo build --release -p gyrocal-fw [--features F]
      (ELF target/thumbv7em-none-eabihf/release/gyrocal-fw)
@@ -46,21 +43,7 @@ What it does:
      into the new firmware.
 
 The upload never touches the calibration records: the bootloader writes (and erases) only
-the 4 KiB pages of the image, from 0x10000 on; its erase command (-e) erases nothing.
-
-Options:
-  --port PORT       the bootloader's serial port; flash the board
-  --bin-only OUT    only build, check and write OUT.bin, and print the bossac command
-  --features F      cargo features of the firmware (e.g. tilt-servo,odr952)
-  --bossac PATH     the bossac binary to use
-  --dry-run         do everything but run bossac: print its command line
-  --wait SECS       how long to wait for PORT to appear after the double tap (default 30)
-  --out PATH        where to write the .bin when flashing (default target/gyrocal-fw.bin)
-  --elf PATH        skip the build, use this ELF (for tests and prebuilt images)
-  -h, --help        this text
-
-Exit codes: 0 done, 1 build/check/tool/upload failed (bossac's exit code is forwarded:
-1 error, 2 verify failed), 2 usage.";
+the 4 KiB pages of the image, from 0x10000 on; its erase command (-e) erases nothing.";
 
 /// Where the stock bootloader puts byte 0 of every upload: it adds 0x10000 to each write
 /// address (bossac is run without --offset), and jumps to the vector table there.
@@ -386,62 +369,35 @@ fn wait_for_port(port: &str, wait: Duration) -> Result<(), String> {
     Ok(())
 }
 
+/// cargo flash-usb: flash the firmware over USB through the Arduino bootloader (no SWD probe).
+#[derive(Parser, Debug)]
+#[command(name = "flash-usb", after_help = ABOUT)]
+#[command(group(ArgGroup::new("target").required(true).multiple(true).args(["port", "bin_only"])))]
 struct Args {
+    /// The bootloader's serial port; flash the board.
+    #[arg(long)]
     port: Option<String>,
+    /// Only build, check and write OUT.bin, and print the bossac command.
+    #[arg(long, value_name = "OUT", conflicts_with = "out")]
     bin_only: Option<PathBuf>,
+    /// Where to write the .bin when flashing (default target/gyrocal-fw.bin).
+    #[arg(long, value_name = "PATH")]
     out: Option<PathBuf>,
+    /// Cargo features of the firmware (e.g. tilt-servo,odr952).
+    #[arg(long, value_name = "F", conflicts_with = "elf")]
     features: Option<String>,
+    /// The bossac binary to use.
+    #[arg(long, value_name = "PATH")]
     bossac: Option<PathBuf>,
+    /// Skip the build, use this ELF (for tests and prebuilt images).
+    #[arg(long, value_name = "PATH")]
     elf: Option<PathBuf>,
+    /// Do everything but run bossac: print its command line.
+    #[arg(long)]
     dry_run: bool,
-    wait: Duration,
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut a = Args {
-        port: None,
-        bin_only: None,
-        out: None,
-        features: None,
-        bossac: None,
-        elf: None,
-        dry_run: false,
-        wait: Duration::from_secs(30),
-    };
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let mut it = args.iter();
-    while let Some(arg) = it.next() {
-        let (name, inline) = match arg.split_once('=') {
-            Some((n, v)) if n.starts_with("--") => (n, Some(v.to_string())),
-            _ => (arg.as_str(), None),
-        };
-        let mut value = || inline.clone().or_else(|| it.next().cloned()).ok_or(format!("{name} needs a value\n\n{USAGE}"));
-        match name {
-            "--port" => a.port = Some(value()?),
-            "--bin-only" => a.bin_only = Some(value()?.into()),
-            "--out" => a.out = Some(value()?.into()),
-            "--features" => a.features = Some(value()?),
-            "--bossac" => a.bossac = Some(value()?.into()),
-            "--elf" => a.elf = Some(value()?.into()),
-            "--wait" => a.wait = Duration::from_secs(value()?.parse().map_err(|_| "--wait needs a number of seconds")?),
-            "--dry-run" => a.dry_run = true,
-            "-h" | "--help" => {
-                println!("{USAGE}");
-                std::process::exit(0);
-            }
-            s => return Err(format!("unknown argument {s:?}\n\n{USAGE}")),
-        }
-    }
-    if a.port.is_none() && a.bin_only.is_none() {
-        return Err(format!("give --port PORT (flash the board) or --bin-only OUT.bin\n\n{USAGE}"));
-    }
-    if a.bin_only.is_some() && a.out.is_some() {
-        return Err("--bin-only OUT already says where the .bin goes: drop --out".into());
-    }
-    if a.elf.is_some() && a.features.is_some() {
-        return Err("--features builds the firmware, --elf skips the build: give one of them".into());
-    }
-    Ok(a)
+    /// How long to wait for PORT to appear after the double tap (s).
+    #[arg(long = "wait", value_name = "SECS", default_value_t = 30)]
+    wait_s: u64,
 }
 
 fn fail(msg: impl std::fmt::Display) -> ExitCode {
@@ -450,13 +406,8 @@ fn fail(msg: impl std::fmt::Display) -> ExitCode {
 }
 
 fn main() -> ExitCode {
-    let a = match parse_args() {
-        Ok(a) => a,
-        Err(e) => {
-            eprintln!("flash-usb: {e}");
-            return ExitCode::from(2);
-        }
-    };
+    let a = Args::parse_from(host_tests::cli_args());
+    let wait = Duration::from_secs(a.wait_s);
     let elf = match &a.elf {
         Some(p) => p.clone(),
         None => match build_firmware(a.features.as_deref()) {
@@ -510,7 +461,7 @@ fn main() -> ExitCode {
         let mut s = String::new();
         let _ = std::io::stdin().lock().read_line(&mut s);
     }
-    if let Err(e) = wait_for_port(&port, a.wait) {
+    if let Err(e) = wait_for_port(&port, wait) {
         return fail(e);
     }
     eprintln!("flash-usb: {}", shell_line(&bossac, &args));

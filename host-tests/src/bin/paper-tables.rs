@@ -11,36 +11,29 @@ use host_tests::paper_model::{run, PaperCase, PaperProtocol};
 use host_tests::servo_protocol;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use clap::Parser;
 use serde_json::{json, Value};
 
+/// The paper's simulation tables reproduced with calib-core, and the estimator comparison on
+/// simulated hobby-servo rigs.
+#[derive(Parser, Debug)]
+#[command(name = "paper-tables")]
 struct Args {
+    /// Print a JSON summary of every table as the last line.
+    #[arg(long)]
     json: bool,
+    /// Runs of Tables I and II.
+    #[arg(long, default_value_t = 100)]
     runs: usize,
+    /// Runs per noise level of Table III (the paper used 100 000).
+    #[arg(long, default_value_t = 10_000)]
     noise_runs: usize,
+    /// Simulated rigs per variant of the hobby-servo comparison.
+    #[arg(long, default_value_t = 20)]
     rig_runs: usize,
+    /// Random seed.
+    #[arg(long, default_value_t = 2024)]
     seed: u64,
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut a = Args { json: false, runs: 100, noise_runs: 10_000, rig_runs: 20, seed: 2024 };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut num = |name: &str| -> Result<u64, String> {
-            it.next().and_then(|v| v.parse().ok()).ok_or_else(|| format!("{name} needs a number"))
-        };
-        match arg.as_str() {
-            "--json" => a.json = true,
-            "--runs" => a.runs = num("--runs")? as usize,
-            "--noise-runs" => a.noise_runs = num("--noise-runs")? as usize,
-            "--rig-runs" => a.rig_runs = num("--rig-runs")? as usize,
-            "--seed" => a.seed = num("--seed")?,
-            "-h" | "--help" => {
-                return Err("usage: paper-tables [--json] [--runs N] [--noise-runs N] [--rig-runs N] [--seed S]".into())
-            }
-            other => return Err(format!("unknown argument {other:?} (try --help)")),
-        }
-    }
-    Ok(a)
 }
 
 /// Runs `n` cases; returns per-axis errors `K̂ − K` and the failures by reason.
@@ -194,13 +187,7 @@ fn table3(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
 }
 
 fn main() {
-    let args = match parse_args() {
-        Ok(a) => a,
-        Err(e) => {
-            eprintln!("{e}");
-            std::process::exit(2);
-        }
-    };
+    let args = Args::parse_from(host_tests::cli_args());
     let proto = PaperProtocol::default();
     println!("paper-tables: Li et al., field calibration of triaxial MEMS gyroscopes, reproduced with calib-core");
     println!("Protocol choices the paper leaves open (ours): {} Hz sampling; {} static poses at random shaft angles,", proto.rate_hz, proto.poses);

@@ -12,6 +12,15 @@ use host_tests::sim::{Rig, RigConfig};
 use std::cell::Cell;
 use std::rc::Rc;
 
+/// The message text of a decoded log line, as `probe-rs run --log-format "{s}"` prints it
+/// (the level word dropped).
+pub fn message(line: &str) -> &str {
+    match line.split_once(' ') {
+        Some((level, m)) if ["TRACE", "DEBUG", "INFO", "WARN", "ERROR"].contains(&level) => m,
+        _ => line,
+    }
+}
+
 /// The workspace root.
 fn root() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")

@@ -100,11 +100,7 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     b.run_for(5.0);
     let bytes_per_s = (b.mcu.rtt_written() - w0) as f64 / (b.mcu.now() - t0);
     // The lines as `probe-rs run --log-format "{s}"` prints them: the message text.
-    let message = |l: &str| match l.split_once(' ') {
-        Some((level, m)) if ["TRACE", "DEBUG", "INFO", "WARN", "ERROR"].contains(&level) => m.to_string(),
-        _ => l.to_string(),
-    };
-    let text: String = b.mcu.log[before..].iter().map(|l| message(l) + "\n").collect();
+    let text: String = b.mcu.log[before..].iter().map(|l| format!("{}\n", vboard::bench::message(l))).collect();
     let log = host_tests::csvlog::parse(&text).expect("the raw log parses");
     let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t_s - log.rows[0].t_s);
     let buffer_s = gyrocal_fw::rtt::BUF_SIZE as f64 / bytes_per_s;

@@ -4,6 +4,10 @@
 //! reads the stored record back from the emulated flash and compares it with the simulator's
 //! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>`.
 //!
+//! `--raw-log OUT.csv`: the firmware's raw-log mode (a long press before the calibration, another
+//! after it) and the message text of every line from the header on written to OUT.csv, exactly
+//! what `probe-rs run --log-format "{s}" > OUT.csv` would write; `calib OUT.csv` calibrates it.
+//!
 //! `--no-probe`: nobody reads RTT until the end (no probe attached). The operator then cannot
 //! read the log and goes by the LEDs and the procedure's timeline (`Bench::calibrate_by_leds`);
 //! the result comes from the emulated flash and from what the RTT buffer holds at the end. The
@@ -14,13 +18,29 @@ use host_tests::lsm_model::Board;
 use host_tests::nor::NorSim;
 use host_tests::servo_protocol::Variant;
 use std::process::ExitCode;
-use vboard::bench::{build_firmware, Bench, Outcome};
+use clap::Parser;
+use vboard::bench::{build_firmware, message, Bench, Outcome};
+
+/// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
+#[derive(Parser, Debug)]
+#[command(name = "demo")]
+struct Args {
+    /// Seed of the simulated rig (sensor and servo errors).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Do not print the firmware's log.
+    #[arg(long)]
+    quiet: bool,
+    /// Nobody reads RTT until the end; the operator watches the LEDs.
+    #[arg(long, conflicts_with = "raw_log")]
+    no_probe: bool,
+    /// Raw-log mode: write the log lines from the header on to this file, as probe-rs would.
+    #[arg(long, value_name = "OUT.csv")]
+    raw_log: Option<String>,
+}
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let seed: u64 = args.iter().position(|a| a == "--seed").and_then(|i| args.get(i + 1)?.parse().ok()).unwrap_or(1);
-    let quiet = args.iter().any(|a| a == "--quiet");
-    let no_probe = args.iter().any(|a| a == "--no-probe");
+    let Args { seed, quiet, no_probe, raw_log } = Args::parse_from(host_tests::cli_args());
 
     println!("[demo] building the firmware (cargo build --release)");
     let elf = match build_firmware(&[]) {
@@ -44,7 +64,30 @@ fn main() -> ExitCode {
     let wall = std::time::Instant::now();
     println!("[demo] power on (seed {seed}); the button is pressed at 2 s{}", if no_probe { "; no probe: the operator watches the LEDs" } else { "" });
     bench.run_for(2.0);
+    let mut raw_text = None;
+    let raw_from = raw_log.as_ref().map(|_| {
+        println!("[demo] the button held 2.3 s: raw-log mode");
+        let at = bench.mcu.log.len();
+        bench.press(2.3);
+        bench.run_for(1.0);
+        at
+    });
     let outcome = if no_probe { bench.calibrate_by_leds(600.0) } else { bench.calibrate(600.0) };
+    if let (Some(path), Some(from)) = (&raw_log, raw_from) {
+        bench.press(2.3);
+        bench.run_for(0.5);
+        let text: String = bench.mcu.log[from..].iter().map(|l| format!("{}\n", message(l))).collect();
+        let Some(start) = text.find(calib_core::log::HEADER) else {
+            eprintln!("[demo] raw-log mode printed no header");
+            return ExitCode::from(1);
+        };
+        if let Err(e) = std::fs::write(path, &text[start..]) {
+            eprintln!("[demo] {path}: {e}");
+            return ExitCode::from(2);
+        }
+        println!("[demo] raw log written to {path} ({} lines)", text[start..].lines().count());
+        raw_text = Some(text[start..].to_string());
+    }
     println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
     bench.run_for(2.0);
     println!("[demo] reset: the firmware must load and apply the stored record");
@@ -71,6 +114,28 @@ fn main() -> ExitCode {
         None => f64::NAN,
     };
     let ok = stored.is_some() && outcome == Outcome::Done;
+    // The raw log through the offline path of `calib` (the same code): the same K as the
+    // firmware's record within 0.05 %, and within 0.1 % of the truth.
+    if let (Some(text), Some(rec)) = (&raw_text, &stored) {
+        let gyro = host_tests::csvlog::parse(text)
+            .map_err(|e| e.to_string())
+            .and_then(|l| host_tests::offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
+            .and_then(|c| c.gyro.map_err(|e| e.to_string()));
+        match gyro {
+            Ok(g) => {
+                let vs_fw = (0..3).map(|i| (g.k[i][i] / rec.gyro_k[i][i] - 1.0).abs() as f64 * 100.0).fold(0.0, f64::max);
+                let vs_truth = (0..3).map(|i| (g.k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max);
+                println!("ROUNDTRIP calib_vs_firmware_max_pct={vs_fw:.4} calib_scale_error_pct={vs_truth:.4}");
+                if vs_fw > 0.05 || vs_truth > 0.1 {
+                    return ExitCode::from(1);
+                }
+            }
+            Err(e) => {
+                println!("ROUNDTRIP failed: {e}");
+                return ExitCode::from(1);
+            }
+        }
+    }
     if no_probe {
         let tail = bench.mcu.rtt_tail();
         println!("[demo] RTT buffer at the end ({} bytes written in all, {} lines held):", bench.mcu.rtt_written(), tail.len());
