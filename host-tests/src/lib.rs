@@ -1,6 +1,8 @@
 //! Host-side companions of calib-core: a physical simulator of the calibration rig, the paper's
 //! own simulation model, and the statistics the benchmarks print.
 
+#![deny(missing_docs)]
+
 pub mod csvlog;
 pub mod lsm_model;
 pub mod moments;

@@ -58,8 +58,13 @@ pub struct Rotation {
 /// Why a log could not be calibrated.
 #[derive(Debug, Clone, PartialEq)]
 pub enum OfflineError {
-    /// A calib-core step failed; `stage` names it.
-    Calib { stage: &'static str, error: Error },
+    /// A calib-core step failed.
+    Calib {
+        /// Which step.
+        stage: &'static str,
+        /// Its error.
+        error: Error,
+    },
     /// The log has no still period to measure the gyro bias.
     NoRest,
     /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.

@@ -7,14 +7,18 @@ use nalgebra::{Unit, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
+/// Everything that defines one simulated rig: sensor, servo(s), mounting, clocks.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigConfig {
     /// Nominal output data rate (Hz): 119, 238, 476 or 952 on the LSM9DS1.
     pub odr_hz: f64,
     /// Relative ODR error: actual ODR = `odr_hz · (1 + odr_error)`.
     pub odr_error: f64,
+    /// The gyroscope's errors.
     pub gyro: GyroModel,
+    /// The accelerometer's errors.
     pub accel: AccelModel,
+    /// The rotation servo.
     pub servo: ServoModel,
     /// Shaft axis angle from world vertical (deg).
     pub shaft_tilt_deg: f64,

@@ -25,7 +25,9 @@ pub struct Sample {
     pub gyro_dps: [f32; 3],
     /// Temperature (°C) in 1/16 °C steps (16 LSB/°C).
     pub temp_c: f32,
+    /// The accelerometer reached full scale in this sample.
     pub accel_saturated: bool,
+    /// The gyroscope reached full scale in this sample.
     pub gyro_saturated: bool,
 }
 
@@ -67,6 +69,7 @@ pub struct Truth {
     pub temp_c: f64,
 }
 
+/// The simulated rig: servo(s), board attitude, sensors and clocks, sample by sample.
 #[derive(Clone)]
 pub struct Rig {
     cfg: RigConfig,
@@ -256,6 +259,7 @@ impl Rig {
         self.t_s
     }
 
+    /// The simulator's truth now: K, biases, attitude, axis (for scoring, never for the estimators).
     pub fn truth(&self) -> Truth {
         let delta_temp_c = self.cfg.temp_drift_c_per_s * self.t_s;
         Truth {
@@ -283,6 +287,7 @@ impl Rig {
         }
     }
 
+    /// The rig's configuration.
     pub fn config(&self) -> &RigConfig {
         &self.cfg
     }

@@ -7,8 +7,11 @@ use rand_distr::StandardNormal;
 /// Gyro full scale; sensitivities from the LSM9DS1 datasheet (8.75 / 17.50 / 70 mdps/LSB).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GyroRange {
+    /// ±245 °/s.
     Dps245,
+    /// ±500 °/s.
     Dps500,
+    /// ±2000 °/s.
     Dps2000,
 }
 
@@ -26,9 +29,13 @@ impl GyroRange {
 /// Accelerometer full scale; sensitivities from the LSM9DS1 datasheet (0.061 … 0.732 mg/LSB).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AccelRange {
+    /// ±2 g.
     G2,
+    /// ±4 g.
     G4,
+    /// ±8 g.
     G8,
+    /// ±16 g.
     G16,
 }
 
@@ -47,6 +54,7 @@ impl AccelRange {
 /// Gyroscope: `g = C_g ω_B + b(T) + n`, `C_g = (I + misalignment) · diag(scale)`, all in deg/s.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GyroModel {
+    /// Full scale (saturation, quantisation).
     pub range: GyroRange,
     /// Per-axis scale factors.
     pub scale: Vector3<f64>,
@@ -117,6 +125,7 @@ impl GyroModel {
 /// Accelerometer: `a = C_a f_B + o + n`, `C_a = (I + misalignment) · diag(scale)`, all in g.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AccelModel {
+    /// Full scale (saturation, quantisation).
     pub range: AccelRange,
     /// Per-axis scale factors.
     pub scale: Vector3<f64>,

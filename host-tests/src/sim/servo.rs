@@ -26,6 +26,7 @@ pub struct Vibration {
 }
 
 impl Vibration {
+    /// No vibration.
     pub const NONE: Self = Self {
         rms_deg: 0.0,
         freq_hz: 40.0,
@@ -57,6 +58,7 @@ pub struct PositionalServo {
     pub max_rate_dps: f64,
     /// Half-width of the dead band (µs of pulse): no drive while the error is smaller.
     pub deadband_us: f64,
+    /// Shaft vibration while driven.
     pub vibration: Vibration,
 }
 
@@ -105,6 +107,7 @@ pub struct ContinuousServo {
     pub deadband_us: f64,
     /// Time constant of the rate response (s).
     pub tau_s: f64,
+    /// Shaft vibration while turning.
     pub vibration: Vibration,
 }
 
@@ -143,9 +146,12 @@ impl ContinuousServo {
     }
 }
 
+/// The rotation servo: positional (angle commands) or continuous-rotation (speed commands).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ServoModel {
+    /// A positional servo.
     Positional(PositionalServo),
+    /// A continuous-rotation servo.
     Continuous(ContinuousServo),
 }
 

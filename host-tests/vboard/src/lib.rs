@@ -4,6 +4,8 @@
 //! GPL-2.0 (Unicorn's licence) applies to this crate only; the firmware and calib-core keep
 //! the project's licence.
 
+#![deny(missing_docs)]
+
 pub mod bench;
 pub mod elf;
 pub mod mcu;
