@@ -63,6 +63,19 @@ pub enum Error {
     CommandQueueFull,
     /// Not one temperature reading during the whole calibration.
     NoTemperature,
+    /// Full `K`: moves about too few rotation axes (each tilt setting's pan axis, the hinge).
+    TooFewAxes { have: u8, need: u8 },
+    /// Full `K`: the rotation axes lie (nearly) in one plane; `angle_deg` is the largest angle of
+    /// an axis from the plane of two others.
+    AxesCoplanar { angle_deg: f32, limit_deg: f32 },
+    /// Full `K`: an axis' poses do not span a plane (too few, or only two orientations), so its
+    /// direction is uncertain by `sigma_deg`.
+    AxisUndetermined { axis: u8, sigma_deg: f32, limit_deg: f32 },
+    /// Full `K`: the normal matrix has a (near) null direction, e.g. an upright bracket (vertical
+    /// pan shaft) leaves the scale across the hinge unobservable.
+    FullKUnobservable { condition: f32, limit: f32 },
+    /// Full `K`: the moves disagree with one rigid `K` (RMS residual of the move equations).
+    MovesInconsistent { residual_rms_deg: f32, limit_deg: f32 },
 }
 
 impl fmt::Display for Error {
@@ -134,6 +147,26 @@ impl fmt::Display for Error {
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::NoTemperature => f.write_str("no temperature reading during the calibration: sensor or I2C bus failing"),
+            Error::TooFewAxes { have, need } => write!(
+                f,
+                "moves about {have} rotation axes, the full K needs {need} non-coplanar: use at least 2 tilt settings with tilt moves between them"
+            ),
+            Error::AxesCoplanar { angle_deg, limit_deg } => write!(
+                f,
+                "rotation axes nearly coplanar: best axis {angle_deg:.1} deg from the plane of two others, need {limit_deg:.1} deg: add tilt moves (the hinge axis) or spread the tilt settings"
+            ),
+            Error::AxisUndetermined { axis, sigma_deg, limit_deg } => write!(
+                f,
+                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg:.2} deg > {limit_deg:.2} deg): give it at least 3 poses at distinct angles"
+            ),
+            Error::FullKUnobservable { condition, limit } => write!(
+                f,
+                "full K unobservable: normal-matrix condition {condition:.3e} > {limit:.1e} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical"
+            ),
+            Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
+                f,
+                "moves disagree with one K: residual {residual_rms_deg:.3} deg rms > {limit_deg:.3} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun"
+            ),
         }
     }
 }

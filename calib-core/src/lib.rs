@@ -11,6 +11,7 @@
 //! - [`bias`]: gyro bias at rest. [`accel`]: 6- and 9-parameter accelerometer calibration.
 //! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
 //! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
+//! - [`full`]: the full 9-parameter `K` (scale and cross-axis) from moves about non-coplanar axes.
 //! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
 //! - [`pipeline`]: the decisions the procedure and the offline tool share (fit choice, gates).
 //! - [`log`]: the recorded log's format (the firmware's raw-log mode and the offline tool).
@@ -50,6 +51,7 @@ pub mod accel;
 pub mod axis;
 pub mod bias;
 mod error;
+pub mod full;
 pub mod gyro;
 mod linalg;
 pub mod log;

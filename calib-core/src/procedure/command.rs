@@ -56,7 +56,11 @@ impl ErrorClass {
             | Error::AxisNearHorizontal { .. }
             | Error::WeakSensorAxis { .. }
             | Error::AngleSpanTooSmall { .. }
-            | Error::TooFewPoses { .. } => ErrorClass::Geometry,
+            | Error::TooFewPoses { .. }
+            | Error::TooFewAxes { .. }
+            | Error::AxesCoplanar { .. }
+            | Error::AxisUndetermined { .. }
+            | Error::FullKUnobservable { .. } => ErrorClass::Geometry,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
             Error::Storage(_) => ErrorClass::Storage,
             Error::NoTemperature => ErrorClass::Sensor,
@@ -68,7 +72,8 @@ impl ErrorClass {
             | Error::TooFewSamples { .. }
             | Error::AccelFitFailed
             | Error::ResultRejected { .. }
-            | Error::CommandQueueFull => ErrorClass::Result,
+            | Error::CommandQueueFull
+            | Error::MovesInconsistent { .. } => ErrorClass::Result,
         }
     }
 }

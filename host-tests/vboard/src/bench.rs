@@ -5,10 +5,10 @@ use crate::elf::Firmware;
 use crate::mcu::{Mcu, Stop};
 use crate::periph::Periph;
 use calib_core::record::Record;
-use host_tests::lsm_model::{Board, Lsm9ds1Model};
-use host_tests::nor::NorSim;
-use host_tests::session::handheld_attitudes;
-use host_tests::sim::{Rig, RigConfig};
+use rig_sim::lsm_model::{Board, Lsm9ds1Model};
+use rig_sim::nor::NorSim;
+use rig_sim::harness::handheld_attitudes;
+use rig_sim::sim::{Rig, RigConfig};
 use std::cell::Cell;
 use std::rc::Rc;
 

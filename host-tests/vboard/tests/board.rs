@@ -1,9 +1,9 @@
 //! The real firmware ELF on the emulated board: calibration end to end, reboot, and faults.
 
-use host_tests::lsm_model::Board;
-use host_tests::nor::NorSim;
-use host_tests::servo_protocol::Variant;
-use host_tests::sim::RigConfig;
+use rig_sim::lsm_model::Board;
+use rig_sim::nor::NorSim;
+use rig_sim::variant::Variant;
+use rig_sim::sim::RigConfig;
 use vboard::bench::{build_firmware, Bench, Outcome};
 use vboard::mcu::Stop;
 

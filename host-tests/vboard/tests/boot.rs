@@ -2,9 +2,9 @@
 //! soft reset with the watchdog running, and an RTT host that detaches. Short runs (seconds of
 //! board time, no calibration).
 
-use host_tests::lsm_model::Board;
-use host_tests::nor::NorSim;
-use host_tests::servo_protocol::Variant;
+use rig_sim::lsm_model::Board;
+use rig_sim::nor::NorSim;
+use rig_sim::variant::Variant;
 use vboard::bench::{build_firmware, Bench};
 use vboard::mcu::Stop;
 
@@ -101,7 +101,7 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     let bytes_per_s = (b.mcu.rtt_written() - w0) as f64 / (b.mcu.now() - t0);
     // The lines as `probe-rs run --log-format "{s}"` prints them: the message text.
     let text: String = b.mcu.log[before..].iter().map(|l| format!("{}\n", vboard::bench::message(l))).collect();
-    let log = host_tests::csvlog::parse(&text).expect("the raw log parses");
+    let log = calib::csvlog::parse(&text).expect("the raw log parses");
     let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t_s - log.rows[0].t_s);
     let buffer_s = gyrocal_fw::rtt::BUF_SIZE as f64 / bytes_per_s;
     println!("MEASURED raw_log_bytes_per_s={bytes_per_s:.0} rows={} sample_rate_hz={rate:.1} rtt_buffer_s={buffer_s:.3}", log.rows.len());

@@ -1,9 +1,9 @@
 //! Power cut at every step of the firmware's flash write, on the emulated board: the previous
 //! record survives and a torn one is never applied. And no sample lost at 952 Hz.
 
-use host_tests::lsm_model::Board;
-use host_tests::nor::NorSim;
-use host_tests::servo_protocol::Variant;
+use rig_sim::lsm_model::Board;
+use rig_sim::nor::NorSim;
+use rig_sim::variant::Variant;
 use vboard::bench::{build_firmware, Bench, Outcome};
 use vboard::mcu::Stop;
 

@@ -2,10 +2,10 @@
 //! register level (no firmware): fast, and each one fails if the model loses its strictness.
 
 use embedded_hal::i2c::{I2c, Operation};
-use host_tests::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
-use host_tests::nor::NorSim;
-use host_tests::servo_protocol::Variant;
-use host_tests::sim::Rig;
+use rig_sim::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
+use rig_sim::nor::NorSim;
+use rig_sim::variant::Variant;
+use rig_sim::sim::Rig;
 use std::cell::Cell;
 use std::collections::HashMap;
 use std::rc::Rc;
@@ -357,8 +357,8 @@ fn uarte_must_be_stopped_before_it_is_disabled() {
 
 fn lsm(board: Board) -> Lsm9ds1Model {
     let mut cfg = Variant::Hobby.config(31, 0);
-    cfg.gyro.range = host_tests::sim::GyroRange::Dps500;
-    cfg.accel.range = host_tests::sim::AccelRange::G2;
+    cfg.gyro.range = rig_sim::sim::GyroRange::Dps500;
+    cfg.accel.range = rig_sim::sim::AccelRange::G2;
     Lsm9ds1Model::new(Rig::new(cfg, 9), board)
 }
 

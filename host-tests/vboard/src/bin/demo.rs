@@ -14,9 +14,9 @@
 //! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
 
-use host_tests::lsm_model::Board;
-use host_tests::nor::NorSim;
-use host_tests::servo_protocol::Variant;
+use rig_sim::lsm_model::Board;
+use rig_sim::nor::NorSim;
+use rig_sim::variant::Variant;
 use std::process::ExitCode;
 use clap::Parser;
 use vboard::bench::{build_firmware, message, Bench, Outcome};
@@ -40,7 +40,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log } = Args::parse_from(host_tests::cli_args());
+    let Args { seed, quiet, no_probe, raw_log } = Args::parse_from(calib::cli_args());
 
     println!("[demo] building the firmware (cargo build --release)");
     let elf = match build_firmware(&[]) {
@@ -117,9 +117,9 @@ fn main() -> ExitCode {
     // The raw log through the offline path of `calib` (the same code): the same K as the
     // firmware's record within 0.05 %, and within 0.1 % of the truth.
     if let (Some(text), Some(rec)) = (&raw_text, &stored) {
-        let gyro = host_tests::csvlog::parse(text)
+        let gyro = calib::csvlog::parse(text)
             .map_err(|e| e.to_string())
-            .and_then(|l| host_tests::offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
+            .and_then(|l| calib::offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
             .and_then(|c| c.gyro.map_err(|e| e.to_string()));
         match gyro {
             Ok(g) => {

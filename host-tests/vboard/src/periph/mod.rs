@@ -30,8 +30,8 @@ pub use power::ResetKind;
 
 use embedded_hal::i2c::{I2c, Operation};
 use embedded_storage::nor_flash::NorFlash;
-use host_tests::lsm_model::Lsm9ds1Model;
-use host_tests::nor::NorSim;
+use rig_sim::lsm_model::Lsm9ds1Model;
+use rig_sim::nor::NorSim;
 use nrf52840_pac as pac;
 use std::cell::Cell;
 use std::rc::Rc;

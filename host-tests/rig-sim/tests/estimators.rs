@@ -233,7 +233,7 @@ proptest! {
         let minv = m.try_inverse().unwrap();
         let rot = Rotation3::from_euler_angles(roll, 0.4, -0.3);
         let mut c = AccelCalibrator::new();
-        for v in host_tests::session::icosahedron() {
+        for v in rig_sim::harness::icosahedron() {
             let f = rot * v;
             c.add_pose(f32v(minv * f + Vector3::from(o))).unwrap();
         }

@@ -6,9 +6,9 @@
 //! With `--json` the last stdout line is a JSON summary of everything printed.
 
 use calib_core::Error;
-use host_tests::moments::Moments;
-use host_tests::paper_model::{run, PaperCase, PaperProtocol};
-use host_tests::servo_protocol;
+use bench::moments::Moments;
+use bench::paper_model::{run, PaperCase, PaperProtocol};
+use bench::hobby_servo;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use clap::Parser;
@@ -187,7 +187,7 @@ fn table3(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
 }
 
 fn main() {
-    let args = Args::parse_from(host_tests::cli_args());
+    let args = Args::parse_from(calib::cli_args());
     let proto = PaperProtocol::default();
     println!("paper-tables: Li et al., field calibration of triaxial MEMS gyroscopes, reproduced with calib-core");
     println!("Protocol choices the paper leaves open (ours): {} Hz sampling; {} static poses at random shaft angles,", proto.rate_hz, proto.poses);
@@ -198,7 +198,7 @@ fn main() {
     let t1 = table1(&args, &mut rng, &proto);
     let t2 = table2(&args, &mut rng, &proto);
     let t3 = table3(&args, &mut rng, &proto);
-    let rig = servo_protocol::compare(args.rig_runs, args.seed);
+    let rig = hobby_servo::compare(args.rig_runs, args.seed);
     if args.json {
         println!("{}", json!({"seed": args.seed, "table1": t1, "table2": t2, "table3": t3, "hobby_servo": rig}));
     }

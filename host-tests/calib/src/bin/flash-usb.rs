@@ -162,7 +162,7 @@ fn check_bin(bin: &[u8], x: Extent) -> Result<(), String> {
 
 /// The workspace root (this crate is `host-tests/`).
 fn root() -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     p.canonicalize().unwrap_or(p)
 }
 
@@ -406,7 +406,7 @@ fn fail(msg: impl std::fmt::Display) -> ExitCode {
 }
 
 fn main() -> ExitCode {
-    let a = Args::parse_from(host_tests::cli_args());
+    let a = Args::parse_from(calib::cli_args());
     let wait = Duration::from_secs(a.wait_s);
     let elf = match &a.elf {
         Some(p) => p.clone(),

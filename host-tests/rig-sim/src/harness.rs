@@ -5,7 +5,7 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
-use crate::csvlog::{self, Row};
+use calib_core::log::{self, Row};
 use crate::sim::{Rig, Sample as SimSample};
 use calib_core::gyro::GyroCal;
 use calib_core::procedure::{Led, Phase, Procedure, Report, Sample, Shell};
@@ -206,10 +206,11 @@ pub fn run(
 
 /// Runs like [`run`] and records the log ([`calib_core::log`], `comments` first).
 pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Outcome) {
-    let mut text = format!("{comments}{}", csvlog::header());
+    let mut text = format!("{comments}{}\n", log::HEADER);
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
         let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
-        csvlog::format_row(&mut text, &row);
+        let _ = log::write_row(&mut text, &row);
+        text.push('\n');
     });
     (text, out)
 }

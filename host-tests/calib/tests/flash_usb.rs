@@ -267,7 +267,7 @@ fn the_release_firmware_passes_and_its_bin_starts_with_the_vector_table() {
     let o = run(&["--bin-only", bin.to_str().unwrap()], &d, &[("CARGO_TERM_COLOR", "never")]);
     assert!(o.status.success(), "flash-usb --bin-only failed");
     let b = std::fs::read(&bin).unwrap();
-    let elf_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release/gyrocal-fw");
+    let elf_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/thumbv7em-none-eabihf/release/gyrocal-fw");
     let data = std::fs::read(elf_path).unwrap();
     let h = object::elf::FileHeader32::<object::LittleEndian>::parse(&*data).unwrap();
     let e = object::LittleEndian;

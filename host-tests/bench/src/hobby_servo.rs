@@ -3,14 +3,12 @@
 //! calibrated by the 9-parameter fit on 12 hand-held poses), both gyro estimators compared.
 
 use crate::moments::Moments;
-use crate::session::{run, Faults};
-use crate::sim::{Rig, RigConfig, ServoModel};
+use rig_sim::harness::{run, Faults};
+use rig_sim::sim::{Rig, RigConfig};
+use rig_sim::variant::Variant;
 use calib_core::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Procedure, Report};
 use calib_core::Error;
-use nalgebra::Matrix3;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value};
 
 /// Both estimators' results and the truth of one trial.
@@ -48,45 +46,6 @@ pub fn trial(cfg: RigConfig, seed: u64) -> Result<Trial, Error> {
     match (result(Method::Sweep), result(Method::Paper)) {
         (Some(sweep), Some(paper)) => Ok(Trial { sweep, paper, k_true }),
         _ => Err(out.error.unwrap_or(Error::NoUsableMove)),
-    }
-}
-
-/// The rig variants of the benchmark.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Variant {
-    /// Hobby servo as drawn (angle-scale error U(−3, 3) %, offset), sensors without cross-axis
-    /// misalignment: the 6-parameter world of the paper.
-    Hobby,
-    /// The same rigs with an exact servo (no scale error, no offset).
-    ExactServo,
-    /// Hobby servo and cross-axis misalignment (gyro ±0.2°, accel ±0.1°), which a diagonal `K`
-    /// from one rotation axis cannot separate from scale.
-    HobbyMisaligned,
-}
-
-impl Variant {
-    fn name(self) -> &'static str {
-        match self {
-            Variant::Hobby => "hobby_servo",
-            Variant::ExactServo => "exact_servo",
-            Variant::HobbyMisaligned => "hobby_servo_misaligned",
-        }
-    }
-
-    /// The rig of run `run` under this variant (same draw for every variant).
-    pub fn config(self, seed: u64, run: usize) -> RigConfig {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(run as u64));
-        let mut cfg = RigConfig::realistic(&mut rng);
-        cfg.odr_error = -0.04;
-        if self != Variant::HobbyMisaligned {
-            cfg.gyro.misalignment = Matrix3::zeros();
-            cfg.accel.misalignment = Matrix3::zeros();
-        }
-        if let (Variant::ExactServo, ServoModel::Positional(p)) = (self, &mut cfg.servo) {
-            p.scale_error = 0.0;
-            p.offset_deg = 0.0;
-        }
-        cfg
     }
 }
 

@@ -4,9 +4,9 @@
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, ServoKind};
 use calib_core::record::{Record, StoreError};
 use calib_core::Error;
-use host_tests::servo_protocol::Variant;
-use host_tests::session::{run, Faults, Outcome};
-use host_tests::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
+use rig_sim::variant::Variant;
+use rig_sim::harness::{run, Faults, Outcome};
+use rig_sim::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -199,7 +199,7 @@ fn a_shell_that_never_drains_the_queue_gets_a_failure_not_lost_commands() {
     for _ in 0..10 {
         p.handle_button(t);
         let s = rig.next_sample();
-        p.handle_sample(&host_tests::session::to_input(&s));
+        p.handle_sample(&rig_sim::harness::to_input(&s));
         t = s.t_s + 10.0;
         p.handle_tick(t);
     }

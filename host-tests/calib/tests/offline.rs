@@ -2,11 +2,11 @@
 
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure};
-use host_tests::csvlog::{self, Row, HEADER};
-use host_tests::offline::{self, OfflineError};
-use host_tests::servo_protocol::Variant;
-use host_tests::session::{record_log, Faults};
-use host_tests::sim::{Rig, RigConfig, ServoModel};
+use calib::csvlog::{self, Row, HEADER};
+use calib::offline::{self, OfflineError};
+use rig_sim::variant::Variant;
+use rig_sim::harness::{record_log, Faults};
+use rig_sim::sim::{Rig, RigConfig, ServoModel};
 use std::process::Command;
 
 /// Runs the procedure on `cfg` and returns the log text and the true K diagonal.
@@ -82,13 +82,12 @@ fn calib(args: &[&str]) -> (i32, String, String) {
 }
 
 #[test]
-fn cli_simulate_then_calibrate_prints_one_json_object() {
+fn cli_calibrates_a_log_into_one_json_object_and_names_bad_input() {
     let dir = std::env::temp_dir().join(format!("calib-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let log = dir.join("sim.csv");
     let log = log.to_str().unwrap();
-    let (code, _, err) = calib(&["--simulate", log, "--seed", "5"]);
-    assert_eq!(code, 0, "{err}");
+    std::fs::write(log, simulated_log(Variant::Hobby.config(5, 0)).0).unwrap();
     let (code, out, err) = calib(&[log]);
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
@@ -124,8 +123,8 @@ fn cli_simulate_then_calibrate_prints_one_json_object() {
     assert_eq!(code, 2);
     let (code, _, _) = calib(&[log, "--method", "magic"]);
     assert_eq!(code, 2);
-    let (code, _, err) = calib(&["--simulate", log, "--seed", "abc"]);
-    assert_eq!(code, 2, "a bad value is a usage error, never a default: {err}");
+    let (code, _, err) = calib(&[log, "--columns"]);
+    assert_eq!(code, 2, "a missing value is a usage error: {err}");
     let (code, out, _) = calib(&["--help"]);
     assert_eq!(code, 0);
     assert!(out.contains("--columns") && out.contains("Exit codes"));
@@ -135,7 +134,7 @@ fn cli_simulate_then_calibrate_prints_one_json_object() {
 
 #[test]
 fn tilt_servo_logs_take_accelerometer_poses_from_the_tilt_column() {
-    use host_tests::sim::{PositionalServo, TiltStage};
+    use rig_sim::sim::{PositionalServo, TiltStage};
     use rand::SeedableRng;
     let mut cfg = Variant::Hobby.config(25, 0);
     cfg.tilt = Some(TiltStage {

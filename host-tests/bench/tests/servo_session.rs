@@ -1,8 +1,9 @@
 //! The firmware's procedure on a hobby-servo rig: the sweep estimator is
 //! immune to the servo's angle-scale error, the paper's estimator inherits it one to one.
 
-use host_tests::servo_protocol::{trial, Variant};
-use host_tests::sim::ServoModel;
+use bench::hobby_servo::trial;
+use rig_sim::variant::Variant;
+use rig_sim::sim::ServoModel;
 
 #[test]
 fn sweep_ignores_servo_scale_error_paper_inherits_it() {

@@ -1,17 +1,11 @@
-//! Host-side companions of calib-core: a physical simulator of the calibration rig, the paper's
-//! own simulation model, and the statistics the benchmarks print.
-
+//! The PC side of gyrocal: the recorded log read whole ([`csvlog`], over the format of
+//! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]). The
+//! binaries `calib` and `flash-usb` are what a user installs (`cargo install --path
+//! host-tests/calib`); nothing here depends on the simulator.
 #![deny(missing_docs)]
 
 pub mod csvlog;
-pub mod lsm_model;
-pub mod moments;
-pub mod nor;
 pub mod offline;
-pub mod paper_model;
-pub mod servo_protocol;
-pub mod session;
-pub mod sim;
 
 /// The process arguments for a clap parser, without a leading `--`: the cargo aliases
 /// (`cargo paper-tables`, `cargo demo`, …) already end with one, so `cargo demo -- --seed 2`

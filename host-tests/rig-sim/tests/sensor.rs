@@ -6,9 +6,9 @@ use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
 use gyrocal_fw::lsm9ds1::{reg, BusFault, AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
 use gyrocal_fw::stamp::Stamper;
-use host_tests::lsm_model::{Board, Lsm9ds1Model};
-use host_tests::servo_protocol::Variant;
-use host_tests::sim::{AccelRange, GyroRange, Rig};
+use rig_sim::lsm_model::{Board, Lsm9ds1Model};
+use rig_sim::variant::Variant;
+use rig_sim::sim::{AccelRange, GyroRange, Rig};
 use std::cell::RefCell;
 use std::rc::Rc;
 

@@ -1,10 +1,10 @@
-//! Physics checks of the rig simulator (host_tests::sim).
+//! Physics checks of the rig simulator (rig_sim::sim).
 
-use host_tests::sim::{
+use rig_sim::sim::{
     tilted_axis, ContinuousServo, PositionalServo, Rig, RigConfig, Sample, ServoModel, Truth,
     Vibration, G0,
 };
-use host_tests::sim::{AccelRange, GyroRange};
+use rig_sim::sim::{AccelRange, GyroRange};
 use nalgebra::{Matrix3, SymmetricEigen, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use rand::SeedableRng;

@@ -6,7 +6,7 @@ use calib_core::accel::AccelModel;
 use calib_core::gyro::Method;
 use calib_core::record::Record;
 use gyrocal_fw::storage::{Slot, Storage, StoreError};
-use host_tests::nor::{NorError, NorSim};
+use rig_sim::nor::{NorError, NorSim};
 
 fn record(seq: u32) -> Record {
     Record {

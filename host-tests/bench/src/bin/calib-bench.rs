@@ -6,12 +6,12 @@
 //! `cargo run --release -p host-tests --target host-tuple --bin calib-bench [--json] [--logs N]`
 
 use calib_core::procedure::{Config, Procedure, ServoKind};
-use host_tests::csvlog;
-use host_tests::moments::Moments;
-use host_tests::offline;
-use host_tests::servo_protocol::Variant;
-use host_tests::session::{record_log, Faults};
-use host_tests::sim::{ContinuousServo, Rig, ServoModel};
+use calib::csvlog;
+use bench::moments::Moments;
+use calib::offline;
+use rig_sim::variant::Variant;
+use rig_sim::harness::{record_log, Faults};
+use rig_sim::sim::{ContinuousServo, Rig, ServoModel};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use clap::Parser;
@@ -30,7 +30,7 @@ struct Args {
 }
 
 fn main() {
-    let args = Args::parse_from(host_tests::cli_args());
+    let args = Args::parse_from(calib::cli_args());
     let (json_out, logs) = (args.json, args.logs);
     println!("calib-bench: {logs} simulated logs per row; error of diag(K) in % against the simulator's truth");
     println!("{:<12}{:>6}{:>10}{:>10}{:>10}{:>8}", "servo", "ODR", "RMS", "max|e|", "mean", "failed");

@@ -1,0 +1,8 @@
+//! Benchmarks: the paper's own simulation model ([`paper_model`]), the hobby-servo comparison
+//! of both estimators through the firmware's procedure ([`hobby_servo`]), and the statistics
+//! they print ([`moments`]).
+#![deny(missing_docs)]
+
+pub mod hobby_servo;
+pub mod moments;
+pub mod paper_model;

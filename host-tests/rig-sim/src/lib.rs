@@ -1,0 +1,12 @@
+//! The rig, simulated: a physical simulation of the servo rig and the board's sensors
+//! ([`sim`]), register-level models of the LSM9DS1 ([`lsm_model`]) and of the NOR flash
+//! ([`nor`]) that the firmware's drivers run against, rig presets ([`variant`]), and the
+//! harness that drives calib-core's procedure on a simulated rig with a simulated operator
+//! ([`harness`]).
+#![deny(missing_docs)]
+
+pub mod harness;
+pub mod lsm_model;
+pub mod nor;
+pub mod sim;
+pub mod variant;
