@@ -203,11 +203,7 @@ pub struct SensorConfig {
 impl Default for SensorConfig {
     /// 119 Hz, ±500 °/s, ±2 g.
     fn default() -> Self {
-        Self {
-            odr: Odr::Hz119,
-            gyro: GyroScale::Dps500,
-            accel: AccelScale::G2,
-        }
+        Self { odr: Odr::Hz119, gyro: GyroScale::Dps500, accel: AccelScale::G2 }
     }
 }
 
@@ -304,22 +300,14 @@ pub struct Lsm9ds1<I> {
 }
 
 fn le3(b: &[u8; 6]) -> [i16; 3] {
-    [
-        i16::from_le_bytes([b[0], b[1]]),
-        i16::from_le_bytes([b[2], b[3]]),
-        i16::from_le_bytes([b[4], b[5]]),
-    ]
+    [i16::from_le_bytes([b[0], b[1]]), i16::from_le_bytes([b[2], b[3]]), i16::from_le_bytes([b[4], b[5]])]
 }
 
 impl<I: I2c> Lsm9ds1<I> {
     /// Checks the identity (telling a Rev2 board's BMI270 apart), resets and configures the
     /// sensor: ODR and ranges, block data update, FIFO in continuous mode. Bounded: at most
     /// [`RESET_TIMEOUT_MS`] of waiting for the reset, a fixed number of transfers otherwise.
-    pub fn init(
-        mut i2c: I,
-        cfg: SensorConfig,
-        delay: &mut impl DelayNs,
-    ) -> Result<Self, (SensorError, I)> {
+    pub fn init(mut i2c: I, cfg: SensorConfig, delay: &mut impl DelayNs) -> Result<Self, (SensorError, I)> {
         match read_reg(&mut i2c, ADDR_AG, reg::WHO_AM_I) {
             Ok(WHO_AM_I_AG) => {}
             Ok(id) => return Err((SensorError::WrongId(id), i2c)),
@@ -331,11 +319,7 @@ impl<I: I2c> Lsm9ds1<I> {
                 return Err((e, i2c));
             }
         }
-        let mut s = Self {
-            i2c,
-            cfg,
-            discard: 0,
-        };
+        let mut s = Self { i2c, cfg, discard: 0 };
         match s.configure(delay) {
             Ok(()) => Ok(s),
             Err(e) => Err((e, s.i2c)),
@@ -371,11 +355,7 @@ impl<I: I2c> Lsm9ds1<I> {
             self.write(r, v)?;
             let read = self.read(r)?;
             if read != v {
-                return Err(SensorError::ConfigMismatch {
-                    reg: r,
-                    wrote: v,
-                    read,
-                });
+                return Err(SensorError::ConfigMismatch { reg: r, wrote: v, read });
             }
         }
         // The FIFO was just enabled: its first slot is junk.
@@ -403,16 +383,12 @@ impl<I: I2c> Lsm9ds1<I> {
     }
 
     fn write(&mut self, r: u8, v: u8) -> Result<(), SensorError> {
-        self.i2c
-            .write(ADDR_AG, &[r, v])
-            .map_err(|e| SensorError::Bus(BusFault::of(e)))
+        self.i2c.write(ADDR_AG, &[r, v]).map_err(|e| SensorError::Bus(BusFault::of(e)))
     }
 
     fn read6(&mut self, r: u8) -> Result<[u8; 6], SensorError> {
         let mut b = [0u8; 6];
-        self.i2c
-            .write_read(ADDR_AG, &[r], &mut b)
-            .map_err(|e| SensorError::Bus(BusFault::of(e)))?;
+        self.i2c.write_read(ADDR_AG, &[r], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(b)
     }
 
@@ -420,10 +396,7 @@ impl<I: I2c> Lsm9ds1<I> {
     pub fn fifo_status(&mut self) -> Result<FifoStatus, SensorError> {
         let src = self.read(reg::FIFO_SRC)?;
         let level = (src & 0x3F).min(FIFO_DEPTH);
-        Ok(FifoStatus {
-            level: level.saturating_sub(self.discard),
-            overrun: src & FIFO_SRC_OVRN != 0,
-        })
+        Ok(FifoStatus { level: level.saturating_sub(self.discard), overrun: src & FIFO_SRC_OVRN != 0 })
     }
 
     /// Pops one FIFO slot (after throwing away the junk first slot, if still due): the gyro
@@ -439,18 +412,13 @@ impl<I: I2c> Lsm9ds1<I> {
     fn pop(&mut self) -> Result<RawSample, SensorError> {
         let g = self.read6(reg::OUT_X_L_G)?;
         let a = self.read6(reg::OUT_X_L_XL)?;
-        Ok(RawSample {
-            gyro: le3(&g),
-            accel: le3(&a),
-        })
+        Ok(RawSample { gyro: le3(&g), accel: le3(&a) })
     }
 
     /// Temperature (°C): 16 LSB/°C, 0 at 25 °C.
     pub fn temperature_c(&mut self) -> Result<f32, SensorError> {
         let mut b = [0u8; 2];
-        self.i2c
-            .write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b)
-            .map_err(|e| SensorError::Bus(BusFault::of(e)))?;
+        self.i2c.write_read(ADDR_AG, &[reg::OUT_TEMP_L], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(25.0 + i16::from_le_bytes(b) as f32 / 16.0)
     }
 
@@ -463,10 +431,7 @@ impl<I: I2c> Lsm9ds1<I> {
 /// Converts counts to accelerometer (g) and gyro (°/s) for `cfg`.
 pub fn convert(cfg: &SensorConfig, raw: &RawSample) -> ([f32; 3], [f32; 3]) {
     let (ga, gg) = (cfg.accel.g_per_lsb(), cfg.gyro.dps_per_lsb());
-    (
-        raw.accel.map(|c| c as f32 * ga),
-        raw.gyro.map(|c| c as f32 * gg),
-    )
+    (raw.accel.map(|c| c as f32 * ga), raw.gyro.map(|c| c as f32 * gg))
 }
 
 fn read_reg<I: I2c>(i2c: &mut I, addr: u8, r: u8) -> Result<u8, I::Error> {

@@ -19,9 +19,7 @@ use embedded_hal::i2c::{ErrorType, I2c, Operation};
 use gyrocal_fw::bootloader::FlashMap;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::{render, Lights};
-use gyrocal_fw::lsm9ds1::{
-    AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH,
-};
+use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
 use hal::gpio::{DriveConfig, Level, Output, Pin, PushPull};
@@ -50,15 +48,8 @@ const UARTE_STOP_POLLS: u32 = 20_000;
 const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
 
 /// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
-const SENSOR: SensorConfig = SensorConfig {
-    odr: if cfg!(feature = "odr952") {
-        Odr::Hz952
-    } else {
-        Odr::Hz119
-    },
-    gyro: GyroScale::Dps500,
-    accel: AccelScale::G2,
-};
+const SENSOR: SensorConfig =
+    SensorConfig { odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 }, gyro: GyroScale::Dps500, accel: AccelScale::G2 };
 
 /// The procedure's configuration: the defaults, the sensor's ranges, and with a pan/tilt gimbal
 /// (`--features tilt-servo`) the tilt servo on D10 takes the accelerometer poses.
@@ -119,11 +110,7 @@ impl Clock {
         timer.prescaler.write(|w| unsafe { w.prescaler().bits(4) });
         timer.tasks_clear.write(|w| unsafe { w.bits(1) });
         timer.tasks_start.write(|w| unsafe { w.bits(1) });
-        Self {
-            timer,
-            last: 0,
-            high: 0,
-        }
+        Self { timer, last: 0, high: 0 }
     }
 
     fn now_us(&mut self) -> u64 {
@@ -163,11 +150,7 @@ impl ErrorType for Bus {
 }
 
 impl I2c for Bus {
-    fn transaction(
-        &mut self,
-        address: u8,
-        operations: &mut [Operation<'_>],
-    ) -> Result<(), Self::Error> {
+    fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), Self::Error> {
         let r = self.0.transaction(address, operations);
         if r.is_err() {
             self.0.disable();
@@ -276,19 +259,30 @@ fn log_report(r: &Report) {
         Report::Phase(p) => defmt::info!("phase: {}", p.name()),
         Report::Bias(b) => defmt::info!(
             "gyro bias [{=f32} {=f32} {=f32}] dps, 1 sigma [{=f32} {=f32} {=f32}], {=u32} samples",
-            b.bias_dps[0], b.bias_dps[1], b.bias_dps[2], b.sigma_dps[0], b.sigma_dps[1], b.sigma_dps[2], b.samples
+            b.bias_dps[0],
+            b.bias_dps[1],
+            b.bias_dps[2],
+            b.sigma_dps[0],
+            b.sigma_dps[1],
+            b.sigma_dps[2],
+            b.samples
         ),
         Report::AccelPose { index, accel_g } => {
             defmt::info!("hand-held pose {=u8}: a = [{=f32} {=f32} {=f32}] g", index, accel_g[0], accel_g[1], accel_g[2])
         }
         Report::Accel(c) => defmt::info!(
             "accelerometer {}: | |a| - 1 | rms {=f32} g -> {=f32} g over {=u8} poses; offset [{=f32} {=f32} {=f32}] g",
-            c.model, c.rms_before_g, c.rms_after_g, c.poses, c.offset_g[0], c.offset_g[1], c.offset_g[2]
+            c.model,
+            c.rms_before_g,
+            c.rms_after_g,
+            c.poses,
+            c.offset_g[0],
+            c.offset_g[1],
+            c.offset_g[2]
         ),
-        Report::RigPose { index, servo_deg, accel_g } => defmt::info!(
-            "rig pose {=u8} at {=f32} deg: A = [{=f32} {=f32} {=f32}] g",
-            index, servo_deg, accel_g[0], accel_g[1], accel_g[2]
-        ),
+        Report::RigPose { index, servo_deg, accel_g } => {
+            defmt::info!("rig pose {=u8} at {=f32} deg: A = [{=f32} {=f32} {=f32}] g", index, servo_deg, accel_g[0], accel_g[1], accel_g[2])
+        }
         Report::Retake { index, retries } => defmt::warn!("pose {=u8} disturbed: retake {=u8}", index, retries),
         Report::Move { from, to, gyro_turn_deg } => {
             defmt::info!("move {=u8} -> {=u8}: gyro turned {=f32} deg", from, to, gyro_turn_deg)
@@ -304,7 +298,13 @@ fn log_report(r: &Report) {
         Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
         Report::Done(rec) => defmt::info!(
             "calibration done: record {=u32}, K = diag({=f32} {=f32} {=f32}), b = [{=f32} {=f32} {=f32}] dps",
-            rec.seq, rec.gyro_k[0][0], rec.gyro_k[1][1], rec.gyro_k[2][2], rec.gyro_bias_dps[0], rec.gyro_bias_dps[1], rec.gyro_bias_dps[2]
+            rec.seq,
+            rec.gyro_k[0][0],
+            rec.gyro_k[1][1],
+            rec.gyro_k[2][2],
+            rec.gyro_bias_dps[0],
+            rec.gyro_bias_dps[1],
+            rec.gyro_bias_dps[2]
         ),
         Report::Failed(e) => defmt::error!("calibration failed, nothing stored: {}", e),
     }
@@ -313,7 +313,9 @@ fn log_report(r: &Report) {
 fn sensor_error(e: &SensorError) {
     match e {
         SensorError::Rev2Bmi270 => defmt::error!("BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported"),
-        SensorError::Missing => defmt::error!("no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision"),
+        SensorError::Missing => {
+            defmt::error!("no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision")
+        }
         other => defmt::error!("LSM9DS1 error: {}", other),
     }
 }
@@ -386,19 +388,14 @@ impl Shell for Io {
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let (Some(p), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take())
-    else {
+    let (Some(p), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
         cortex_m::peripheral::SCB::sys_reset();
     };
     quiesce(&p, &mut core);
     let reset_reason = p.POWER.resetreas.read().bits();
     // SAFETY: RESETREAS bits are cleared by writing 1.
     p.POWER.resetreas.write(|w| unsafe { w.bits(reset_reason) });
-    defmt::info!(
-        "gyrocal-fw {=str}; reset reason 0x{=u32:08X}",
-        env!("CARGO_PKG_VERSION"),
-        reset_reason
-    );
+    defmt::info!("gyrocal-fw {=str}; reset reason 0x{=u32:08X}", env!("CARGO_PKG_VERSION"), reset_reason);
     if !start_hfxo(&p.CLOCK) {
         defmt::error!("the 32 MHz crystal did not start: gyro integrals would be timed by the RC oscillator (1.5 %); resetting");
         cortex_m::peripheral::SCB::sys_reset();
@@ -439,26 +436,17 @@ fn main() -> ! {
 
     // Sensor power (high drive, as Arduino's core does, against a voltage drop on the sensor
     // rail), then (after ~10 ms) the I2C pull-ups: the IMU does not answer before both.
-    let _vdd_env = p0
-        .p0_22
-        .into_push_pull_output_drive(Level::High, DriveConfig::HighDrive0HighDrive1);
+    let _vdd_env = p0.p0_22.into_push_pull_output_drive(Level::High, DriveConfig::HighDrive0HighDrive1);
     let t0 = clock.now_us();
     while clock.now_us() - t0 < 10_000 {}
     let _pullups = p1.p1_00.into_push_pull_output(Level::High);
     let t0 = clock.now_us();
     while clock.now_us() - t0 < 5_000 {}
 
-    let pins = twim::Pins {
-        scl: p0.p0_15.into_floating_input().degrade(),
-        sda: p0.p0_14.into_floating_input().degrade(),
-    };
+    let pins = twim::Pins { scl: p0.p0_15.into_floating_input().degrade(), sda: p0.p0_14.into_floating_input().degrade() };
     let mut bus = Some(Bus(Twim::new(p.TWIM0, pins, twim::Frequency::K400)));
     // SAFETY: a plain register write to the TWIM we own, before any transfer.
-    unsafe {
-        (*pac::TWIM0::ptr())
-            .frequency
-            .write(|w| w.bits(TWIM_FREQUENCY_390K))
-    };
+    unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(TWIM_FREQUENCY_390K)) };
     let sensor_cfg = SENSOR;
     let mut sensor: Option<Lsm9ds1<Bus>> = None;
 
@@ -466,14 +454,8 @@ fn main() -> ! {
     let pwm = Pwm::new(p.PWM0);
     pwm.set_prescaler(Prescaler::Div16)
         .set_max_duty(PWM_TOP)
-        .set_output_pin(
-            Channel::C0,
-            p0.p0_27.into_push_pull_output(Level::Low).degrade(),
-        )
-        .set_output_pin(
-            Channel::C1,
-            p1.p1_02.into_push_pull_output(Level::Low).degrade(),
-        );
+        .set_output_pin(Channel::C0, p0.p0_27.into_push_pull_output(Level::Low).degrade())
+        .set_output_pin(Channel::C1, p1.p1_02.into_push_pull_output(Level::Low).degrade());
     // nRF PWM sequence values: bit 15 set = falling edge first = HIGH for `duty` ticks from the
     // start of the period. nrf-hal's `set_duty_off` sets bit 15 (`set_duty_on` would invert).
     pwm.set_duty_off(Channel::C0, 0);
@@ -496,7 +478,10 @@ fn main() -> ! {
     let mut storage = match map.records_safe() {
         Ok(()) => Storage::new(hal::nvmc::Nvmc::new(p.NVMC, region)).ok(),
         Err(c) => {
-            defmt::error!("calibration records disabled: the pages at 0xF8000 may belong to the bootloader ({}); nothing will be written", c);
+            defmt::error!(
+                "calibration records disabled: the pages at 0xF8000 may belong to the bootloader ({}); nothing will be written",
+                c
+            );
             None
         }
     };

@@ -32,12 +32,7 @@ pub struct Frame {
 impl Frame {
     /// Starts a frame at the published write offset `write`.
     pub fn start(write: usize) -> Self {
-        Self {
-            start: write,
-            cursor: write,
-            len: 0,
-            overflow: false,
-        }
+        Self { start: write, cursor: write, len: 0, overflow: false }
     }
 
     /// Stages `bytes` into `buf` if the whole frame so far still fits in the space the host has
@@ -138,12 +133,7 @@ mod logger {
     static STATE: State = State {
         taken: AtomicBool::new(false),
         primask_active: UnsafeCell::new(false),
-        ring: UnsafeCell::new(Frame {
-            start: 0,
-            cursor: 0,
-            len: 0,
-            overflow: false,
-        }),
+        ring: UnsafeCell::new(Frame { start: 0, cursor: 0, len: 0, overflow: false }),
         encoder: UnsafeCell::new(defmt::Encoder::new()),
     };
 
@@ -173,8 +163,7 @@ mod logger {
             // SAFETY: taken; interrupts are disabled.
             unsafe {
                 *STATE.primask_active.get() = primask.is_active();
-                *STATE.ring.get() =
-                    Frame::start(_SEGGER_RTT.up.write.load(Ordering::Relaxed) as usize);
+                *STATE.ring.get() = Frame::start(_SEGGER_RTT.up.write.load(Ordering::Relaxed) as usize);
                 (*STATE.encoder.get()).start_frame(|b| stage(b));
             }
         }

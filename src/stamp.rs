@@ -60,10 +60,7 @@ impl Stamper {
         match self.line {
             Some((a, p)) => Batch { origin_s: a + first_index as f64 * p, period_s: p },
             // Before the fit: the newest sample at the read time, nominal spacing.
-            None => Batch {
-                origin_s: t_read_s - n.saturating_sub(1) as f64 * self.nominal_period_s,
-                period_s: self.nominal_period_s,
-            },
+            None => Batch { origin_s: t_read_s - n.saturating_sub(1) as f64 * self.nominal_period_s, period_s: self.nominal_period_s },
         }
     }
 

@@ -214,9 +214,8 @@ impl AccelCalibrator {
         if !(0..3).all(|i| m[i][i] > 0.0) || !p.iter().all(|v| v.is_finite()) {
             return Err(Error::AccelFitFailed);
         }
-        let rms = |f: &dyn Fn(&[f64; 3]) -> f64| {
-            libm::sqrt(self.poses[..self.n].iter().map(|a| f(a) * f(a)).sum::<f64>() / self.n as f64) as f32
-        };
+        let rms =
+            |f: &dyn Fn(&[f64; 3]) -> f64| libm::sqrt(self.poses[..self.n].iter().map(|a| f(a) * f(a)).sum::<f64>() / self.n as f64) as f32;
         let diag_index: [usize; 3] = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
         let mut cal = AccelCal {
             m: [[0.0; 3]; 3],
@@ -298,9 +297,18 @@ mod tests {
         let t = (1.0 + libm::sqrt(5.0)) / 2.0;
         let n = libm::sqrt(1.0 + t * t);
         let v = [
-            [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
-            [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
-            [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
+            [-1.0, t, 0.0],
+            [1.0, t, 0.0],
+            [-1.0, -t, 0.0],
+            [1.0, -t, 0.0],
+            [0.0, -1.0, t],
+            [0.0, 1.0, t],
+            [0.0, -1.0, -t],
+            [0.0, 1.0, -t],
+            [t, 0.0, -1.0],
+            [t, 0.0, 1.0],
+            [-t, 0.0, -1.0],
+            [-t, 0.0, 1.0],
         ];
         v.map(|p| [p[0] / n, p[1] / n, p[2] / n])
     }

@@ -32,13 +32,13 @@ pub struct GeometryLimits {
 impl GeometryLimits {
     /// The defaults (also as `Default`).
     pub const DEFAULT: GeometryLimits = GeometryLimits {
-            min_poses: 4,
-            min_tilt_deg: 10.0,
-            max_tilt_deg_paper: 80.0,
-            min_axis_component: 0.1,
-            min_span_deg: 90.0,
-            max_plane_rms_g: 0.01,
-        };
+        min_poses: 4,
+        min_tilt_deg: 10.0,
+        max_tilt_deg_paper: 80.0,
+        min_axis_component: 0.1,
+        min_span_deg: 90.0,
+        max_plane_rms_g: 0.01,
+    };
 }
 
 impl Default for GeometryLimits {
@@ -170,14 +170,9 @@ impl Poses {
         if plane_rms_g > limits.max_plane_rms_g as f64 {
             return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.max_plane_rms_g });
         }
-        let (axis, min_component) =
-            (0..3).map(|k| (k, u[k].abs())).fold((0, f64::INFINITY), |b, c| if c.1 < b.1 { c } else { b });
+        let (axis, min_component) = (0..3).map(|k| (k, u[k].abs())).fold((0, f64::INFINITY), |b, c| if c.1 < b.1 { c } else { b });
         if min_component < limits.min_axis_component as f64 {
-            return Err(Error::WeakSensorAxis {
-                axis: axis as u8,
-                component: min_component as f32,
-                min: limits.min_axis_component,
-            });
+            return Err(Error::WeakSensorAxis { axis: axis as u8, component: min_component as f32, min: limits.min_axis_component });
         }
         if paper && tilt_deg > limits.max_tilt_deg_paper as f64 {
             return Err(Error::AxisNearHorizontal { tilt_deg: tilt_deg as f32, limit_deg: limits.max_tilt_deg_paper });
@@ -253,10 +248,7 @@ mod tests {
         assert!(matches!(mk(axis(), 0.7, 5.0, 6).geometry(&lim, false), Err(Error::AngleSpanTooSmall { .. })));
         assert!(matches!(mk(axis(), 0.7, 30.0, 3).geometry(&lim, false), Err(Error::TooFewPoses { .. })));
         let weak = Vector3::new(0.05, 0.7, 0.7).normalize();
-        assert!(matches!(
-            mk(weak, 0.7, 30.0, 6).geometry(&lim, false),
-            Err(Error::WeakSensorAxis { axis: 0, .. })
-        ));
+        assert!(matches!(mk(weak, 0.7, 30.0, 6).geometry(&lim, false), Err(Error::WeakSensorAxis { axis: 0, .. })));
         assert!(matches!(mk(axis(), 1.5, 30.0, 6).geometry(&lim, true), Err(Error::AxisNearHorizontal { .. })));
         assert!(mk(axis(), 1.5, 30.0, 6).geometry(&lim, false).is_ok());
     }

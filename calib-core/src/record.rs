@@ -101,7 +101,13 @@ pub struct Record {
 impl Record {
     /// The accelerometer part as a calibration to apply.
     pub fn accel(&self) -> AccelCal {
-        AccelCal { m: self.accel_m, offset_g: self.accel_offset_g, model: self.accel_model, rms_after_g: self.accel_rms_g, ..AccelCal::IDENTITY }
+        AccelCal {
+            m: self.accel_m,
+            offset_g: self.accel_offset_g,
+            model: self.accel_model,
+            rms_after_g: self.accel_rms_g,
+            ..AccelCal::IDENTITY
+        }
     }
 
     /// Calibrated rate `K (g − b)` (°/s) from a raw gyro reading (°/s).
@@ -136,14 +142,7 @@ impl Record {
         w.f32s(self.accel_m.as_flattened());
         w.f32s(&self.accel_offset_g);
         w.f32s(&self.sigma_k);
-        w.f32s(&[
-            self.invariant_before_rel,
-            self.invariant_after_rel,
-            self.condition,
-            self.tilt_deg,
-            self.span_deg,
-            self.accel_rms_g,
-        ]);
+        w.f32s(&[self.invariant_before_rel, self.invariant_after_rel, self.condition, self.tilt_deg, self.span_deg, self.accel_rms_g]);
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
         w.buf

@@ -27,7 +27,8 @@ pub struct RestConfig {
 impl RestConfig {
     /// For the LSM9DS1 at 119–952 Hz: noise ≈ 1–3 mg and 0.1–0.3 °/s rms.
     /// The defaults (also as `Default`).
-    pub const DEFAULT: RestConfig = RestConfig { window_s: 0.25, hold_s: 0.5, accel_std_max_g: 0.006, gyro_std_max_dps: 0.8, accel_drift_max_g: 0.004 };
+    pub const DEFAULT: RestConfig =
+        RestConfig { window_s: 0.25, hold_s: 0.5, accel_std_max_g: 0.006, gyro_std_max_dps: 0.8, accel_drift_max_g: 0.004 };
 }
 
 impl Default for RestConfig {

@@ -152,19 +152,38 @@ impl Ramp {
 enum Step {
     Idle,
     WaitRest,
-    Bias { capture: Capture },
-    HandHeld { capture: Capture },
+    Bias {
+        capture: Capture,
+    },
+    HandHeld {
+        capture: Capture,
+    },
     /// Capturing tilt-servo accelerometer pose `n`, commanded at `since`.
-    TiltPose { n: u8, capture: Capture, since: f64 },
+    TiltPose {
+        n: u8,
+        capture: Capture,
+        since: f64,
+    },
     Reattach,
     /// Moving to rig step `k` (started at `t0`).
-    Move { k: u16, ramp: Ramp },
+    Move {
+        k: u16,
+        ramp: Ramp,
+    },
     /// Capturing rig step `k`.
-    Pose { k: u16, capture: Capture, since: f64 },
+    Pose {
+        k: u16,
+        capture: Capture,
+        since: f64,
+    },
     /// The paper's constant-rate rotation.
-    Rotation { rot: Rotation },
+    Rotation {
+        rot: Rotation,
+    },
     /// `record` was handed to the shell to store; waiting for [`Procedure::handle_stored`].
-    Storing { record: Record },
+    Storing {
+        record: Record,
+    },
     Finished(Phase),
 }
 
@@ -260,7 +279,6 @@ impl Procedure {
             temp: Welford3::new(),
         }
     }
-
 
     /// The current phase.
     pub fn phase(&self) -> Phase {
@@ -413,9 +431,7 @@ impl Procedure {
                 if let Some(w) = window {
                     match capture.feed(&w, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Pending => self.step = Step::Pose { k, capture, since },
-                        CaptureStep::Disturbed => {
-                            self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since })
-                        }
+                        CaptureStep::Disturbed => self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since }),
                         CaptureStep::Done => self.finish_pose(k, &capture, s),
                     }
                 }
@@ -504,9 +520,7 @@ impl Procedure {
     fn start_ramp(&mut self, t_s: f64, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
         let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
         match self.cfg.servo {
-            ServoKind::Positional => {
-                Ramp { from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 }
-            }
+            ServoKind::Positional => Ramp { from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 },
             ServoKind::Continuous { neutral_us, span_us, speed, nominal_rate_dps, .. } => {
                 let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
                 self.push(Command::Servo { channel: 0, pulse_us: pulse });
@@ -699,8 +713,7 @@ impl Procedure {
             let ramp = self.start_ramp(s.t_s, self.cfg.step_deg(next), self.cfg.move_rate_dps, dir, move_s);
             self.step = Step::Move { k: next, ramp };
         } else if self.cfg.rotation_rate_dps > 0.0 {
-            let ramp =
-                self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
+            let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
             let rot = Rotation {
                 ramp,
                 axis: self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u),
@@ -816,4 +829,3 @@ impl Procedure {
         })
     }
 }
-

@@ -3,12 +3,12 @@
 //! calibrated by the 9-parameter fit on 12 hand-held poses), both gyro estimators compared.
 
 use crate::moments::Moments;
-use rig_sim::harness::{run, Faults};
-use rig_sim::sim::{Rig, RigConfig};
-use rig_sim::variant::Variant;
 use calib_core::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Procedure, Report};
 use calib_core::Error;
+use rig_sim::harness::{run, Faults};
+use rig_sim::sim::{Rig, RigConfig};
+use rig_sim::variant::Variant;
 use serde_json::{json, Value};
 
 /// Both estimators' results and the truth of one trial.

@@ -110,10 +110,7 @@ fn random_axis(rng: &mut impl Rng, min_component: f64) -> Vector3<f64> {
 pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Result<[f64; 3], Error> {
     let (u, tilt) = match case.geometry {
         Some((axis, tilt_deg)) => (Vector3::from(axis).normalize(), tilt_deg.to_radians()),
-        None => (
-            random_axis(rng, proto.min_axis_component),
-            rng.random_range(proto.tilt_deg.0..proto.tilt_deg.1).to_radians(),
-        ),
+        None => (random_axis(rng, proto.min_axis_component), rng.random_range(proto.tilt_deg.0..proto.tilt_deg.1).to_radians()),
     };
     let side = u.cross(&random_axis(rng, 0.0)).normalize();
     let up0 = Rotation3::from_axis_angle(&Unit::new_normalize(side), tilt) * u;
@@ -151,8 +148,7 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
         for _ in 0..proto.rest_samples {
             b.add(gyro(Vector3::zeros(), rng), accel(up0, rng));
         }
-        b.finish(&BiasLimits { min_samples: 10, max_std_dps: 100.0, max_accel_std_g: 1.0, ..BiasLimits::default() })?
-            .bias_dps
+        b.finish(&BiasLimits { min_samples: 10, max_std_dps: 100.0, max_accel_std_g: 1.0, ..BiasLimits::default() })?.bias_dps
     };
     let mut poses = Poses::new();
     for _ in 0..proto.poses {

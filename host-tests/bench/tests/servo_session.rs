@@ -2,8 +2,8 @@
 //! immune to the servo's angle-scale error, the paper's estimator inherits it one to one.
 
 use bench::hobby_servo::trial;
-use rig_sim::variant::Variant;
 use rig_sim::sim::ServoModel;
+use rig_sim::variant::Variant;
 
 #[test]
 fn sweep_ignores_servo_scale_error_paper_inherits_it() {

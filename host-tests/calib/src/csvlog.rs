@@ -1,8 +1,8 @@
 //! Whole logs on the PC: the format itself ([`calib_core::log`]) is shared with the firmware's
 //! raw-log mode; this adds reading a whole text into rows and writing one.
 
-pub use calib_core::log::{LogError, Row, HEADER};
 use calib_core::log::{self, Line};
+pub use calib_core::log::{LogError, Row, HEADER};
 
 /// A parsed log.
 #[derive(Debug, Clone, PartialEq)]
@@ -72,7 +72,8 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
     let mut map: Vec<(usize, Source)> = vec![];
     for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
         let (col, src) = item.split_once('=').ok_or(format!("--columns: {item:?} is not COLUMN=SOURCE"))?;
-        let at = log::COLUMNS.iter().position(|c| *c == col.trim()).ok_or(format!("--columns: unknown column {col:?} (one of {HEADER})"))?;
+        let at =
+            log::COLUMNS.iter().position(|c| *c == col.trim()).ok_or(format!("--columns: unknown column {col:?} (one of {HEADER})"))?;
         let (name, factor) = match src.find(['*', '/']) {
             Some(i) => {
                 let f: f64 = src[i + 1..].trim().parse().map_err(|_| format!("--columns: {:?} is not a number", &src[i + 1..]))?;

@@ -11,14 +11,14 @@ use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
 use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
+use calib_core::procedure::Config;
 use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
-use calib_core::procedure::Config;
 use calib_core::{paper, pipeline, sweep, Error};
-use nalgebra::Vector3;
 use calib_core::{Mat3, Vec3};
+use nalgebra::Vector3;
 use serde::Serialize;
 
 /// A still segment: consecutive still windows.
@@ -97,9 +97,7 @@ impl std::fmt::Display for OfflineError {
         match self {
             OfflineError::Calib { stage, error } => write!(f, "{stage}: {error}"),
             OfflineError::NoRest => f.write_str("no still period in the log: cannot measure the gyro bias"),
-            OfflineError::NoRotation => {
-                f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run")
-            }
+            OfflineError::NoRotation => f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run"),
             OfflineError::TimeBase { rate_hz, hint } => write!(f, "sample rate {rate_hz:.4} Hz is not an LSM9DS1 output data rate: {hint}"),
             OfflineError::AccelUnits { norm, hint } => write!(f, "the accelerometer reads {norm:.3} at rest, not 1 g: {hint}"),
             OfflineError::GyroUnits { k, hint } => write!(f, "gyro scale factor {k:.3}: {hint}"),
@@ -240,8 +238,7 @@ fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) 
 pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<Rotation> {
     let windows = window_len(rows, RestConfig::default().window_s as f64);
     let b = v64(bias_dps);
-    let means: Vec<Vector3<f64>> =
-        windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
+    let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
     let mut best: Option<(usize, usize)> = None;
     let mut i = 0;
     while i < means.len() {
@@ -368,12 +365,8 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     for s in &ph.segments {
         b.add_window(&s.gyro, &s.accel);
     }
-    let limits = BiasLimits {
-        min_samples: 20,
-        max_std_dps: ph.rest.gyro_std_max_dps,
-        max_accel_std_g: f32::INFINITY,
-        ..BiasLimits::default()
-    };
+    let limits =
+        BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..BiasLimits::default() };
     let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
 
     // Accelerometer from the hand-held poses.
@@ -483,7 +476,6 @@ fn servo_rate(rows: &[Row]) -> Option<f32> {
     let rms = (pts.iter().map(|p| (p.1 - ms - slope * (p.0 - mt)).powi(2)).sum::<f64>() / n).sqrt();
     (rms < 0.5 && slope.abs() > MIN_ROTATION_DPS).then_some(slope.abs() as f32)
 }
-
 
 /// The tool's JSON output: the calibration to apply, then everything about its quality.
 #[derive(Debug, Clone, Serialize)]

@@ -1,12 +1,12 @@
 //! The offline `calib` tool: logs written from simulated runs, calibrated back; bad logs named.
 
-use calib_core::gyro::Method;
-use calib_core::procedure::{Config, Procedure};
 use calib::csvlog::{self, Row, HEADER};
 use calib::offline::{self, OfflineError};
-use rig_sim::variant::Variant;
+use calib_core::gyro::Method;
+use calib_core::procedure::{Config, Procedure};
 use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::{Rig, RigConfig, ServoModel};
+use rig_sim::variant::Variant;
 use std::process::Command;
 
 /// Runs the procedure on `cfg` and returns the log text and the true K diagonal.
@@ -134,13 +134,10 @@ fn cli_calibrates_a_log_into_one_json_object_and_names_bad_input() {
 
 #[test]
 fn tilt_servo_logs_take_accelerometer_poses_from_the_tilt_column() {
-    use rig_sim::sim::{PositionalServo, TiltStage};
     use rand::SeedableRng;
+    use rig_sim::sim::{PositionalServo, TiltStage};
     let mut cfg = Variant::Hobby.config(25, 0);
-    cfg.tilt = Some(TiltStage {
-        servo: PositionalServo::realistic(&mut rand_chacha::ChaCha8Rng::seed_from_u64(25)),
-        hinge_deg: 60.0,
-    });
+    cfg.tilt = Some(TiltStage { servo: PositionalServo::realistic(&mut rand_chacha::ChaCha8Rng::seed_from_u64(25)), hinge_deg: 60.0 });
     let mut rig = Rig::new(cfg, 3);
     let mut p = Procedure::new(Config { tilt_accel: true, ..Config::default() }, None);
     let (log, out) = record_log(&mut rig, &mut p, Faults::default(), "");
@@ -177,37 +174,50 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
         p.to_str().unwrap().to_string()
     };
     // Time in milliseconds: named, never a wrong K.
-    let ms = write("ms.csv", &rewrite(&log, |r| {
-        r.t_s *= 1000.0;
-        true
-    }));
+    let ms = write(
+        "ms.csv",
+        &rewrite(&log, |r| {
+            r.t_s *= 1000.0;
+            true
+        }),
+    );
     let (code, out, err) = calib(&[&ms]);
     assert_eq!((code, out.as_str()), (1, ""), "{err}");
     assert!(err.contains("milliseconds"), "{err}");
     // Gyro in rad/s: named.
-    let rad = write("rad.csv", &rewrite(&log, |r| {
-        r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
-        true
-    }));
+    let rad = write(
+        "rad.csv",
+        &rewrite(&log, |r| {
+            r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
+            true
+        }),
+    );
     let (code, _, err) = calib(&[&rad]);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("rad/s") && err.contains("57.29578"), "{err}");
     // Accelerometer in m/s²: named.
-    let ms2 = write("ms2.csv", &rewrite(&log, |r| {
-        r.accel_g = r.accel_g.map(|a| a * 9.80665);
-        true
-    }));
+    let ms2 = write(
+        "ms2.csv",
+        &rewrite(&log, |r| {
+            r.accel_g = r.accel_g.map(|a| a * 9.80665);
+            true
+        }),
+    );
     let (code, _, err) = calib(&[&ms2]);
     assert_eq!(code, 1);
     assert!(err.contains("m/s²"), "{err}");
     // The same two mistakes converted with --columns: the same K as the log in our units.
     let (code, good, _) = calib(&[write("good.csv", &log).as_str()]);
     assert_eq!(code, 0);
-    let both = write("both.csv", &rewrite(&log, |r| {
-        r.accel_g = r.accel_g.map(|a| a * 9.80665);
-        r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
-        true
-    }).replacen("ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps", "ax,ay,az,wx,wy,wz", 1));
+    let both = write(
+        "both.csv",
+        &rewrite(&log, |r| {
+            r.accel_g = r.accel_g.map(|a| a * 9.80665);
+            r.gyro_dps = r.gyro_dps.map(|g| g.to_radians());
+            true
+        })
+        .replacen("ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps", "ax,ay,az,wx,wy,wz", 1),
+    );
     let map = "ax_g=ax/9.80665,ay_g=ay/9.80665,az_g=az/9.80665,gx_dps=wx*57.29577951308232,gy_dps=wy*57.29577951308232,gz_dps=wz*57.29577951308232";
     let (code, conv, err) = calib(&[&both, "--columns", map]);
     assert_eq!(code, 0, "{err}");

@@ -5,9 +5,9 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
-use calib_core::log::{self, Row};
 use crate::sim::{Rig, Sample as SimSample};
 use calib_core::gyro::GyroCal;
+use calib_core::log::{self, Row};
 use calib_core::procedure::{Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::record::{Record, StoreError};
 use calib_core::Error;
@@ -59,9 +59,18 @@ impl Outcome {
 pub fn icosahedron() -> [Vector3<f64>; 12] {
     let phi = (1.0 + 5f64.sqrt()) / 2.0;
     [
-        [-1.0, phi, 0.0], [1.0, phi, 0.0], [-1.0, -phi, 0.0], [1.0, -phi, 0.0],
-        [0.0, -1.0, phi], [0.0, 1.0, phi], [0.0, -1.0, -phi], [0.0, 1.0, -phi],
-        [phi, 0.0, -1.0], [phi, 0.0, 1.0], [-phi, 0.0, -1.0], [-phi, 0.0, 1.0],
+        [-1.0, phi, 0.0],
+        [1.0, phi, 0.0],
+        [-1.0, -phi, 0.0],
+        [1.0, -phi, 0.0],
+        [0.0, -1.0, phi],
+        [0.0, 1.0, phi],
+        [0.0, -1.0, -phi],
+        [0.0, 1.0, -phi],
+        [phi, 0.0, -1.0],
+        [phi, 0.0, 1.0],
+        [-phi, 0.0, -1.0],
+        [-phi, 0.0, 1.0],
     ]
     .map(|v| Vector3::from(v).normalize())
 }
@@ -69,12 +78,12 @@ pub fn icosahedron() -> [Vector3<f64>; 12] {
 /// Board attitudes (body → world) that point each icosahedron vertex up.
 pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
     icosahedron()
-    .iter()
-    .map(|v| {
-        UnitQuaternion::rotation_between(v, &Vector3::z())
-            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI))
-    })
-    .collect()
+        .iter()
+        .map(|v| {
+            UnitQuaternion::rotation_between(v, &Vector3::z())
+                .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI))
+        })
+        .collect()
 }
 
 /// Converts a simulator sample to the procedure's input.
@@ -162,7 +171,16 @@ pub fn run(
     let mut last_bump = f64::NEG_INFINITY;
     let mut started = false;
     let mut samples = 0;
-    let mut b = SimBoard { rig, out: &mut out, faults, attitudes: handheld_attitudes(), next_pose: 0, handheld: false, press_at: Some(1.0), t: 0.0 };
+    let mut b = SimBoard {
+        rig,
+        out: &mut out,
+        faults,
+        attitudes: handheld_attitudes(),
+        next_pose: 0,
+        handheld: false,
+        press_at: Some(1.0),
+        t: 0.0,
+    };
     while b.t < max_s {
         let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);
         if stopped {

@@ -355,10 +355,15 @@ impl I2c for Lsm9ds1Model {
             self.advance_to(c.get());
         }
         if let Some(hz) = self.bus_hz {
-            let bytes: usize = operations.iter().map(|op| 1 + match op {
-                Operation::Write(b) => b.len(),
-                Operation::Read(b) => b.len(),
-            }).sum();
+            let bytes: usize = operations
+                .iter()
+                .map(|op| {
+                    1 + match op {
+                        Operation::Write(b) => b.len(),
+                        Operation::Read(b) => b.len(),
+                    }
+                })
+                .sum();
             let t = self.now_s + bytes as f64 * 9.0 / hz;
             self.advance_to(t);
         }

@@ -10,9 +10,11 @@ fn simulate_writes_a_log_of_the_shared_format() {
     let text = std::fs::read_to_string(&path).unwrap();
     let header = text.lines().find(|l| is_header(l)).expect("a header");
     let cols = parse_header(header).unwrap();
-    let rows = text.lines().skip_while(|l| !is_header(l)).skip(1).enumerate().filter_map(|(i, l)| match parse_line(l, &cols, i as u32 + 2).unwrap() {
-        Line::Row(r) => Some(r),
-        _ => None,
+    let rows = text.lines().skip_while(|l| !is_header(l)).skip(1).enumerate().filter_map(|(i, l)| {
+        match parse_line(l, &cols, i as u32 + 2).unwrap() {
+            Line::Row(r) => Some(r),
+            _ => None,
+        }
     });
     let (n, handheld) = rows.fold((0, 0), |(n, h), r| (n + 1, h + usize::from(r.servo_deg.is_none())));
     assert!(n > 5000 && handheld > 1000, "{n} rows, {handheld} hand-held");

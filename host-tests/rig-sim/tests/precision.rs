@@ -18,11 +18,7 @@ fn bias_mean_over_100k_samples_matches_f64() {
     let mut est = BiasEstimator::new();
     let (mut sum64, mut sum32) = ([0.0f64; 3], [0.0f32; 3]);
     for _ in 0..N {
-        let g: [f32; 3] = [
-            27.3 + rng.random_range(-0.3..0.3),
-            -11.1 + rng.random_range(-0.3..0.3),
-            0.7 + rng.random_range(-0.3..0.3),
-        ];
+        let g: [f32; 3] = [27.3 + rng.random_range(-0.3..0.3), -11.1 + rng.random_range(-0.3..0.3), 0.7 + rng.random_range(-0.3..0.3)];
         est.add(g, [0.0, 0.0, 1.0]);
         for k in 0..3 {
             sum64[k] += g[k] as f64;
@@ -45,11 +41,7 @@ fn gyro_integral_over_100k_samples_matches_f64() {
     let mut ref64 = [0.0f64; 3];
     for _ in 0..N {
         t += 1.0 / 952.0 * (1.0 + rng.random_range(-0.01..0.01));
-        let g: [f32; 3] = [
-            21.7 + rng.random_range(-0.5..0.5),
-            -8.9 + rng.random_range(-0.5..0.5),
-            13.3 + rng.random_range(-0.5..0.5),
-        ];
+        let g: [f32; 3] = [21.7 + rng.random_range(-0.5..0.5), -8.9 + rng.random_range(-0.5..0.5), 13.3 + rng.random_range(-0.5..0.5)];
         it.add(t, g);
         if let Some((t0, g0)) = prev {
             for k in 0..3 {
@@ -78,10 +70,8 @@ fn sweep_result_matches_an_f64_reference() {
     let up = Rotation3::from_axis_angle(&Unit::new_normalize(e1), -0.8) * u;
     let mut noisy = |v: Vector3<f64>, s: f64| v.map(|c| (c + rng.random_range(-s..s)) as f32);
     let angles = [0.0f64, 30.0, 60.0, 90.0, 120.0, 150.0];
-    let pose: Vec<[f32; 3]> = angles
-        .iter()
-        .map(|a| noisy(Rotation3::from_axis_angle(&Unit::new_normalize(u), -a.to_radians()) * up, 1e-3).into())
-        .collect();
+    let pose: Vec<[f32; 3]> =
+        angles.iter().map(|a| noisy(Rotation3::from_axis_angle(&Unit::new_normalize(u), -a.to_radians()) * up, 1e-3).into()).collect();
     let mut poses = Poses::new();
     for p in &pose {
         poses.push(*p).unwrap();

@@ -4,11 +4,11 @@
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, ServoKind};
 use calib_core::record::{Record, StoreError};
 use calib_core::Error;
-use rig_sim::variant::Variant;
-use rig_sim::harness::{run, Faults, Outcome};
-use rig_sim::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rig_sim::harness::{run, Faults, Outcome};
+use rig_sim::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
+use rig_sim::variant::Variant;
 
 fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Outcome, Rig) {
     let mut rig = Rig::new(cfg, 5);
@@ -61,10 +61,7 @@ fn continuous_rotation_servo() {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut cfg = Variant::Hobby.config(13, seed as usize);
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut rng));
-        let pcfg = Config {
-            servo: ServoKind::CONTINUOUS,
-            ..Config::default()
-        };
+        let pcfg = Config { servo: ServoKind::CONTINUOUS, ..Config::default() };
         let (out, rig) = calibrate(cfg, pcfg, None, Faults::default());
         assert_eq!(out.error, None, "{:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>());
         let err = max_rel_error(&out.stored[0], &rig);

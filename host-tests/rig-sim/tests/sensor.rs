@@ -4,11 +4,11 @@
 use calib_core::procedure::{ErrorClass, Led, Phase};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
-use gyrocal_fw::lsm9ds1::{reg, BusFault, AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
+use gyrocal_fw::lsm9ds1::{reg, AccelScale, BusFault, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
 use gyrocal_fw::stamp::Stamper;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
-use rig_sim::variant::Variant;
 use rig_sim::sim::{AccelRange, GyroRange, Rig};
+use rig_sim::variant::Variant;
 use std::cell::RefCell;
 use std::rc::Rc;
 

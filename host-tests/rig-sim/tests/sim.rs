@@ -1,14 +1,11 @@
 //! Physics checks of the rig simulator (rig_sim::sim).
 
-use rig_sim::sim::{
-    tilted_axis, ContinuousServo, PositionalServo, Rig, RigConfig, Sample, ServoModel, Truth,
-    Vibration, G0,
-};
-use rig_sim::sim::{AccelRange, GyroRange};
 use nalgebra::{Matrix3, SymmetricEigen, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rig_sim::sim::{tilted_axis, ContinuousServo, PositionalServo, Rig, RigConfig, Sample, ServoModel, Truth, Vibration, G0};
+use rig_sim::sim::{AccelRange, GyroRange};
 
 fn v3(a: [f32; 3]) -> Vector3<f64> {
     Vector3::new(f64::from(a[0]), f64::from(a[1]), f64::from(a[2]))
@@ -50,10 +47,7 @@ fn angle_about(a: &Vector3<f64>, b: &Vector3<f64>, u: &Vector3<f64>) -> f64 {
 }
 
 fn with_servo(servo: ServoModel) -> RigConfig {
-    RigConfig {
-        servo,
-        ..RigConfig::ideal()
-    }
+    RigConfig { servo, ..RigConfig::ideal() }
 }
 
 #[test]
@@ -97,15 +91,10 @@ fn ideal_rig_at_rest_measures_gravity() {
 #[test]
 fn integrated_ideal_gyro_equals_shaft_turn() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let servos = [
-        ServoModel::Positional(PositionalServo::realistic(&mut rng)),
-        ServoModel::Continuous(ContinuousServo::realistic(&mut rng)),
-    ];
+    let servos =
+        [ServoModel::Positional(PositionalServo::realistic(&mut rng)), ServoModel::Continuous(ContinuousServo::realistic(&mut rng))];
     for servo in servos {
-        let cfg = RigConfig {
-            radius_m: 0.02,
-            ..with_servo(servo)
-        };
+        let cfg = RigConfig { radius_m: 0.02, ..with_servo(servo) };
         let mut rig = Rig::new(cfg, 5);
         rig.set_pulse_us(1100.0);
         run(&mut rig, 1.0);
@@ -120,19 +109,10 @@ fn integrated_ideal_gyro_equals_shaft_turn() {
         }
         let truth = rig.truth();
         let turn = (truth.shaft_deg - theta0) * truth.axis_b;
-        assert!(
-            turn.norm() > 90.0 && max_rate > 50.0,
-            "the shaft must have moved: {turn}"
-        );
+        assert!(turn.norm() > 90.0 && max_rate > 50.0, "the shaft must have moved: {turn}");
         assert_eq!(axis0, truth.axis_b);
-        assert!(
-            (exact - turn).norm() < 1e-9 * turn.norm(),
-            "{exact} vs {turn}"
-        );
-        assert!(
-            (sampled - turn).norm() < 1e-6 * turn.norm(),
-            "{sampled} vs {turn}"
-        );
+        assert!((exact - turn).norm() < 1e-9 * turn.norm(), "{exact} vs {turn}");
+        assert!((sampled - turn).norm() < 1e-6 * turn.norm(), "{sampled} vs {turn}");
     }
 }
 
@@ -140,10 +120,7 @@ fn integrated_ideal_gyro_equals_shaft_turn() {
 /// a disturbance, a hand-held pose and re-attachment.
 #[test]
 fn integrated_ideal_gyro_reproduces_attitude() {
-    let mut rig = Rig::new(
-        with_servo(ServoModel::Positional(PositionalServo::ideal())),
-        9,
-    );
+    let mut rig = Rig::new(with_servo(ServoModel::Positional(PositionalServo::ideal())), 9);
     let mut q = rig.truth().q_wb;
     let mut step = |rig: &mut Rig, seconds: f64| {
         for (_, t) in record(rig, seconds) {
@@ -183,38 +160,22 @@ fn poses_on_the_shaft_lie_on_a_cone_about_the_axis() {
     assert!((u - cfg.axis_b()).norm() < 1e-15 && (u.norm() - 1.0).abs() < 1e-15);
 
     let centre = tips.iter().sum::<Vector3<f64>>() / tips.len() as f64;
-    let scatter: Matrix3<f64> = tips
-        .iter()
-        .map(|a| (a - centre) * (a - centre).transpose())
-        .sum();
+    let scatter: Matrix3<f64> = tips.iter().map(|a| (a - centre) * (a - centre).transpose()).sum();
     let eig = SymmetricEigen::new(scatter);
     let normal = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
-    assert!(
-        normal.cross(&u).norm() < 1e-5,
-        "plane normal {normal} vs axis {u}"
-    );
+    assert!(normal.cross(&u).norm() < 1e-5, "plane normal {normal} vs axis {u}");
 
     let cos_tilt = cfg.shaft_tilt_deg.to_radians().cos();
     for (i, a) in tips.iter().enumerate() {
-        assert!(
-            (a.dot(&u) - cos_tilt).abs() < 1e-6,
-            "A·u = {} in pose {i}",
-            a.dot(&u)
-        );
+        assert!((a.dot(&u) - cos_tilt).abs() < 1e-6, "A·u = {} in pose {i}", a.dot(&u));
         let turned = angle_about(&tips[0], a, &u).to_degrees();
-        assert!(
-            (turned + (angles[i] - angles[0])).abs() < 1e-4,
-            "pose {i}: {turned}"
-        );
+        assert!((turned + (angles[i] - angles[0])).abs() < 1e-4, "pose {i}: {turned}");
     }
 }
 
 #[test]
 fn odr_error_and_crystal_show_in_timestamps() {
-    let cfg = RigConfig {
-        odr_error: -0.04,
-        ..RigConfig::ideal()
-    };
+    let cfg = RigConfig { odr_error: -0.04, ..RigConfig::ideal() };
     let mut rig = Rig::new(cfg, 1);
     let t = run(&mut rig, 2.0).iter().map(|s| s.t_s).collect::<Vec<_>>();
     for w in t.windows(2) {
@@ -223,21 +184,12 @@ fn odr_error_and_crystal_show_in_timestamps() {
 
     let cfg = RigConfig::realistic(&mut ChaCha8Rng::seed_from_u64(4));
     let mut rig = Rig::new(cfg, 1);
-    let t = run(&mut rig, 20.0)
-        .iter()
-        .map(|s| s.t_s)
-        .collect::<Vec<_>>();
+    let t = run(&mut rig, 20.0).iter().map(|s| s.t_s).collect::<Vec<_>>();
     assert!(t.windows(2).all(|w| w[1] > w[0]));
     let spacing = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
     let expected = (1.0 + cfg.mcu_clock_ppm * 1e-6) / cfg.actual_odr_hz();
-    assert!(
-        (spacing / expected - 1.0).abs() < 2e-6,
-        "{spacing} vs {expected}"
-    );
-    assert!(
-        spacing * cfg.odr_hz - 1.0 > 0.02 / 1.05,
-        "slow ODR must show: {spacing}"
-    );
+    assert!((spacing / expected - 1.0).abs() < 2e-6, "{spacing} vs {expected}");
+    assert!(spacing * cfg.odr_hz - 1.0 > 0.02 / 1.05, "slow ODR must show: {spacing}");
     assert!((rig.truth().odr_hz - cfg.actual_odr_hz()).abs() < 1e-12);
 }
 
@@ -255,10 +207,7 @@ fn outputs_are_whole_lsbs_when_quantised() {
         let (g_lsb, a_lsb) = (cfg.gyro.range.lsb_dps(), cfg.accel.range.lsb_g());
         for s in run(&mut rig, 2.0) {
             for i in 0..3 {
-                let (g, a) = (
-                    counts_off(s.gyro_dps[i], g_lsb),
-                    counts_off(s.accel_g[i], a_lsb),
-                );
+                let (g, a) = (counts_off(s.gyro_dps[i], g_lsb), counts_off(s.accel_g[i], a_lsb));
                 if quantised {
                     assert!(g < 1e-2 && a < 1e-2, "{s:?}");
                 } else if g > 0.05 || a > 0.05 {
@@ -274,17 +223,12 @@ fn outputs_are_whole_lsbs_when_quantised() {
 #[test]
 fn saturation_is_flagged_beyond_full_scale() {
     // The int16 range at 8.75 mdps/LSB spans ±286.7 °/s ("245 dps" full scale).
-    let servo = ContinuousServo {
-        max_rate_dps: 400.0,
-        ..ContinuousServo::ideal()
-    };
+    let servo = ContinuousServo { max_rate_dps: 400.0, ..ContinuousServo::ideal() };
     let mut cfg = with_servo(ServoModel::Continuous(servo));
     cfg.gyro.range = GyroRange::Dps245;
     let mut rig = Rig::new(cfg, 1);
     rig.set_pulse_us(1800.0); // 240 °/s, u_z = 6/7: 206 °/s on z
-    assert!(run(&mut rig, 1.0)
-        .iter()
-        .all(|s| !s.gyro_saturated && !s.accel_saturated));
+    assert!(run(&mut rig, 1.0).iter().all(|s| !s.gyro_saturated && !s.accel_saturated));
     rig.set_pulse_us(2000.0); // 400 °/s: 343 °/s on z
     let s = *run(&mut rig, 1.0).last().unwrap();
     assert!(s.gyro_saturated && !s.accel_saturated);
@@ -303,11 +247,7 @@ fn saturation_is_flagged_beyond_full_scale() {
 
 #[test]
 fn positional_servo_settles_at_offset_plus_scaled_command() {
-    let servo = PositionalServo {
-        offset_deg: 3.0,
-        scale_error: 0.025,
-        ..PositionalServo::ideal()
-    };
+    let servo = PositionalServo { offset_deg: 3.0, scale_error: 0.025, ..PositionalServo::ideal() };
     let mut rig = Rig::new(with_servo(ServoModel::Positional(servo)), 1);
     rig.set_pulse_us(1000.0);
     let start = mean_accel(&run(&mut rig, 2.0)[200..]);
@@ -315,21 +255,14 @@ fn positional_servo_settles_at_offset_plus_scaled_command() {
     rig.set_pulse_us(1700.0);
     let end = mean_accel(&run(&mut rig, 3.0)[300..]);
     let expected = 3.0 + 1.025 * 126.0;
-    assert!(
-        (rig.truth().shaft_deg - expected).abs() < 1e-9,
-        "{}",
-        rig.truth().shaft_deg
-    );
+    assert!((rig.truth().shaft_deg - expected).abs() < 1e-9, "{}", rig.truth().shaft_deg);
     assert!((servo.target_deg(1700.0) - expected).abs() < 1e-12);
     // Gravity seen in B turned by −(1.025 · 126°) about u_B.
     let turned = angle_about(&start, &end, &rig.truth().axis_b).to_degrees();
     assert!((turned + 1.025 * 126.0).abs() < 1e-4, "{turned}");
 
     // With a dead band the shaft stops inside it, short of the target.
-    let servo = PositionalServo {
-        deadband_us: 4.0,
-        ..servo
-    };
+    let servo = PositionalServo { deadband_us: 4.0, ..servo };
     let mut rig = Rig::new(with_servo(ServoModel::Positional(servo)), 1);
     rig.set_pulse_us(1700.0);
     run(&mut rig, 3.0);
@@ -340,19 +273,14 @@ fn positional_servo_settles_at_offset_plus_scaled_command() {
 
 #[test]
 fn slew_rate_is_limited() {
-    let servo = PositionalServo {
-        max_rate_dps: 250.0,
-        ..PositionalServo::ideal()
-    };
+    let servo = PositionalServo { max_rate_dps: 250.0, ..PositionalServo::ideal() };
     let mut rig = Rig::new(with_servo(ServoModel::Positional(servo)), 1);
     rig.set_pulse_us(1000.0);
     run(&mut rig, 1.0);
     rig.set_pulse_us(2000.0);
     let (mut prev, mut peak, mut t_10, mut t_170) = (rig.truth().shaft_deg, 0.0f64, None, None);
     for (_, t) in record(&mut rig, 2.0) {
-        peak = peak
-            .max((t.shaft_deg - prev) / t.dt_s)
-            .max(t.shaft_rate_dps);
+        peak = peak.max((t.shaft_deg - prev) / t.dt_s).max(t.shaft_rate_dps);
         prev = t.shaft_deg;
         if t.shaft_deg > 10.0 && t_10.is_none() {
             t_10 = Some(t.t_s);
@@ -361,10 +289,7 @@ fn slew_rate_is_limited() {
             t_170 = Some(t.t_s);
         }
     }
-    assert!(
-        peak <= 250.0 * (1.0 + 1e-12) && peak > 0.98 * 250.0,
-        "peak rate {peak}"
-    );
+    assert!(peak <= 250.0 * (1.0 + 1e-12) && peak > 0.98 * 250.0, "peak rate {peak}");
     let crossing = t_170.unwrap() - t_10.unwrap();
     assert!(crossing >= 160.0 / 250.0 - 1.0 / 119.0, "{crossing} s");
     assert!((rig.truth().shaft_deg - 180.0).abs() < 1e-9);
@@ -390,10 +315,7 @@ fn stalled_servo_does_not_move() {
 /// A sensor 5 cm off the axis at a steady 180 °/s feels ω² r towards the axis, ⟂ u_B.
 #[test]
 fn off_axis_radius_adds_centripetal_acceleration() {
-    let cfg = RigConfig {
-        radius_m: 0.05,
-        ..with_servo(ServoModel::Continuous(ContinuousServo::ideal()))
-    };
+    let cfg = RigConfig { radius_m: 0.05, ..with_servo(ServoModel::Continuous(ContinuousServo::ideal())) };
     let mut rig = Rig::new(cfg, 1);
     rig.set_pulse_us(1800.0);
     let samples = run(&mut rig, 2.0);
@@ -402,19 +324,9 @@ fn off_axis_radius_adds_centripetal_acceleration() {
     let expected = omega * omega * 0.05 / G0;
     let extra = truth.specific_force_b_g - gravity_b(&truth.q_wb);
     assert!((truth.shaft_rate_dps - 180.0).abs() < 1e-6);
-    assert!(
-        (extra.norm() / expected - 1.0).abs() < 1e-6,
-        "{} vs {expected}",
-        extra.norm()
-    );
-    assert!(
-        (truth.lever_b_m.norm() - 0.05).abs() < 1e-15
-            && truth.lever_b_m.dot(&truth.axis_b).abs() < 1e-15
-    );
-    assert!(
-        (extra + truth.lever_b_m * omega * omega / G0).norm() < 1e-6 * expected,
-        "not towards the axis"
-    );
+    assert!((extra.norm() / expected - 1.0).abs() < 1e-6, "{} vs {expected}", extra.norm());
+    assert!((truth.lever_b_m.norm() - 0.05).abs() < 1e-15 && truth.lever_b_m.dot(&truth.axis_b).abs() < 1e-15);
+    assert!((extra + truth.lever_b_m * omega * omega / G0).norm() < 1e-6 * expected, "not towards the axis");
     let measured = v3(samples.last().unwrap().accel_g) - gravity_b(&truth.q_wb);
     assert!((measured - extra).norm() < 1e-6);
     assert!((v3(samples.last().unwrap().gyro_dps) - 180.0 * truth.axis_b).norm() < 1e-4);
@@ -422,43 +334,23 @@ fn off_axis_radius_adds_centripetal_acceleration() {
 
 #[test]
 fn continuous_servo_rate_follows_its_model() {
-    let servo = ContinuousServo {
-        neutral_offset_us: 12.0,
-        deadband_us: 8.0,
-        ..ContinuousServo::ideal()
-    };
+    let servo = ContinuousServo { neutral_offset_us: 12.0, deadband_us: 8.0, ..ContinuousServo::ideal() };
     let mut rig = Rig::new(with_servo(ServoModel::Continuous(servo)), 1);
     let u = rig.truth().axis_b;
-    for (us, rate) in [
-        (1515.0, 0.0),
-        (1800.0, 300.0 * 288.0 / 500.0),
-        (1200.0, -300.0 * 312.0 / 500.0),
-        (2600.0, 300.0),
-    ] {
+    for (us, rate) in [(1515.0, 0.0), (1800.0, 300.0 * 288.0 / 500.0), (1200.0, -300.0 * 312.0 / 500.0), (2600.0, 300.0)] {
         rig.set_pulse_us(us);
         let s = run(&mut rig, 1.5);
         assert!((servo.rate_dps(us) - rate).abs() < 1e-12);
         assert!((rig.truth().shaft_rate_dps - rate).abs() < 1e-6, "{us} µs");
-        let mean = s[s.len() - 50..]
-            .iter()
-            .map(|s| v3(s.gyro_dps).dot(&u))
-            .sum::<f64>()
-            / 50.0;
+        let mean = s[s.len() - 50..].iter().map(|s| v3(s.gyro_dps).dot(&u)).sum::<f64>() / 50.0;
         assert!((mean - rate).abs() < 1e-4, "{us} µs: gyro {mean} vs {rate}");
     }
 }
 
 #[test]
 fn vibration_only_while_moving() {
-    let vibration = Vibration {
-        rms_deg: 0.05,
-        freq_hz: 40.0,
-        damping: 0.2,
-    };
-    let servo = ContinuousServo {
-        vibration,
-        ..ContinuousServo::ideal()
-    };
+    let vibration = Vibration { rms_deg: 0.05, freq_hz: 40.0, damping: 0.2 };
+    let servo = ContinuousServo { vibration, ..ContinuousServo::ideal() };
     let mut rig = Rig::new(with_servo(ServoModel::Continuous(servo)), 8);
     rig.set_pulse_us(2000.0);
     run(&mut rig, 1.0);
@@ -472,11 +364,7 @@ fn vibration_only_while_moving() {
     assert!((rms / 0.05 - 1.0).abs() < 0.3, "vibration RMS {rms}°");
     rig.set_pulse_us(1500.0);
     run(&mut rig, 1.0);
-    assert!(
-        rig.truth().shaft_rate_dps.abs() < 1e-3,
-        "{}",
-        rig.truth().shaft_rate_dps
-    );
+    assert!(rig.truth().shaft_rate_dps.abs() < 1e-3, "{}", rig.truth().shaft_rate_dps);
 }
 
 #[test]
@@ -500,8 +388,7 @@ fn hand_held_pose_and_reattachment() {
     run(&mut rig, 1.5);
     let truth = rig.truth();
     assert!(truth.attached);
-    let on_shaft =
-        UnitQuaternion::from_axis_angle(&cfg.shaft_axis_w(), theta.to_radians()) * cfg.mount;
+    let on_shaft = UnitQuaternion::from_axis_angle(&cfg.shaft_axis_w(), theta.to_radians()) * cfg.mount;
     assert!(truth.q_wb.angle_to(&on_shaft) < 1e-12);
     assert_eq!(truth.axis_b, cfg.axis_b());
 }
@@ -511,10 +398,7 @@ fn disturbance_wobbles_then_settles() {
     let mut rig = Rig::new(RigConfig::ideal(), 1);
     let rest = rig.next_sample();
     rig.disturb(1.0, 30.0);
-    let peak = run(&mut rig, 1.2)
-        .iter()
-        .map(|s| v3(s.gyro_dps).norm())
-        .fold(0.0, f64::max);
+    let peak = run(&mut rig, 1.2).iter().map(|s| v3(s.gyro_dps).norm()).fold(0.0, f64::max);
     assert!(peak > 3.0 && peak < 60.0, "peak {peak} °/s");
     let after = rig.next_sample();
     assert!(v3(after.gyro_dps).norm() < 1e-9);
@@ -533,11 +417,7 @@ fn truth_describes_the_sensor_models() {
     rig.set_pulse_us(1900.0);
     for (s, t) in record(&mut rig, 3.0) {
         let omega = t.gyro_k * (v3(s.gyro_dps) - t.gyro_bias_dps);
-        assert!(
-            (omega - t.rate_b_dps).norm() < 1e-4,
-            "{omega} vs {}",
-            t.rate_b_dps
-        );
+        assert!((omega - t.rate_b_dps).norm() < 1e-4, "{omega} vs {}", t.rate_b_dps);
         let a = t.accel_c * t.specific_force_b_g + t.accel_offset_g;
         assert!((v3(s.accel_g) - a).norm() < 1e-6);
         assert!((f64::from(s.temp_c) - t.temp_c).abs() <= 1.0 / 32.0 + 1e-6);
@@ -546,10 +426,8 @@ fn truth_describes_the_sensor_models() {
     let drift = cfg.gyro.bias_tempco_dps_per_c * 0.01 * t.t_s;
     assert!((t.gyro_bias_dps - cfg.gyro.bias_dps - drift).norm() < 1e-12);
     // C = (I + misalignment) · diag(scale), with a misalignment that is really there.
-    let c_g =
-        (Matrix3::identity() + cfg.gyro.misalignment) * Matrix3::from_diagonal(&cfg.gyro.scale);
-    let c_a =
-        (Matrix3::identity() + cfg.accel.misalignment) * Matrix3::from_diagonal(&cfg.accel.scale);
+    let c_g = (Matrix3::identity() + cfg.gyro.misalignment) * Matrix3::from_diagonal(&cfg.gyro.scale);
+    let c_a = (Matrix3::identity() + cfg.accel.misalignment) * Matrix3::from_diagonal(&cfg.accel.scale);
     assert!(cfg.gyro.misalignment.norm() > 1e-4 && cfg.accel.misalignment.norm() > 1e-4);
     assert!((t.gyro_k * c_g - Matrix3::identity()).norm() < 1e-12);
     assert!((t.accel_c - c_a).norm() < 1e-15);
@@ -560,11 +438,7 @@ fn realistic_configs_respect_their_ranges() {
     let mut rng = ChaCha8Rng::seed_from_u64(10);
     for _ in 0..50 {
         let cfg = RigConfig::realistic(&mut rng);
-        assert!(
-            cfg.axis_b().iter().all(|c| c.abs() >= 0.2 - 1e-12),
-            "{}",
-            cfg.axis_b()
-        );
+        assert!(cfg.axis_b().iter().all(|c| c.abs() >= 0.2 - 1e-12), "{}", cfg.axis_b());
         assert!((20.0..70.0).contains(&cfg.shaft_tilt_deg));
         assert!((-0.05..-0.02).contains(&cfg.odr_error));
         let s_w = tilted_axis(cfg.shaft_tilt_deg, cfg.shaft_azimuth_deg);
@@ -616,22 +490,15 @@ fn noise_rms_matches_density() {
     };
     for i in 0..3 {
         let g = std(&|s: &Sample| f64::from(s.gyro_dps[i])) / (cfg.gyro.noise_dps_rthz * half_odr);
-        let a = std(&|s: &Sample| f64::from(s.accel_g[i]))
-            / (cfg.accel.noise_ug_rthz * 1e-6 * half_odr);
-        assert!(
-            (g - 1.0).abs() < 0.06 && (a - 1.0).abs() < 0.06,
-            "axis {i}: {g} {a}"
-        );
+        let a = std(&|s: &Sample| f64::from(s.accel_g[i])) / (cfg.accel.noise_ug_rthz * 1e-6 * half_odr);
+        assert!((g - 1.0).abs() < 0.06 && (a - 1.0).abs() < 0.06, "axis {i}: {g} {a}");
     }
 }
 
 /// While a continuous servo spins up, the lever arm also feels the tangential α × r.
 #[test]
 fn off_axis_radius_adds_tangential_acceleration() {
-    let cfg = RigConfig {
-        radius_m: 0.05,
-        ..with_servo(ServoModel::Continuous(ContinuousServo::ideal()))
-    };
+    let cfg = RigConfig { radius_m: 0.05, ..with_servo(ServoModel::Continuous(ContinuousServo::ideal())) };
     let mut rig = Rig::new(cfg, 1);
     run(&mut rig, 0.1);
     rig.set_pulse_us(2000.0);
@@ -639,18 +506,14 @@ fn off_axis_radius_adds_tangential_acceleration() {
     let mut checked = 0;
     for w in rec.windows(3) {
         let (before, now, after) = (&w[0].1, &w[1].1, &w[2].1);
-        let alpha =
-            (after.shaft_rate_dps - before.shaft_rate_dps).to_radians() / (after.t_s - before.t_s);
+        let alpha = (after.shaft_rate_dps - before.shaft_rate_dps).to_radians() / (after.t_s - before.t_s);
         if before.shaft_rate_dps <= 0.0 || alpha < 20.0 {
             continue; // not spinning up smoothly across the window
         }
         let (u, r, omega) = (now.axis_b, now.lever_b_m, now.shaft_rate_dps.to_radians());
         let expected = ((u * alpha).cross(&r) - r * omega * omega) / G0;
         let extra = now.specific_force_b_g - gravity_b(&now.q_wb);
-        assert!(
-            (extra - expected).norm() < 0.02 * expected.norm(),
-            "{extra} vs {expected}"
-        );
+        assert!((extra - expected).norm() < 0.02 * expected.norm(), "{extra} vs {expected}");
         checked += 1;
     }
     assert!(checked > 5, "the spin-up must be sampled");

@@ -5,9 +5,9 @@ use crate::elf::Firmware;
 use crate::mcu::{Mcu, Stop};
 use crate::periph::Periph;
 use calib_core::record::Record;
+use rig_sim::harness::handheld_attitudes;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
 use rig_sim::nor::NorSim;
-use rig_sim::harness::handheld_attitudes;
 use rig_sim::sim::{Rig, RigConfig};
 use std::cell::Cell;
 use std::rc::Rc;
@@ -249,10 +249,7 @@ impl Bench {
     pub fn stored(&self) -> Option<Record> {
         let p = self.mcu.periph.borrow();
         let bytes = p.flash.bytes();
-        [0usize, 4096]
-            .iter()
-            .filter_map(|&o| Record::decode(&bytes[o..o + calib_core::record::LEN]).ok())
-            .max_by_key(|r| r.seq)
+        [0usize, 4096].iter().filter_map(|&o| Record::decode(&bytes[o..o + calib_core::record::LEN]).ok()).max_by_key(|r| r.seq)
     }
 
     /// Largest |K̂_ii / K_ii − 1| of a record against the simulator's truth (%).

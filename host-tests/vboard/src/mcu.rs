@@ -127,9 +127,7 @@ impl Mcu {
             STORAGE.0,
             STORAGE.1 - STORAGE.0,
             Some(move |_: &mut Unicorn<()>, off: u64, size: usize| p.borrow_mut().flash_read(STORAGE.0 + off, size)),
-            Some(move |_: &mut Unicorn<()>, off: u64, size: usize, v: u64| {
-                p2.borrow_mut().flash_write(STORAGE.0 + off, size, v)
-            }),
+            Some(move |_: &mut Unicorn<()>, off: u64, size: usize, v: u64| p2.borrow_mut().flash_write(STORAGE.0 + off, size, v)),
         )
         .map_err(err("map storage"))?;
         for (base, size) in [(0x4000_0000u64, 0x8_0000u64), (0x5000_0000, 0x1000), (0x1000_0000, 0x2000), (0xE000_E000, 0x1000)] {
@@ -494,7 +492,10 @@ impl Mcu {
         let bytes: Vec<u8> = frame.iter().flat_map(|w| w.to_le_bytes()).collect();
         self.uc.mem_write(new_sp, &bytes).map_err(err("stack frame"))?;
         // FP context: kept by the host, restored on return (the handler may use the FPU).
-        let fp = (0..16).map(|i| self.uc.reg_read(RegisterARM::S0 as i32 + i).unwrap_or(0)).chain([self.uc.reg_read(RegisterARM::FPSCR).unwrap_or(0)]).collect();
+        let fp = (0..16)
+            .map(|i| self.uc.reg_read(RegisterARM::S0 as i32 + i).unwrap_or(0))
+            .chain([self.uc.reg_read(RegisterARM::FPSCR).unwrap_or(0)])
+            .collect();
         self.exception = Some(Exception { fp, irq: irq as u32 });
         self.uc.reg_write(RegisterARM::SP, new_sp).map_err(err("sp"))?;
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFF9).map_err(err("lr"))?;
@@ -508,7 +509,9 @@ impl Mcu {
         let mut b = [0u8; 32];
         self.uc.mem_read(sp, &mut b).map_err(err("unstack"))?;
         let w = |i: usize| u32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]) as u64;
-        for (i, reg) in [RegisterARM::R0, RegisterARM::R1, RegisterARM::R2, RegisterARM::R3, RegisterARM::R12, RegisterARM::LR].into_iter().enumerate() {
+        for (i, reg) in
+            [RegisterARM::R0, RegisterARM::R1, RegisterARM::R2, RegisterARM::R3, RegisterARM::R12, RegisterARM::LR].into_iter().enumerate()
+        {
             self.uc.reg_write(reg, w(i)).map_err(err("restore"))?;
         }
         let xpsr = w(7);

@@ -2,8 +2,8 @@
 
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
-use rig_sim::variant::Variant;
 use rig_sim::sim::RigConfig;
+use rig_sim::variant::Variant;
 use vboard::bench::{build_firmware, Bench, Outcome};
 use vboard::mcu::Stop;
 
@@ -43,11 +43,9 @@ fn calibrates_stores_and_reloads_after_reset() {
 
 #[test]
 fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
-    for (board, text) in [
-        (Board::Missing, "no LSM9DS1 at 0x6B"),
-        (Board::OtherChip(0x3D), "WrongId(61)"),
-        (Board::Rev2, "Nano 33 BLE Rev2"),
-    ] {
+    for (board, text) in
+        [(Board::Missing, "no LSM9DS1 at 0x6B"), (Board::OtherChip(0x3D), "WrongId(61)"), (Board::Rev2, "Nano 33 BLE Rev2")]
+    {
         let mut b = bench(board, Variant::Hobby.config(4, 0), 4);
         assert_eq!(b.run_for(5.0), Stop::Time);
         assert!(has(&b, text), "{board:?}: {:?}", b.mcu.log);

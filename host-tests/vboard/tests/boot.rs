@@ -34,7 +34,13 @@ fn boots_from_the_bootloader_state_and_from_cold() {
         // The sensor supply is driven with high drive; no voltage drop.
         assert!(p.sensor_powered() && !p.vdd_env_drop, "{what}: P0.22 PIN_CNF 0x{:08X}", p.gpio.cnf(0, 22));
         // UARTE0 (the bootloader's, receiving): stopped (RXTO) and then disabled.
-        assert!(!p.uarte.receiving() && p.uarte.enable == 0 && !p.uarte.disabled_while_receiving, "{what}: UARTE0 {:?} ENABLE {}, disabled while receiving {}", p.uarte.rx, p.uarte.enable, p.uarte.disabled_while_receiving);
+        assert!(
+            !p.uarte.receiving() && p.uarte.enable == 0 && !p.uarte.disabled_while_receiving,
+            "{what}: UARTE0 {:?} ENABLE {}, disabled while receiving {}",
+            p.uarte.rx,
+            p.uarte.enable,
+            p.uarte.disabled_while_receiving
+        );
         // The HFXO start waited for a fresh EVENTS_HFCLKSTARTED, not the bootloader's.
         assert_eq!(p.clock.stale_event_reads, 0, "{what}: stale HFCLKSTARTED read");
         assert!(p.clock.hfxo_running);
@@ -81,7 +87,12 @@ fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
     let written = b.mcu.rtt_written() - written0;
     let tail = b.mcu.rtt_tail();
     println!("MEASURED rtt_detached_bytes_written={written} watchdog_resets={} tail_lines={}", b.mcu.watchdog_resets, tail.len());
-    assert_eq!(b.mcu.watchdog_resets, 0, "the firmware stalled on a full RTT buffer: {:?}", b.mcu.log.iter().rev().take(3).collect::<Vec<_>>());
+    assert_eq!(
+        b.mcu.watchdog_resets,
+        0,
+        "the firmware stalled on a full RTT buffer: {:?}",
+        b.mcu.log.iter().rev().take(3).collect::<Vec<_>>()
+    );
     assert!(written > 4096, "only {written} bytes written while detached");
     // Read at the end: the buffer holds whole defmt frames (raw CSV lines).
     assert!(tail.iter().any(|l| l.matches(',').count() >= 6), "{tail:?}");

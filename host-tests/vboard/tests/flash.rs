@@ -43,10 +43,7 @@ fn power_cut_at_every_flash_step_keeps_the_previous_record() {
         b.reset().unwrap();
         b.run_for(1.0);
         let boot: Vec<&String> = b.mcu.log[before..].iter().collect();
-        assert!(
-            boot.iter().any(|l| l.contains("loaded calibration record 1 from slot 0")),
-            "cut at step {cut}: {boot:?}"
-        );
+        assert!(boot.iter().any(|l| l.contains("loaded calibration record 1 from slot 0")), "cut at step {cut}: {boot:?}");
         assert_eq!(b.stored(), Some(first), "cut at step {cut}");
     }
 }

@@ -4,8 +4,8 @@
 use embedded_hal::i2c::{I2c, Operation};
 use rig_sim::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
 use rig_sim::nor::NorSim;
-use rig_sim::variant::Variant;
 use rig_sim::sim::Rig;
+use rig_sim::variant::Variant;
 use std::cell::Cell;
 use std::collections::HashMap;
 use std::rc::Rc;

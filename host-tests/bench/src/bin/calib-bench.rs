@@ -5,16 +5,16 @@
 //!
 //! `cargo run --release -p host-tests --target host-tuple --bin calib-bench [--json] [--logs N]`
 
-use calib_core::procedure::{Config, Procedure, ServoKind};
-use calib::csvlog;
 use bench::moments::Moments;
+use calib::csvlog;
 use calib::offline;
-use rig_sim::variant::Variant;
-use rig_sim::harness::{record_log, Faults};
-use rig_sim::sim::{ContinuousServo, Rig, ServoModel};
+use calib_core::procedure::{Config, Procedure, ServoKind};
+use clap::Parser;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use clap::Parser;
+use rig_sim::harness::{record_log, Faults};
+use rig_sim::sim::{ContinuousServo, Rig, ServoModel};
+use rig_sim::variant::Variant;
 use serde_json::json;
 
 /// The offline `calib` path on simulated logs, error of diag(K) per ODR and servo type.

@@ -5,13 +5,13 @@
 //! `cargo paper-tables [--json] [--runs N] [--noise-runs N] [--rig-runs N] [--seed S]`
 //! With `--json` the last stdout line is a JSON summary of everything printed.
 
-use calib_core::Error;
+use bench::hobby_servo;
 use bench::moments::Moments;
 use bench::paper_model::{run, PaperCase, PaperProtocol};
-use bench::hobby_servo;
+use calib_core::Error;
+use clap::Parser;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use clap::Parser;
 use serde_json::{json, Value};
 
 /// The paper's simulation tables reproduced with calib-core, and the estimator comparison on
@@ -86,7 +86,10 @@ fn table1(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
     ];
     let (est, uncal, failed) = batch(args.runs, rng, proto, PaperCase::random);
     println!("\nTable I. Mean, variance and range of the scale-factor error before and after calibration");
-    println!("({} runs: K ~ U(0.9,1.1), bias ~ U(-2,2) deg/s, accel noise N(0,0.005^2), speed noise N(0,(0.05w)^2), w = 20 deg/s)", args.runs);
+    println!(
+        "({} runs: K ~ U(0.9,1.1), bias ~ U(-2,2) deg/s, accel noise N(0,0.005^2), speed noise N(0,(0.05w)^2), w = 20 deg/s)",
+        args.runs
+    );
     println!("{:<13}{:<5}{:>24}{:>28}{:>24}", "Status", "Axis", "Mean (ours | paper)", "Variance (ours | paper)", "Range (ours | paper)");
     let mut out = vec![];
     for (s, (status, data)) in [("Uncalibrated", &uncal), ("Calibrated", &est)].into_iter().enumerate() {
@@ -96,7 +99,13 @@ fn table1(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
             println!(
                 "{:<13}{:<5}{:>11.4} | {:<10.4}{:>13.3e} | {:<12.3e}{:>10.4} | {:<10.4}",
                 if i == 0 { status } else { "" },
-                AXES[i], m.mean, p[0], m.variance, p[1], m.range, p[2]
+                AXES[i],
+                m.mean,
+                p[0],
+                m.variance,
+                p[1],
+                m.range,
+                p[2]
             );
             out.push(json!({"status": status, "axis": AXES[i], "ours": m.json(),
                 "paper": {"mean": p[0], "variance": p[1], "range": p[2]}}));
@@ -146,9 +155,24 @@ fn table2(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
 fn table3(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
     // Paper Table III: mean, variance, kurtosis, skewness of K per axis and noise level.
     let paper: [[[f64; 4]; 4]; 3] = [
-        [[1.100, 2.374e-7, -0.006, 0.007], [1.100, 2.447e-7, -0.020, 0.011], [1.100, 9.853e-7, -0.005, 0.004], [1.099, 7.519e-5, 0.018, -0.004]],
-        [[0.899, 1.758e-6, -0.020, 0.008], [0.899, 1.765e-6, -0.020, 0.007], [0.900, 2.509e-6, -0.011, -0.006], [0.900, 7.738e-5, 0.002, 0.007]],
-        [[1.200, 4.846e-6, -0.019, 0.019], [1.200, 4.854e-6, -0.019, 0.019], [1.200, 5.562e-6, 0.0002, 0.004], [1.199, 7.980e-5, 0.010, -0.002]],
+        [
+            [1.100, 2.374e-7, -0.006, 0.007],
+            [1.100, 2.447e-7, -0.020, 0.011],
+            [1.100, 9.853e-7, -0.005, 0.004],
+            [1.099, 7.519e-5, 0.018, -0.004],
+        ],
+        [
+            [0.899, 1.758e-6, -0.020, 0.008],
+            [0.899, 1.765e-6, -0.020, 0.007],
+            [0.900, 2.509e-6, -0.011, -0.006],
+            [0.900, 7.738e-5, 0.002, 0.007],
+        ],
+        [
+            [1.200, 4.846e-6, -0.019, 0.019],
+            [1.200, 4.854e-6, -0.019, 0.019],
+            [1.200, 5.562e-6, 0.0002, 0.004],
+            [1.199, 7.980e-5, 0.010, -0.002],
+        ],
     ];
     let sigmas = [0.01, 0.1, 1.0, 10.0];
     let k_true = [1.1, 0.9, 1.2];
@@ -166,7 +190,10 @@ fn table3(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
         per.push((k, failed));
     }
     println!("\nTable III. Scale factors under gyro noise (K = [1.1, 0.9, 1.2], w = 10 deg/s, bias removed;\n {} runs per level, paper: 100000; fixed axis (0.48,-0.56,0.67), tilt 45 deg; {} rotation samples)", args.noise_runs, proto.rotation_samples * proto.noise_study_factor);
-    println!("{:<5}{:<12}{:>20}{:>26}{:>22}{:>22}", "Axis", "noise sd", "Mean (ours|paper)", "Variance (ours|paper)", "Kurtosis (ours|paper)", "Skewness (ours|paper)");
+    println!(
+        "{:<5}{:<12}{:>20}{:>26}{:>22}{:>22}",
+        "Axis", "noise sd", "Mean (ours|paper)", "Variance (ours|paper)", "Kurtosis (ours|paper)", "Skewness (ours|paper)"
+    );
     let mut rows = vec![];
     for i in 0..3 {
         for (j, &s) in sigmas.iter().enumerate() {
@@ -174,8 +201,16 @@ fn table3(args: &Args, rng: &mut ChaCha8Rng, proto: &PaperProtocol) -> Value {
             let p = paper[i][j];
             println!(
                 "{:<5}{:<12}{:>9.3} | {:<8.3}{:>11.3e} | {:<11.3e}{:>8.3} | {:<10.3}{:>9.3} | {:<10.3}",
-                if j == 0 { AXES[i] } else { "" }, format!("N(0,{s}^2)"),
-                m.mean, p[0], m.variance, p[1], m.kurtosis, p[2], m.skewness, p[3]
+                if j == 0 { AXES[i] } else { "" },
+                format!("N(0,{s}^2)"),
+                m.mean,
+                p[0],
+                m.variance,
+                p[1],
+                m.kurtosis,
+                p[2],
+                m.skewness,
+                p[3]
             );
             rows.push(json!({"axis": AXES[i], "noise_sd_dps": s, "ours": m.json(),
                 "paper": {"mean": p[0], "variance": p[1], "kurtosis": p[2], "skewness": p[3]}}));
@@ -190,9 +225,18 @@ fn main() {
     let args = Args::parse_from(calib::cli_args());
     let proto = PaperProtocol::default();
     println!("paper-tables: Li et al., field calibration of triaxial MEMS gyroscopes, reproduced with calib-core");
-    println!("Protocol choices the paper leaves open (ours): {} Hz sampling; {} static poses at random shaft angles,", proto.rate_hz, proto.poses);
-    println!("  {} samples averaged per pose; {} rotation samples; bias from {} rest samples; shaft tilt U({},{}) deg", proto.pose_samples, proto.rotation_samples, proto.rest_samples, proto.tilt_deg.0, proto.tilt_deg.1);
-    println!("  from vertical, random mounting with every axis component >= {}; gyro white noise 0.01 deg/s outside Table III;", proto.min_axis_component);
+    println!(
+        "Protocol choices the paper leaves open (ours): {} Hz sampling; {} static poses at random shaft angles,",
+        proto.rate_hz, proto.poses
+    );
+    println!(
+        "  {} samples averaged per pose; {} rotation samples; bias from {} rest samples; shaft tilt U({},{}) deg",
+        proto.pose_samples, proto.rotation_samples, proto.rest_samples, proto.tilt_deg.0, proto.tilt_deg.1
+    );
+    println!(
+        "  from vertical, random mounting with every axis component >= {}; gyro white noise 0.01 deg/s outside Table III;",
+        proto.min_axis_component
+    );
     println!("  poses must span >= 45 deg; seed {}.", args.seed);
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     let t1 = table1(&args, &mut rng, &proto);

@@ -5,13 +5,13 @@
 //! Exit codes: 0 done, 1 build, image check, missing tool or upload failed (bossac's own
 //! non-zero exit code is forwarded: 1 error, 2 verify failed), 2 usage.
 
+use clap::{ArgGroup, Parser};
 use object::elf::{FileHeader32, EM_ARM, PT_LOAD};
 use object::read::elf::{FileHeader, ProgramHeader};
 use object::Endianness;
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
-use clap::{ArgGroup, Parser};
 use std::time::{Duration, Instant};
 
 /// What `--help` says after the options.

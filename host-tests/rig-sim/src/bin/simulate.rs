@@ -74,11 +74,14 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> Ex
         None => {
             eprintln!(
                 "simulate: wrote {path}: {} samples, {:.0} s; true K diagonal {:.6} {:.6} {:.6}",
-                outcome.samples, outcome.end_s, k[(0, 0)], k[(1, 1)], k[(2, 2)]
+                outcome.samples,
+                outcome.end_s,
+                k[(0, 0)],
+                k[(1, 1)],
+                k[(2, 2)]
             );
             ExitCode::SUCCESS
         }
         Some(e) => fail(1, format!("the simulated run failed: {e}")),
     }
 }
-

@@ -123,8 +123,7 @@ impl RigConfig {
     /// turned by `twist_deg` about the shaft (which sets where gravity lies at shaft angle 0).
     pub fn with_axis(mut self, axis_b: Vector3<f64>, twist_deg: f64) -> Self {
         let s_w = self.shaft_axis_w();
-        self.mount = UnitQuaternion::from_axis_angle(&s_w, twist_deg.to_radians())
-            * rotation_between(&axis_b.normalize(), &s_w);
+        self.mount = UnitQuaternion::from_axis_angle(&s_w, twist_deg.to_radians()) * rotation_between(&axis_b.normalize(), &s_w);
         self
     }
 

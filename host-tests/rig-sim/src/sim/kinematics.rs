@@ -20,11 +20,7 @@ pub fn tilted_axis(tilt_deg: f64, azimuth_deg: f64) -> Unit<Vector3<f64>> {
 /// Shortest rotation taking direction `a` onto direction `b` (a half-turn if they are opposite).
 pub(crate) fn rotation_between(a: &Vector3<f64>, b: &Vector3<f64>) -> UnitQuaternion<f64> {
     UnitQuaternion::rotation_between(a, b).unwrap_or_else(|| {
-        let e = if a.x.abs() < 0.9 {
-            Vector3::x()
-        } else {
-            Vector3::y()
-        };
+        let e = if a.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
         UnitQuaternion::from_axis_angle(&Unit::new_normalize(a.cross(&e)), PI)
     })
 }
@@ -32,20 +28,13 @@ pub(crate) fn rotation_between(a: &Vector3<f64>, b: &Vector3<f64>) -> UnitQuater
 /// A unit vector perpendicular to unit `u`: body x (or y if `u` is close to x) minus its
 /// component along `u`.
 pub(crate) fn perpendicular(u: &Vector3<f64>) -> Vector3<f64> {
-    let e = if u.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
+    let e = if u.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
     (e - u * u.dot(&e)).normalize()
 }
 
 /// Rotation vector (rad, in the frame of `a`) of `a⁻¹ b`, the shortest turn from attitude `a`
 /// to attitude `b`; exactly zero when `a == b`.
-pub(crate) fn rotation_vector_between(
-    a: &UnitQuaternion<f64>,
-    b: &UnitQuaternion<f64>,
-) -> Vector3<f64> {
+pub(crate) fn rotation_vector_between(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> Vector3<f64> {
     let (a, b) = (a.quaternion(), b.quaternion());
     let w = a.w * b.w + a.imag().dot(&b.imag());
     let v = b.imag() * a.w - a.imag() * b.w - a.imag().cross(&b.imag());
@@ -75,11 +64,7 @@ pub(crate) struct Transition {
 impl Transition {
     /// Slerp (shortest path) from `from` to `target` with smooth-step timing, at true time `t_s`.
     pub fn attitude(&self, t_s: f64, target: &UnitQuaternion<f64>) -> UnitQuaternion<f64> {
-        let s = if self.duration_s > 0.0 {
-            smoothstep((t_s - self.t0_s) / self.duration_s)
-        } else {
-            1.0
-        };
+        let s = if self.duration_s > 0.0 { smoothstep((t_s - self.t0_s) / self.duration_s) } else { 1.0 };
         let delta = rotation_vector_between(&self.from, target);
         self.from * UnitQuaternion::from_scaled_axis(delta * s)
     }
@@ -106,18 +91,9 @@ impl Wobble {
         let axis_b = Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)).normalize();
         let parts = [(); 3].map(|()| {
             let w = TAU * rng.random_range(1.0..6.0);
-            (
-                amplitude_dps.to_radians() / 3.0 / w,
-                w,
-                rng.random_range(0.0..TAU),
-            )
+            (amplitude_dps.to_radians() / 3.0 / w, w, rng.random_range(0.0..TAU))
         });
-        Self {
-            axis_b,
-            parts,
-            t0_s,
-            duration_s,
-        }
+        Self { axis_b, parts, t0_s, duration_s }
     }
 
     /// Body-frame rotation to apply on top of the board attitude at true time `t_s`.
@@ -127,11 +103,7 @@ impl Wobble {
             return UnitQuaternion::identity();
         }
         let window = (PI * tau / self.duration_s).sin().powi(2);
-        let angle: f64 = self
-            .parts
-            .iter()
-            .map(|&(a, w, p)| a * (w * tau + p).sin())
-            .sum();
+        let angle: f64 = self.parts.iter().map(|&(a, w, p)| a * (w * tau + p).sin()).sum();
         UnitQuaternion::from_scaled_axis(self.axis_b * (angle * window))
     }
 
@@ -143,12 +115,7 @@ impl Wobble {
 /// Acceleration (g, in B) of a point at lever `r_b` (m) from the fixed shaft axis `u_b`, for a
 /// shaft rate `rate` (rad/s) and angular acceleration `accel` (rad/s²): tangential α×r plus
 /// centripetal ω×(ω×r) = −ω² r.
-pub(crate) fn lever_accel_g(
-    u_b: &Vector3<f64>,
-    r_b: &Vector3<f64>,
-    rate: f64,
-    accel: f64,
-) -> Vector3<f64> {
+pub(crate) fn lever_accel_g(u_b: &Vector3<f64>, r_b: &Vector3<f64>, rate: f64, accel: f64) -> Vector3<f64> {
     let (w, a) = (u_b * rate, u_b * accel);
     (a.cross(r_b) + w.cross(&w.cross(r_b))) / G0
 }

@@ -2,9 +2,7 @@
 //! timestamped by the MCU clock.
 
 use super::config::RigConfig;
-use super::kinematics::{
-    lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble,
-};
+use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
 use super::servo::{Servo, ServoModel};
 use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -100,14 +98,8 @@ impl Rig {
     /// jitter and disturbances draw from separate streams of `seed`, so switching one source off
     /// leaves the others unchanged.
     pub fn new(cfg: RigConfig, seed: u64) -> Self {
-        assert!(
-            cfg.odr_hz > 0.0 && cfg.odr_error > -1.0,
-            "ODR must be positive"
-        );
-        assert!(
-            cfg.servo.vibration().freq_hz < SUBSTEP_HZ / 20.0,
-            "vibration too fast for the integrator"
-        );
+        assert!(cfg.odr_hz > 0.0 && cfg.odr_error > -1.0, "ODR must be positive");
+        assert!(cfg.servo.vibration().freq_hz < SUBSTEP_HZ / 20.0, "vibration too fast for the integrator");
         let stream = |n| {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(n);
@@ -122,8 +114,7 @@ impl Rig {
             lever_b: perpendicular(&axis_b) * cfg.radius_m,
             servo: Servo::new(cfg.servo, stream(1)),
             tilt: cfg.tilt.map(|t| {
-                let hinge = UnitQuaternion::from_axis_angle(&axis_w, t.hinge_deg.to_radians())
-                    * perpendicular(&axis_w.into_inner());
+                let hinge = UnitQuaternion::from_axis_angle(&axis_w, t.hinge_deg.to_radians()) * perpendicular(&axis_w.into_inner());
                 // The stage starts level (servo at 90°).
                 let servo = Servo::new(ServoModel::Positional(t.servo), stream(5)).starting_at(90.0);
                 (servo, Unit::new_normalize(hinge))
@@ -182,11 +173,7 @@ impl Rig {
     pub fn detach_to(&mut self, q_wb: UnitQuaternion<f64>, transition_s: f64) {
         let from = self.base_attitude(self.t_s);
         self.hand = Some(q_wb);
-        self.transition = Some(Transition {
-            from,
-            t0_s: self.t_s,
-            duration_s: transition_s,
-        });
+        self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: transition_s });
     }
 
     /// Puts the board back on the shaft, moving smoothly in `attach_transition_s`.
@@ -194,11 +181,7 @@ impl Rig {
         if self.hand.is_some() {
             let from = self.base_attitude(self.t_s);
             self.hand = None;
-            self.transition = Some(Transition {
-                from,
-                t0_s: self.t_s,
-                duration_s: self.cfg.attach_transition_s,
-            });
+            self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: self.cfg.attach_transition_s });
         }
     }
 
@@ -265,12 +248,7 @@ impl Rig {
         Truth {
             t_s: self.t_s,
             dt_s: self.dt_s,
-            gyro_k: self
-                .cfg
-                .gyro
-                .matrix()
-                .try_inverse()
-                .expect("gyro matrix is singular"),
+            gyro_k: self.cfg.gyro.matrix().try_inverse().expect("gyro matrix is singular"),
             gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c),
             accel_c: self.cfg.accel.matrix(),
             accel_offset_g: self.cfg.accel.offset_g,
@@ -298,9 +276,9 @@ impl Rig {
 
     /// Attitude at true time `t_s` (shaft state as integrated up to `t_s`), without wobbles.
     fn base_attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
-        let target = self.hand.unwrap_or_else(|| {
-            UnitQuaternion::from_axis_angle(&self.axis_w, self.servo.angle()) * self.tilt_rotation() * self.cfg.mount
-        });
+        let target = self
+            .hand
+            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&self.axis_w, self.servo.angle()) * self.tilt_rotation() * self.cfg.mount);
         match &self.transition {
             Some(tr) => tr.attitude(t_s, &target),
             None => target,
@@ -320,9 +298,7 @@ impl Rig {
     }
 
     fn attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
-        self.wobbles
-            .iter()
-            .fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
+        self.wobbles.iter().fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
     }
 
     /// Specific force (g, in B): gravity reaction `R_BW ẑ`, plus the lever-arm acceleration
@@ -330,13 +306,7 @@ impl Rig {
     fn specific_force(&self, q_wb: &UnitQuaternion<f64>) -> Vector3<f64> {
         let gravity = q_wb.inverse() * Vector3::z();
         if self.on_shaft() {
-            gravity
-                + lever_accel_g(
-                    &self.axis_b,
-                    &self.lever_b,
-                    self.servo.rate(),
-                    self.servo.accel(),
-                )
+            gravity + lever_accel_g(&self.axis_b, &self.lever_b, self.servo.rate(), self.servo.accel())
         } else {
             gravity
         }

@@ -109,13 +109,7 @@ impl GyroModel {
     }
 
     /// Raw reading (deg/s) and saturation flag for body rate `rate_b_dps` (deg/s).
-    pub(crate) fn measure(
-        &self,
-        rate_b_dps: &Vector3<f64>,
-        delta_temp_c: f64,
-        odr_hz: f64,
-        rng: &mut impl Rng,
-    ) -> ([f32; 3], bool) {
+    pub(crate) fn measure(&self, rate_b_dps: &Vector3<f64>, delta_temp_c: f64, odr_hz: f64, rng: &mut impl Rng) -> ([f32; 3], bool) {
         let noise = gaussian3(rng) * self.noise_dps_rthz * (odr_hz / 2.0).sqrt();
         let g = self.matrix() * rate_b_dps + self.bias_at(delta_temp_c) + noise;
         digitize(&g, self.range.lsb_dps(), self.quantize)
@@ -171,12 +165,7 @@ impl AccelModel {
     }
 
     /// Raw reading (g) and saturation flag for the specific force `force_b_g` (g).
-    pub(crate) fn measure(
-        &self,
-        force_b_g: &Vector3<f64>,
-        odr_hz: f64,
-        rng: &mut impl Rng,
-    ) -> ([f32; 3], bool) {
+    pub(crate) fn measure(&self, force_b_g: &Vector3<f64>, odr_hz: f64, rng: &mut impl Rng) -> ([f32; 3], bool) {
         let noise = gaussian3(rng) * self.noise_ug_rthz * 1e-6 * (odr_hz / 2.0).sqrt();
         let a = self.matrix() * force_b_g + self.offset_g + noise;
         digitize(&a, self.range.lsb_g(), self.quantize)
@@ -189,11 +178,7 @@ fn digitize(v: &Vector3<f64>, lsb: f64, quantize: bool) -> ([f32; 3], bool) {
     let (lo, hi) = (f64::from(i16::MIN), f64::from(i16::MAX));
     let mut saturated = false;
     let out = [0, 1, 2].map(|i| {
-        let counts = if quantize {
-            (v[i] / lsb).round()
-        } else {
-            v[i] / lsb
-        };
+        let counts = if quantize { (v[i] / lsb).round() } else { v[i] / lsb };
         saturated |= !(lo..=hi).contains(&counts);
         (counts.clamp(lo, hi) * lsb) as f32
     });

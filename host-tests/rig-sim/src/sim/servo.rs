@@ -27,19 +27,11 @@ pub struct Vibration {
 
 impl Vibration {
     /// No vibration.
-    pub const NONE: Self = Self {
-        rms_deg: 0.0,
-        freq_hz: 40.0,
-        damping: 0.2,
-    };
+    pub const NONE: Self = Self { rms_deg: 0.0, freq_hz: 40.0, damping: 0.2 };
 
     /// 0.01–0.04° RMS at 20–50 Hz, damping 0.1–0.3.
     pub fn realistic(rng: &mut impl Rng) -> Self {
-        Self {
-            rms_deg: rng.random_range(0.01..0.04),
-            freq_hz: rng.random_range(20.0..50.0),
-            damping: rng.random_range(0.1..0.3),
-        }
+        Self { rms_deg: rng.random_range(0.01..0.04), freq_hz: rng.random_range(20.0..50.0), damping: rng.random_range(0.1..0.3) }
     }
 }
 
@@ -114,13 +106,7 @@ pub struct ContinuousServo {
 impl ContinuousServo {
     /// 300 °/s, exact neutral, no dead band, 50 ms lag, no vibration.
     pub fn ideal() -> Self {
-        Self {
-            max_rate_dps: 300.0,
-            neutral_offset_us: 0.0,
-            deadband_us: 0.0,
-            tau_s: 0.05,
-            vibration: Vibration::NONE,
-        }
+        Self { max_rate_dps: 300.0, neutral_offset_us: 0.0, deadband_us: 0.0, tau_s: 0.05, vibration: Vibration::NONE }
     }
 
     /// FS90R-class servo: untrimmed neutral, a stop band of 5–15 µs.
@@ -260,14 +246,9 @@ impl Servo {
         let sigma = v.rms_deg.to_radians();
         // Stationary variance of x'' + 2ζω0 x' + ω0² x = w is q / (4ζω0³) for white w of intensity q.
         let q = 4.0 * v.damping * w0.powi(3) * sigma * sigma;
-        let drive = if rate.to_degrees().abs() > MOVING_DPS {
-            (q * h).sqrt()
-        } else {
-            0.0
-        };
+        let drive = if rate.to_degrees().abs() > MOVING_DPS { (q * h).sqrt() } else { 0.0 };
         self.jitter_accel = -w0 * w0 * self.jitter - 2.0 * v.damping * w0 * self.jitter_rate;
-        self.jitter_rate +=
-            self.jitter_accel * h + drive * self.rng.sample::<f64, _>(StandardNormal);
+        self.jitter_rate += self.jitter_accel * h + drive * self.rng.sample::<f64, _>(StandardNormal);
         self.jitter += self.jitter_rate * h;
     }
 
@@ -278,11 +259,7 @@ impl Servo {
                 let error = p.target_deg(us).to_radians() - self.angle;
                 let band = (p.deadband_us * DEG_PER_US * (1.0 + p.scale_error)).to_radians();
                 let max = p.max_rate_dps.to_radians();
-                let cmd = if error.abs() <= band {
-                    0.0
-                } else {
-                    (error / p.tau_s).clamp(-max, max)
-                };
+                let cmd = if error.abs() <= band { 0.0 } else { (error / p.tau_s).clamp(-max, max) };
                 (cmd, p.motor_tau_s)
             }
             (ServoModel::Continuous(c), Some(us)) => (c.rate_dps(us).to_radians(), c.tau_s),

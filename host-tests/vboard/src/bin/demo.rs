@@ -14,11 +14,11 @@
 //! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
 
+use clap::Parser;
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
-use clap::Parser;
 use vboard::bench::{build_firmware, message, Bench, Outcome};
 
 /// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
@@ -62,7 +62,10 @@ fn main() -> ExitCode {
         bench.mcu.rtt_detach();
     }
     let wall = std::time::Instant::now();
-    println!("[demo] power on (seed {seed}); the button is pressed at 2 s{}", if no_probe { "; no probe: the operator watches the LEDs" } else { "" });
+    println!(
+        "[demo] power on (seed {seed}); the button is pressed at 2 s{}",
+        if no_probe { "; no probe: the operator watches the LEDs" } else { "" }
+    );
     bench.run_for(2.0);
     let mut raw_text = None;
     let raw_from = raw_log.as_ref().map(|_| {
@@ -95,7 +98,10 @@ fn main() -> ExitCode {
         eprintln!("[demo] reset failed: {e}");
     }
     bench.run_for(3.0);
-    let (calls, instr) = { let (i, n) = bench.mcu.handle_sample.get(); (n, i) };
+    let (calls, instr) = {
+        let (i, n) = bench.mcu.handle_sample.get();
+        (n, i)
+    };
     println!(
         "[demo] {} instructions in {:.1} s virtual; Procedure::handle_sample: {} calls, {:.0} instructions per sample",
         bench.mcu.instructions(),
@@ -108,7 +114,10 @@ fn main() -> ExitCode {
     println!("[demo] true K diagonal   {:.6} {:.6} {:.6}", truth[(0, 0)], truth[(1, 1)], truth[(2, 2)]);
     let err = match &stored {
         Some(r) => {
-            println!("[demo] stored record {}: K diagonal {:.6} {:.6} {:.6} ({:?})", r.seq, r.gyro_k[0][0], r.gyro_k[1][1], r.gyro_k[2][2], r.method);
+            println!(
+                "[demo] stored record {}: K diagonal {:.6} {:.6} {:.6} ({:?})",
+                r.seq, r.gyro_k[0][0], r.gyro_k[1][1], r.gyro_k[2][2], r.method
+            );
             bench.max_scale_error_pct(r)
         }
         None => f64::NAN,

@@ -124,7 +124,13 @@ impl Clock {
                 v
             }
             o if o == off!(clock, events_lfclkstarted) => ev(&mut self.events_lfclkstarted, a),
-            o if o == off!(clock, events_done) || o == off!(clock, events_ctto) || o == off!(clock, events_ctstarted) || o == off!(clock, events_ctstopped) => 0,
+            o if o == off!(clock, events_done)
+                || o == off!(clock, events_ctto)
+                || o == off!(clock, events_ctstarted)
+                || o == off!(clock, events_ctstopped) =>
+            {
+                0
+            }
             o if o == off!(clock, intenset) => {
                 if let Access::Write(v) = a {
                     self.inten |= v;

@@ -30,9 +30,9 @@ pub use power::ResetKind;
 
 use embedded_hal::i2c::{I2c, Operation};
 use embedded_storage::nor_flash::NorFlash;
+use nrf52840_pac as pac;
 use rig_sim::lsm_model::Lsm9ds1Model;
 use rig_sim::nor::NorSim;
-use nrf52840_pac as pac;
 use std::cell::Cell;
 use std::rc::Rc;
 
@@ -356,7 +356,13 @@ impl Periph {
         let t = self.now();
         let a32 = addr as u32;
         let (blk, o) = (a32 & !0xFFF, a32 & 0xFFF);
-        let timers = [base(pac::TIMER0::PTR.cast()), base(pac::TIMER1::PTR.cast()), base(pac::TIMER2::PTR.cast()), base(pac::TIMER3::PTR.cast()), base(pac::TIMER4::PTR.cast())];
+        let timers = [
+            base(pac::TIMER0::PTR.cast()),
+            base(pac::TIMER1::PTR.cast()),
+            base(pac::TIMER2::PTR.cast()),
+            base(pac::TIMER3::PTR.cast()),
+            base(pac::TIMER4::PTR.cast()),
+        ];
         let rtcs = [base(pac::RTC0::PTR.cast()), base(pac::RTC1::PTR.cast()), base(pac::RTC2::PTR.cast())];
         let mut no_dma = NoDma;
         let mem: &mut dyn Dma = match mem {

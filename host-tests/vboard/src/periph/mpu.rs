@@ -96,8 +96,12 @@ impl Mpu {
                 let rasr = self.rasr[n];
                 let ap = (rasr >> 24) & 7;
                 match what {
-                    Check::Exec if rasr & (1 << 28) != 0 => Err(format!("MemManage: instruction fetch at 0x{a:08X} from MPU region {n} (XN)")),
-                    Check::Write if !matches!(ap, 1..=3) => Err(format!("MemManage: write to 0x{a:08X} in MPU region {n} (AP {ap:03b}: no privileged write)")),
+                    Check::Exec if rasr & (1 << 28) != 0 => {
+                        Err(format!("MemManage: instruction fetch at 0x{a:08X} from MPU region {n} (XN)"))
+                    }
+                    Check::Write if !matches!(ap, 1..=3) => {
+                        Err(format!("MemManage: write to 0x{a:08X} in MPU region {n} (AP {ap:03b}: no privileged write)"))
+                    }
                     _ => Ok(()),
                 }
             }

@@ -54,7 +54,11 @@ impl Nvmc {
                 }
                 Access::Read => (0, FlashOp::None),
             },
-            o if o == off!(nvmc, eraseall) || o == off!(nvmc, eraseuicr) || o == off!(nvmc, erasepcr0) || o == off!(nvmc, erasepagepartial) => {
+            o if o == off!(nvmc, eraseall)
+                || o == off!(nvmc, eraseuicr)
+                || o == off!(nvmc, erasepcr0)
+                || o == off!(nvmc, erasepagepartial) =>
+            {
                 if a.is_write() {
                     return Err(format!("NVMC erase register 0x{o:03X} written (would erase beyond the storage region)"));
                 }

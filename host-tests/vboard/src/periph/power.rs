@@ -95,7 +95,7 @@ impl Power {
         ]
         .contains(&o)
             || (ram0..ram0 + 9 * 16).contains(&o)
-            // INTENSET/INTENCLR are shared with CLOCK (one register): CLOCK models them.
+        // INTENSET/INTENCLR are shared with CLOCK (one register): CLOCK models them.
     }
 
     /// A register access at offset `o`.

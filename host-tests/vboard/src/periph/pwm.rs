@@ -138,7 +138,8 @@ impl Pwm {
             }
             u32::from(*e)
         };
-        let (start, started, end, out) = (off!(pwm0, tasks_seqstart), off!(pwm0, events_seqstarted), off!(pwm0, events_seqend), off!(pwm0, psel.out));
+        let (start, started, end, out) =
+            (off!(pwm0, tasks_seqstart), off!(pwm0, events_seqstarted), off!(pwm0, events_seqend), off!(pwm0, psel.out));
         let (seq0, seq1) = (off!(pwm0, seq0), off!(pwm0, seq1));
         Ok(match o {
             o if o == off!(pwm0, tasks_stop) => {

@@ -38,8 +38,8 @@ impl Scs {
         Self {
             vtor: if bootloader { 0x1_0000 } else { 0 },
             mpu: Mpu::new(bootloader),
-            ccr: 0x200,                // STKALIGN
-            fpccr: 0xC000_0000,        // ASPEN, LSPEN
+            ccr: 0x200,         // STKALIGN
+            fpccr: 0xC000_0000, // ASPEN, LSPEN
             cpacr: if bootloader { 0x00F0_0000 } else { 0 },
             ..Self::default()
         }
@@ -77,7 +77,7 @@ impl Scs {
                 a.rw(&mut self.ipr[((o - 0x400) / 4) as usize]) // byte writes arrive as words here
             }
             (0xD00, Access::Read) => 0x410F_C241, // CPUID: Cortex-M4 r0p1
-            (0xD04, _) => 0,                       // ICSR
+            (0xD04, _) => 0,                      // ICSR
             (0xD08, a) => a.rw(&mut self.vtor),
             (0xD0C, Access::Write(v)) => {
                 if v >> 16 == 0x05FA && v & (1 << 2) != 0 {

@@ -126,7 +126,11 @@ impl Twim {
     }
 
     fn bus_hz(&self) -> Result<f64, String> {
-        FREQUENCIES.iter().find(|f| f.0 == self.frequency).map(|f| f.1).ok_or_else(|| format!("TWIM FREQUENCY 0x{:08X} is not a value the PS allows", self.frequency))
+        FREQUENCIES
+            .iter()
+            .find(|f| f.0 == self.frequency)
+            .map(|f| f.1)
+            .ok_or_else(|| format!("TWIM FREQUENCY 0x{:08X} is not a value the PS allows", self.frequency))
     }
 
     /// The pins reach the sensor bus: PSEL.SCL = P0.15, PSEL.SDA = P0.14 (connected), both

@@ -148,7 +148,13 @@ impl Uarte {
             o if o == off!(uarte0, events_endtx) => ev(&mut self.events_endtx, a),
             o if o == off!(uarte0, events_txstopped) => ev(&mut self.events_txstopped, a),
             o if o == off!(uarte0, events_error) => ev(&mut self.events_error, a),
-            o if o == off!(uarte0, events_cts) || o == off!(uarte0, events_ncts) || o == off!(uarte0, events_rxdrdy) || o == off!(uarte0, events_txdrdy) => 0,
+            o if o == off!(uarte0, events_cts)
+                || o == off!(uarte0, events_ncts)
+                || o == off!(uarte0, events_rxdrdy)
+                || o == off!(uarte0, events_txdrdy) =>
+            {
+                0
+            }
             o if o == off!(uarte0, shorts) => a.rw(&mut self.shorts),
             o if o == off!(uarte0, inten) => a.rw(&mut self.inten),
             o if o == off!(uarte0, intenset) => {
