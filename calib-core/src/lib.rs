@@ -1,8 +1,9 @@
 //! Field calibration of a triaxial MEMS gyroscope (and the accelerometer it leans on) from a
 //! hobby-servo rig: pure, `no_std`, allocation-free math shared by the firmware and the PC.
 //!
-//! Conventions (DESIGN §4): sensor frame B = sensor axes; raw gyro `g` in °/s, raw accel `a`
-//! in g; gyro model `ω = K (g − b)`; accelerometer model `f = M (a − o)`. Every estimator keeps
+//! Conventions (DESIGN §4; every `DESIGN §n` refers to `calib-core/DESIGN.md`): sensor frame
+//! B = sensor axes; raw gyro `g` in °/s, raw accel `a` in g; gyro model `ω = K (g − b)`;
+//! accelerometer model `f = M (a − o)`. Every estimator keeps
 //! O(1) or bounded state (sums, normal equations, pose means), never sample buffers; sums are
 //! kept in `f64` so that `f32` inputs give results within 1e-5 of an `f64` reference.
 //!

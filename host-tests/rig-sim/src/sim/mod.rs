@@ -1,4 +1,4 @@
-//! Physical simulator of the calibration rig (DESIGN.md §2, §4, §6), independent of calib-core.
+//! Physical simulator of the calibration rig (DESIGN §2, §4, §6), independent of calib-core.
 //!
 //! World W has z up; body B = sensor axes; attitudes `q_wb` map B to W. At rest the
 //! accelerometer measures the specific force +1 g along world +z. On the shaft the attitude is

@@ -1,4 +1,4 @@
-//! Hobby-servo shaft dynamics driven by a PWM pulse width (µs), 50 Hz frames (DESIGN.md §2).
+//! Hobby-servo shaft dynamics driven by a PWM pulse width (µs), 50 Hz frames (DESIGN §2).
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
