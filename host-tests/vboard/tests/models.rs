@@ -100,35 +100,45 @@ fn hal_wait(p: &mut Periph, ram: &mut Ram, extra_stop: bool) -> Result<(), Xfer>
     Err(Xfer::Hang)
 }
 
+/// One part of nrf-hal 0.19's transaction: one byte by EasyDMA (PTR at `ptr_reg`, MAXCNT
+/// after it) with `shorts`, started by `task`, waited for as the HAL does; `amount_reg` is
+/// checked when given.
+#[allow(clippy::too_many_arguments)]
+fn part(
+    p: &mut Periph,
+    ram: &mut Ram,
+    ptr_reg: u64,
+    buf: u32,
+    shorts: u32,
+    task: u64,
+    amount_reg: Option<u64>,
+    extra_stop: bool,
+) -> Result<(), Xfer> {
+    w(p, ram, TWIM + ptr_reg, buf);
+    w(p, ram, TWIM + ptr_reg + 4, 1);
+    w(p, ram, TWIM + 0x200, shorts);
+    w(p, ram, TWIM + task, 1);
+    w(p, ram, TWIM + 0x020, 1);
+    hal_wait(p, ram, extra_stop)?;
+    if r(p, TWIM + 0x4C4) & 2 != 0 {
+        return Err(Xfer::AddressNack);
+    }
+    if amount_reg.is_some_and(|a| r(p, TWIM + a) != 1) {
+        return Err(Xfer::Transmit);
+    }
+    Ok(())
+}
+
 /// nrf-hal 0.19's `transaction([Write(&[reg]), Read(&mut [_; 1])])`.
 fn read_reg(p: &mut Periph, ram: &mut Ram, addr: u8, reg: u8, extra_stop: bool) -> Result<u8, Xfer> {
     ram.write(0x2000_0000, &[reg]);
     w(p, ram, TWIM + 0x588, addr as u32);
-    for (ev, _) in [(0x104, ()), (0x124, ()), (0x160, ()), (0x15C, ())] {
+    for ev in [0x104, 0x124, 0x160, 0x15C] {
         w(p, ram, TWIM + ev, 0);
     }
     w(p, ram, TWIM + 0x4C4, 7);
-    w(p, ram, TWIM + 0x544, 0x2000_0000);
-    w(p, ram, TWIM + 0x548, 1);
-    w(p, ram, TWIM + 0x200, 1 << 8); // LASTTX_SUSPEND
-    w(p, ram, TWIM + 0x008, 1);
-    w(p, ram, TWIM + 0x020, 1);
-    hal_wait(p, ram, extra_stop)?;
-    if r(p, TWIM + 0x4C4) & 2 != 0 {
-        return Err(Xfer::AddressNack);
-    }
-    if r(p, TWIM + 0x54C) != 1 {
-        return Err(Xfer::Transmit);
-    }
-    w(p, ram, TWIM + 0x534, 0x2000_0100);
-    w(p, ram, TWIM + 0x538, 1);
-    w(p, ram, TWIM + 0x200, 1 << 12); // LASTRX_STOP
-    w(p, ram, TWIM + 0x000, 1);
-    w(p, ram, TWIM + 0x020, 1);
-    hal_wait(p, ram, extra_stop)?;
-    if r(p, TWIM + 0x4C4) & 2 != 0 {
-        return Err(Xfer::AddressNack);
-    }
+    part(p, ram, 0x544, 0x2000_0000, 1 << 8, 0x008, Some(0x54C), extra_stop)?; // TXD, LASTTX_SUSPEND, STARTTX
+    part(p, ram, 0x534, 0x2000_0100, 1 << 12, 0x000, None, extra_stop)?; // RXD, LASTRX_STOP, STARTRX
     let mut b = [0u8];
     ram.read(0x2000_0100, &mut b);
     Ok(b[0])

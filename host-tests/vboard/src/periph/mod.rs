@@ -66,6 +66,15 @@ impl Access {
         }
         *r
     }
+
+    /// Word `i` of an EasyDMA channel's registers (PTR, MAXCNT, AMOUNT[, LIST]): AMOUNT is
+    /// read-only, the others read/write.
+    pub fn easydma(self, regs: &mut [u32], i: usize) -> u32 {
+        match i {
+            2 => regs[2],
+            _ => self.rw(&mut regs[i]),
+        }
+    }
 }
 
 /// EasyDMA access to the emulated RAM.

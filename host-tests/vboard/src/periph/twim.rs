@@ -230,22 +230,8 @@ impl Twim {
             }
             o if o == off!(twim0, frequency) => a.rw(&mut self.frequency),
             o if o == off!(twim0, address) => a.rw(&mut self.address),
-            o if (rxd..rxd + 16).contains(&o) => {
-                let i = ((o - rxd) / 4) as usize;
-                if i == 2 {
-                    self.rxd[2]
-                } else {
-                    a.rw(&mut self.rxd[i])
-                }
-            }
-            o if (txd..txd + 16).contains(&o) => {
-                let i = ((o - txd) / 4) as usize;
-                if i == 2 {
-                    self.txd[2]
-                } else {
-                    a.rw(&mut self.txd[i])
-                }
-            }
+            o if (rxd..rxd + 16).contains(&o) => a.easydma(&mut self.rxd, ((o - rxd) / 4) as usize),
+            o if (txd..txd + 16).contains(&o) => a.easydma(&mut self.txd, ((o - txd) / 4) as usize),
             _ => return Err(format!("TWIM0 register 0x{o:03X}")),
         };
         Ok((v, bus_s))

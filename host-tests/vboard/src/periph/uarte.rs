@@ -187,22 +187,8 @@ impl Uarte {
             o if (psel..psel + 16).contains(&o) => a.rw(&mut self.psel[((o - psel) / 4) as usize]),
             o if o == off!(uarte0, baudrate) => a.rw(&mut self.baudrate),
             o if o == off!(uarte0, config) => a.rw(&mut self.config),
-            o if (rxd..rxd + 12).contains(&o) => {
-                let i = ((o - rxd) / 4) as usize;
-                if i == 2 {
-                    self.rxd[2]
-                } else {
-                    a.rw(&mut self.rxd[i])
-                }
-            }
-            o if (txd..txd + 12).contains(&o) => {
-                let i = ((o - txd) / 4) as usize;
-                if i == 2 {
-                    self.txd[2]
-                } else {
-                    a.rw(&mut self.txd[i])
-                }
-            }
+            o if (rxd..rxd + 12).contains(&o) => a.easydma(&mut self.rxd, ((o - rxd) / 4) as usize),
+            o if (txd..txd + 12).contains(&o) => a.easydma(&mut self.txd, ((o - txd) / 4) as usize),
             _ => return Err(format!("UARTE0 register 0x{o:03X}")),
         })
     }
