@@ -234,7 +234,7 @@ fn flash_map(uicr: &pac::UICR) -> FlashMap {
     // SAFETY: aligned reads of mapped flash (0x4: the vector table at 0x0; a bootloader's
     // vector table only where UICR says one starts, inside the 1 MiB flash).
     let word = |a: u32| unsafe { core::ptr::read_volatile(a as *const u32) };
-    let bootloader_entry = (nrffw0 < 0x10_0000 && nrffw0 % 4 == 0).then(|| word(nrffw0 + 4));
+    let bootloader_entry = (nrffw0 < 0x10_0000 && nrffw0.is_multiple_of(4)).then(|| word(nrffw0 + 4));
     FlashMap { nrffw0, nrffw1: uicr.nrffw[1].read().bits(), reset_vector_0: word(4), bootloader_entry }
 }
 

@@ -155,7 +155,7 @@ impl Lsm9ds1Model {
             Board::Rev2 => address == ADDR_BMI270,
             Board::Missing => false,
         };
-        present && self.powered && self.now_s >= self.busy_until && !self.nack_from.is_some_and(|n| self.transactions >= n)
+        present && self.powered && self.now_s >= self.busy_until && self.nack_from.is_none_or(|n| self.transactions < n)
     }
 
     fn fifo_on(&self) -> bool {

@@ -176,11 +176,11 @@ struct SensorBus<'a> {
 }
 
 impl twim::Bus for SensorBus<'_> {
-    fn transaction(&mut self, address: u8, ops: &mut [Operation<'_>]) -> Result<(), ()> {
+    fn transaction(&mut self, address: u8, ops: &mut [Operation<'_>]) -> Result<(), twim::Nack> {
         if !self.usable {
-            return Err(());
+            return Err(twim::Nack);
         }
-        self.sensor.transaction(address, ops).map_err(|_| ())
+        self.sensor.transaction(address, ops).map_err(|_| twim::Nack)
     }
 
     fn acks(&mut self, address: u8) -> bool {
@@ -311,10 +311,10 @@ impl Periph {
     pub fn update(&mut self) {
         let t = self.now();
         let instr = self.instructions.get();
-        for i in 0..5 {
-            self.timers[i].update(t);
-            if self.timers[i].line(instr) && self.active_irq != Some(TIMER_IRQ[i]) {
-                self.scs.nvic_pending |= 1 << TIMER_IRQ[i];
+        for (tm, irq) in self.timers.iter_mut().zip(TIMER_IRQ) {
+            tm.update(t);
+            if tm.line(instr) && self.active_irq != Some(irq) {
+                self.scs.nvic_pending |= 1 << irq;
             }
         }
         if self.wdt.deadline().is_some_and(|d| t > d) {

@@ -117,7 +117,7 @@ impl Mpu {
             TYPE => 8 << 8, // DREGION = 8, unified
             CTRL => self.ctrl,
             RNR => self.rnr,
-            o if (o - RBAR) % 8 == 0 => (self.rbar[n] & !0x1F) | n as u32,
+            o if (o - RBAR).is_multiple_of(8) => (self.rbar[n] & !0x1F) | n as u32,
             _ => self.rasr[n],
         }
     }
@@ -128,7 +128,7 @@ impl Mpu {
             TYPE => {}
             CTRL => self.ctrl = v & 7,
             RNR => self.rnr = v & 0xFF,
-            o if (o - RBAR) % 8 == 0 => {
+            o if (o - RBAR).is_multiple_of(8) => {
                 if v & (1 << 4) != 0 {
                     self.rnr = v & 0xF; // VALID: the REGION field selects the region
                 }

@@ -47,7 +47,7 @@ impl Nvmc {
                     if self.config != 2 {
                         return Err(format!("NVMC ERASEPAGE 0x{page:X} without CONFIG = EEN"));
                     }
-                    if !(STORAGE.0..STORAGE.1).contains(&page) || page % 4096 != 0 {
+                    if !(STORAGE.0..STORAGE.1).contains(&page) || !page.is_multiple_of(4096) {
                         return Err(format!("NVMC ERASEPAGE 0x{page:X} outside the storage region"));
                     }
                     (0, FlashOp::ErasePage(page))

@@ -19,10 +19,14 @@
 use super::{off, Access, Dma};
 use embedded_hal::i2c::Operation;
 
+/// No device acknowledged the address (or a data byte).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Nack;
+
 /// The bus's devices, seen by the TWIM.
 pub trait Bus {
     /// One I2C transaction; `Err` = address not acknowledged.
-    fn transaction(&mut self, address: u8, ops: &mut [Operation<'_>]) -> Result<(), ()>;
+    fn transaction(&mut self, address: u8, ops: &mut [Operation<'_>]) -> Result<(), Nack>;
     /// Whether a device acknowledges `address` now (the address phase of a write that a
     /// repeated-start read will complete).
     fn acks(&mut self, address: u8) -> bool;
@@ -265,7 +269,7 @@ impl Twim {
         };
         self.events |= if tx { TXSTARTED } else { RXSTARTED };
         let result = if !wired {
-            Err(())
+            Err(Nack)
         } else if tx {
             mem.read(ptr as u64, &mut buf);
             if self.shorts & (LASTTX_SUSPEND | LASTTX_STARTRX) != 0 {
@@ -273,7 +277,7 @@ impl Twim {
                 if bus.acks(addr) {
                     Ok(())
                 } else {
-                    Err(())
+                    Err(Nack)
                 }
             } else {
                 bus.transaction(addr, &mut [Operation::Write(&buf)])
@@ -319,7 +323,7 @@ impl Twim {
                     return Err("TWIM SHORTS LASTRX_STARTTX is not modelled".into());
                 }
             }
-            Err(()) => {
+            Err(Nack) => {
                 // Address NACK: ERROR, and the master holds the bus until STOP.
                 self.errorsrc |= 1 << 1; // ANACK
                 self.events |= ERROR;
