@@ -312,9 +312,11 @@ fn log_report(r: &Report) {
 
 fn sensor_error(e: &SensorError) {
     match e {
-        SensorError::Rev2Bmi270 => defmt::error!("BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported"),
+        SensorError::Rev2Bmi270 => {
+            defmt::error!("{}: BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported", e)
+        }
         SensorError::Missing => {
-            defmt::error!("no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision")
+            defmt::error!("{}: no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision", e)
         }
         other => defmt::error!("LSM9DS1 error: {}", other),
     }

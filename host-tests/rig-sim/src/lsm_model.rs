@@ -74,6 +74,7 @@ pub struct Lsm9ds1Model {
     pub nack_from: Option<usize>,
     transactions: usize,
     produced: usize,
+    sw_resets: usize,
     dropped: usize,
     history: Vec<([f32; 3], [f32; 3])>,
     /// The part does not answer before this time (booting).
@@ -112,6 +113,7 @@ impl Lsm9ds1Model {
             nack_from: None,
             transactions: 0,
             produced: 0,
+            sw_resets: 0,
             dropped: 0,
             history: Vec::new(),
             busy_until: 0.0,
@@ -188,6 +190,11 @@ impl Lsm9ds1Model {
     /// The rig, to command the servo.
     pub fn rig_mut(&mut self) -> &mut Rig {
         &mut self.rig
+    }
+
+    /// Software resets (CTRL_REG8 SW_RESET) received: each initialisation of a driver does one.
+    pub fn sw_resets(&self) -> usize {
+        self.sw_resets
     }
 
     /// Samples the sensor produced since configuration, and how many were lost to overrun.
@@ -324,6 +331,7 @@ impl Lsm9ds1Model {
             // both bits clear themselves.
             if v & 0x01 != 0 {
                 self.reset_registers();
+                self.sw_resets += 1;
             }
             self.busy_until = self.now_s + BOOT_S;
             return;

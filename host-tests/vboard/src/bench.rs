@@ -3,7 +3,7 @@
 
 use crate::elf::Firmware;
 use crate::mcu::{Mcu, Stop};
-use crate::periph::Periph;
+use crate::periph::{Leds, Periph};
 use calib_core::record::Record;
 use rig_sim::harness::handheld_attitudes;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
@@ -54,14 +54,26 @@ pub fn build_firmware(features: &[&str]) -> Result<Vec<u8>, String> {
 /// How a calibration attempt ended.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
-    /// "calibration done" logged.
+    /// The LEDs show "done: stored and applied" (green, D13 on).
     Done,
-    /// "calibration failed" logged, with the line.
-    Failed(String),
+    /// The LEDs show an error (red): its class, the number of D13 flashes every 2 s (1 sensor,
+    /// 2 motion, 3 servo, 4 geometry, 5 result, 6 timeout, 7 storage).
+    Failed(u8),
     /// The emulation stopped.
     Stopped(Stop),
     /// Neither within the time limit.
     Timeout,
+}
+
+/// What the operator did, as fault injection sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Event {
+    /// They hold the board still in hand-held orientation `n` (0-based).
+    HandHeldPose(usize),
+    /// They clamped the board back on the shaft and pressed the button.
+    Reattached,
+    /// Every 50 ms: seconds since [`Event::Reattached`] (or since the start, before it).
+    Tick(f64),
 }
 
 /// The emulated board on the simulated rig, with an operator.
@@ -102,15 +114,51 @@ impl Bench {
         stop
     }
 
-    /// Runs in 50 ms steps until a log line contains `text` (true) or `max_s` passes (false).
-    pub fn run_until_line(&mut self, text: &str, max_s: f64) -> bool {
+    /// The LEDs now.
+    pub fn leds(&self) -> Leds {
+        self.mcu.periph.borrow().leds()
+    }
+
+    /// Watches D13 for one 2 s pattern cycle and returns the number of its flashes (the phase
+    /// number while blue, the error class while red).
+    pub fn flashes(&mut self) -> Result<u8, Stop> {
+        let (mut n, mut was) = (0u8, self.leds().d13);
+        for _ in 0..80 {
+            let stop = self.run_for(0.025);
+            if stop != Stop::Time {
+                return Err(stop);
+            }
+            let on = self.leds().d13;
+            n += u8::from(on && !was);
+            was = on;
+        }
+        Ok(n)
+    }
+
+    /// Runs until the LEDs show phase `n` (blue, n flashes) or `max_s` passes.
+    pub fn run_until_phase(&mut self, n: u8, max_s: f64) -> bool {
         let t_end = self.mcu.now() + max_s;
         while self.mcu.now() < t_end {
-            let t = self.mcu.now() + 0.05;
-            if self.mcu.run_until(t) != Stop::Time {
+            if self.run_for(0.05) != Stop::Time {
                 return false;
             }
-            if self.new_lines().iter().any(|l| l.contains(text)) {
+            let l = self.leds();
+            if l.blue && !l.red && self.flashes() == Ok(n) {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Runs until the LEDs show "done" (green and D13 steady) or `max_s` passes.
+    pub fn run_until_done(&mut self, max_s: f64) -> bool {
+        let t_end = self.mcu.now() + max_s;
+        while self.mcu.now() < t_end {
+            if self.run_for(0.05) != Stop::Time {
+                return false;
+            }
+            let l = self.leds();
+            if l.green && l.d13 && !l.red && !l.blue {
                 return true;
             }
         }
@@ -125,90 +173,44 @@ impl Bench {
         s
     }
 
-    /// Presses the button and plays the operator until the firmware logs the end of the
-    /// calibration (or `max_s` of virtual time passes).
+    /// Presses the button and plays the operator until the LEDs say the calibration ended (or
+    /// `max_s` of virtual time passes).
     pub fn calibrate(&mut self, max_s: f64) -> Outcome {
         self.calibrate_with(max_s, |_, _| {})
     }
 
-    /// As [`Bench::calibrate`], calling `inject(line, periph)` on every log line (fault injection).
-    pub fn calibrate_with(&mut self, max_s: f64, mut inject: impl FnMut(&str, &mut Periph)) -> Outcome {
-        let attitudes = handheld_attitudes();
-        let (mut next, mut handheld) = (0usize, false);
-        let mut press_at = Some(self.mcu.now());
-        let t_end = self.mcu.now() + max_s;
-        while self.mcu.now() < t_end {
-            if press_at.is_some_and(|t| self.mcu.now() >= t) {
-                press_at = None;
-                if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
-                    return Outcome::Stopped(s);
-                }
-            }
-            let t = self.mcu.now() + 0.05;
-            let stop = self.mcu.run_until(t);
-            if stop != Stop::Time {
-                self.new_lines();
-                return Outcome::Stopped(stop);
-            }
-            for line in self.new_lines() {
-                inject(&line, &mut self.mcu.periph.borrow_mut());
-                let now = self.mcu.now();
-                let rig = self.mcu.periph.borrow_mut();
-                let mut rig = std::cell::RefMut::map(rig, |p| p.sensor.rig_mut());
-                if line.contains("phase: hand-held") {
-                    handheld = true;
-                }
-                if handheld && (line.contains("phase: hand-held") || line.contains("hand-held pose")) {
-                    if let Some(q) = attitudes.get(next) {
-                        rig.detach_to(*q, 1.0);
-                        next += 1;
-                    }
-                } else if line.contains("phase: reattach") {
-                    handheld = false;
-                    rig.attach();
-                    press_at = Some(now + rig.config().attach_transition_s + 1.0);
-                } else if line.contains("calibration done") {
-                    drop(rig);
-                    self.run_for(0.5);
-                    return Outcome::Done;
-                } else if line.contains("calibration failed") {
-                    return Outcome::Failed(line);
-                }
-            }
-        }
-        Outcome::Timeout
-    }
-
-    /// Presses the button and plays an operator who cannot read the log (no probe): they go by
-    /// the LEDs and the procedure's timeline only. Yellow blinking (red + green together) means
-    /// "your turn": they hold the board in the hand-held orientations one after the other, 3 s
-    /// each (a pose is captured after 1 s of stillness), then clamp it back and press the button
-    /// until the yellow stops; green with D13 lit is done, red without green is an error (class
-    /// = D13 flashes). Returns the outcome as the LEDs tell it.
-    pub fn calibrate_by_leds(&mut self, max_s: f64) -> Outcome {
+    /// Presses the button and plays an operator who goes by the LEDs only, never by the log:
+    /// yellow blinking (red + green together) means "your turn": they hold the board in the
+    /// hand-held orientations one after the other, 3 s each (a pose is captured after 1 s of
+    /// stillness), then clamp it back and press the button until the yellow stops; green with
+    /// D13 lit is done, red without green an error, its class the D13 flashes. `inject(event,
+    /// periph)` sees what the operator does (fault injection).
+    pub fn calibrate_with(&mut self, max_s: f64, mut inject: impl FnMut(Event, &mut Periph)) -> Outcome {
         const HOLD_S: f64 = 3.0;
         let attitudes = handheld_attitudes();
         let t_end = self.mcu.now() + max_s;
         if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
             return Outcome::Stopped(s);
         }
-        // (time the state was first seen, state) of the last LED observations.
         let (mut red_since, mut done_since, mut yellow_seen) = (None::<f64>, None::<f64>, false);
         let (mut next, mut next_at, mut reattached_at) = (0usize, 0.0f64, None::<f64>);
+        let mut since = self.mcu.now();
         while self.mcu.now() < t_end {
             let stop = self.run_for(0.05);
             if stop != Stop::Time {
                 return Outcome::Stopped(stop);
             }
             let now = self.mcu.now();
-            let l = self.mcu.periph.borrow().leds();
-            if l.red && l.green {
-                yellow_seen = true;
-            }
+            inject(Event::Tick(now - since), &mut self.mcu.periph.borrow_mut());
+            let l = self.leds();
+            yellow_seen |= l.red && l.green;
             red_since = if l.red && !l.green { red_since.or(Some(now)) } else { None };
             done_since = if l.green && l.d13 && !l.red && !l.blue { done_since.or(Some(now)) } else { None };
             if red_since.is_some_and(|t| now - t > 0.6) {
-                return Outcome::Failed("red LED".into());
+                return match self.flashes() {
+                    Ok(class) => Outcome::Failed(class),
+                    Err(s) => Outcome::Stopped(s),
+                };
             }
             if done_since.is_some_and(|t| now - t > 0.6) {
                 return Outcome::Done;
@@ -221,6 +223,7 @@ impl Bench {
                 if now >= next_at {
                     let mut p = self.mcu.periph.borrow_mut();
                     p.sensor.rig_mut().detach_to(attitudes[next], 1.0);
+                    inject(Event::HandHeldPose(next), &mut p);
                     next += 1;
                     next_at = now + HOLD_S;
                 }
@@ -236,6 +239,8 @@ impl Bench {
                         if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
                             return Outcome::Stopped(s);
                         }
+                        inject(Event::Reattached, &mut self.mcu.periph.borrow_mut());
+                        since = self.mcu.now();
                         reattached_at = Some(self.mcu.now() + 2.0);
                     }
                     _ => {}

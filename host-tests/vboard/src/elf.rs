@@ -10,6 +10,8 @@ pub struct Firmware {
     pub segments: Vec<(u64, Vec<u8>)>,
     /// Address of the RTT control block `_SEGGER_RTT`.
     pub rtt: Option<u64>,
+    /// Address of the logger's count of dropped bytes (`gyrocal_fw::rtt`'s `DROPPED`, a u32).
+    pub rtt_dropped: Option<u64>,
     /// Address range of `Procedure::handle_sample` (instruction counting).
     pub handle_sample: Option<(u64, u64)>,
     /// Address range of the stack (RAM start to the initial stack pointer; flip-link puts it
@@ -31,13 +33,15 @@ impl Firmware {
                 segments.push((paddr, data.to_vec()));
             }
         }
-        let mut rtt = None;
+        let (mut rtt, mut rtt_dropped) = (None, None);
         let mut handle_sample = None;
         let mut stack_top = None;
         for sym in file.symbols() {
             let name = sym.name().unwrap_or("");
             if name == "_SEGGER_RTT" {
                 rtt = Some(sym.address());
+            } else if name.contains("rtt") && name.contains("DROPPED") && sym.size() == 4 {
+                rtt_dropped = Some(sym.address());
             } else if name == "_stack_start" {
                 stack_top = Some(sym.address());
             } else if name.contains("Procedure") && name.contains("handle_sample") && sym.size() > 0 {
@@ -46,7 +50,7 @@ impl Firmware {
             }
         }
         let stack = stack_top.map(|t| (0x2000_0000, t));
-        Ok(Self { bytes, segments, rtt, handle_sample, stack })
+        Ok(Self { bytes, segments, rtt, rtt_dropped, handle_sample, stack })
     }
 }
 

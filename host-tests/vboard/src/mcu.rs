@@ -364,6 +364,14 @@ impl Mcu {
         self.rtt_write_seen.get().1
     }
 
+    /// The firmware's own count of log bytes it dropped because the buffer was full (read from
+    /// its RAM; `None` if the ELF has no such counter).
+    pub fn rtt_dropped(&self) -> Option<u32> {
+        let mut b = [0u8; 4];
+        self.uc.mem_read(self.firmware.rtt_dropped?, &mut b).ok()?;
+        Some(u32::from_le_bytes(b))
+    }
+
     /// The up channel's flags word (None before the control block is initialised).
     pub fn rtt_flags(&self) -> Option<u32> {
         let cb = self.firmware.rtt?;

@@ -1,6 +1,7 @@
 //! `cargo demo [--seed N] [--quiet]`: builds the firmware, boots the very ELF that gets flashed
 //! on the emulated Nano 33 BLE with a simulated rig (random but seeded sensor and servo errors),
-//! presses the button, plays the operator, prints the firmware's own defmt log, resets the board,
+//! presses the button, plays the operator (who watches the LEDs, never the log), prints the
+//! firmware's own defmt log, resets the board,
 //! reads the stored record back from the emulated flash and compares it with the simulator's
 //! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>`.
 //!
@@ -9,7 +10,7 @@
 //! what `probe-rs run --log-format "{s}" > OUT.csv` would write; `calib OUT.csv` calibrates it.
 //!
 //! `--no-probe`: nobody reads RTT until the end (no probe attached). The operator then cannot
-//! read the log and goes by the LEDs and the procedure's timeline (`Bench::calibrate_by_leds`);
+//! read the log and goes by the LEDs (as always: `Bench::calibrate`);
 //! the result comes from the emulated flash and from what the RTT buffer holds at the end. The
 //! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
@@ -75,7 +76,7 @@ fn main() -> ExitCode {
         bench.run_for(1.0);
         at
     });
-    let outcome = if no_probe { bench.calibrate_by_leds(600.0) } else { bench.calibrate(600.0) };
+    let outcome = bench.calibrate(600.0);
     if let (Some(path), Some(from)) = (&raw_log, raw_from) {
         bench.press(2.3);
         bench.run_for(0.5);

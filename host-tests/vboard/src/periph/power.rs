@@ -41,6 +41,8 @@ impl ResetKind {
 pub struct Power {
     /// RESETREAS.
     pub resetreas: u32,
+    /// RESETREAS as the firmware first read it after the last reset.
+    pub resetreas_read: Option<u32>,
     /// DCDCEN (REG1 DC/DC).
     pub dcdcen: u32,
     /// DCDCEN0 (REG0 DC/DC).
@@ -55,7 +57,17 @@ pub struct Power {
 impl Power {
     /// At power-on.
     pub fn new() -> Self {
-        Self { resetreas: 0, dcdcen: 0, dcdcen0: 0, pofcon: 0, gpregret: 0, gpregret2: 0, inten: 0, ram_power: [0xFFFF; 9] }
+        Self {
+            resetreas: 0,
+            resetreas_read: None,
+            dcdcen: 0,
+            dcdcen0: 0,
+            pofcon: 0,
+            gpregret: 0,
+            gpregret2: 0,
+            inten: 0,
+            ram_power: [0xFFFF; 9],
+        }
     }
 
     /// After a reset of `kind`: RESETREAS accumulates; GPREGRET and DCDCEN survive all but
@@ -65,6 +77,7 @@ impl Power {
             *self = Self::new();
         } else {
             self.resetreas |= kind.resetreas_bit();
+            self.resetreas_read = None;
             self.pofcon = 0;
             self.inten = 0;
         }
@@ -113,6 +126,7 @@ impl Power {
                 0
             }
             o if o == off!(power, resetreas) => {
+                self.resetreas_read.get_or_insert(self.resetreas);
                 if let Access::Write(v) = a {
                     self.resetreas &= !v; // write 1 to clear
                 }
