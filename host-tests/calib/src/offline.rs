@@ -48,7 +48,7 @@ impl Segment {
 
 /// A steady-rate run: the paper's rotation.
 #[derive(Debug, Clone, Copy)]
-pub struct Rotation {
+pub struct SteadyRotation {
     /// First and last row index (inclusive) of the averaged part.
     pub rows: (usize, usize),
     /// Mean raw gyro over it (°/s).
@@ -235,7 +235,7 @@ fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) 
 
 /// The longest run of windows whose mean bias-free gyro vector stays within 3 % of the run's
 /// first, above `MIN_ROTATION_DPS`, lasting `MIN_ROTATION_S`; its first and last windows are dropped.
-pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<Rotation> {
+pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<SteadyRotation> {
     let windows = window_len(rows, RestConfig::default().window_s as f64);
     let b = v64(bias_dps);
     let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
@@ -257,7 +257,7 @@ pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<Rotation> {
     }
     best.map(|(i, j)| {
         let rows_range = (windows[i + 1].0, windows[j - 1].1);
-        Rotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 }
+        SteadyRotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 }
     })
 }
 

@@ -5,7 +5,7 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
-use crate::sim::{Rig, Sample as SimSample};
+use crate::sim::{Reading, Rig};
 use calib_core::gyro::GyroCal;
 use calib_core::log::{self, Row};
 use calib_core::procedure::{Led, Phase, Procedure, Report, Sample, Shell};
@@ -31,7 +31,7 @@ pub struct Faults {
 
 /// What a run produced.
 #[derive(Debug, Clone, Default)]
-pub struct Outcome {
+pub struct Run {
     /// Every report, in order.
     pub reports: Vec<Report>,
     /// Records stored (the shell's store succeeded).
@@ -48,7 +48,7 @@ pub struct Outcome {
     pub end_s: f64,
 }
 
-impl Outcome {
+impl Run {
     /// Gyro results reported by the estimators.
     pub fn gyro_results(&self) -> Vec<GyroCal> {
         self.reports.iter().filter_map(|r| if let Report::Gyro(c) = r { Some(*c) } else { None }).collect()
@@ -87,7 +87,7 @@ pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
 }
 
 /// Converts a simulator sample to the procedure's input.
-pub fn to_input(s: &SimSample) -> Sample {
+pub fn to_input(s: &Reading) -> Sample {
     Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: Some(s.temp_c) }
 }
 
@@ -95,7 +95,7 @@ pub fn to_input(s: &SimSample) -> Sample {
 /// the operator (typed reports, not log wording), stores go to `out` (or fail as injected).
 struct SimBoard<'a> {
     rig: &'a mut Rig,
-    out: &'a mut Outcome,
+    out: &'a mut Run,
     faults: Faults,
     attitudes: Vec<UnitQuaternion<f64>>,
     next_pose: usize,
@@ -165,9 +165,9 @@ pub fn run(
     proc: &mut Procedure,
     faults: Faults,
     max_s: f64,
-    mut log: impl FnMut(&SimSample, Option<f32>, Option<f32>),
-) -> Outcome {
-    let mut out = Outcome::default();
+    mut log: impl FnMut(&Reading, Option<f32>, Option<f32>),
+) -> Run {
+    let mut out = Run::default();
     let mut last_bump = f64::NEG_INFINITY;
     let mut started = false;
     let mut samples = 0;
@@ -223,7 +223,7 @@ pub fn run(
 }
 
 /// Runs like [`run`] and records the log ([`calib_core::log`], `comments` first).
-pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Outcome) {
+pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Run) {
     let mut text = format!("{comments}{}\n", log::HEADER);
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
         let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };

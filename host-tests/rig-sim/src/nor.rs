@@ -43,12 +43,15 @@ pub struct NorSim {
     cut_at: Option<usize>,
     off: bool,
     rng: ChaCha8Rng,
+    /// Fault injection: a worn cell: this byte offset keeps bit 0 set whatever is written
+    /// (the write "succeeds", the read-back differs).
+    pub stuck_bit: Option<usize>,
 }
 
 impl NorSim {
     /// An erased region of `pages` pages.
     pub fn new(pages: usize, seed: u64) -> Self {
-        Self { mem: vec![0xFF; pages * PAGE], steps: 0, cut_at: None, off: false, rng: ChaCha8Rng::seed_from_u64(seed) }
+        Self { mem: vec![0xFF; pages * PAGE], steps: 0, cut_at: None, off: false, rng: ChaCha8Rng::seed_from_u64(seed), stuck_bit: None }
     }
 
     /// Cuts the power at step `n` from now (0 = the next erase or word write).
@@ -153,6 +156,9 @@ impl NorFlash for NorSim {
             }
             for (k, &b) in word.iter().enumerate() {
                 self.mem[at + k] &= b;
+                if self.stuck_bit == Some(at + k) {
+                    self.mem[at + k] |= 1;
+                }
             }
         }
         Ok(())

@@ -6,11 +6,11 @@ use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rig_sim::harness::{run, Faults, Outcome};
+use rig_sim::harness::{run, Faults, Run};
 use rig_sim::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
 use rig_sim::variant::Variant;
 
-fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Outcome, Rig) {
+fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Run, Rig) {
     let mut rig = Rig::new(cfg, 5);
     let mut p = Procedure::new(pcfg, stored);
     let out = run(&mut rig, &mut p, faults, 900.0, |_, _, _| {});

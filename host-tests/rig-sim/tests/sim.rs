@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, SymmetricEigen, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rig_sim::sim::{tilted_axis, ContinuousServo, PositionalServo, Rig, RigConfig, Sample, ServoModel, Truth, Vibration, G0};
+use rig_sim::sim::{tilted_axis, ContinuousServo, PositionalServo, Reading, Rig, RigConfig, ServoModel, Truth, Vibration, G0};
 use rig_sim::sim::{AccelRange, GyroRange};
 
 fn v3(a: [f32; 3]) -> Vector3<f64> {
@@ -12,7 +12,7 @@ fn v3(a: [f32; 3]) -> Vector3<f64> {
 }
 
 /// Runs for `seconds` of true time and returns the samples.
-fn run(rig: &mut Rig, seconds: f64) -> Vec<Sample> {
+fn run(rig: &mut Rig, seconds: f64) -> Vec<Reading> {
     let end = rig.time_s() + seconds;
     let mut out = Vec::new();
     while rig.time_s() < end {
@@ -22,7 +22,7 @@ fn run(rig: &mut Rig, seconds: f64) -> Vec<Sample> {
 }
 
 /// Runs for `seconds` of true time and returns each sample with the truth right after it.
-fn record(rig: &mut Rig, seconds: f64) -> Vec<(Sample, Truth)> {
+fn record(rig: &mut Rig, seconds: f64) -> Vec<(Reading, Truth)> {
     let end = rig.time_s() + seconds;
     let mut out = Vec::new();
     while rig.time_s() < end {
@@ -31,7 +31,7 @@ fn record(rig: &mut Rig, seconds: f64) -> Vec<(Sample, Truth)> {
     out
 }
 
-fn mean_accel(samples: &[Sample]) -> Vector3<f64> {
+fn mean_accel(samples: &[Reading]) -> Vector3<f64> {
     samples.iter().map(|s| v3(s.accel_g)).sum::<Vector3<f64>>() / samples.len() as f64
 }
 
@@ -483,14 +483,14 @@ fn noise_rms_matches_density() {
     let cfg = RigConfig::realistic(&mut ChaCha8Rng::seed_from_u64(12));
     let samples = run(&mut Rig::new(cfg, 4), 30.0);
     let half_odr = (cfg.actual_odr_hz() / 2.0).sqrt();
-    let std = |f: &dyn Fn(&Sample) -> f64| {
+    let std = |f: &dyn Fn(&Reading) -> f64| {
         let n = samples.len() as f64;
         let mean = samples.iter().map(f).sum::<f64>() / n;
         (samples.iter().map(|s| (f(s) - mean).powi(2)).sum::<f64>() / n).sqrt()
     };
     for i in 0..3 {
-        let g = std(&|s: &Sample| f64::from(s.gyro_dps[i])) / (cfg.gyro.noise_dps_rthz * half_odr);
-        let a = std(&|s: &Sample| f64::from(s.accel_g[i])) / (cfg.accel.noise_ug_rthz * 1e-6 * half_odr);
+        let g = std(&|s: &Reading| f64::from(s.gyro_dps[i])) / (cfg.gyro.noise_dps_rthz * half_odr);
+        let a = std(&|s: &Reading| f64::from(s.accel_g[i])) / (cfg.accel.noise_ug_rthz * 1e-6 * half_odr);
         assert!((g - 1.0).abs() < 0.06 && (a - 1.0).abs() < 0.06, "axis {i}: {g} {a}");
     }
 }

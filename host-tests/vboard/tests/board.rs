@@ -96,3 +96,20 @@ fn a_hung_bus_ends_in_a_watchdog_reset() {
     b.run_for(3.0);
     assert_eq!(b.mcu.periph.borrow().sensor.sw_resets(), 2, "the sensor initialised again after the reset");
 }
+
+#[test]
+fn a_failed_store_shows_the_storage_error_applies_nothing_and_keeps_the_sequence() {
+    let mut b = bench(Board::Rev1, Variant::Hobby.config(10, 0), 10);
+    b.run_for(2.0);
+    // A worn bit in the first record slot: the write reads back wrong (StoreError::Verify).
+    b.mcu.periph.borrow_mut().flash.stuck_bit = Some(10);
+    assert_eq!(b.calibrate(600.0), Outcome::Failed(7), "the storage error class, not done");
+    assert!(b.stored().is_none());
+    // Not applied: the LEDs stay on the error, never "done".
+    b.run_for(2.0);
+    assert!(b.leds().red && !b.leds().green);
+    // The cell works again: the next calibration is record 1, the sequence did not move on.
+    b.mcu.periph.borrow_mut().flash.stuck_bit = None;
+    assert_eq!(b.calibrate(600.0), Outcome::Done);
+    assert_eq!(b.stored().map(|r| r.seq), Some(1));
+}

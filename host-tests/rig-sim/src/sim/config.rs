@@ -1,7 +1,7 @@
 //! Rig configuration: sensors, servo, geometry, clocks.
 
 use super::kinematics::{rotation_between, tilted_axis};
-use super::sensor::{AccelModel, GyroModel};
+use super::sensor::{AccelSensor, GyroSensor};
 use super::servo::{PositionalServo, ServoModel};
 use nalgebra::{Unit, UnitQuaternion, Vector3};
 use rand::Rng;
@@ -15,9 +15,9 @@ pub struct RigConfig {
     /// Relative ODR error: actual ODR = `odr_hz · (1 + odr_error)`.
     pub odr_error: f64,
     /// The gyroscope's errors.
-    pub gyro: GyroModel,
+    pub gyro: GyroSensor,
     /// The accelerometer's errors.
-    pub accel: AccelModel,
+    pub accel: AccelSensor,
     /// The rotation servo.
     pub servo: ServoModel,
     /// Shaft axis angle from world vertical (deg).
@@ -59,8 +59,8 @@ impl RigConfig {
         Self {
             odr_hz: 119.0,
             odr_error: 0.0,
-            gyro: GyroModel::ideal(),
-            accel: AccelModel::ideal(),
+            gyro: GyroSensor::ideal(),
+            accel: AccelSensor::ideal(),
             servo: ServoModel::Positional(PositionalServo::ideal()),
             shaft_tilt_deg: 45.0,
             shaft_azimuth_deg: 30.0,
@@ -77,7 +77,7 @@ impl RigConfig {
     }
 
     /// Nano 33 BLE (LSM9DS1 at 119 Hz) on a positional hobby servo, drawn from `rng`: see
-    /// `GyroModel::realistic`, `AccelModel::realistic`, `PositionalServo::realistic`; ODR error
+    /// `GyroSensor::realistic`, `AccelSensor::realistic`, `PositionalServo::realistic`; ODR error
     /// U(−5 %, −2 %), shaft tilt U(20°, 70°) at a random azimuth, random mount with
     /// |u_k| ≥ 0.2 on every sensor axis, radius U(0, 2 cm), crystal U(−20, 20) ppm,
     /// 10 µs jitter, 20–30 °C drifting up to 0.3 °C/min.
@@ -92,8 +92,8 @@ impl RigConfig {
         Self {
             odr_hz: 119.0,
             odr_error: rng.random_range(-0.05..-0.02),
-            gyro: GyroModel::realistic(rng),
-            accel: AccelModel::realistic(rng),
+            gyro: GyroSensor::realistic(rng),
+            accel: AccelSensor::realistic(rng),
             servo: ServoModel::Positional(PositionalServo::realistic(rng)),
             shaft_tilt_deg: rng.random_range(20.0..70.0),
             shaft_azimuth_deg: rng.random_range(0.0..360.0),

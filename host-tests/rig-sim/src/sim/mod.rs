@@ -19,6 +19,6 @@ mod servo;
 
 pub use config::{RigConfig, TiltStage};
 pub use kinematics::{tilted_axis, G0};
-pub use rig::{Rig, Sample, Truth};
-pub use sensor::{AccelModel, AccelRange, GyroModel, GyroRange};
+pub use rig::{Reading, Rig, Truth};
+pub use sensor::{AccelRange, AccelSensor, GyroRange, GyroSensor};
 pub use servo::{ContinuousServo, PositionalServo, ServoModel, Vibration};

@@ -14,7 +14,7 @@ const SUBSTEP_HZ: f64 = 8000.0;
 
 /// One IMU sample as the MCU sees it.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Sample {
+pub struct Reading {
     /// MCU timestamp (s): crystal error and jitter included, strictly increasing.
     pub t_s: f64,
     /// Raw accelerometer (g, datasheet sensitivity applied).
@@ -193,7 +193,7 @@ impl Rig {
     }
 
     /// Advances to the next sensor sample and returns it.
-    pub fn next_sample(&mut self) -> Sample {
+    pub fn next_sample(&mut self) -> Reading {
         self.k += 1;
         let t_s = self.t_s + 1.0 / self.cfg.actual_odr_hz();
         let dt_s = t_s - self.t_s;
@@ -227,7 +227,7 @@ impl Rig {
         let t_mcu = t_s * (1.0 + self.cfg.mcu_clock_ppm * 1e-6) + jitter;
         self.t_mcu_s = t_mcu.max(self.t_mcu_s + 1e-6);
 
-        Sample {
+        Reading {
             t_s: self.t_mcu_s,
             accel_g,
             gyro_dps,

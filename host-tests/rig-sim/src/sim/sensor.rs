@@ -53,7 +53,7 @@ impl AccelRange {
 
 /// Gyroscope: `g = C_g ω_B + b(T) + n`, `C_g = (I + misalignment) · diag(scale)`, all in deg/s.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GyroModel {
+pub struct GyroSensor {
     /// Full scale (saturation, quantisation).
     pub range: GyroRange,
     /// Per-axis scale factors.
@@ -70,7 +70,7 @@ pub struct GyroModel {
     pub quantize: bool,
 }
 
-impl GyroModel {
+impl GyroSensor {
     /// Unit scale, no misalignment, bias, noise or quantisation; ±500 dps.
     pub fn ideal() -> Self {
         Self {
@@ -118,7 +118,7 @@ impl GyroModel {
 
 /// Accelerometer: `a = C_a f_B + o + n`, `C_a = (I + misalignment) · diag(scale)`, all in g.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct AccelModel {
+pub struct AccelSensor {
     /// Full scale (saturation, quantisation).
     pub range: AccelRange,
     /// Per-axis scale factors.
@@ -133,7 +133,7 @@ pub struct AccelModel {
     pub quantize: bool,
 }
 
-impl AccelModel {
+impl AccelSensor {
     /// Unit scale, no misalignment, offset, noise or quantisation; ±2 g.
     pub fn ideal() -> Self {
         Self {
