@@ -1,11 +1,13 @@
 //! The PC side of gyrocal: the recorded log read whole ([`csvlog`], over the format of
-//! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]). The
+//! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
+//! log of the firmware's own run is replayed through its procedure ([`replay`]). The
 //! binaries `calib` and `flash-usb` are what a user installs (`cargo install --path
 //! host-tests/calib`); nothing here depends on the simulator.
 #![deny(missing_docs)]
 
 pub mod csvlog;
 pub mod offline;
+pub mod replay;
 
 /// The process arguments for a clap parser, without a leading `--`: the cargo aliases
 /// (`cargo paper-tables`, `cargo demo`, …) already end with one, so `cargo demo -- --seed 2`

@@ -284,6 +284,9 @@ pub struct Calibration {
     pub moves: usize,
     /// Hand-held poses used.
     pub handheld_poses: usize,
+    /// The log was a run of the firmware's procedure, replayed through it under this
+    /// configuration ([`crate::replay`]): the results are the firmware's.
+    pub replayed: Option<&'static str>,
 }
 
 /// The LSM9DS1's output data rates (Hz): gyro 14.9, 59.5, 119, 238, 476, 952; accelerometer
@@ -360,6 +363,43 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         return Err(OfflineError::NoRest);
     }
     check_accel_units(&ph)?;
+    // A run of the firmware's own procedure: replayed through it, the firmware's results.
+    if method.is_none() {
+        if let Some(r) = crate::replay::replay(rows) {
+            // A scale near a unit factor names the mistake: from the result, or from a move
+            // whose gyro turn was that far from the commanded one.
+            let scale = match &r.result {
+                Ok(c) => Some(c.k.iter().enumerate().map(|(i, row)| row[i] as f64).sum::<f64>() / 3.0),
+                Err(Error::ServoNotTurning { commanded_deg, measured_deg }) if *measured_deg != 0.0 => {
+                    Some((commanded_deg / measured_deg).abs() as f64)
+                }
+                Err(Error::ImplausibleScale { value, .. }) => Some(*value as f64),
+                Err(_) => None,
+            };
+            let gyro = match (scale.and_then(gyro_units), r.result) {
+                (Some(e), _) => Err(e),
+                (None, Ok(c)) => Ok(c),
+                (None, Err(error)) => Err(OfflineError::Calib { stage: "the firmware's procedure", error }),
+            };
+            if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
+                return Err(e);
+            }
+            let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
+            return Ok(Calibration {
+                gyro,
+                bias: r.bias,
+                accel: r.accel,
+                sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
+                paper: r.paper,
+                rotation_rate: None,
+                rig_poses: q.map_or(0, |q| q.poses as usize),
+                moves: q.map_or(0, |q| q.rows as usize),
+                handheld_poses: r.accel.poses as usize,
+                replayed: Some(r.config),
+                phases: ph,
+            });
+        }
+    }
     // Bias: every still segment pooled.
     let mut b = BiasEstimator::new();
     for s in &ph.segments {
@@ -459,6 +499,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         rig_poses: poses.len(),
         moves: moves.len(),
         handheld_poses: acc.len(),
+        replayed: None,
         phases: ph,
     })
 }
@@ -577,6 +618,9 @@ pub struct QualityOut<'a> {
     pub rest_thresholds: &'a RestConfig,
     /// Log messages between the rows that were skipped.
     pub log_messages: usize,
+    /// The log was a run of the firmware's procedure, replayed through it under this
+    /// configuration (`null`: phases found from the data).
+    pub replayed: Option<&'static str>,
 }
 
 const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: MIN_ROTATION_DPS as f32 });
@@ -623,6 +667,7 @@ impl Calibration {
                 },
                 rest_thresholds: &self.phases.rest,
                 log_messages,
+                replayed: self.replayed,
             },
         }
     }

@@ -243,3 +243,33 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     assert!(err.contains("partial calibration"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
+    // Accepted: the K the procedure stored, from the log alone, to 1e-6.
+    let mut rig = Rig::new(Variant::Hobby.config(27, 0), 3);
+    let mut p = Procedure::new(Config::default(), None);
+    let (log, run) = record_log(&mut rig, &mut p, Faults::default(), "");
+    let stored = run.stored[0];
+    let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+    assert_eq!(c.replayed, Some("default"));
+    let k = c.gyro.as_ref().unwrap().k;
+    let diff = (0..9).map(|i| (k[i / 3][i % 3] - stored.gyro_k[i / 3][i % 3]).abs()).fold(0.0f32, f32::max);
+    println!("MEASURED calib_vs_procedure_max_abs_k_diff={diff:e}");
+    assert!(diff <= 1e-6, "{diff}");
+    assert_eq!(c.gyro.as_ref().unwrap().method, stored.method);
+    assert_eq!(c.bias.bias_dps.map(|b| (b * 1e4).round()), stored.gyro_bias_dps.map(|b| (b * 1e4).round()));
+    // Rejected (a gyro scale the acceptance refuses): the same verdict, the same error.
+    let mut cfg = Variant::Hobby.config(28, 0);
+    cfg.gyro.scale.x = 1.3;
+    let mut rig = Rig::new(cfg, 3);
+    let mut p = Procedure::new(Config::default(), None);
+    let (log, run) = record_log(&mut rig, &mut p, Faults::default(), "");
+    assert!(matches!(run.error, Some(calib_core::Error::ResultRejected { axis: 0, .. })), "{:?}", run.error);
+    let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+    assert!(matches!(c.gyro, Err(OfflineError::Calib { error: calib_core::Error::ResultRejected { axis: 0, .. }, .. })), "{:?}", c.gyro);
+    // Another protocol (the rows reordered into a different timeline) is not replayed.
+    let rows = csvlog::parse(&log).unwrap().rows;
+    let hand: Vec<Row> = rows.iter().filter(|r| r.servo_deg.is_none()).copied().collect();
+    assert_eq!(offline::calibrate(&hand, None).unwrap().replayed, None);
+}

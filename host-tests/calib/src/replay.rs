@@ -1,0 +1,141 @@
+//! A log of the firmware's own calibration run, replayed through the firmware's own
+//! `Procedure`: the same samples through the same state machine give the same poses, moves,
+//! estimates and acceptance as on the board, to the rounding of the log's numbers.
+//!
+//! The log carries everything the procedure's decisions depend on: the samples, and in its
+//! servo columns the angles the procedure commanded before each sample. The two button presses
+//! are where those columns change: idle → commanded (the start), and after the hand-held poses
+//! empty → commanded (back on the shaft). The press times only set phase timeouts. While
+//! replaying, the procedure's own commanded angles must equal the logged ones at every row;
+//! the first mismatch means the log is not a run of this procedure with this configuration
+//! (another protocol, a stored accelerometer calibration on the board, another servo type), and
+//! the replay gives up for the data-driven path of [`crate::offline`].
+
+use crate::csvlog::Row;
+use calib_core::accel::AccelCal;
+use calib_core::bias::Bias;
+use calib_core::gyro::{GyroCal, Method};
+use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
+use calib_core::record::{Record, StoreError};
+use calib_core::Error;
+
+/// What the procedure concluded on the replayed log.
+#[derive(Debug, Clone)]
+pub struct Replay {
+    /// The configuration that replays the log.
+    pub config: &'static str,
+    /// The gyro bias.
+    pub bias: Bias,
+    /// The accelerometer calibration.
+    pub accel: AccelCal,
+    /// The sweep estimator's outcome, if it ran.
+    pub sweep: Option<Result<GyroCal, Error>>,
+    /// The paper estimator's outcome, if it ran.
+    pub paper: Option<Result<GyroCal, Error>>,
+    /// The result the firmware would store, or why it would not.
+    pub result: Result<GyroCal, Error>,
+}
+
+/// The procedure's reports, collected; stores always succeed (nothing is written).
+#[derive(Default)]
+struct Collect {
+    bias: Option<Bias>,
+    accel: Option<AccelCal>,
+    sweep: Option<Result<GyroCal, Error>>,
+    paper: Option<Result<GyroCal, Error>>,
+    failed: Option<Error>,
+    done: Option<Record>,
+}
+
+impl Shell for Collect {
+    fn servo(&mut self, _: u8, _: u16) {}
+    fn servo_off(&mut self, _: u8) {}
+    fn led(&mut self, _: Led) {}
+    fn report(&mut self, r: &Report) {
+        match *r {
+            Report::Bias(b) => self.bias = Some(b),
+            Report::Accel(a) => self.accel = Some(a),
+            Report::Gyro(c) if c.method == Method::Sweep => self.sweep = Some(Ok(c)),
+            Report::Gyro(c) => self.paper = Some(Ok(c)),
+            Report::EstimatorFailed { method: Method::Sweep, error } => self.sweep = Some(Err(error)),
+            Report::EstimatorFailed { error, .. } => self.paper = Some(Err(error)),
+            Report::Failed(e) => self.failed = Some(e),
+            Report::Done(rec) => self.done = Some(rec),
+            _ => {}
+        }
+    }
+    fn store(&mut self, _: &Record) -> Result<(), StoreError> {
+        Ok(())
+    }
+    fn apply(&mut self, _: &Record) {}
+}
+
+/// The configurations tried, in order: the firmware's default build, its `tilt-servo` build, and
+/// a continuous-rotation servo.
+fn configs() -> [(&'static str, Config); 3] {
+    [
+        ("default", Config::DEFAULT),
+        ("tilt-servo", Config { tilt_accel: true, ..Config::DEFAULT }),
+        ("continuous servo", Config { servo: ServoKind::CONTINUOUS, ..Config::DEFAULT }),
+    ]
+}
+
+/// Logged angles are written with two decimals.
+fn same(a: Option<f32>, b: Option<f32>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(a), Some(b)) => (a - b).abs() <= 0.006,
+        _ => false,
+    }
+}
+
+/// Replays `rows` under `cfg`; `None` at the first row whose logged angles differ from the
+/// procedure's, or if the run never ends.
+fn run(rows: &[Row], cfg: Config) -> Option<Collect> {
+    let mut p = Procedure::new(cfg, None);
+    let mut out = Collect::default();
+    let mut prev_t = rows.first()?.t_s;
+    let mut started = false;
+    for r in rows {
+        let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
+        if !started {
+            if !commanded {
+                prev_t = r.t_s;
+                continue;
+            }
+            p.handle_button(prev_t);
+            p.drive(prev_t, &mut out);
+            started = true;
+        } else if p.phase() == Phase::Reattach && commanded {
+            p.handle_button(prev_t);
+            p.drive(prev_t, &mut out);
+        }
+        if !same(p.servo_deg(), r.servo_deg) || !same(p.tilt_deg(), r.tilt_deg) {
+            return None;
+        }
+        // The log has no temperature; it only annotates the record, never the estimates.
+        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: Some(25.0) });
+        p.drive(r.t_s, &mut out);
+        if matches!(p.phase(), Phase::Done | Phase::Failed) {
+            return Some(out);
+        }
+        prev_t = r.t_s;
+    }
+    None
+}
+
+/// Replays a log of the firmware's procedure; `None` if it is not one (see the module).
+pub fn replay(rows: &[Row]) -> Option<Replay> {
+    configs().into_iter().find_map(|(name, cfg)| {
+        let c = run(rows, cfg)?;
+        let result = match (c.done, c.failed) {
+            (Some(rec), _) => {
+                let chosen = [&c.sweep, &c.paper].into_iter().flatten().flatten().find(|g| g.method == rec.method && g.k == rec.gyro_k);
+                Ok(*chosen?)
+            }
+            (None, Some(e)) => Err(e),
+            (None, None) => return None,
+        };
+        Some(Replay { config: name, bias: c.bias?, accel: c.accel.unwrap_or(AccelCal::IDENTITY), sweep: c.sweep, paper: c.paper, result })
+    })
+}
