@@ -121,7 +121,7 @@ pub struct AxisMove {
 
 /// The static poses and the moves about several axes: the estimator's whole input (bounded).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Rig {
+pub struct Axes {
     poses: Poses,
     moves: [AxisMove; MAX_MOVES],
     n: usize,
@@ -129,7 +129,7 @@ pub struct Rig {
     members: [u64; MAX_AXES],
 }
 
-impl Default for Rig {
+impl Default for Axes {
     fn default() -> Self {
         Self::new()
     }
@@ -205,7 +205,7 @@ struct Fit {
     poses: u8,
 }
 
-impl Rig {
+impl Axes {
     /// No poses, no moves.
     pub const fn new() -> Self {
         Self {

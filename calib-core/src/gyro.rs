@@ -13,6 +13,8 @@ pub enum Method {
     Paper,
     /// Speed-free sweeps: turn angles from the accelerometer (DESIGN §4.2).
     Sweep,
+    /// The full 3×3 `K` from moves about several axes ([`crate::full`]).
+    Full,
 }
 
 impl Method {
@@ -21,6 +23,7 @@ impl Method {
         match self {
             Method::Paper => "paper",
             Method::Sweep => "sweep",
+            Method::Full => "full",
         }
     }
 }

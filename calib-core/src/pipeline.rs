@@ -2,6 +2,7 @@
 //! call these, so that they choose, gate and reject alike.
 
 use crate::accel::{AccelCal, AccelCalibrator};
+use crate::full::FullCal;
 use crate::gyro::GyroCal;
 use crate::Error;
 
@@ -49,6 +50,26 @@ pub fn validate(cal: &GyroCal, acc: &Acceptance) -> Result<(), Error> {
         let (k, sigma) = (cal.k[i][i], cal.quality.sigma_k[i]);
         if !(k >= acc.k_min && k <= acc.k_max && sigma <= acc.max_sigma_k) {
             return Err(Error::ResultRejected { axis: i as u8, k, sigma });
+        }
+    }
+    Ok(())
+}
+
+/// Largest accepted cross-axis term of a full `K` (|K_ij|, i ≠ j): low-cost MEMS couple ≈ 1 %.
+pub const MAX_CROSS_AXIS: f32 = 0.1;
+
+/// Rejects a full `K` whose scale factors are implausible or too uncertain, or whose cross-axis
+/// terms are implausible.
+pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
+    for i in 0..3 {
+        let (k, sigma) = (cal.k[i][i], cal.sigma_k[i][i]);
+        if !(k >= acc.k_min && k <= acc.k_max && sigma <= acc.max_sigma_k) {
+            return Err(Error::ResultRejected { axis: i as u8, k, sigma });
+        }
+        for j in (0..3).filter(|&j| j != i) {
+            if !(cal.k[i][j].abs() <= MAX_CROSS_AXIS) {
+                return Err(Error::ResultRejected { axis: i as u8, k: cal.k[i][j], sigma: cal.sigma_k[i][j] });
+            }
         }
     }
     Ok(())

@@ -125,6 +125,7 @@ impl Record {
             match self.method {
                 Method::Paper => 0,
                 Method::Sweep => 1,
+                Method::Full => 2,
             },
             match self.accel_model {
                 AccelModel::None => 0,
@@ -172,6 +173,7 @@ impl Record {
         let method = match b[5] {
             0 => Method::Paper,
             1 => Method::Sweep,
+            2 => Method::Full,
             _ => return Err(DecodeError::InvalidField),
         };
         let accel_model = match b[6] {

@@ -6,7 +6,7 @@
 //! Board attitude `R_WB(ψ, φ) = R_pan(ψ) R_hinge(φ) R_mount`: pan about the (tilted) shaft `p_W`,
 //! tilt about the hinge `h` (⟂ `p_W`, given at pan 0), board clamped askew by `R_mount`.
 
-use calib_core::full::{FullCal, FullLimits, Rig, MAX_AXES};
+use calib_core::full::{Axes, FullCal, FullLimits, MAX_AXES};
 use calib_core::sweep::Integrator;
 use calib_core::{vec3, Error};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
@@ -173,8 +173,8 @@ impl Scenario {
 
 impl Generated {
     /// The rig as the caller builds it (f32 poses); `exact` uses the noise-free `Γ`.
-    fn rig(&self, exact: bool) -> Rig {
-        let mut rig = Rig::new();
+    fn rig(&self, exact: bool) -> Axes {
+        let mut rig = Axes::new();
         for p in &self.poses {
             rig.push_pose([p[0] as f32, p[1] as f32, p[2] as f32]).unwrap();
         }
@@ -310,7 +310,7 @@ fn f32_inputs_with_f64_accumulators_match_an_f64_reference() {
     let reference = g.rig(true).solve(&FullLimits::default()).unwrap();
     let bias = V3::new(1.7, -0.9, 2.3); // °/s raw bias, removed in f32 as the firmware does
     let bias32 = [bias[0] as f32, bias[1] as f32, bias[2] as f32];
-    let mut rig = Rig::new();
+    let mut rig = Axes::new();
     for p in &g.poses {
         rig.push_pose([p[0] as f32, p[1] as f32, p[2] as f32]).unwrap();
     }
@@ -438,7 +438,7 @@ fn slipped_board_is_named() {
 
 #[test]
 fn bad_input_never_panics() {
-    let mut rig = Rig::new();
+    let mut rig = Axes::new();
     assert_eq!(rig.push_pose([f32::NAN, 0.0, 1.0]), Err(Error::NonFinite));
     for _ in 0..3 {
         rig.push_pose([0.0, 0.0, 1.0]).unwrap();
@@ -449,7 +449,7 @@ fn bad_input_never_panics() {
     assert!(matches!(rig.push_move(MAX_AXES as u8, 0, 1, 45.0, [1.0, 0.0, 0.0]), Err(Error::CapacityExceeded { .. })));
     assert!(rig.solve(&FullLimits::default()).is_err()); // no move at all
                                                          // Degenerate numbers: zero and huge poses, huge integrals.
-    let mut rig = Rig::new();
+    let mut rig = Axes::new();
     for p in [[0.0f32; 3], [1e30, -1e30, 1e30], [0.0, 0.0, 1.0], [1e-30, 0.0, 0.0]] {
         rig.push_pose(p).unwrap();
     }
@@ -474,7 +474,7 @@ mod prop {
             poses in proptest::collection::vec(proptest::array::uniform3(-2.0f32..2.0), 0..20),
             moves in proptest::collection::vec((0u8..6, 0u8..20, 0u8..20, -90.0f32..90.0, proptest::array::uniform3(-200.0f64..200.0)), 0..40),
         ) {
-            let mut rig = Rig::new();
+            let mut rig = Axes::new();
             for p in &poses {
                 rig.push_pose(*p).unwrap();
             }

@@ -10,13 +10,14 @@ use crate::csvlog::Row;
 use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
 use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
+use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::procedure::Config;
 use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
-use calib_core::{paper, pipeline, sweep, Error};
+use calib_core::{full, paper, pipeline, sweep, Error};
 use calib_core::{Mat3, Vec3};
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -39,10 +40,15 @@ pub struct Segment {
 }
 
 impl Segment {
-    /// A rig pose: servo commanded, tilt stage level (or absent). Every other still segment is
-    /// an accelerometer pose (hand-held, or tilted by the tilt servo).
+    /// A rig pose: the servo commanded (at any tilt). A segment with no servo commanded is a
+    /// hand-held accelerometer pose.
     pub fn is_rig_pose(&self) -> bool {
-        self.servo_deg.is_some() && self.tilt_deg.is_none_or(|t| t.abs() <= 1.0)
+        self.servo_deg.is_some()
+    }
+
+    /// The tilt setting of a rig pose (°, 0 without a tilt column), to 0.5°.
+    fn tilt_setting(&self) -> i32 {
+        (self.tilt_deg.unwrap_or(0.0) * 2.0).round() as i32
     }
 }
 
@@ -264,8 +270,10 @@ pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<SteadyRotatio
 /// Everything the offline calibration found.
 #[derive(Debug, Clone)]
 pub struct Calibration {
-    /// The chosen gyro result, validated as the firmware would; or why there is none.
+    /// The chosen diagonal gyro result, validated as the firmware would; or why there is none.
     pub gyro: Result<GyroCal, OfflineError>,
+    /// On a pan/tilt log: the full 3×3 `K` (validated), or why it failed; preferred to `gyro`.
+    pub full: Option<Result<FullCal, Error>>,
     /// Gyro bias.
     pub bias: Bias,
     /// Accelerometer calibration (identity when the log has fewer than 6 hand-held poses).
@@ -387,6 +395,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
             let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
             return Ok(Calibration {
                 gyro,
+                full: None,
                 bias: r.bias,
                 accel: r.accel,
                 sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
@@ -409,9 +418,21 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..BiasLimits::default() };
     let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
 
-    // Accelerometer from the hand-held poses.
+    // Rig poses by tilt setting: each setting turns about its own pan axis.
+    let rig: Vec<&Segment> = ph.segments.iter().filter(|s| s.is_rig_pose()).collect();
+    let mut settings: Vec<(i32, usize)> = vec![];
+    for s in &rig {
+        match settings.iter_mut().find(|(t, _)| *t == s.tilt_setting()) {
+            Some((_, n)) => *n += 1,
+            None => settings.push((s.tilt_setting(), 1)),
+        }
+    }
+    let pan_tilt = settings.len() >= 2;
+
+    // Accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
+    // (spread over pan × tilt, they are no cone).
     let mut acc = AccelCalibrator::new();
-    for s in ph.segments.iter().filter(|s| !s.is_rig_pose()) {
+    for s in ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
         if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
             break;
         }
@@ -421,13 +442,22 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
         _ => AccelCal::IDENTITY,
     };
+    let gamma = |from_end: usize, to: &Segment| {
+        let mut it = Integrator::new();
+        for r in &rows[from_end..=to.last] {
+            it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
+        }
+        it.gamma()
+    };
 
-    // Rig poses and the moves between consecutive ones.
+    // One axis (the most populated tilt setting): rig poses and the moves between consecutive
+    // ones, for the diagonal estimators.
+    let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
     let mut poses = Poses::new();
     let mut moves = Moves::new();
     let mut prev: Option<(u8, usize)> = None;
     for s in &ph.segments {
-        if !s.is_rig_pose() {
+        if !s.is_rig_pose() || Some(s.tilt_setting()) != main_setting {
             prev = None;
             continue;
         }
@@ -437,15 +467,45 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
         if let Some((from, end)) = prev {
             if moves.len() < MAX_MOVES {
-                let mut it = Integrator::new();
-                for r in &rows[end..=s.last] {
-                    it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
-                }
-                moves.push(from, idx, it.gamma()).map_err(stage("moves"))?;
+                moves.push(from, idx, gamma(end, s)).map_err(stage("moves"))?;
             }
         }
         prev = Some((idx, s.last));
     }
+
+    // Pan/tilt: the full K from the pan moves of every setting and the tilt moves between them.
+    // A pan axis needs poses at ≥ 3 shaft angles (the plane through their tips).
+    let pan_angles = |setting: i32| {
+        let mut a: Vec<i32> =
+            rig.iter().filter(|s| s.tilt_setting() == setting).filter_map(|s| s.servo_deg).map(|d| d.round() as i32).collect();
+        a.sort_unstable();
+        a.dedup();
+        a.len()
+    };
+    let full = pan_tilt.then(|| {
+        let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
+        let mut axes = full::Axes::new();
+        let mut prev: Option<(&Segment, u8)> = None;
+        for s in &ph.segments {
+            if !s.is_rig_pose() {
+                prev = None;
+                continue;
+            }
+            let idx = axes.push_pose(accel.apply(s.accel.mean().map(|v| v as f32)))?;
+            if let Some((p, from)) = prev {
+                let (d_pan, d_tilt) =
+                    (s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0), (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0);
+                let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
+                if d_tilt == 0.0 && d_pan.abs() >= 1.0 && pan_angles(s.tilt_setting()) >= 3 {
+                    axes.push_move(axis, from, idx, d_pan, gamma(p.last, s))?;
+                } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
+                    axes.push_move(hinge, from, idx, d_tilt, gamma(p.last, s))?;
+                }
+            }
+            prev = Some((s, idx));
+        }
+        axes.solve(&full::FullLimits::DEFAULT).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+    });
     let lim = GeometryLimits::default();
     let sweep = sweep::solve(&poses, &moves, &lim);
 
@@ -471,7 +531,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         }
     }
     let chosen = match method {
-        Some(Method::Sweep) => sweep.map_err(stage("sweep estimator")),
+        Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
         Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation).and_then(|p| p.map_err(stage("paper estimator"))),
         None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
     };
@@ -491,6 +551,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     }
     Ok(Calibration {
         gyro,
+        full,
         bias,
         accel,
         sweep,
@@ -573,6 +634,19 @@ impl<'a> EstimatorOut<'a> {
     }
 }
 
+/// The full `K`'s outcome.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum FullOut<'a> {
+    /// The result.
+    Ok(&'a FullCal),
+    /// The failure.
+    Failed {
+        /// What went wrong.
+        error: String,
+    },
+}
+
 /// Both estimators.
 #[derive(Debug, Clone, Serialize)]
 pub struct Estimators<'a> {
@@ -608,6 +682,8 @@ pub struct QualityOut<'a> {
     pub accel: &'a AccelCal,
     /// Both estimators' outcomes.
     pub estimators: Estimators<'a>,
+    /// On a pan/tilt log, the full `K`'s quality (or its error).
+    pub full: Option<FullOut<'a>>,
     /// The rotation rate the paper estimator used (°/s).
     pub rotation_rate_dps: Option<f32>,
     /// Where it came from (`servo column` or `accelerometer`).
@@ -629,9 +705,14 @@ impl Calibration {
     /// The parts the log did not support, each with the reason (empty: a full calibration).
     pub fn missing(&self) -> Vec<String> {
         let mut m = vec![];
-        if let Err(e) = &self.gyro {
-            m.push(format!("gyro: {e}"));
+        match (&self.gyro, &self.full) {
+            (_, Some(Ok(_))) => {}
+            (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
+            (Err(e), None) => m.push(format!("gyro: {e}")),
+            (Ok(_), Some(Err(f))) => m.push(format!("full K (the diagonal K of one axis is given): {f}")),
+            (Ok(_), None) => {}
         }
+
         if self.accel.model == AccelModel::None {
             m.push(format!(
                 "accelerometer: {} accelerometer poses, need {} (hand-held or tilt-servo poses; the identity is used)",
@@ -645,8 +726,13 @@ impl Calibration {
     /// The tool's output; `log_messages` lines of the log were skipped as messages.
     pub fn output(&self, log_messages: usize) -> Output<'_> {
         let gyro = self.gyro.as_ref().ok();
+        let full = self.full.as_ref().and_then(|f| f.as_ref().ok());
+        let chosen = match (full, gyro) {
+            (Some(f), _) => Some(GyroOut { k: f.k, bias_dps: self.bias.bias_dps, method: Method::Full }),
+            (None, g) => g.map(|g| GyroOut { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
+        };
         Output {
-            gyro: gyro.map(|g| GyroOut { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
+            gyro: chosen,
             accel: AccelOut { m: self.accel.m, offset_g: self.accel.offset_g },
             quality: QualityOut {
                 missing: self.missing(),
@@ -665,6 +751,10 @@ impl Calibration {
                     rig_poses: self.rig_poses,
                     moves: self.moves,
                 },
+                full: self.full.as_ref().map(|f| match f {
+                    Ok(f) => FullOut::Ok(f),
+                    Err(e) => FullOut::Failed { error: e.to_string() },
+                }),
                 rest_thresholds: &self.phases.rest,
                 log_messages,
                 replayed: self.replayed,

@@ -273,3 +273,31 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let hand: Vec<Row> = rows.iter().filter(|r| r.servo_deg.is_none()).copied().collect();
     assert_eq!(offline::calibrate(&hand, None).unwrap().replayed, None);
 }
+
+/// `E = Qᵀ K̂ K⁻¹ − I` after aligning the calibrated accelerometer frame to the simulator's
+/// (`Q = polar(M̂ C_a)`), the largest |element| and the RMS over the 9.
+fn full_k_error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> (f64, f64) {
+    use nalgebra::Matrix3;
+    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
+    let t = rig.truth();
+    let r = m(m_hat) * rig.config().accel.matrix();
+    let svd = r.svd(true, true);
+    let q = svd.u.unwrap() * svd.v_t.unwrap();
+    let e = q.transpose() * m(k_hat) * t.gyro_k.try_inverse().unwrap() - Matrix3::identity();
+    (e.amax(), (e.norm_squared() / 9.0).sqrt())
+}
+
+#[test]
+fn pan_tilt_logs_of_another_protocol_give_the_full_k() {
+    use rig_sim::pan_tilt;
+    let mut rig = Rig::new(pan_tilt::rig_config(31, 0), 31);
+    let log = pan_tilt::log(&mut rig, true);
+    let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+    assert_eq!(c.replayed, None);
+    let f = c.full.as_ref().unwrap().as_ref().unwrap();
+    let (max, rms) = full_k_error(f.k, c.accel.m, &rig);
+    println!("MEASURED pan_tilt_full_k max={max:.2e} rms={rms:.2e} axes={} moves={}", f.n_axes, f.moves);
+    assert!(rms <= 5e-4 && max <= 1.5e-3, "rms {rms:e} max {max:e}");
+    let v: serde_json::Value = serde_json::from_str(&c.json(0)).unwrap();
+    assert_eq!(v["gyro"]["method"], "full");
+}

@@ -1,0 +1,107 @@
+//! A scripted pan/tilt calibration protocol, independent of the firmware's procedure (as another
+//! tool would record it), logged in the shared format: optional hand-held poses first, then at
+//! four tilt settings pan poses 0–180° every 45° and back, with the tilt moves at pan 0 (always
+//! reached from 45°: a hobby servo's dead band lands it where it came from).
+
+use crate::harness::handheld_attitudes;
+use crate::sim::{Reading, Rig, RigConfig, TiltStage};
+use crate::variant::Variant;
+use calib_core::log::{self, Row};
+use nalgebra::Matrix3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Tilt settings (°, 0 = level).
+pub const TILTS_DEG: [f32; 4] = [-60.0, -20.0, 20.0, 60.0];
+/// Commanded move rate of both servos (°/s).
+const RATE_DPS: f32 = 30.0;
+/// Still time at every pose (s).
+const HOLD_S: f64 = 1.5;
+
+/// Pulse (µs) for a commanded angle of a 1000–2000 µs ↔ 0–180° servo.
+fn pulse(deg: f32) -> f64 {
+    1000.0 + deg as f64 / 0.18
+}
+
+struct Script<'a> {
+    rig: &'a mut Rig,
+    text: String,
+    pan: f32,
+    tilt: f32,
+}
+
+impl Script<'_> {
+    fn sample(&mut self, servo: Option<f32>, tilt: Option<f32>) -> Reading {
+        let s = self.rig.next_sample();
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt };
+        let _ = log::write_row(&mut self.text, &row);
+        self.text.push('\n');
+        s
+    }
+
+    fn hold(&mut self, secs: f64, commanded: bool) {
+        let t0 = self.sample(commanded.then_some(self.pan), commanded.then_some(self.tilt)).t_s;
+        while self.sample(commanded.then_some(self.pan), commanded.then_some(self.tilt)).t_s - t0 < secs {}
+    }
+
+    /// Ramps pan and tilt to the targets at the commanded rate, then holds.
+    fn go(&mut self, pan: f32, tilt: f32) {
+        let (p0, t0) = (self.pan, self.tilt);
+        let dur = ((pan - p0).abs().max((tilt - t0).abs()) / RATE_DPS) as f64;
+        let start = self.sample(Some(p0), Some(t0)).t_s;
+        loop {
+            let x = if dur > 0.0 { (((self.rig.truth().t_s - start) / dur).min(1.0)) as f32 } else { 1.0 };
+            (self.pan, self.tilt) = (p0 + (pan - p0) * x, t0 + (tilt - t0) * x);
+            self.rig.set_pulse_us(pulse(self.pan));
+            self.rig.set_tilt_pulse_us(pulse(90.0 + self.tilt));
+            self.sample(Some(self.pan), Some(self.tilt));
+            if x >= 1.0 {
+                break;
+            }
+        }
+        self.hold(HOLD_S, true);
+    }
+}
+
+/// Runs the protocol on `rig` (which must have a tilt stage) and returns the log.
+pub fn log(rig: &mut Rig, handheld: bool) -> String {
+    let mut s = Script { rig, text: format!("# pan/tilt protocol\n{}\n", log::HEADER), pan: 0.0, tilt: 0.0 };
+    s.rig.set_pulse_us(pulse(0.0));
+    s.rig.set_tilt_pulse_us(pulse(90.0));
+    s.hold(3.0, true);
+    if handheld {
+        for q in handheld_attitudes() {
+            s.rig.detach_to(q, 1.0);
+            s.hold(2.5, false);
+        }
+        s.rig.attach();
+        let settle = s.rig.config().attach_transition_s + 1.0;
+        s.hold(settle, true);
+    }
+    // Every pose at pan 0 is reached from 45°, so that the servo's dead band puts all of them,
+    // and so the hinge's poses, at the same shaft angle.
+    s.go(45.0, 0.0);
+    s.go(0.0, 0.0);
+    for tilt in TILTS_DEG {
+        s.go(0.0, tilt);
+        for pan in [45.0, 90.0, 135.0, 180.0, 135.0, 90.0, 45.0, 0.0] {
+            s.go(pan, tilt);
+        }
+    }
+    s.text
+}
+
+/// A realistic pan/tilt rig of the benchmarks: the hobby rig of `seed`/`run` with the pan shaft
+/// 30–50° from vertical, a tilt stage, gyro cross-axis coupling U(±1 %) and accelerometer
+/// misalignment U(±0.3 %).
+pub fn rig_config(seed: u64, run: usize) -> RigConfig {
+    let mut cfg = Variant::Hobby.config(seed, run);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(7919).wrapping_add(run as u64));
+    cfg.shaft_tilt_deg = rng.random_range(30.0..50.0);
+    let mut off = |max: f64| Matrix3::from_fn(|r, c| if r == c { 0.0 } else { rng.random_range(-max..max) });
+    cfg.gyro.misalignment = off(0.01);
+    cfg.accel.misalignment = off(0.003);
+    let servo = crate::sim::PositionalServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed + 17 * run as u64 + 1));
+    cfg.tilt = Some(TiltStage { servo, hinge_deg: 60.0 });
+    cfg
+}
