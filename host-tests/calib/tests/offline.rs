@@ -301,3 +301,19 @@ fn pan_tilt_logs_of_another_protocol_give_the_full_k() {
     let v: serde_json::Value = serde_json::from_str(&c.json(0)).unwrap();
     assert_eq!(v["gyro"]["method"], "full");
 }
+
+#[test]
+fn pan_tilt_rigs_that_cannot_give_the_full_k_are_named() {
+    use rig_sim::pan_tilt;
+    let full_error = |cfg: RigConfig, tilts: &[f32]| {
+        let mut rig = Rig::new(cfg, 32);
+        let log = pan_tilt::log_at(&mut rig, true, tilts);
+        let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+        let e = c.full.clone().expect("a pan/tilt log").expect_err("no full K");
+        (e, c.missing().join("; "))
+    };
+    // Too few tilt settings: one pan axis, and the hinge seen at two orientations only.
+    let (e, missing) = full_error(pan_tilt::rig_config(33, 0), &[40.0]);
+    assert!(matches!(e, calib_core::Error::AxisUndetermined { .. } | calib_core::Error::TooFewAxes { .. }), "{e:?}");
+    assert!(missing.contains("full K: axis") && missing.contains("at least 3 poses"), "{missing}");
+}

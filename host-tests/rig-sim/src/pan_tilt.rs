@@ -65,6 +65,11 @@ impl Script<'_> {
 
 /// Runs the protocol on `rig` (which must have a tilt stage) and returns the log.
 pub fn log(rig: &mut Rig, handheld: bool) -> String {
+    log_at(rig, handheld, &TILTS_DEG)
+}
+
+/// The protocol at these tilt settings (°).
+pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     let mut s = Script { rig, text: format!("# pan/tilt protocol\n{}\n", log::HEADER), pan: 0.0, tilt: 0.0 };
     s.rig.set_pulse_us(pulse(0.0));
     s.rig.set_tilt_pulse_us(pulse(90.0));
@@ -82,7 +87,7 @@ pub fn log(rig: &mut Rig, handheld: bool) -> String {
     // and so the hinge's poses, at the same shaft angle.
     s.go(45.0, 0.0);
     s.go(0.0, 0.0);
-    for tilt in TILTS_DEG {
+    for &tilt in tilts_deg {
         s.go(0.0, tilt);
         for pan in [45.0, 90.0, 135.0, 180.0, 135.0, 90.0, 45.0, 0.0] {
             s.go(pan, tilt);
