@@ -309,7 +309,7 @@ fn pan_tilt_rigs_that_cannot_give_the_full_k_are_named() {
         let mut rig = Rig::new(cfg, 32);
         let log = pan_tilt::log_at(&mut rig, true, tilts);
         let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
-        let e = c.full.clone().expect("a pan/tilt log").expect_err("no full K");
+        let e = c.full.expect("a pan/tilt log").expect_err("no full K");
         (e, c.missing().join("; "))
     };
     // Too few tilt settings: one pan axis, and the hinge seen at two orientations only.
