@@ -2,7 +2,7 @@
 //! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
 //! log of the firmware's own run is replayed through its procedure ([`replay`]). The
 //! binaries `calib` and `flash-usb` are what a user installs (`cargo install --path
-//! host-tests/calib`); nothing here depends on the simulator.
+//! host-tests/calib --target host-tuple`); nothing here depends on the simulator.
 #![deny(missing_docs)]
 
 pub mod csvlog;
