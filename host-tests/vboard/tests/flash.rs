@@ -20,18 +20,36 @@ fn power_cut_at_every_flash_step_keeps_the_previous_record() {
     b.press(0.2);
     // Phase 6 on the LEDs: the paper's rotation, the last phase before the store.
     assert!(b.run_until_phase(6, 300.0), "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
-    let snap = b.mcu.snapshot().unwrap();
+    let first_snap = b.mcu.snapshot().unwrap();
     let steps0 = b.mcu.periph.borrow().flash.steps();
-    assert!(b.run_until_done(60.0));
+    // The uncut run: when the first flash step comes, and that the store is one page erase and
+    // 39 word writes.
+    let mut t_first_step = None;
+    let t_end = b.mcu.now() + 120.0;
+    while b.mcu.now() < t_end && !(b.leds().green && b.leds().d13 && !b.leds().blue) {
+        assert_eq!(b.run_for(0.05), Stop::Time);
+        if t_first_step.is_none() && b.mcu.periph.borrow().flash.steps() > steps0 {
+            t_first_step = Some(b.mcu.now());
+        }
+    }
     let steps = b.mcu.periph.borrow().flash.steps() - steps0;
     assert_eq!(steps, 1 + 156 / 4, "one page erase and 39 word writes");
     assert_eq!(b.stored().unwrap().seq, 2);
+    // The snapshot the cuts start from: 0.3 s before the first flash step, nothing written yet.
+    let t_first_step = t_first_step.expect("the store wrote the flash");
+    b.mcu.restore(&first_snap).unwrap();
+    while b.mcu.now() < t_first_step - 0.3 {
+        assert_eq!(b.run_for(0.05), Stop::Time);
+    }
+    assert_eq!(b.mcu.periph.borrow().flash.steps(), steps0);
+    let snap = b.mcu.snapshot().unwrap();
 
     for cut in 0..steps {
         b.mcu.restore(&snap).unwrap();
         b.mcu.periph.borrow_mut().flash.cut_after(cut);
         let mut stop = Stop::Time;
-        for _ in 0..400 {
+        // The store starts 0.3 s after the snapshot and takes ≈ 0.1 s.
+        for _ in 0..40 {
             let t = b.mcu.now() + 0.05;
             stop = b.mcu.run_until(t);
             if stop != Stop::Time {
