@@ -1,7 +1,7 @@
 //! The PC side of gyrocal: the recorded log read whole ([`csvlog`], over the format of
 //! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
 //! log of the firmware's own run is replayed through its procedure ([`replay`]). The
-//! binaries `calib` and `flash-usb` are what a user installs (`cargo install --path
+//! binaries `calib` and `flash-usb` are what a user installs (`cargo install --locked --path
 //! host-tests/calib --target host-tuple`); nothing here depends on the simulator.
 #![deny(missing_docs)]
 
