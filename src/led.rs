@@ -32,7 +32,7 @@ fn phase_number(p: Phase) -> u8 {
     match p {
         Phase::WaitRest => 1,
         Phase::Bias => 2,
-        Phase::HandHeld | Phase::TiltPoses => 3,
+        Phase::HandHeld => 3,
         Phase::Reattach => 4,
         Phase::RigPoses => 5,
         Phase::Rotation => 6,

@@ -51,13 +51,12 @@ const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
 const SENSOR: SensorConfig =
     SensorConfig { odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 }, gyro: GyroScale::Dps500, accel: AccelScale::G2 };
 
-/// The procedure's configuration: the defaults, the sensor's ranges, and with a pan/tilt gimbal
-/// (`--features tilt-servo`) the tilt servo on D10 takes the accelerometer poses.
+/// The procedure's configuration: the defaults, or with a pan/tilt bracket (`--features
+/// tilt-servo`, the tilt servo on D10) the pan/tilt plan and the full 3×3 `K`; the sensor's ranges.
 const CONFIG: Config = Config {
-    tilt_accel: cfg!(feature = "tilt-servo"),
     accel_range_g: SENSOR.accel.range_g(),
     gyro_range_dps: SENSOR.gyro.range_dps(),
-    ..Config::DEFAULT
+    ..if cfg!(feature = "tilt-servo") { Config::PAN_TILT } else { Config::DEFAULT }
 };
 
 /// The procedure state (poses, moves, queue: ~11 KiB) in static RAM. Built once at boot in its
@@ -295,19 +294,25 @@ fn log_report(r: &Report) {
                 q.invariant_before.relative_std(), q.invariant_after.relative_std(), q.condition, q.tilt_deg, q.span_deg
             )
         }
-        Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
-        Report::Done(rec) => defmt::info!(
-            "calibration done: record {=u32}, K = diag({=f32} {=f32} {=f32}), b = [{=f32} {=f32} {=f32}] dps",
-            rec.seq,
-            rec.gyro_k[0][0],
-            rec.gyro_k[1][1],
-            rec.gyro_k[2][2],
-            rec.gyro_bias_dps[0],
-            rec.gyro_bias_dps[1],
-            rec.gyro_bias_dps[2]
+        Report::FullK { k, sigma_k: s, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => defmt::info!(
+            "full K = [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}] +- [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}] 1 sigma; {=u8} axes {=f32} deg from coplanar, {=u16} moves, residual {=f32} deg rms, cond {=f32}",
+            k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2], k[2][0], k[2][1], k[2][2],
+            s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
+            axes, non_coplanar_deg, moves, residual_rms_deg, condition
         ),
+        Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
+        Report::Done(rec) => log_record("calibration done: stored", rec),
         Report::Failed(e) => defmt::error!("calibration failed, nothing stored: {}", e),
     }
+}
+
+/// Logs a record's gyro calibration: `K` in full (row-major) and the bias.
+fn log_record(what: &str, rec: &Record) {
+    let (k, b) = (&rec.gyro_k, &rec.gyro_bias_dps);
+    defmt::info!(
+        "{=str} record {=u32} ({=str} K): K = [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}], b = [{=f32} {=f32} {=f32}] dps",
+        what, rec.seq, rec.method.name(), k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2], k[2][0], k[2][1], k[2][2], b[0], b[1], b[2]
+    );
 }
 
 fn sensor_error(e: &SensorError) {
@@ -490,10 +495,8 @@ fn main() -> ! {
     let mut applied: Option<Record> = None;
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {
-            defmt::info!(
-                "loaded calibration record {=u32} from slot {=usize}: K = diag({=f32} {=f32} {=f32}), b = [{=f32} {=f32} {=f32}] dps; applied",
-                rec.seq, slot, rec.gyro_k[0][0], rec.gyro_k[1][1], rec.gyro_k[2][2], rec.gyro_bias_dps[0], rec.gyro_bias_dps[1], rec.gyro_bias_dps[2]
-            );
+            log_record("loaded", &rec);
+            defmt::info!("record read from slot {=usize}; applied", slot);
             applied = Some(rec);
         }
         Some(Ok(None)) => {

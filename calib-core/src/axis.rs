@@ -115,6 +115,14 @@ impl Poses {
         Vector3::new(a[0], a[1], a[2])
     }
 
+    /// Replaces every pose `a` by `f(a)` (e.g. raw readings by calibrated ones).
+    pub fn map(&mut self, f: impl Fn(Vector3<f64>) -> Vector3<f64>) {
+        for a in &mut self.a[..self.n] {
+            let v = f(Vector3::from(*a));
+            *a = [v[0], v[1], v[2]];
+        }
+    }
+
     /// Iterator over the poses.
     pub fn iter(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
         self.a[..self.n].iter().map(|a| Vector3::new(a[0], a[1], a[2]))

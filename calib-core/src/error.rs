@@ -49,8 +49,9 @@ pub enum Error {
     SensorTimeout { gap_s: f32 },
     /// A phase did not complete within its time limit.
     PhaseTimeout { phase: Phase, limit_s: f32 },
-    /// The servo was commanded to turn but the gyro saw (almost) no rotation: unplugged or stalled.
-    ServoNotTurning { commanded_deg: f32, measured_deg: f32 },
+    /// Servo `channel` (0 rotation, 1 tilt) was commanded to turn but the gyro saw (almost) no
+    /// rotation: unplugged or stalled.
+    ServoNotTurning { channel: u8, commanded_deg: f32, measured_deg: f32 },
     /// A static pose kept being disturbed: retaken `retries` times.
     PoseDisturbed { index: u8, retries: u8 },
     /// A sample reached the sensor's full scale during a move: lower the rate or raise the range.
@@ -131,9 +132,10 @@ impl fmt::Display for Error {
             Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
             Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s:.2} s: sensor or I2C bus stopped"),
             Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s:.0} s", phase.name()),
-            Error::ServoNotTurning { commanded_deg, measured_deg } => write!(
+            Error::ServoNotTurning { channel, commanded_deg, measured_deg } => write!(
                 f,
-                "servo commanded {commanded_deg:.1} deg but the gyro saw {measured_deg:.1} deg: servo unplugged or stalled"
+                "{} servo commanded {commanded_deg:.1} deg but the gyro saw {measured_deg:.1} deg: servo unplugged or stalled",
+                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }
             ),
             Error::PoseDisturbed { index, retries } => {
                 write!(f, "static pose {index} disturbed {retries} times: keep the rig still")

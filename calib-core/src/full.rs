@@ -35,13 +35,15 @@
 //! commanded turn is given (all 0) `u` points along the mean specific force (`f·u ≥ 0`). The
 //! equations themselves do not depend on the sign (`Δθ` flips with `u`).
 
+use crate::accel::AccelCal;
 use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses, MAX_POSES};
 use crate::gyro::SCALE_RANGE;
 use crate::linalg::{cholesky, cholesky_inverse, sym_eigen};
 use crate::lsq::NormalEquations;
 use crate::sweep::MAX_MOVES;
+use crate::vec3::to_f64 as v64;
 use crate::{Error, Mat3, Vec3};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// Largest number of rotation axes (e.g. 7 tilt settings and the hinge).
 pub const MAX_AXES: usize = 8;
@@ -224,6 +226,14 @@ impl Axes {
     /// Adds a static pose (calibrated specific force `f = M (a − o)`, g); returns its index.
     pub fn push_pose(&mut self, accel_g: Vec3) -> Result<u8, Error> {
         self.poses.push(accel_g)
+    }
+
+    /// Replaces every pose `a` (raw, g) by the calibrated `f = M (a − o)`: for a plan whose
+    /// accelerometer is fitted to these very poses once they are all taken.
+    pub fn calibrate_poses(&mut self, accel: &AccelCal) {
+        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as f64);
+        let o = v64(accel.offset_g);
+        self.poses.map(|a| m * (a - o));
     }
 
     /// Records a move about `axis` from pose `from` to pose `to`; both poses join the axis' plane.

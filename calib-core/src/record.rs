@@ -1,19 +1,25 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
-//! Layout v1 (`LEN` = 156 bytes): magic `GYRC`, version, gyro method, accel model, poses,
+//! Layout v2 (`LEN` = 188 bytes): magic `GYRC`, version, gyro method, accel model, poses,
 //! sequence (u32), rows (u16), reserved (u16), temperature (°C), gyro `K` (9, row-major),
-//! gyro bias (3, °/s), accel `M` (9), accel offset (3, g), 1σ of diag `K` (3), invariant
-//! relative spread before and after, condition number, axis tilt (°), pose span (°),
-//! accel residual (g) — all `f32` — then CRC-32 (IEEE) of the preceding bytes.
+//! gyro bias (3, °/s), accel `M` (9), accel offset (3, g), 1σ of every element of `K` (9,
+//! row-major), invariant relative spread before and after, condition number, axis tilt (°),
+//! pose span (°), accel residual (g), residual RMS of the gyro fit, angle of the axes from
+//! coplanar (°) — all `f32` — then CRC-32 (IEEE) of the preceding bytes.
+//!
+//! Layout v1 (`LEN_V1` = 156 bytes, written before the full `K`) still loads: the same up to the
+//! accel offset, then the 1σ of the diagonal of `K` only (3), the six quality fields, the CRC.
 
 use crate::accel::{AccelCal, AccelModel};
 use crate::gyro::Method;
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
+/// Encoded length (bytes) of a version-2 record (the longest a reader needs).
+pub const LEN: usize = 188;
 /// Encoded length (bytes) of a version-1 record.
-pub const LEN: usize = 156;
+pub const LEN_V1: usize = 156;
 const MAGIC: [u8; 4] = *b"GYRC";
 
 /// Why bytes are not a valid record.
@@ -82,20 +88,25 @@ pub struct Record {
     pub poses: u8,
     /// Least-squares rows used by the gyro estimator.
     pub rows: u16,
-    /// 1σ of the diagonal of `K`.
-    pub sigma_k: Vec3,
-    /// Relative spread (std / |mean|) of the invariant before calibration.
+    /// 1σ of every element of `K` (row-major; a diagonal estimator's off-diagonal is 0).
+    pub sigma_k: Mat3,
+    /// Relative spread (std / |mean|) of the invariant before calibration (one-axis
+    /// estimators; 0 for the full `K`).
     pub invariant_before_rel: f32,
-    /// Relative spread of the invariant after calibration.
+    /// Relative spread of the invariant after calibration (one-axis; 0 for the full `K`).
     pub invariant_after_rel: f32,
     /// Condition number of the gyro normal matrix.
     pub condition: f32,
-    /// Rotation-axis tilt from vertical (°).
+    /// Rotation-axis tilt from vertical (°; one-axis; for the full `K` the smallest over its axes).
     pub tilt_deg: f32,
-    /// Pose span (°).
+    /// Pose span (°; one-axis; 0 for the full `K`).
     pub span_deg: f32,
     /// Accelerometer residual RMS after calibration (g).
     pub accel_rms_g: f32,
+    /// RMS residual of the gyro fit (° for sweeps and the full `K`, dimensionless for the paper's).
+    pub residual_rms: f32,
+    /// Angle (°) of the full `K`'s axes from coplanar (0 for one axis; 0 in version-1 records).
+    pub non_coplanar_deg: f32,
 }
 
 impl Record {
@@ -116,7 +127,7 @@ impl Record {
         core::array::from_fn(|i| self.gyro_k[i][0] * d[0] + self.gyro_k[i][1] * d[1] + self.gyro_k[i][2] * d[2])
     }
 
-    /// Encodes to the version-1 layout.
+    /// Encodes to the version-2 layout.
     pub fn encode(&self) -> [u8; LEN] {
         let mut w = Writer { buf: [0; LEN], at: 0 };
         w.bytes(&MAGIC);
@@ -142,14 +153,16 @@ impl Record {
         w.f32s(&self.gyro_bias_dps);
         w.f32s(self.accel_m.as_flattened());
         w.f32s(&self.accel_offset_g);
-        w.f32s(&self.sigma_k);
+        w.f32s(self.sigma_k.as_flattened());
         w.f32s(&[self.invariant_before_rel, self.invariant_after_rel, self.condition, self.tilt_deg, self.span_deg, self.accel_rms_g]);
+        w.f32s(&[self.residual_rms, self.non_coplanar_deg]);
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
         w.buf
     }
 
-    /// Decodes and validates bytes (extra bytes after the record are ignored).
+    /// Decodes and validates bytes of a version-2 or version-1 record (extra bytes after the
+    /// record are ignored).
     pub fn decode(bytes: &[u8]) -> Result<Record, DecodeError> {
         let truncated = |need: usize| DecodeError::Truncated { len: bytes.len().min(u16::MAX as usize) as u16, need: need as u16 };
         if bytes.len() < 5 {
@@ -158,15 +171,17 @@ impl Record {
         if bytes[..4] != MAGIC {
             return Err(DecodeError::BadMagic);
         }
-        if bytes[4] != VERSION {
-            return Err(DecodeError::UnsupportedVersion(bytes[4]));
+        let len = match bytes[4] {
+            1 => LEN_V1,
+            2 => LEN,
+            v => return Err(DecodeError::UnsupportedVersion(v)),
+        };
+        if bytes.len() < len {
+            return Err(truncated(len));
         }
-        if bytes.len() < LEN {
-            return Err(truncated(LEN));
-        }
-        let b = &bytes[..LEN];
-        let stored = u32::from_le_bytes([b[LEN - 4], b[LEN - 3], b[LEN - 2], b[LEN - 1]]);
-        let computed = crc32(&b[..LEN - 4]);
+        let b = &bytes[..len];
+        let stored = u32::from_le_bytes([b[len - 4], b[len - 3], b[len - 2], b[len - 1]]);
+        let computed = crc32(&b[..len - 4]);
         if stored != computed {
             return Err(DecodeError::BadCrc { stored, computed });
         }
@@ -188,8 +203,13 @@ impl Record {
         let gyro_bias_dps = r.vec3();
         let accel_m = r.mat3();
         let accel_offset_g = r.vec3();
-        let sigma_k = r.vec3();
-        let rec = Record {
+        let sigma_k = if len == LEN {
+            r.mat3()
+        } else {
+            let d = r.vec3();
+            [[d[0], 0.0, 0.0], [0.0, d[1], 0.0], [0.0, 0.0, d[2]]]
+        };
+        let mut rec = Record {
             seq: u32::from_le_bytes([b[8], b[9], b[10], b[11]]),
             temp_c,
             gyro_k,
@@ -207,7 +227,13 @@ impl Record {
             tilt_deg: r.f32(),
             span_deg: r.f32(),
             accel_rms_g: r.f32(),
+            residual_rms: 0.0,
+            non_coplanar_deg: 0.0,
         };
+        if len == LEN {
+            rec.residual_rms = r.f32();
+            rec.non_coplanar_deg = r.f32();
+        }
         if !r.all_finite {
             return Err(DecodeError::InvalidField);
         }
@@ -285,13 +311,15 @@ mod tests {
             accel_model: AccelModel::NineParam,
             poses: 13,
             rows: 12,
-            sigma_k: [1e-4, 2e-4, 1.5e-4],
+            sigma_k: [[1e-4, 3e-5, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1.5e-4]],
             invariant_before_rel: 0.02,
             invariant_after_rel: 0.001,
             condition: 3.5,
             tilt_deg: 45.0,
             span_deg: 180.0,
             accel_rms_g: 0.0004,
+            residual_rms: 0.02,
+            non_coplanar_deg: 54.0,
         }
     }
 
@@ -305,14 +333,32 @@ mod tests {
         let r = sample();
         let bytes = r.encode();
         assert_eq!(Record::decode(&bytes), Ok(r));
-        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 156 })));
+        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 188 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
         let mut v = bytes;
-        v[4] = 2;
-        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(2)));
+        v[4] = 3;
+        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(3)));
         let mut c = bytes;
         c[40] ^= 0x10;
         assert!(matches!(Record::decode(&c), Err(DecodeError::BadCrc { .. })));
+    }
+
+    /// `sample()` with a diagonal 1σ, as the version-1 encoder of the release before the full
+    /// `K` (commit 2cb7b1f) wrote it.
+    const GOLDEN_V1: &str = "475952430101020d070000000c0000000000c441ae47813f000000000000000000000000a4707d3f0000000000000000000000005c8f823f0000003f0000a0bf00000040c520803f6f12033b0000000000000000ee7c7f3f6f1283ba00000000000000004e62803f0ad7233c0ad7a3bc8fc2753c17b7d13817b7513952491d390ad7a33c6f12833a00006040000034420000344317b7d139c2c3aaa0";
+
+    #[test]
+    fn version_1_records_still_load_with_their_diagonal_sigma() {
+        let mut v1 = [0xFFu8; LEN];
+        for i in 0..LEN_V1 {
+            v1[i] = u8::from_str_radix(&GOLDEN_V1[2 * i..2 * i + 2], 16).unwrap();
+        }
+        let sigma_k = [[1e-4, 0.0, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1.5e-4]];
+        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, ..sample() }));
+        assert!(matches!(Record::decode(&v1[..150]), Err(DecodeError::Truncated { len: 150, need: 156 })));
+        let mut torn = v1;
+        torn[120] ^= 1;
+        assert!(matches!(Record::decode(&torn), Err(DecodeError::BadCrc { .. })));
     }
 
     #[test]

@@ -5,7 +5,7 @@ use crate::accel::AccelCal;
 use crate::bias::Bias;
 use crate::gyro::{GyroCal, Method};
 use crate::record::{Record, StoreError};
-use crate::{Error, Vec3};
+use crate::{Error, Mat3, Vec3};
 
 /// LED patterns (the shell maps them to pins and blink timing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -89,7 +89,8 @@ pub enum Report {
     AccelPose { index: u8, accel_g: Vec3 },
     /// The accelerometer calibration.
     Accel(AccelCal),
-    /// A static rig pose was captured (calibrated mean, g).
+    /// A static rig pose was captured (calibrated mean, g; raw with the pan/tilt plan, whose
+    /// accelerometer is fitted to these poses at the end).
     RigPose { index: u8, servo_deg: f32, accel_g: Vec3 },
     /// A pose was disturbed and is being retaken.
     Retake { index: u8, retries: u8 },
@@ -97,6 +98,9 @@ pub enum Report {
     Move { from: u8, to: u8, gyro_turn_deg: f32 },
     /// One gyro estimator's result.
     Gyro(GyroCal),
+    /// The full 3×3 `K` of the pan/tilt plan (row-major, with the 1σ of every element), the
+    /// condition of its normal matrix, its axes' angle from coplanar (°) and its residual (°).
+    FullK { k: Mat3, sigma_k: Mat3, condition: f32, non_coplanar_deg: f32, residual_rms_deg: f32, axes: u8, moves: u16 },
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },
     /// The calibration was stored (verified) and is applied from now on.

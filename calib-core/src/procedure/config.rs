@@ -3,8 +3,12 @@
 
 use crate::axis::GeometryLimits;
 use crate::bias::BiasLimits;
+use crate::full::FullLimits;
 use crate::pipeline::Acceptance;
 use crate::rest::RestConfig;
+
+/// Tilt settings of the pan/tilt plan (each one pan axis; with the hinge, five axes).
+pub const TILT_SETTINGS: usize = 4;
 
 /// The rotation servo.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -69,14 +73,16 @@ pub struct Config {
     pub accel_poses: u8,
     /// Smallest angle between two hand-held poses (°).
     pub accel_min_separation_deg: f32,
-    /// Take the accelerometer poses with the tilt servo (channel 1, tilt angle + 90° mapped like
-    /// the rotation servo) instead of by hand: every `accel_pan_deg` × `accel_tilt_deg`.
-    /// Needs a positional rotation servo.
-    pub tilt_accel: bool,
-    /// Rotation-servo angles of the tilt-servo accelerometer poses (°).
-    pub accel_pan_deg: [f32; 3],
-    /// Tilt angles of the tilt-servo accelerometer poses (°, 0 = level).
-    pub accel_tilt_deg: [f32; 4],
+    /// Pan/tilt bracket (firmware feature `tilt-servo`): a tilt servo on channel 1 (tilt angle
+    /// + 90° mapped like the rotation servo) rides on the rotation servo. The rig poses are then
+    /// taken at every `tilt_settings_deg`, with the tilt moves between them at pan
+    /// `pose_first_deg`; they give the full 3×3 `K` and, spread over pan × tilt, the
+    /// accelerometer (no hand-held step). Needs a positional rotation servo.
+    pub pan_tilt: bool,
+    /// Tilt settings of the pan/tilt plan (°, 0 = level), in the order visited.
+    pub tilt_settings_deg: [f32; TILT_SETTINGS],
+    /// The full-`K` estimator's requirements (pan/tilt plan).
+    pub full: FullLimits,
     /// Stillness thresholds.
     pub rest: RestConfig,
     /// Bias limits.
@@ -124,9 +130,9 @@ impl Config {
         bias_s: 2.0,
         accel_poses: 12,
         accel_min_separation_deg: 30.0,
-        tilt_accel: false,
-        accel_pan_deg: [0.0, 90.0, 180.0],
-        accel_tilt_deg: [-75.0, -25.0, 25.0, 75.0],
+        pan_tilt: false,
+        tilt_settings_deg: [-60.0, -20.0, 20.0, 60.0],
+        full: FullLimits::DEFAULT,
         rest: RestConfig::DEFAULT,
         bias: BiasLimits::DEFAULT,
         geometry: GeometryLimits::DEFAULT,
@@ -140,6 +146,13 @@ impl Config {
         gyro_range_dps: 500.0,
         acceptance: Acceptance { k_min: 0.8, k_max: 1.2, max_sigma_k: 0.005, max_accel_rms_g: 0.01 },
     };
+}
+
+impl Config {
+    /// The pan/tilt plan (firmware feature `tilt-servo`): at each of the four tilt settings, rig
+    /// poses at 0–180° every 45° there and back (moves at 60 °/s), no paper rotation; the full
+    /// `K` from the 32 pan and 3 tilt moves, the accelerometer from the 20 distinct poses.
+    pub const PAN_TILT: Config = Config { pan_tilt: true, pose_count: 5, move_rate_dps: 60.0, rotation_rate_dps: 0.0, ..Config::DEFAULT };
 }
 
 impl Default for Config {
@@ -163,9 +176,24 @@ impl Config {
         (libm::roundf(us) as i32).clamp(self.pulse_min_us as i32, self.pulse_max_us as i32) as u16
     }
 
-    /// Rig steps (static poses) in one run: there and back `round_trips` times.
+    /// Rig steps (static poses) at one rotation axis: there and back `round_trips` times.
     pub fn rig_steps(&self) -> u16 {
         1 + 2 * (self.pose_count.max(2) as u16 - 1) * self.round_trips.max(1) as u16
+    }
+
+    /// Rig steps in one run: `rig_steps` at every tilt setting with the pan/tilt plan.
+    pub fn plan_steps(&self) -> u16 {
+        self.rig_steps() * if self.pan_tilt { TILT_SETTINGS as u16 } else { 1 }
+    }
+
+    /// Tilt setting (index) and step within it of run step `k` (the setting is 0 without a tilt
+    /// servo); step 0 of settings after the first is reached by a tilt move.
+    pub fn plan_at(&self, k: u16) -> (usize, u16) {
+        if self.pan_tilt {
+            ((k / self.rig_steps()) as usize, k % self.rig_steps())
+        } else {
+            (0, k)
+        }
     }
 
     /// Pose slot (0..pose_count) visited at rig step `k`.
@@ -197,6 +225,17 @@ mod tests {
         let slots: [u16; 7] = core::array::from_fn(|k| c.pose_slot(k as u16));
         assert_eq!(slots, [0, 1, 2, 3, 2, 1, 0]);
         assert_eq!(c.step_deg(3), 180.0);
+    }
+
+    #[test]
+    fn the_pan_tilt_plan_sweeps_every_setting_and_tilts_at_pan_0() {
+        let c = Config::PAN_TILT;
+        assert_eq!(c.plan_steps(), 36);
+        assert_eq!(c.plan_at(8), (0, 8));
+        assert_eq!(c.plan_at(9), (1, 0));
+        assert_eq!(c.step_deg(c.plan_at(9).1), 0.0);
+        assert_eq!(c.step_deg(c.plan_at(13).1), 180.0);
+        assert_eq!(Config::DEFAULT.plan_at(13), (0, 13));
     }
 
     #[test]

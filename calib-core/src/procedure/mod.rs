@@ -7,6 +7,12 @@
 //! them, there and back → the paper's constant-rate rotation → solve both estimators →
 //! validate → store → (verified) report → apply.
 //!
+//! With a pan/tilt bracket ([`Config::pan_tilt`]): wait for rest → gyro bias → the rig poses,
+//! there and back across the pan range at every tilt setting, tilt moves between the settings
+//! at pan `pose_first_deg` → the accelerometer fitted to those poses → the full 3×3 `K`
+//! ([`crate::full`]), the one-axis sweep estimator of the first setting beside it → validate →
+//! store → report → apply. No user action after the press.
+//!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
 //! (one call queues at most 8 commands; the queue holds 16; a full queue fails the calibration
 //! with [`Error::CommandQueueFull`]). A [`Command::Store`] is answered with
@@ -17,12 +23,13 @@ mod command;
 mod config;
 
 pub use command::{Command, ErrorClass, Led, Report, Shell};
-pub use config::{Config, ServoKind};
+pub use config::{Config, ServoKind, TILT_SETTINGS};
 
 use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::{turn_deg, Poses};
 use crate::bias::{Bias, BiasEstimator};
-use crate::gyro::{GyroCal, Method};
+use crate::full::{Axes, FullAxis, FullCal};
+use crate::gyro::Method;
 use crate::record::{Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::stats::Welford3;
@@ -58,8 +65,6 @@ pub enum Phase {
     Bias,
     /// Capturing hand-held accelerometer poses.
     HandHeld,
-    /// Capturing accelerometer poses with the tilt servo.
-    TiltPoses,
     /// Waiting for the board to be clamped back on the shaft and the button pressed.
     Reattach,
     /// Static rig poses and the moves between them.
@@ -82,7 +87,6 @@ impl Phase {
             Phase::WaitRest => "wait-rest",
             Phase::Bias => "bias",
             Phase::HandHeld => "hand-held",
-            Phase::TiltPoses => "tilt-poses",
             Phase::Reattach => "reattach",
             Phase::RigPoses => "rig-poses",
             Phase::Rotation => "rotation",
@@ -132,9 +136,10 @@ impl Capture {
     }
 }
 
-/// A commanded positional ramp (°) in time.
+/// A commanded positional ramp (°) in time of servo `channel` (0 rotation, 1 tilt).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Ramp {
+    channel: u8,
     from_deg: f32,
     to_deg: f32,
     t0: f64,
@@ -157,12 +162,6 @@ enum Step {
     },
     HandHeld {
         capture: Capture,
-    },
-    /// Capturing tilt-servo accelerometer pose `n`, commanded at `since`.
-    TiltPose {
-        n: u8,
-        capture: Capture,
-        since: f64,
     },
     Reattach,
     /// Moving to rig step `k` (started at `t0`).
@@ -223,9 +222,6 @@ impl Rotation {
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
 
-/// Time for the servos to start moving after a tilt-pose command (s).
-const TILT_SETTLE_S: f64 = 0.3;
-
 /// Head room of the rotation's averaging window: skipped after the start and before the end (s).
 const ROTATION_SKIP_START_S: f64 = 1.0;
 const ROTATION_SKIP_END_S: f64 = 0.5;
@@ -243,11 +239,14 @@ pub struct Procedure {
     servo_deg: Option<f32>,
     tilt_deg: Option<f32>,
     last_pulse: Option<u16>,
+    last_tilt_pulse: Option<u16>,
     bias: Option<Bias>,
     accel_cal: AccelCal,
     accel_poses: AccelCalibrator,
     poses: Poses,
     moves: Moves,
+    axes: Axes,
+    full: Option<FullCal>,
     integ: Integrator,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
@@ -269,11 +268,14 @@ impl Procedure {
             servo_deg: None,
             tilt_deg: None,
             last_pulse: None,
+            last_tilt_pulse: None,
             bias: None,
             accel_cal: AccelCal::IDENTITY,
             accel_poses: AccelCalibrator::new(),
             poses: Poses::new(),
             moves: Moves::new(),
+            axes: Axes::new(),
+            full: None,
             integ: Integrator::new(),
             gbar: None,
             temp: Welford3::new(),
@@ -287,7 +289,6 @@ impl Procedure {
             Step::WaitRest => Phase::WaitRest,
             Step::Bias { .. } => Phase::Bias,
             Step::HandHeld { .. } => Phase::HandHeld,
-            Step::TiltPose { .. } => Phase::TiltPoses,
             Step::Reattach => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
             Step::Rotation { .. } => Phase::Rotation,
@@ -307,6 +308,12 @@ impl Procedure {
     /// `tilt_deg` column of the raw log.
     pub fn tilt_deg(&self) -> Option<f32> {
         self.tilt_deg
+    }
+
+    /// The full `K` of the last pan/tilt run with its whole quality report (its axes), once
+    /// solved (also when validation then rejected it); [`Report::FullK`] logs its summary.
+    pub fn full(&self) -> Option<&FullCal> {
+        self.full.as_ref()
     }
 
     /// Next command for the shell.
@@ -398,25 +405,19 @@ impl Procedure {
                     }
                 }
             }
-            Step::TiltPose { n, mut capture, since } => {
-                // Windows that began before the servos could move are not this pose.
-                if let Some(w) = window.filter(|w| w.t_start_s >= since + TILT_SETTLE_S) {
-                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
-                        CaptureStep::Pending => self.step = Step::TiltPose { n, capture, since },
-                        CaptureStep::Disturbed => self.retake(n, capture, |c| Step::TiltPose { n, capture: c, since }),
-                        CaptureStep::Done => self.finish_tilt_pose(n, &capture, s.t_s),
-                    }
-                }
-            }
             Step::Move { k, ramp } => {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
                 self.integ.add(s.t_s, g);
                 let (deg, done) = ramp.at(s.t_s);
-                self.set_angle(deg);
+                if ramp.channel == 1 {
+                    self.set_tilt(deg);
+                } else {
+                    self.set_angle(deg);
+                }
                 if done {
-                    if let ServoKind::Continuous { .. } = self.cfg.servo {
+                    if let (ServoKind::Continuous { .. }, 0) = (self.cfg.servo, ramp.channel) {
                         self.push(Command::ServoOff { channel: 0 });
                     }
                     self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
@@ -477,17 +478,17 @@ impl Procedure {
         self.servo_deg = None;
         self.tilt_deg = None;
         self.last_pulse = None;
+        self.last_tilt_pulse = None;
         self.bias = None;
         self.accel_cal = AccelCal::IDENTITY;
         self.accel_poses.clear();
         self.poses.clear();
         self.moves.clear();
+        self.axes.clear();
+        self.full = None;
         self.integ = Integrator::new();
         self.gbar = None;
         self.temp = Welford3::new();
-        if self.cfg.tilt_accel {
-            self.set_tilt(0.0);
-        }
         if let Some(acc) = self.stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
             self.accel_cal = acc;
         }
@@ -500,6 +501,9 @@ impl Procedure {
             self.push(Command::ServoOff { channel: 0 });
         }
         self.set_angle(self.cfg.pose_first_deg);
+        if self.cfg.pan_tilt {
+            self.set_tilt(self.cfg.tilt_settings_deg[0]);
+        }
     }
 
     /// Sets the commanded angle (°): drives a positional servo; for a continuous servo it is
@@ -520,11 +524,13 @@ impl Procedure {
     fn start_ramp(&mut self, t_s: f64, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
         let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
         match self.cfg.servo {
-            ServoKind::Positional => Ramp { from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 },
+            ServoKind::Positional => {
+                Ramp { channel: 0, from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 }
+            }
             ServoKind::Continuous { neutral_us, span_us, speed, nominal_rate_dps, .. } => {
                 let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
                 self.push(Command::Servo { channel: 0, pulse_us: pulse });
-                Ramp { from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs as f64 }
+                Ramp { channel: 0, from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs as f64 }
             }
         }
     }
@@ -545,6 +551,10 @@ impl Procedure {
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });
+        if self.cfg.pan_tilt {
+            self.last_tilt_pulse = None;
+            self.push(Command::ServoOff { channel: 1 });
+        }
         self.servo_deg = None;
         self.push(Command::Report(Report::Failed(e)));
         self.push(Command::Led(Led::Error(ErrorClass::of(&e))));
@@ -563,7 +573,6 @@ impl Procedure {
         let (since, limit) = match self.step {
             Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
             Step::HandHeld { .. } => (self.phase_t0, c.handheld_timeout_s),
-            Step::TiltPose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
             Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
@@ -584,10 +593,9 @@ impl Procedure {
             Ok(b) => {
                 self.bias = Some(b);
                 self.push(Command::Report(Report::Bias(b)));
-                let tilt = self.cfg.tilt_accel && self.cfg.servo == ServoKind::Positional;
-                if self.accel_cal.model == AccelModel::None && tilt {
-                    self.enter(Step::TiltPose { n: 0, capture: Capture::default(), since: t_s }, t_s);
-                    self.command_tilt_pose(0);
+                // The pan/tilt plan fits the accelerometer to its own rig poses.
+                if self.cfg.pan_tilt {
+                    self.begin_rig(t_s);
                 } else if self.accel_cal.model == AccelModel::None {
                     self.servo_deg = None;
                     self.last_pulse = None;
@@ -635,38 +643,13 @@ impl Procedure {
         Ok(())
     }
 
-    /// Tilt-servo accelerometer poses: pan `accel_pan_deg[n / 4]`, tilt `accel_tilt_deg[n % 4]`.
-    const TILT_POSES: u8 = 12;
-
-    fn command_tilt_pose(&mut self, n: u8) {
-        let (pan, tilt) = (self.cfg.accel_pan_deg[(n / 4) as usize % 3], self.cfg.accel_tilt_deg[(n % 4) as usize]);
-        self.set_angle(pan);
-        self.set_tilt(tilt);
-    }
-
+    /// Sets the commanded tilt (°, 0 = level) and drives the tilt servo (channel 1) there.
     fn set_tilt(&mut self, deg: f32) {
         self.tilt_deg = Some(deg);
         let pulse = self.cfg.pulse_for_deg(deg + 90.0);
-        self.push(Command::Servo { channel: 1, pulse_us: pulse });
-    }
-
-    fn finish_tilt_pose(&mut self, n: u8, capture: &Capture, t_s: f64) {
-        let a = capture.accel_mean();
-        if let Err(e) = self.accel_poses.add_pose(a) {
-            return self.fail(e);
-        }
-        self.push(Command::Report(Report::AccelPose { index: n, accel_g: a }));
-        if n + 1 < Self::TILT_POSES {
-            self.command_tilt_pose(n + 1);
-            self.step = Step::TiltPose { n: n + 1, capture: Capture::default(), since: t_s };
-            return;
-        }
-        match self.fit_accel() {
-            Ok(()) => {
-                self.set_tilt(0.0);
-                self.begin_rig(t_s);
-            }
-            Err(e) => self.fail(e),
+        if self.last_tilt_pulse != Some(pulse) {
+            self.last_tilt_pulse = Some(pulse);
+            self.push(Command::Servo { channel: 1, pulse_us: pulse });
         }
     }
 
@@ -675,29 +658,45 @@ impl Procedure {
         self.park_servo();
         self.poses.clear();
         self.moves.clear();
+        self.axes.clear();
         self.integ = Integrator::new();
         self.enter(Step::WaitRest, t_s);
     }
 
     fn finish_pose(&mut self, k: u16, capture: &Capture, s: &Sample) {
-        let a = self.accel_cal.apply(capture.accel_mean());
-        let idx = match self.poses.push(a) {
+        let (pan_tilt, (setting, j)) = (self.cfg.pan_tilt, self.cfg.plan_at(k));
+        // The pan/tilt plan keeps the raw means: its accelerometer is fitted to them at the end,
+        // from the first visit of every pan angle at every setting.
+        let a = if pan_tilt { capture.accel_mean() } else { self.accel_cal.apply(capture.accel_mean()) };
+        let idx = match if pan_tilt { self.axes.push_pose(a) } else { self.poses.push(a) } {
             Ok(i) => i,
             Err(e) => return self.fail(e),
         };
+        if pan_tilt && j < self.cfg.pose_count as u16 {
+            if let Err(e) = self.accel_poses.add_pose(a) {
+                return self.fail(e);
+            }
+        }
         let servo_deg = self.servo_deg.unwrap_or(f32::NAN);
         self.push(Command::Report(Report::RigPose { index: idx, servo_deg, accel_g: a }));
         if k > 0 {
             let gamma = self.integ.gamma();
             let turned = libm::sqrt(gamma.iter().map(|v| v * v).sum::<f64>()) as f32;
-            let commanded = match self.cfg.servo {
-                ServoKind::Positional => (self.cfg.step_deg(k) - self.cfg.step_deg(k - 1)).abs(),
-                ServoKind::Continuous { nominal_rate_dps, move_s, .. } => nominal_rate_dps * move_s,
+            // Step 0 of a later tilt setting is reached by a tilt move (about the hinge, axis id
+            // `TILT_SETTINGS`); every other step by a pan move about the setting's own axis.
+            let tilt_move = pan_tilt && j == 0;
+            let (channel, commanded) = match self.cfg.servo {
+                _ if tilt_move => (1, self.cfg.tilt_settings_deg[setting] - self.cfg.tilt_settings_deg[setting - 1]),
+                ServoKind::Positional => (0, self.cfg.step_deg(j) - self.cfg.step_deg(j - 1)),
+                ServoKind::Continuous { nominal_rate_dps, move_s, .. } => (0, nominal_rate_dps * move_s),
             };
-            if turned < self.cfg.min_turn_fraction * commanded {
-                return self.fail(Error::ServoNotTurning { commanded_deg: commanded, measured_deg: turned });
+            if turned < self.cfg.min_turn_fraction * commanded.abs() {
+                return self.fail(Error::ServoNotTurning { channel, commanded_deg: commanded.abs(), measured_deg: turned });
             }
-            if let Err(e) = self.moves.push(idx - 1, idx, gamma) {
+            let axis = if tilt_move { TILT_SETTINGS } else { setting } as u8;
+            let pushed =
+                if pan_tilt { self.axes.push_move(axis, idx - 1, idx, commanded, gamma) } else { self.moves.push(idx - 1, idx, gamma) };
+            if let Err(e) = pushed {
                 return self.fail(e);
             }
             self.push(Command::Report(Report::Move { from: idx - 1, to: idx, gyro_turn_deg: turned }));
@@ -705,13 +704,22 @@ impl Procedure {
         self.integ = Integrator::new();
         self.integ.add(s.t_s, self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps)));
         let next = k + 1;
-        if next < self.cfg.rig_steps() {
-            // Forward over the first half of each round trip, back over the second.
-            let forward = self.cfg.pose_slot(next) > self.cfg.pose_slot(k);
-            let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo { move_s } else { 0.0 };
-            let dir = if forward { 1.0 } else { -1.0 };
-            let ramp = self.start_ramp(s.t_s, self.cfg.step_deg(next), self.cfg.move_rate_dps, dir, move_s);
+        if next < self.cfg.plan_steps() {
+            let (next_setting, nj) = self.cfg.plan_at(next);
+            let ramp = if pan_tilt && nj == 0 {
+                let (from_deg, to_deg) = (self.cfg.tilt_settings_deg[setting], self.cfg.tilt_settings_deg[next_setting]);
+                let duration_s = ((to_deg - from_deg).abs() / self.cfg.move_rate_dps.max(1.0)) as f64;
+                Ramp { channel: 1, from_deg, to_deg, t0: s.t_s, duration_s }
+            } else {
+                // Forward over the first half of each round trip, back over the second.
+                let forward = self.cfg.pose_slot(nj) > self.cfg.pose_slot(j);
+                let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo { move_s } else { 0.0 };
+                let dir = if forward { 1.0 } else { -1.0 };
+                self.start_ramp(s.t_s, self.cfg.step_deg(nj), self.cfg.move_rate_dps, dir, move_s)
+            };
             self.step = Step::Move { k: next, ramp };
+        } else if pan_tilt {
+            self.solve_full(s.t_s);
         } else if self.cfg.rotation_rate_dps > 0.0 {
             let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
             let rot = Rotation {
@@ -727,6 +735,94 @@ impl Procedure {
         } else {
             self.solve(s.t_s);
         }
+    }
+
+    /// The end of the pan/tilt plan: the accelerometer from the rig poses, the poses calibrated
+    /// with it, the full `K`, and beside it the one-axis sweep estimator of the tilt setting whose
+    /// pan axis is the most oblique to the sensor axes.
+    fn solve_full(&mut self, t_s: f64) {
+        if let Err(e) = self.fit_accel() {
+            // Poses too little spread for the accelerometer: the rig's geometry, seen on the raw
+            // poses, says what to change (an upright bracket's pan axis is vertical; coplanar
+            // axes); else the fit's own error.
+            let vertical = |g| match g {
+                Err(e @ Error::AxisNearVertical { .. }) => Err(e),
+                _ => Ok(()),
+            };
+            let geometry = self
+                .load_setting(0)
+                .and_then(|_| vertical(self.poses.geometry(&self.cfg.geometry, false)))
+                .and_then(|_| self.axes.solve(&self.cfg.full).map(|_| ()));
+            return self.fail(geometry.err().unwrap_or(e));
+        }
+        self.axes.calibrate_poses(&self.accel_cal);
+        let full = self.axes.solve(&self.cfg.full);
+        let oblique = |a: &FullAxis| a.u.iter().fold(f32::INFINITY, |m, c| m.min(c.abs()));
+        let setting = match &full {
+            Ok(f) => (0..TILT_SETTINGS).max_by(|&a, &b| oblique(&f.axes[a]).total_cmp(&oblique(&f.axes[b]))).unwrap_or(0),
+            Err(_) => 0,
+        };
+        if let Err(e) = self.one_axis_beside(setting) {
+            return self.fail(e);
+        }
+        let full = match full {
+            Ok(f) => f,
+            Err(e) => return self.fail(e),
+        };
+        self.full = Some(full);
+        self.push(Command::Report(Report::FullK {
+            k: full.k,
+            sigma_k: full.sigma_k,
+            condition: full.condition,
+            non_coplanar_deg: full.non_coplanar_deg,
+            residual_rms_deg: full.residual_rms_deg,
+            axes: full.n_axes,
+            moves: full.moves,
+        }));
+        if let Err(e) = pipeline::validate_full(&full, &self.cfg.acceptance) {
+            return self.fail(e);
+        }
+        let tilt_deg = full.axes.iter().filter(|a| a.moves > 0).map(|a| a.tilt_deg).fold(f32::INFINITY, f32::min);
+        let record = self.record().map(|r| Record {
+            gyro_k: full.k,
+            method: Method::Full,
+            sigma_k: full.sigma_k,
+            poses: self.axes.poses().len() as u8,
+            rows: full.rows,
+            condition: full.condition,
+            tilt_deg,
+            residual_rms: full.residual_rms_deg,
+            non_coplanar_deg: full.non_coplanar_deg,
+            ..r
+        });
+        self.store(record, t_s);
+    }
+
+    /// The poses and pan moves of one tilt setting as a one-axis rig (`poses`, `moves`).
+    fn load_setting(&mut self, setting: usize) -> Result<(), Error> {
+        self.poses.clear();
+        self.moves.clear();
+        let per = self.cfg.rig_steps() as usize;
+        for p in setting * per..((setting + 1) * per).min(self.axes.poses().len()) {
+            let v = self.axes.poses().get(p);
+            self.poses.push([v[0] as f32, v[1] as f32, v[2] as f32])?;
+        }
+        let first = (setting * per) as u8;
+        for m in self.axes.moves().iter().filter(|m| m.axis as usize == setting) {
+            self.moves.push(m.from - first, m.to - first, m.gamma_deg)?;
+        }
+        Ok(())
+    }
+
+    /// The sweep estimator on the (calibrated) poses and pan moves of one tilt setting, reported
+    /// for comparison with the full `K`.
+    fn one_axis_beside(&mut self, setting: usize) -> Result<(), Error> {
+        self.load_setting(setting)?;
+        match sweep::solve(&self.poses, &self.moves, &self.cfg.geometry) {
+            Ok(cal) => self.push(Command::Report(Report::Gyro(cal))),
+            Err(error) => self.push(Command::Report(Report::EstimatorFailed { method: Method::Sweep, error })),
+        }
+        Ok(())
     }
 
     fn finish_rotation(&mut self, rot: &Rotation, t_s: f64) {
@@ -759,12 +855,33 @@ impl Procedure {
             Ok(c) => c,
             Err(e) => return self.fail(e),
         };
-        let record = match self.record(&chosen) {
-            Ok(r) => r,
-            Err(e) => return self.fail(e),
-        };
-        self.enter(Step::Storing { record }, t_s);
-        self.push(Command::Store(record));
+        let q = &chosen.quality;
+        let record = self.record().map(|r| Record {
+            gyro_k: chosen.k,
+            method: chosen.method,
+            sigma_k: [[q.sigma_k[0], 0.0, 0.0], [0.0, q.sigma_k[1], 0.0], [0.0, 0.0, q.sigma_k[2]]],
+            poses: q.poses,
+            rows: q.rows,
+            invariant_before_rel: q.invariant_before.relative_std(),
+            invariant_after_rel: q.invariant_after.relative_std(),
+            condition: q.condition,
+            tilt_deg: q.tilt_deg,
+            span_deg: q.span_deg,
+            residual_rms: q.residual_rms,
+            ..r
+        });
+        self.store(record, t_s);
+    }
+
+    /// Hands a built record to the shell to store (or fails with why it could not be built).
+    fn store(&mut self, record: Result<Record, Error>, t_s: f64) {
+        match record {
+            Ok(record) => {
+                self.enter(Step::Storing { record }, t_s);
+                self.push(Command::Store(record));
+            }
+            Err(e) => self.fail(e),
+        }
     }
 
     /// The shell's answer to [`Command::Store`]: only a verified store reports the result,
@@ -803,29 +920,32 @@ impl Procedure {
         }
     }
 
-    fn record(&self, cal: &GyroCal) -> Result<Record, Error> {
-        let q = &cal.quality;
+    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer);
+    /// the gyro fields are filled by the estimator's caller.
+    fn record(&self) -> Result<Record, Error> {
         if self.temp.count() == 0 {
             return Err(Error::NoTemperature);
         }
         Ok(Record {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
             temp_c: self.temp.mean()[0] as f32,
-            gyro_k: cal.k,
+            gyro_k: [[0.0; 3]; 3],
             gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
-            method: cal.method,
+            method: Method::Sweep,
             accel_m: self.accel_cal.m,
             accel_offset_g: self.accel_cal.offset_g,
             accel_model: self.accel_cal.model,
-            poses: q.poses,
-            rows: q.rows,
-            sigma_k: q.sigma_k,
-            invariant_before_rel: q.invariant_before.relative_std(),
-            invariant_after_rel: q.invariant_after.relative_std(),
-            condition: q.condition,
-            tilt_deg: q.tilt_deg,
-            span_deg: q.span_deg,
+            poses: 0,
+            rows: 0,
+            sigma_k: [[0.0; 3]; 3],
+            invariant_before_rel: 0.0,
+            invariant_after_rel: 0.0,
+            condition: 0.0,
+            tilt_deg: 0.0,
+            span_deg: 0.0,
             accel_rms_g: self.accel_cal.rms_after_g,
+            residual_rms: 0.0,
+            non_coplanar_deg: 0.0,
         })
     }
 }

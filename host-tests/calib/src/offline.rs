@@ -378,7 +378,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
             // whose gyro turn was that far from the commanded one.
             let scale = match &r.result {
                 Ok(c) => Some(c.k.iter().enumerate().map(|(i, row)| row[i] as f64).sum::<f64>() / 3.0),
-                Err(Error::ServoNotTurning { commanded_deg, measured_deg }) if *measured_deg != 0.0 => {
+                Err(Error::ServoNotTurning { commanded_deg, measured_deg, .. }) if *measured_deg != 0.0 => {
                     Some((commanded_deg / measured_deg).abs() as f64)
                 }
                 Err(Error::ImplausibleScale { value, .. }) => Some(*value as f64),
@@ -395,7 +395,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
             let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
             return Ok(Calibration {
                 gyro,
-                full: None,
+                full: r.full,
                 bias: r.bias,
                 accel: r.accel,
                 sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),

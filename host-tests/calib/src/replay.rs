@@ -14,6 +14,7 @@
 use crate::csvlog::Row;
 use calib_core::accel::AccelCal;
 use calib_core::bias::Bias;
+use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
 use calib_core::record::{Record, StoreError};
@@ -32,8 +33,11 @@ pub struct Replay {
     pub sweep: Option<Result<GyroCal, Error>>,
     /// The paper estimator's outcome, if it ran.
     pub paper: Option<Result<GyroCal, Error>>,
-    /// The result the firmware would store, or why it would not.
+    /// The one-axis result the firmware would store, or why it would not (on a pan/tilt run:
+    /// the sweep estimator of the first tilt setting, reported beside the full `K`).
     pub result: Result<GyroCal, Error>,
+    /// On a pan/tilt run: the full `K` the firmware would store, or why it would not.
+    pub full: Option<Result<FullCal, Error>>,
 }
 
 /// The procedure's reports, collected; stores always succeed (nothing is written).
@@ -70,12 +74,12 @@ impl Shell for Collect {
     fn apply(&mut self, _: &Record) {}
 }
 
-/// The configurations tried, in order: the firmware's default build, its `tilt-servo` build, and
-/// a continuous-rotation servo.
+/// The configurations tried, in order: the firmware's default build, its `tilt-servo` build (the
+/// pan/tilt plan), and a continuous-rotation servo.
 fn configs() -> [(&'static str, Config); 3] {
     [
         ("default", Config::DEFAULT),
-        ("tilt-servo", Config { tilt_accel: true, ..Config::DEFAULT }),
+        ("tilt-servo", Config::PAN_TILT),
         ("continuous servo", Config { servo: ServoKind::CONTINUOUS, ..Config::DEFAULT }),
     ]
 }
@@ -90,8 +94,8 @@ fn same(a: Option<f32>, b: Option<f32>) -> bool {
 }
 
 /// Replays `rows` under `cfg`; `None` at the first row whose logged angles differ from the
-/// procedure's, or if the run never ends.
-fn run(rows: &[Row], cfg: Config) -> Option<Collect> {
+/// procedure's, or if the run never ends. With the full `K`, if one was solved.
+fn run(rows: &[Row], cfg: Config) -> Option<(Collect, Option<FullCal>)> {
     let mut p = Procedure::new(cfg, None);
     let mut out = Collect::default();
     let mut prev_t = rows.first()?.t_s;
@@ -117,7 +121,7 @@ fn run(rows: &[Row], cfg: Config) -> Option<Collect> {
         p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: Some(25.0) });
         p.drive(r.t_s, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
-            return Some(out);
+            return Some((out, p.full().copied()));
         }
         prev_t = r.t_s;
     }
@@ -127,8 +131,15 @@ fn run(rows: &[Row], cfg: Config) -> Option<Collect> {
 /// Replays a log of the firmware's procedure; `None` if it is not one (see the module).
 pub fn replay(rows: &[Row]) -> Option<Replay> {
     configs().into_iter().find_map(|(name, cfg)| {
-        let c = run(rows, cfg)?;
+        let (c, full) = run(rows, cfg)?;
+        let full = cfg.pan_tilt.then(|| match (c.done, c.failed, full) {
+            (Some(_), _, Some(f)) => Ok(f),
+            (_, Some(e), _) => Err(e),
+            _ => Err(Error::NoUsableMove),
+        });
         let result = match (c.done, c.failed) {
+            // Beside the full K: the first setting's sweep estimator, as reported.
+            _ if cfg.pan_tilt => c.sweep.unwrap_or(Err(Error::NoUsableMove)),
             (Some(rec), _) => {
                 let chosen = [&c.sweep, &c.paper].into_iter().flatten().flatten().find(|g| g.method == rec.method && g.k == rec.gyro_k);
                 Ok(*chosen?)
@@ -136,6 +147,7 @@ pub fn replay(rows: &[Row]) -> Option<Replay> {
             (None, Some(e)) => Err(e),
             (None, None) => return None,
         };
-        Some(Replay { config: name, bias: c.bias?, accel: c.accel.unwrap_or(AccelCal::IDENTITY), sweep: c.sweep, paper: c.paper, result })
+        let accel = c.accel.unwrap_or(AccelCal::IDENTITY);
+        Some(Replay { config: name, bias: c.bias?, accel, sweep: c.sweep, paper: c.paper, result, full })
     })
 }

@@ -133,23 +133,23 @@ fn cli_calibrates_a_log_into_one_json_object_and_names_bad_input() {
 }
 
 #[test]
-fn tilt_servo_logs_take_accelerometer_poses_from_the_tilt_column() {
-    use rand::SeedableRng;
-    use rig_sim::sim::{PositionalServo, TiltStage};
-    let mut cfg = Variant::Hobby.config(25, 0);
-    cfg.tilt = Some(TiltStage { servo: PositionalServo::realistic(&mut rand_chacha::ChaCha8Rng::seed_from_u64(25)), hinge_deg: 60.0 });
-    let mut rig = Rig::new(cfg, 3);
-    let mut p = Procedure::new(Config { tilt_accel: true, ..Config::default() }, None);
+fn a_pan_tilt_firmware_log_is_replayed_to_the_firmware_s_full_k() {
+    let mut rig = Rig::new(rig_sim::pan_tilt::rig_config(25, 0), 3);
+    let mut p = Procedure::new(Config::PAN_TILT, None);
     let (log, out) = record_log(&mut rig, &mut p, Faults::default(), "");
     assert_eq!(out.error, None);
     assert_eq!(log.lines().next().unwrap(), HEADER);
     assert!(log.lines().skip(1).any(|l| !l.ends_with(',')), "the tilt column is filled");
-    let k = rig.truth().gyro_k;
+    let rec = out.stored[0];
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
-    assert!(c.handheld_poses >= 12, "accelerometer poses {}", c.handheld_poses);
+    assert_eq!(c.replayed, Some("tilt-servo"));
     assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
-    let e = errors(c.gyro.as_ref().unwrap().k, [k[(0, 0)], k[(1, 1)], k[(2, 2)]]);
-    assert!(e.iter().all(|x| x.abs() < 0.003), "{e:?}");
+    let full = c.full.expect("a full K").expect("solved");
+    // The firmware's K, to the rounding of the log's numbers.
+    let d = (0..9).map(|i| (full.k[i / 3][i % 3] - rec.gyro_k[i / 3][i % 3]).abs()).fold(0.0, f32::max);
+    assert!(d < 2e-5, "calib vs firmware: {d:.2e}");
+    let (largest, _) = rig_sim::pan_tilt::k_error(full.k, c.accel.m, &rig).unwrap();
+    assert!(largest < 1.5e-3, "{largest:.2e}");
 }
 
 /// A simulated log rewritten row by row.

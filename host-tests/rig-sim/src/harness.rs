@@ -22,6 +22,10 @@ pub struct Faults {
     pub disturb_rig_poses: bool,
     /// The servo stalls once the first rig pose is captured.
     pub stall_after_first_pose: bool,
+    /// The tilt servo is stalled (or unplugged) from the start.
+    pub tilt_stalled: bool,
+    /// The board slips 3° on its bracket once rig pose `n` is captured.
+    pub slip_after_pose: Option<u8>,
     /// Every store fails with this error.
     pub store_fails: Option<StoreError>,
     /// Every n-th sample has no temperature reading (1 = none has one); the others after such
@@ -137,6 +141,9 @@ impl Shell for SimBoard<'_> {
                 self.press_at = Some(self.t + self.rig.config().attach_transition_s + 1.0);
             }
             Report::RigPose { index: 0, .. } if self.faults.stall_after_first_pose => self.rig.stall(true),
+            Report::RigPose { index, .. } if self.faults.slip_after_pose == Some(index) => {
+                self.rig.slip(Vector3::new(1.0, 0.4, 0.2), 3.0, 0.3)
+            }
             Report::Failed(e) => self.out.error = Some(e),
             _ => {}
         }
@@ -181,6 +188,7 @@ pub fn run(
         press_at: Some(1.0),
         t: 0.0,
     };
+    b.rig.stall_tilt(faults.tilt_stalled);
     while b.t < max_s {
         let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);
         if stopped {

@@ -96,6 +96,22 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     s.text
 }
 
+/// `E = Qᵀ K̂ K⁻¹ − I`: a full `K̂` (row-major) in the frame of the calibrated accelerometer `M̂`,
+/// against the simulator's truth, after aligning the two frames (`Q = polar(M̂ C_a)`, `C_a` the
+/// simulated accelerometer's matrix). Its diagonal is the scale error, the rest the cross-axis error.
+pub fn k_error_matrix(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<Matrix3<f64>> {
+    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
+    let svd = (m(m_hat) * rig.config().accel.matrix()).svd(true, true);
+    let q = svd.u? * svd.v_t?;
+    Some(q.transpose() * m(k_hat) * rig.truth().gyro_k.try_inverse()? - Matrix3::identity())
+}
+
+/// (largest |E_ij|, RMS over the 9) of [`k_error_matrix`].
+pub fn k_error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<(f64, f64)> {
+    let e = k_error_matrix(k_hat, m_hat, rig)?;
+    Some((e.amax(), (e.norm_squared() / 9.0).sqrt()))
+}
+
 /// A realistic pan/tilt rig of the benchmarks: the hobby rig of `seed`/`run` with the pan shaft
 /// 30–50° from vertical, a tilt stage, gyro cross-axis coupling U(±1 %) and accelerometer
 /// misalignment U(±0.3 %).

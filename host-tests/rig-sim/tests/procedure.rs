@@ -1,13 +1,16 @@
 //! The calibration procedure end to end on the simulated rig: button press to stored record,
 //! and every failure ending in its own error with nothing stored.
 
+use calib_core::accel::AccelModel;
+use calib_core::gyro::Method;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, ServoKind};
 use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rig_sim::harness::{run, Faults, Run};
-use rig_sim::sim::{ContinuousServo, GyroRange, PositionalServo, Rig, RigConfig, ServoModel, TiltStage};
+use rig_sim::pan_tilt;
+use rig_sim::sim::{ContinuousServo, GyroRange, Rig, RigConfig, ServoModel};
 use rig_sim::variant::Variant;
 
 fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Run, Rig) {
@@ -132,20 +135,69 @@ fn sensor_data_stopping_is_an_error() {
 }
 
 #[test]
-fn tilt_servo_takes_the_accelerometer_poses() {
-    let mut rng = ChaCha8Rng::seed_from_u64(24);
-    let mut cfg = Variant::Hobby.config(24, 0);
-    cfg.tilt = Some(TiltStage { servo: PositionalServo::realistic(&mut rng), hinge_deg: 30.0 });
-    let pcfg = Config { tilt_accel: true, ..Config::default() };
-    let (out, rig) = calibrate(cfg, pcfg, None, Faults::default());
-    assert_eq!(out.error, None, "{:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>());
-    assert!(out.reports.contains(&Report::Phase(Phase::TiltPoses)));
-    assert!(!out.reports.contains(&Report::Phase(Phase::HandHeld)));
-    let rec = out.stored[0];
-    assert_eq!(rec.accel_model, calib_core::accel::AccelModel::NineParam);
-    assert!(rec.accel_rms_g < 0.002, "accel residual {}", rec.accel_rms_g);
-    let err = max_rel_error(&rec, &rig);
-    assert!(err < 0.003, "max scale error {:.4} %", err * 100.0);
+fn the_pan_tilt_plan_gives_the_full_k_with_no_user_action() {
+    for run_idx in 0..2 {
+        let cfg = pan_tilt::rig_config(31, run_idx);
+        let (out, rig) = calibrate(cfg, Config::PAN_TILT, None, Faults::default());
+        assert_eq!(out.error, None, "{:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>());
+        assert!(!out.reports.contains(&Report::Phase(Phase::HandHeld)) && !out.reports.contains(&Report::Phase(Phase::Reattach)));
+        let rec = out.stored[0];
+        assert_eq!((rec.method, rec.accel_model), (Method::Full, AccelModel::NineParam));
+        let (largest, rms) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig).unwrap();
+        assert!(largest < 1.5e-3 && rms < 5e-4, "run {run_idx}: E largest {largest:.2e}, rms {rms:.2e}");
+        // The 1σ of every element is reported and the off-diagonal is really estimated.
+        assert!((0..3).all(|i| (0..3).all(|j| rec.sigma_k[i][j] > 0.0 && rec.sigma_k[i][j] < 1e-3)), "{:?}", rec.sigma_k);
+        assert!(rec.non_coplanar_deg > 20.0, "axes {:.1} deg from coplanar", rec.non_coplanar_deg);
+        // Beside it, the one-axis sweep estimator of the first setting.
+        assert!(out.gyro_results().iter().any(|g| g.method == Method::Sweep));
+        assert!(out.reports.iter().any(|r| matches!(r, Report::FullK { axes: 5, moves: 35, .. })));
+        assert_eq!(Record::decode(&rec.encode()), Ok(rec));
+    }
+}
+
+/// Runs the pan/tilt plan on a broken rig and returns its error (nothing may be stored).
+fn pan_tilt_failure(cfg: RigConfig, pcfg: Config, faults: Faults) -> Error {
+    let (out, _) = calibrate(cfg, pcfg, None, faults);
+    assert!(out.stored.is_empty() && out.applied.is_empty(), "a failed run stored a record");
+    out.error.unwrap_or_else(|| panic!("no error; last reports {:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>()))
+}
+
+#[test]
+fn an_upright_bracket_is_named_not_solved() {
+    let mut cfg = pan_tilt::rig_config(32, 0);
+    cfg.shaft_tilt_deg = 0.0;
+    // Its pan moves leave gravity where it is: no accelerometer fit, and no scale across the hinge.
+    let e = pan_tilt_failure(cfg, Config::PAN_TILT, Faults::default());
+    assert!(matches!(e, Error::AxisNearVertical { .. }), "{e:?}: {e}");
+    assert!(e.to_string().contains("tilt the servo"), "{e}");
+    assert_eq!(ErrorClass::of(&e), ErrorClass::Geometry);
+}
+
+#[test]
+fn a_stalled_tilt_servo_is_named_with_its_channel() {
+    let faults = Faults { tilt_stalled: true, ..Faults::default() };
+    let e = pan_tilt_failure(pan_tilt::rig_config(33, 0), Config::PAN_TILT, faults);
+    assert!(matches!(e, Error::ServoNotTurning { channel: 1, .. }), "{e:?}");
+    assert!(e.to_string().contains("tilt (D10)"), "{e}");
+}
+
+#[test]
+fn a_board_that_slips_on_the_bracket_is_caught() {
+    // After the first setting's last pose (the slip turns up in the tilt move), and in the
+    // middle of the third setting.
+    for pose in [8u8, 22] {
+        let faults = Faults { slip_after_pose: Some(pose), ..Faults::default() };
+        let e = pan_tilt_failure(pan_tilt::rig_config(34, 0), Config::PAN_TILT, faults);
+        assert!(matches!(e, Error::AxisNotFixed { .. } | Error::MovesInconsistent { .. }), "slip after pose {pose}: {e:?}");
+    }
+}
+
+#[test]
+fn tilt_settings_that_give_no_second_axis_are_named() {
+    // Every setting the same: one pan axis, and tilt moves of 0°.
+    let pcfg = Config { tilt_settings_deg: [20.0; 4], ..Config::PAN_TILT };
+    let e = pan_tilt_failure(pan_tilt::rig_config(35, 0), pcfg, Faults::default());
+    assert!(matches!(e, Error::TooFewAxes { .. } | Error::AxesCoplanar { .. }), "{e:?}");
 }
 
 #[test]

@@ -13,21 +13,21 @@ prop_compose! {
     fn any_record()(
         seq in any::<u32>(), temp_c in finite(), k in prop::array::uniform9(finite()),
         b in prop::array::uniform3(finite()), m in prop::array::uniform9(finite()),
-        o in prop::array::uniform3(finite()), s in prop::array::uniform3(finite()),
-        q in prop::array::uniform6(finite()), method in any::<bool>(), model in 0u8..3,
+        o in prop::array::uniform3(finite()), s in prop::array::uniform9(finite()),
+        q in prop::array::uniform8(finite()), method in 0u8..3, model in 0u8..3,
         poses in any::<u8>(), rows in any::<u16>(),
     ) -> Record {
         Record {
             seq, temp_c,
             gyro_k: [[k[0], k[1], k[2]], [k[3], k[4], k[5]], [k[6], k[7], k[8]]],
             gyro_bias_dps: b,
-            method: if method { Method::Sweep } else { Method::Paper },
+            method: [Method::Paper, Method::Sweep, Method::Full][method as usize],
             accel_m: [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]],
             accel_offset_g: o,
             accel_model: [AccelModel::None, AccelModel::SixParam, AccelModel::NineParam][model as usize],
-            poses, rows, sigma_k: s,
+            poses, rows, sigma_k: [[s[0], s[1], s[2]], [s[3], s[4], s[5]], [s[6], s[7], s[8]]],
             invariant_before_rel: q[0], invariant_after_rel: q[1], condition: q[2],
-            tilt_deg: q[3], span_deg: q[4], accel_rms_g: q[5],
+            tilt_deg: q[3], span_deg: q[4], accel_rms_g: q[5], residual_rms: q[6], non_coplanar_deg: q[7],
         }
     }
 }

@@ -20,13 +20,15 @@ fn record(seq: u32) -> Record {
         accel_model: AccelModel::NineParam,
         poses: 13,
         rows: 12,
-        sigma_k: [1e-4; 3],
+        sigma_k: [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]],
         invariant_before_rel: 0.01,
         invariant_after_rel: 0.001,
         condition: 2.0,
         tilt_deg: 40.0,
         span_deg: 180.0,
         accel_rms_g: 1e-4,
+        residual_rms: 0.01,
+        non_coplanar_deg: 0.0,
     }
 }
 

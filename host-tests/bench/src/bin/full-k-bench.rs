@@ -9,7 +9,6 @@
 use bench::moments::Moments;
 use calib::{csvlog, offline};
 use clap::Parser;
-use nalgebra::Matrix3;
 use rig_sim::pan_tilt;
 use rig_sim::sim::Rig;
 use serde_json::json;
@@ -29,15 +28,6 @@ struct Args {
     json: bool,
 }
 
-/// (largest |E_ij|, RMS over the 9) of a `K̂` in the frame of `M̂`.
-fn error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<(f64, f64)> {
-    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
-    let svd = (m(m_hat) * rig.config().accel.matrix()).svd(true, true);
-    let q = svd.u? * svd.v_t?;
-    let e = q.transpose() * m(k_hat) * rig.truth().gyro_k.try_inverse()? - Matrix3::identity();
-    Some((e.amax(), (e.norm_squared() / 9.0).sqrt()))
-}
-
 fn main() {
     let args = Args::parse_from(calib::cli_args());
     let (mut full, mut diag, mut failed) = ((vec![], vec![]), (vec![], vec![]), vec![]);
@@ -55,7 +45,7 @@ fn main() {
             };
         match c.full.as_ref().map(|f| f.as_ref().map_err(|e| e.to_string())) {
             Some(Ok(f)) => {
-                if let Some((mx, rms)) = error(f.k, c.accel.m, &rig) {
+                if let Some((mx, rms)) = pan_tilt::k_error(f.k, c.accel.m, &rig) {
                     full.0.push(mx);
                     full.1.push(rms);
                 }
@@ -63,7 +53,7 @@ fn main() {
             Some(Err(e)) => failed.push(e),
             None => failed.push("no full K attempted".into()),
         }
-        if let Some((mx, rms)) = c.gyro.as_ref().ok().and_then(|g| error(g.k, c.accel.m, &rig)) {
+        if let Some((mx, rms)) = c.gyro.as_ref().ok().and_then(|g| pan_tilt::k_error(g.k, c.accel.m, &rig)) {
             diag.0.push(mx);
             diag.1.push(rms);
         }

@@ -1,4 +1,4 @@
-//! `simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous] [--tilt]`: writes the
+//! `simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous | --tilt]`: writes the
 //! log of a simulated calibration run (the firmware's procedure on the rig simulator, with a
 //! simulated operator), in the format `calib` reads; the true K in a closing comment.
 
@@ -7,7 +7,8 @@ use clap::{Parser, ValueEnum};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rig_sim::harness::{record_log, Faults};
-use rig_sim::sim::{ContinuousServo, PositionalServo, Rig, ServoModel, TiltStage};
+use rig_sim::pan_tilt;
+use rig_sim::sim::{ContinuousServo, Rig, ServoModel};
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
 
@@ -26,8 +27,9 @@ struct Args {
     /// Rotation servo type.
     #[arg(long, value_enum, default_value_t = ServoArg::Positional)]
     servo: ServoArg,
-    /// A tilt servo takes the accelerometer poses.
-    #[arg(long)]
+    /// A pan/tilt bracket (the `tilt-servo` firmware's plan, the full K): shaft 30–50° from
+    /// vertical, gyro cross-axis ±1 %, accelerometer misalignment ±0.3 %.
+    #[arg(long, conflicts_with = "servo")]
     tilt: bool,
 }
 
@@ -49,14 +51,9 @@ fn main() -> ExitCode {
 }
 
 fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> ExitCode {
-    let mut cfg = Variant::Hobby.config(seed, 0);
+    let mut cfg = if tilt { pan_tilt::rig_config(seed, 0) } else { Variant::Hobby.config(seed, 0) };
     cfg.odr_hz = odr;
-    let mut pcfg = Config::default();
-    if tilt {
-        let servo = PositionalServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed + 1));
-        cfg.tilt = Some(TiltStage { servo, hinge_deg: 45.0 });
-        pcfg.tilt_accel = true;
-    }
+    let mut pcfg = if tilt { Config::PAN_TILT } else { Config::DEFAULT };
     if continuous {
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed)));
         pcfg.servo = ServoKind::CONTINUOUS;
@@ -67,6 +64,7 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> Ex
     let (mut out, outcome) = record_log(&mut rig, &mut p, Faults::default(), &header);
     let k = rig.truth().gyro_k;
     out.push_str(&format!("# true K diagonal: {:.6} {:.6} {:.6}\n", k[(0, 0)], k[(1, 1)], k[(2, 2)]));
+    out.push_str(&format!("# true K: {:?}\n", k.transpose().as_slice()));
     if let Err(e) = std::fs::write(path, out) {
         return fail(2, format!("{path}: {e}"));
     }

@@ -167,6 +167,21 @@ impl Rig {
         self.servo.stall(stalled);
     }
 
+    /// A stalled (or unplugged) tilt servo holds the stage whatever the command.
+    pub fn stall_tilt(&mut self, stalled: bool) {
+        if let Some((tilt, _)) = &mut self.tilt {
+            tilt.stall(stalled);
+        }
+    }
+
+    /// The board slips on its bracket: its mount turns by `angle_deg` about the body axis
+    /// `axis_b`, smoothly over `duration_s` from now (the gyro sees the slip).
+    pub fn slip(&mut self, axis_b: Vector3<f64>, angle_deg: f64, duration_s: f64) {
+        let from = self.base_attitude(self.t_s);
+        self.cfg.mount *= UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis_b), angle_deg.to_radians());
+        self.transition = Some(Transition { from, t0_s: self.t_s, duration_s });
+    }
+
     /// Takes the board off the shaft and moves it smoothly (slerp, smooth-step timing) from its
     /// current attitude to `q_wb` (body → world) in `transition_s`, then holds it still. The
     /// hand pivots the board about the sensor: no linear acceleration. The shaft keeps running.
