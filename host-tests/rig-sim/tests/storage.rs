@@ -54,7 +54,7 @@ fn sequence_numbers_compare_across_wrap() {
 
 #[test]
 fn power_cut_at_every_step_never_loses_the_previous_record() {
-    // Steps of one store: one page erase + 39 word writes.
+    // Steps of one store: one page erase + 47 word writes.
     let mut probe = Storage::new(NorSim::new(2, 0)).unwrap();
     probe.store(&record(1)).unwrap();
     let mut flash = probe.release();
@@ -63,7 +63,7 @@ fn power_cut_at_every_step_never_loses_the_previous_record() {
     s.store(&record(2)).unwrap();
     flash = s.release();
     let per_store = flash.steps() - before;
-    assert_eq!(per_store, 1 + 156 / 4);
+    assert_eq!(per_store, 1 + calib_core::record::LEN / 4);
 
     for history in [1u32, 2] {
         for cut in 0..per_store {
@@ -87,6 +87,30 @@ fn power_cut_at_every_step_never_loses_the_previous_record() {
             assert_eq!(s.load().unwrap().map(|(_, r)| r.seq), Some(history + 1));
         }
     }
+}
+
+#[test]
+fn a_version_1_record_in_flash_loads_and_the_next_store_is_version_2() {
+    // A record of the release before the full K (format version 1, 156 bytes), as it sits in
+    // flash, laid out field by field: the v2 header, then the diagonal 1σ, six quality fields, CRC.
+    use embedded_storage::nor_flash::NorFlash;
+    let mut v1 = record(4).encode()[..calib_core::record::LEN_V1].to_vec();
+    v1[4] = 1;
+    let sigma = [1e-4f32; 3];
+    let quality = [0.01f32, 0.001, 2.0, 40.0, 180.0, 1e-4];
+    for (i, x) in sigma.iter().chain(quality.iter()).enumerate() {
+        v1[116 + 4 * i..120 + 4 * i].copy_from_slice(&x.to_le_bytes());
+    }
+    let crc = calib_core::record::crc32(&v1[..152]);
+    v1[152..].copy_from_slice(&crc.to_le_bytes());
+    let mut flash = NorSim::new(2, 4);
+    flash.write(0, &v1).unwrap();
+    let mut s = Storage::new(flash).unwrap();
+    let loaded = s.load().unwrap().map(|(slot, r)| (slot, r.seq, r.gyro_k, r.sigma_k));
+    assert_eq!(loaded, Some((0, 4, record(4).gyro_k, record(4).sigma_k)));
+    s.store(&record(5)).unwrap();
+    assert_eq!(s.load().unwrap(), Some((1, record(5))));
+    assert_eq!(s.release().bytes()[4096 + 4], calib_core::record::VERSION);
 }
 
 #[test]

@@ -158,7 +158,7 @@ impl Bench {
                 return false;
             }
             let l = self.leds();
-            if l.green && l.d13 && !l.red && !l.blue {
+            if l.done() {
                 return true;
             }
         }
@@ -205,7 +205,7 @@ impl Bench {
             let l = self.leds();
             yellow_seen |= l.red && l.green;
             red_since = if l.red && !l.green { red_since.or(Some(now)) } else { None };
-            done_since = if l.green && l.d13 && !l.red && !l.blue { done_since.or(Some(now)) } else { None };
+            done_since = if l.done() { done_since.or(Some(now)) } else { None };
             if red_since.is_some_and(|t| now - t > 0.6) {
                 return match self.flashes() {
                     Ok(class) => Outcome::Failed(class),

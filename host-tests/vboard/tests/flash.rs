@@ -23,17 +23,17 @@ fn power_cut_at_every_flash_step_keeps_the_previous_record() {
     let first_snap = b.mcu.snapshot().unwrap();
     let steps0 = b.mcu.periph.borrow().flash.steps();
     // The uncut run: when the first flash step comes, and that the store is one page erase and
-    // 39 word writes.
+    // a word write per 4 bytes of the record.
     let mut t_first_step = None;
     let t_end = b.mcu.now() + 120.0;
-    while b.mcu.now() < t_end && !(b.leds().green && b.leds().d13 && !b.leds().blue) {
+    while b.mcu.now() < t_end && !b.leds().done() {
         assert_eq!(b.run_for(0.05), Stop::Time);
         if t_first_step.is_none() && b.mcu.periph.borrow().flash.steps() > steps0 {
             t_first_step = Some(b.mcu.now());
         }
     }
     let steps = b.mcu.periph.borrow().flash.steps() - steps0;
-    assert_eq!(steps, 1 + 156 / 4, "one page erase and 39 word writes");
+    assert_eq!(steps, 1 + calib_core::record::LEN / 4, "one page erase and 47 word writes");
     assert_eq!(b.stored().unwrap().seq, 2);
     // The snapshot the cuts start from: 0.3 s before the first flash step, nothing written yet.
     let t_first_step = t_first_step.expect("the store wrote the flash");
@@ -69,7 +69,7 @@ fn power_cut_at_every_flash_step_keeps_the_previous_record() {
     b.press(0.2);
     let mut yellow = false;
     let t_end = b.mcu.now() + 300.0;
-    while b.mcu.now() < t_end && !(b.leds().green && b.leds().d13 && !b.leds().blue) {
+    while b.mcu.now() < t_end && !b.leds().done() {
         assert_eq!(b.run_for(0.05), Stop::Time);
         yellow |= b.leds().red && b.leds().green;
     }

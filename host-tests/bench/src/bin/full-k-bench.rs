@@ -1,14 +1,21 @@
-//! The full 3×3 gyro K on simulated pan/tilt rigs: `calib`'s data-driven path on logs of a
-//! scripted pan/tilt protocol (12 hand-held poses, then 4 tilt settings × pan 0–180° every 45°
-//! and back), gyro cross-axis coupling U(±1 %), accelerometer misalignment U(±0.3 %), servo
-//! angle-scale error U(±3 %), LSM9DS1 noise and ODR error. Error `E = Qᵀ K̂ K⁻¹ − I` after
-//! aligning the calibrated accelerometer frame to the simulator's (`Q = polar(M̂ C_a)`): RMS over
-//! the 9 elements and the largest; beside it the diagonal `K` from one axis (sweep) of the same
-//! logs. `--json`: the last line is a JSON summary.
+//! The full 3×3 gyro K on simulated pan/tilt rigs (gyro cross-axis coupling U(±1 %),
+//! accelerometer misalignment U(±0.3 %), servo angle-scale error U(±3 %), LSM9DS1 noise and ODR
+//! error), two ways on the same rigs:
+//! - the firmware's own pan/tilt plan (`Procedure` with `Config::PAN_TILT`, the `tilt-servo`
+//!   build): no hand-held step, the accelerometer from the rig poses; its rig time;
+//! - `calib`'s data-driven path on logs of a scripted pan/tilt protocol as another tool would
+//!   record it (12 hand-held poses, then 4 tilt settings × pan 0–180° every 45° and back).
+//!
+//! Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the calibrated accelerometer frame to the simulator's
+//! (`Q = polar(M̂ C_a)`): RMS over the 9 elements and the largest; beside each the diagonal `K`
+//! from one axis (sweep) of the same run. `--json`: the last line is a JSON summary.
 
 use bench::moments::Moments;
 use calib::{csvlog, offline};
 use clap::Parser;
+use calib_core::gyro::Method;
+use calib_core::procedure::{Config, Procedure, Report};
+use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
 use rig_sim::sim::Rig;
 use serde_json::json;
@@ -31,8 +38,36 @@ struct Args {
 fn main() {
     let args = Args::parse_from(calib::cli_args());
     let (mut full, mut diag, mut failed) = ((vec![], vec![]), (vec![], vec![]), vec![]);
-    for run in 0..args.rigs {
-        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run), args.seed + run as u64);
+    let (mut fw_full, mut fw_diag, mut fw_failed, mut rig_s) = ((vec![], vec![]), (vec![], vec![]), vec![], vec![]);
+    for run_idx in 0..args.rigs {
+        // The firmware's plan: from the press to the stored record.
+        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let mut p = Procedure::new(Config::PAN_TILT, None);
+        let mut pressed = None;
+        let out = run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo, _| {
+            if servo.is_some() {
+                pressed.get_or_insert(s.t_s);
+            }
+        });
+        match (out.stored.first(), out.error) {
+            (Some(rec), _) => {
+                if let Some((mx, rms)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
+                    fw_full.0.push(mx);
+                    fw_full.1.push(rms);
+                }
+                rig_s.push(out.end_s - pressed.unwrap_or(0.0));
+                let sweep = out.reports.iter().find_map(|r| match r {
+                    Report::Gyro(g) if g.method == Method::Sweep => Some(g.k),
+                    _ => None,
+                });
+                if let Some((mx, rms)) = sweep.and_then(|k| pan_tilt::k_error(k, rec.accel_m, &rig)) {
+                    fw_diag.0.push(mx);
+                    fw_diag.1.push(rms);
+                }
+            }
+            (None, e) => fw_failed.push(format!("{e:?}")),
+        }
+        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
         let log = pan_tilt::log(&mut rig, true);
         let c =
             match csvlog::parse(&log).map_err(|e| e.to_string()).and_then(|l| offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
@@ -60,14 +95,26 @@ fn main() {
     }
     let row = |name: &str, (mx, rms): &(Vec<f64>, Vec<f64>)| {
         let (r, m) = (Moments::of(rms).mean, mx.iter().fold(0.0f64, |a, b| a.max(*b)));
-        println!("{name:<28}{r:>14.2e}{m:>14.2e}{:>8}", rms.len());
+        println!("{name:<40}{r:>14.2e}{m:>14.2e}{:>8}", rms.len());
         json!({"method": name, "rms_mean": r, "max": m, "rigs": rms.len()})
     };
     println!("full-k-bench: {} simulated pan/tilt rigs (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %)", args.rigs);
-    println!("{:<28}{:>14}{:>14}{:>8}", "K", "RMS of E", "largest |E|", "rigs");
-    let j = [row("full 3x3 (pan/tilt)", &full), row("diagonal, one axis (sweep)", &diag)];
-    println!("failed: {} {:?}", failed.len(), failed);
+    println!("{:<40}{:>14}{:>14}{:>8}", "K", "RMS of E", "largest |E|", "rigs");
+    let j = [
+        row("full 3x3, firmware pan/tilt plan", &fw_full),
+        row("diagonal, one axis (sweep), firmware", &fw_diag),
+        row("full 3x3, calib on scripted logs", &full),
+        row("diagonal, one axis (sweep), calib", &diag),
+    ];
+    let rig_time = Moments::of(&rig_s);
+    let rig_max = rig_s.iter().fold(0.0f64, |a, b| a.max(*b));
+    println!("firmware plan: rig time {:.1} s mean, {rig_max:.1} s max (press to stored); failed: {} {fw_failed:?}", rig_time.mean, fw_failed.len());
+    println!("calib: failed: {} {:?}", failed.len(), failed);
     if args.json {
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "rows": j, "failed": failed}));
+        println!(
+            "{}",
+            json!({"rigs": args.rigs, "seed": args.seed, "rows": j, "rig_time_s": {"mean": rig_time.mean, "max": rig_max},
+                   "firmware_failed": fw_failed, "failed": failed})
+        );
     }
 }

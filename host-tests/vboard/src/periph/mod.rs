@@ -110,6 +110,13 @@ pub struct Leds {
     pub blue: bool,
 }
 
+impl Leds {
+    /// "Done: stored and applied": green and D13 lit, red and blue off.
+    pub fn done(&self) -> bool {
+        self.green && self.d13 && !self.red && !self.blue
+    }
+}
+
 /// Everything outside the CPU.
 #[derive(Clone)]
 pub struct Periph {
