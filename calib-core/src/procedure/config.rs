@@ -73,9 +73,9 @@ pub struct Config {
     pub accel_poses: u8,
     /// Smallest angle between two hand-held poses (°).
     pub accel_min_separation_deg: f32,
-    /// Pan/tilt bracket (firmware feature `tilt-servo`): a tilt servo on channel 1 (tilt angle
-    /// + 90° mapped like the rotation servo) rides on the rotation servo. The rig poses are then
-    /// taken at every `tilt_settings_deg`, with the tilt moves between them at pan
+    /// Pan/tilt bracket (firmware feature `tilt-servo`): a tilt servo on channel 1 rides on the
+    /// rotation servo (its angle is the tilt plus 90°, mapped like the rotation servo's). The rig
+    /// poses are then taken at every `tilt_settings_deg`, with the tilt moves between them at pan
     /// `pose_first_deg`; they give the full 3×3 `K` and, spread over pan × tilt, the
     /// accelerometer (no hand-held step). Needs a positional rotation servo.
     pub pan_tilt: bool,

@@ -132,7 +132,7 @@ fn run(rows: &[Row], cfg: Config) -> Option<(Collect, Option<FullCal>)> {
 pub fn replay(rows: &[Row]) -> Option<Replay> {
     configs().into_iter().find_map(|(name, cfg)| {
         let (c, full) = run(rows, cfg)?;
-        let full = cfg.pan_tilt.then(|| match (c.done, c.failed, full) {
+        let full = cfg.pan_tilt.then_some(match (c.done, c.failed, full) {
             (Some(_), _, Some(f)) => Ok(f),
             (_, Some(e), _) => Err(e),
             _ => Err(Error::NoUsableMove),

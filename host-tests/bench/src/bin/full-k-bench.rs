@@ -12,9 +12,9 @@
 
 use bench::moments::Moments;
 use calib::{csvlog, offline};
-use clap::Parser;
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure, Report};
+use clap::Parser;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
 use rig_sim::sim::Rig;
@@ -108,7 +108,11 @@ fn main() {
     ];
     let rig_time = Moments::of(&rig_s);
     let rig_max = rig_s.iter().fold(0.0f64, |a, b| a.max(*b));
-    println!("firmware plan: rig time {:.1} s mean, {rig_max:.1} s max (press to stored); failed: {} {fw_failed:?}", rig_time.mean, fw_failed.len());
+    println!(
+        "firmware plan: rig time {:.1} s mean, {rig_max:.1} s max (press to stored); failed: {} {fw_failed:?}",
+        rig_time.mean,
+        fw_failed.len()
+    );
     println!("calib: failed: {} {:?}", failed.len(), failed);
     if args.json {
         println!(
