@@ -113,3 +113,32 @@ fn a_failed_store_shows_the_storage_error_applies_nothing_and_keeps_the_sequence
     assert_eq!(b.calibrate(600.0), Outcome::Done);
     assert_eq!(b.stored().map(|r| r.seq), Some(1));
 }
+
+#[test]
+fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
+    let elf = build_firmware(&["tilt-servo"]).unwrap();
+    let rig = rig_sim::pan_tilt::rig_config(36, 0);
+    let mut b = Bench::new(elf.clone(), rig, 36, Board::Rev1, NorSim::new(8, 36), false).unwrap();
+    b.run_for(2.0);
+    // Nobody touches the board after the press: no "your turn" on the LEDs, the result stored.
+    let mut asked = false;
+    let outcome = b.calibrate_with(300.0, |e, _| asked |= matches!(e, Event::HandHeldPose(_) | Event::Reattached));
+    assert_eq!(outcome, Outcome::Done, "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
+    assert!(!asked, "the pan/tilt plan asked for the user");
+    let rec = b.stored().expect("a record in flash");
+    assert_eq!(rec.method, calib_core::gyro::Method::Full);
+    let (largest, rms) = rig_sim::pan_tilt::k_error(rec.gyro_k, rec.accel_m, b.mcu.periph.borrow().sensor.rig()).unwrap();
+    assert!(largest < 1.5e-3 && rms < 5e-4, "E largest {largest:.2e}, rms {rms:.2e}");
+    // The version-2 record reloads after a reset.
+    b.reset().unwrap();
+    b.run_for(3.0);
+    assert_eq!(b.stored().map(|r| (r.seq, r.gyro_k)), Some((1, rec.gyro_k)));
+    assert!(!b.leds().red, "no error after the reboot");
+
+    // A stalled tilt servo: the servo error class (3) on the LEDs, nothing stored.
+    let mut b = Bench::new(elf, rig_sim::pan_tilt::rig_config(37, 0), 37, Board::Rev1, NorSim::new(8, 37), false).unwrap();
+    b.mcu.periph.borrow_mut().sensor.rig_mut().stall_tilt(true);
+    b.run_for(2.0);
+    assert_eq!(b.calibrate(300.0), Outcome::Failed(3));
+    assert!(b.stored().is_none());
+}
