@@ -18,7 +18,7 @@ use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
 use calib_core::record::{Record, StoreError};
-use calib_core::Error;
+use calib_core::{pipeline, Error};
 
 /// What the procedure concluded on the replayed log.
 #[derive(Debug, Clone)]
@@ -138,8 +138,11 @@ pub fn replay(rows: &[Row]) -> Option<Replay> {
             _ => Err(Error::NoUsableMove),
         });
         let result = match (c.done, c.failed) {
-            // Beside the full K: the first setting's sweep estimator, as reported.
-            _ if cfg.pan_tilt => c.sweep.unwrap_or(Err(Error::NoUsableMove)),
+            // Beside the full K: the sweep estimator of one setting, as reported, under the
+            // firmware's acceptance (the firmware would not store it, but it is a valid one-axis K).
+            _ if cfg.pan_tilt => {
+                c.sweep.unwrap_or(Err(Error::NoUsableMove)).and_then(|g| pipeline::validate(&g, &cfg.acceptance).map(|_| g))
+            }
             (Some(rec), _) => {
                 let chosen = [&c.sweep, &c.paper].into_iter().flatten().flatten().find(|g| g.method == rec.method && g.k == rec.gyro_k);
                 Ok(*chosen?)
