@@ -150,8 +150,9 @@ impl Config {
 
 impl Config {
     /// The pan/tilt plan (firmware feature `tilt-servo`): at each of the four tilt settings, rig
-    /// poses at 0–180° every 45° there and back (moves at 60 °/s), no paper rotation; the full
-    /// `K` from the 32 pan and 3 tilt moves, the accelerometer from the 20 distinct poses.
+    /// poses at 0–180° every 45° there and back, tilt moves at pan 0 up through the settings and
+    /// back down (moves at 60 °/s), no paper rotation; the full `K` from the 32 pan and 6 tilt
+    /// moves, the accelerometer from the 20 distinct poses.
     pub const PAN_TILT: Config = Config { pan_tilt: true, pose_count: 5, move_rate_dps: 60.0, rotation_rate_dps: 0.0, ..Config::DEFAULT };
 }
 
@@ -181,18 +182,26 @@ impl Config {
         1 + 2 * (self.pose_count.max(2) as u16 - 1) * self.round_trips.max(1) as u16
     }
 
-    /// Rig steps in one run: `rig_steps` at every tilt setting with the pan/tilt plan.
+    /// Rig steps in one run: with the pan/tilt plan `rig_steps` at every tilt setting, then the
+    /// tilt moves back through the settings at pan `pose_first_deg` (the return half of the
+    /// hinge's back-and-forth pairs).
     pub fn plan_steps(&self) -> u16 {
-        self.rig_steps() * if self.pan_tilt { TILT_SETTINGS as u16 } else { 1 }
+        if self.pan_tilt {
+            self.rig_steps() * TILT_SETTINGS as u16 + TILT_SETTINGS as u16 - 1
+        } else {
+            self.rig_steps()
+        }
     }
 
     /// Tilt setting (index) and step within it of run step `k` (the setting is 0 without a tilt
-    /// servo); step 0 of settings after the first is reached by a tilt move.
+    /// servo). Step 0 of a setting, after the first, is reached by a tilt move; so is every step
+    /// of the return (step 0 of the settings in reverse order).
     pub fn plan_at(&self, k: u16) -> (usize, u16) {
-        if self.pan_tilt {
-            ((k / self.rig_steps()) as usize, k % self.rig_steps())
-        } else {
-            (0, k)
+        let (per, n) = (self.rig_steps(), TILT_SETTINGS as u16);
+        match self.pan_tilt {
+            false => (0, k),
+            true if k < per * n => ((k / per) as usize, k % per),
+            true => ((n - 2).saturating_sub(k - per * n) as usize, 0),
         }
     }
 
@@ -230,8 +239,10 @@ mod tests {
     #[test]
     fn the_pan_tilt_plan_sweeps_every_setting_and_tilts_at_pan_0() {
         let c = Config::PAN_TILT;
-        assert_eq!(c.plan_steps(), 36);
+        assert_eq!(c.plan_steps(), 39);
         assert_eq!(c.plan_at(8), (0, 8));
+        // The return: tilt moves back to settings 2, 1, 0.
+        assert_eq!([c.plan_at(35), c.plan_at(36), c.plan_at(37), c.plan_at(38)], [(3, 8), (2, 0), (1, 0), (0, 0)]);
         assert_eq!(c.plan_at(9), (1, 0));
         assert_eq!(c.step_deg(c.plan_at(9).1), 0.0);
         assert_eq!(c.step_deg(c.plan_at(13).1), 180.0);

@@ -9,7 +9,7 @@
 //!
 //! With a pan/tilt bracket ([`Config::pan_tilt`]): wait for rest → gyro bias → the rig poses,
 //! there and back across the pan range at every tilt setting, tilt moves between the settings
-//! at pan `pose_first_deg` → the accelerometer fitted to those poses → the full 3×3 `K`
+//! at pan `pose_first_deg` and back down through them → the accelerometer fitted to those poses → the full 3×3 `K`
 //! ([`crate::full`]), the one-axis sweep estimator of the first setting beside it → validate →
 //! store → report → apply. No user action after the press.
 //!
@@ -672,7 +672,8 @@ impl Procedure {
             Ok(i) => i,
             Err(e) => return self.fail(e),
         };
-        if pan_tilt && j < self.cfg.pose_count as u16 {
+        let forward_pass = k < self.cfg.rig_steps() * TILT_SETTINGS as u16;
+        if pan_tilt && forward_pass && j < self.cfg.pose_count as u16 {
             if let Err(e) = self.accel_poses.add_pose(a) {
                 return self.fail(e);
             }
@@ -682,11 +683,12 @@ impl Procedure {
         if k > 0 {
             let gamma = self.integ.gamma();
             let turned = libm::sqrt(gamma.iter().map(|v| v * v).sum::<f64>()) as f32;
-            // Step 0 of a later tilt setting is reached by a tilt move (about the hinge, axis id
-            // `TILT_SETTINGS`); every other step by a pan move about the setting's own axis.
+            // Step 0 of a later tilt setting (and every return step) is reached by a tilt move
+            // (about the hinge, axis id `TILT_SETTINGS`); every other step by a pan move about
+            // the setting's own axis.
             let tilt_move = pan_tilt && j == 0;
             let (channel, commanded) = match self.cfg.servo {
-                _ if tilt_move => (1, self.cfg.tilt_settings_deg[setting] - self.cfg.tilt_settings_deg[setting - 1]),
+                _ if tilt_move => (1, self.cfg.tilt_settings_deg[setting] - self.cfg.tilt_settings_deg[self.cfg.plan_at(k - 1).0]),
                 ServoKind::Positional => (0, self.cfg.step_deg(j) - self.cfg.step_deg(j - 1)),
                 ServoKind::Continuous { nominal_rate_dps, move_s, .. } => (0, nominal_rate_dps * move_s),
             };

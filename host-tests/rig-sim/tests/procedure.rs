@@ -150,7 +150,7 @@ fn the_pan_tilt_plan_gives_the_full_k_with_no_user_action() {
         assert!(rec.non_coplanar_deg > 20.0, "axes {:.1} deg from coplanar", rec.non_coplanar_deg);
         // Beside it, the one-axis sweep estimator of the first setting.
         assert!(out.gyro_results().iter().any(|g| g.method == Method::Sweep));
-        assert!(out.reports.iter().any(|r| matches!(r, Report::FullK { axes: 5, moves: 35, .. })));
+        assert!(out.reports.iter().any(|r| matches!(r, Report::FullK { axes: 5, moves: 38, .. })));
         assert_eq!(Record::decode(&rec.encode()), Ok(rec));
     }
 }
