@@ -75,6 +75,9 @@ pub enum Error {
     /// Full `K`: the normal matrix has a (near) null direction, e.g. an upright bracket (vertical
     /// pan shaft) leaves the scale across the hinge unobservable.
     FullKUnobservable { condition: f32, limit: f32 },
+    /// The moves between static poses (e.g. hand-held) turn about too few directions: the
+    /// smallest eigenvalue of the mean `n nᵀ` of their axes is `spread` (of 1/3 at best).
+    RotationAxesCoplanar { spread: f32, limit: f32 },
     /// Full `K`: the moves disagree with one rigid `K` (RMS residual of the move equations).
     MovesInconsistent { residual_rms_deg: f32, limit_deg: f32 },
 }
@@ -164,6 +167,10 @@ impl fmt::Display for Error {
             Error::FullKUnobservable { condition, limit } => write!(
                 f,
                 "full K unobservable: normal-matrix condition {condition:.3e} > {limit:.1e} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical"
+            ),
+            Error::RotationAxesCoplanar { spread, limit } => write!(
+                f,
+                "the moves between poses turn about too few directions (axis spread {spread:.3} < {limit:.3}): turn the board about varied axes, not only about one"
             ),
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,

@@ -40,6 +40,7 @@ use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses, MAX_POSES};
 use crate::gyro::SCALE_RANGE;
 use crate::linalg::{cholesky, cholesky_inverse, sym_eigen};
 use crate::lsq::NormalEquations;
+use crate::rotation::{RotationLimits, Rotations};
 use crate::sweep::MAX_MOVES;
 use crate::vec3::to_f64 as v64;
 use crate::{Error, Mat3, Vec3};
@@ -47,6 +48,8 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Largest number of rotation axes (e.g. 7 tilt settings and the hinge).
 pub const MAX_AXES: usize = 8;
+/// Most Gauss–Newton iterations with rotation constraints (it converges in 3–5 from the rig's K).
+pub const GAUSS_NEWTON_ITERATIONS: u8 = 20;
 /// Fewest non-coplanar axes that determine the full `K`.
 pub const NEED_AXES: u8 = 3;
 
@@ -189,6 +192,12 @@ pub struct FullCal {
     pub n_axes: u8,
     /// Every axis id (index = the caller's axis id; `moves == 0` when unused).
     pub axes: [FullAxis; MAX_AXES],
+    /// Rotation constraints used ([`Axes::solve_with`]; 0 without).
+    pub rotation_moves: u16,
+    /// RMS residual of the rotation rows (°, the gravity direction's misfit).
+    pub rotation_residual_rms_deg: f32,
+    /// Gauss–Newton iterations (0 without rotation constraints).
+    pub iterations: u8,
 }
 
 /// Plane fit of one axis' pose tips.
@@ -358,6 +367,16 @@ impl Axes {
     /// ([`Error::FullKUnobservable`]); an implausible diagonal ([`Error::ImplausibleScale`]);
     /// moves that disagree with one `K` ([`Error::MovesInconsistent`]).
     pub fn solve(&self, limits: &FullLimits) -> Result<FullCal, Error> {
+        self.solve_with(limits, None)
+    }
+
+    /// [`Self::solve`] with the rotation constraints of `rotations` too (e.g. hand-held moves),
+    /// by Gauss–Newton from the rig's own solution (or `K = I` when the rig alone does not
+    /// determine `K`): one least squares over every row, each weighted by its noise. With fewer
+    /// than 3 rig axes the rotations' axes must span three dimensions
+    /// ([`Error::RotationAxesCoplanar`]); a rotation residual above its limit is
+    /// [`Error::MovesInconsistent`].
+    pub fn solve_with(&self, limits: &FullLimits, rotations: Option<(&Rotations, &RotationLimits)>) -> Result<FullCal, Error> {
         let mut fits: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
         let mut fallbacks: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
         // Pose noise: the median over axes of each plane's residual noise `√(ss / (n − 3))`.
@@ -451,8 +470,16 @@ impl Axes {
                 n_axes += 1;
             }
         }
-        if n_axes < NEED_AXES as usize {
-            return Err(Error::TooFewAxes { have: n_axes as u8, need: NEED_AXES });
+        let rotations = rotations.filter(|(r, _)| !r.moves().is_empty());
+        match rotations {
+            Some((r, rl)) if n_axes < NEED_AXES as usize => {
+                let spread = r.axis_spread();
+                if !(spread >= rl.min_axis_spread) {
+                    return Err(Error::RotationAxesCoplanar { spread, limit: rl.min_axis_spread });
+                }
+            }
+            None if n_axes < NEED_AXES as usize => return Err(Error::TooFewAxes { have: n_axes as u8, need: NEED_AXES }),
+            _ => {}
         }
         let (mut non_coplanar, mut min_pair) = (0.0f64, f64::INFINITY);
         for i in 0..n_axes {
@@ -467,9 +494,40 @@ impl Axes {
             }
         }
         let non_coplanar_deg = non_coplanar.to_degrees();
-        if !(non_coplanar_deg >= limits.min_axis_angle_deg as f64) {
+        if !(non_coplanar_deg >= limits.min_axis_angle_deg as f64) && n_axes >= NEED_AXES as usize {
             return Err(Error::AxesCoplanar { angle_deg: non_coplanar_deg as f32, limit_deg: limits.min_axis_angle_deg });
         }
+
+        // The rotation rows, linearised at each iterate; the rotations are re-composed there.
+        let (ne, rotation) = match rotations {
+            None => (ne, None),
+            Some((r, rl)) => {
+                let mut k = match ne.solve() {
+                    Ok(s) if ne.condition() <= limits.max_condition as f64 => s.x,
+                    _ => core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 }),
+                };
+                let mut iterations = 0u8;
+                let (total, rss) = loop {
+                    let mut total = ne;
+                    r.add_rows(&mut total, &k, rl)?;
+                    iterations += 1;
+                    let x = total.solve()?.x;
+                    let step = (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max);
+                    k = x;
+                    if step < 1e-10 || iterations == GAUSS_NEWTON_ITERATIONS {
+                        // The rows at the solution, for its covariance and residual.
+                        let mut at = ne;
+                        let (_, rss) = r.add_rows(&mut at, &k, rl)?;
+                        break (at, rss);
+                    }
+                };
+                let rms_deg = libm::sqrt(rss / (2 * r.moves().len()) as f64).to_degrees();
+                if !(rms_deg <= rl.max_residual_rms_deg as f64) {
+                    return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
+                }
+                (total, Some((r.moves().len() as u16, rms_deg as f32, iterations)))
+            }
+        };
 
         // A null direction (e.g. the upright bracket: K → K + d (I − u_h u_hᵀ) K) is named, not solved.
         let condition = ne.condition();
@@ -496,7 +554,7 @@ impl Axes {
             }
         }
         let residual_rms_deg = libm::sqrt(rss_deg / nrows.max(1) as f64);
-        if !(residual_rms_deg <= limits.max_residual_rms_deg as f64) {
+        if nrows > 0 && !(residual_rms_deg <= limits.max_residual_rms_deg as f64) {
             return Err(Error::MovesInconsistent { residual_rms_deg: residual_rms_deg as f32, limit_deg: limits.max_residual_rms_deg });
         }
 
@@ -553,6 +611,9 @@ impl Axes {
             rows: ne.rows() as u16,
             n_axes: n_axes as u8,
             axes,
+            rotation_moves: rotation.map_or(0, |r| r.0),
+            rotation_residual_rms_deg: rotation.map_or(0.0, |r| r.1),
+            iterations: rotation.map_or(0, |r| r.2),
         })
     }
 }

@@ -62,6 +62,7 @@ pub mod pipeline;
 pub mod procedure;
 pub mod record;
 pub mod rest;
+pub mod rotation;
 pub mod stats;
 pub mod sweep;
 pub mod vec3;

@@ -58,7 +58,8 @@ impl ErrorClass {
             | Error::TooFewAxes { .. }
             | Error::AxesCoplanar { .. }
             | Error::AxisUndetermined { .. }
-            | Error::FullKUnobservable { .. } => ErrorClass::Geometry,
+            | Error::FullKUnobservable { .. }
+            | Error::RotationAxesCoplanar { .. } => ErrorClass::Geometry,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
             Error::Storage(_) => ErrorClass::Storage,
             Error::NoTemperature => ErrorClass::Sensor,

@@ -14,6 +14,7 @@ use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::procedure::Config;
 use calib_core::rest::{RestConfig, RestDetector, RestState};
+use calib_core::rotation::{RotationLimits, Rotations};
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
@@ -365,6 +366,12 @@ fn gyro_units(k: f64) -> Option<OfflineError> {
 /// only part of the calibration gives what it can, with the gyro's error in
 /// [`Calibration::gyro`].
 pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, OfflineError> {
+    calibrate_with(rows, method, true)
+}
+
+/// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
+/// (`calib --no-rotations`: to see what they add).
+pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
     check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
@@ -473,8 +480,35 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         prev = Some((idx, s.last));
     }
 
+    // Rotation constraints: every move between two consecutive hand-held poses (calibrated
+    // gravity directions at both ends, the gyro integrated between them in chunks).
+    let rot_limits = RotationLimits::DEFAULT;
+    let mut rotations = Rotations::new();
+    let mut prev: Option<(u8, usize)> = None;
+    for s in &ph.segments {
+        if s.is_rig_pose() {
+            prev = None;
+            continue;
+        }
+        let n = s.accel.count().max(1) as f64;
+        let sigma = s.accel.max_std() / n.sqrt();
+        let gyro = sub(s.gyro.mean().map(|v| v as f32), bias.bias_dps);
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, gyro) else { break };
+        if let Some((from, end)) = prev {
+            rotations.begin(from);
+            for r in &rows[end..=s.last] {
+                rotations.add(r.t_s, sub(r.gyro_dps, bias.bias_dps), r.gyro_dps.iter().any(|v| clipped(*v)));
+            }
+            let _ = rotations.end(idx, &rot_limits); // a rejected move is counted, not an error
+        }
+        prev = Some((idx, s.last));
+    }
+    rotations.calibrate_poses(&accel);
+    let with_rotations = (rotations_on && !rotations.moves().is_empty()).then_some((&rotations, &rot_limits));
+
     // Pan/tilt: the full K from the pan moves of every setting and the tilt moves between them.
-    // A pan axis needs poses at ≥ 3 shaft angles (the plane through their tips).
+    // A pan axis needs poses at ≥ 3 shaft angles (the plane through their tips). One servo: its
+    // axis and the rotation constraints. No servo: the rotation constraints alone.
     let pan_angles = |setting: i32| {
         let mut a: Vec<i32> =
             rig.iter().filter(|s| s.tilt_setting() == setting).filter_map(|s| s.servo_deg).map(|d| d.round() as i32).collect();
@@ -482,7 +516,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         a.dedup();
         a.len()
     };
-    let full = pan_tilt.then(|| {
+    let full = (pan_tilt || with_rotations.is_some()).then(|| {
         let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
         let mut axes = full::Axes::new();
         let mut prev: Option<(&Segment, u8)> = None;
@@ -496,7 +530,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
                 let (d_pan, d_tilt) =
                     (s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0), (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0);
                 let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
-                if d_tilt == 0.0 && d_pan.abs() >= 1.0 && pan_angles(s.tilt_setting()) >= 3 {
+                if d_tilt == 0.0 && d_pan.abs() >= 1.0 && (pan_angles(s.tilt_setting()) >= 3 || !pan_tilt) {
                     axes.push_move(axis, from, idx, d_pan, gamma(p.last, s))?;
                 } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
                     axes.push_move(hinge, from, idx, d_tilt, gamma(p.last, s))?;
@@ -504,7 +538,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
             }
             prev = Some((s, idx));
         }
-        axes.solve(&full::FullLimits::DEFAULT).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+        axes.solve_with(&full::FullLimits::DEFAULT, with_rotations).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
     });
     let lim = GeometryLimits::default();
     let sweep = sweep::solve(&poses, &moves, &lim);
@@ -563,6 +597,12 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
         replayed: None,
         phases: ph,
     })
+}
+
+/// A gyro reading at an LSM9DS1 full scale (±245, ±500 or ±2000 °/s: 32 767 counts of 8.75,
+/// 17.5 or 70 m°/s): the sample is clipped.
+fn clipped(v: f32) -> bool {
+    [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3)
 }
 
 /// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS).

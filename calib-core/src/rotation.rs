@@ -1,0 +1,423 @@
+//! Rotation constraints on the full `K` (DESIGN §4.2): every move between two static poses, e.g.
+//! a hand-held one, turns the gravity direction seen at the start into the one seen at the end.
+//! With `ω = K (g − b)` integrated over the move to the rotation `R(K)` (end body → start body),
+//! `R g_j = g_i`: two equations per move (the turn about gravity is unseen), nonlinear in `K`.
+//!
+//! Streaming and bounded: a move is kept as chunks of at most [`CHUNK_DEG`] of raw turn, each its
+//! bias-free gyro integral `Γ_c = ∫ w dt` (°) and its coning integral `β_c = ½ ∫ Γ(t) × w dt`
+//! (°², `Γ(t)` the chunk's integral so far). At any `K` a chunk's rotation vector is
+//! `φ_c = K Γ_c + ½ det(K) K⁻ᵀ β_c` (exact for the cross product, `(K a) × (K b) = det K · K⁻ᵀ (a × b)`;
+//! the Bortz vector to second order), and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at
+//! every Gauss–Newton iterate: the result does not depend on where the iteration starts (no
+//! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 24 bytes.
+//!
+//! Jacobian (vec `K` column-major, [`crate::full::vec_index`]): composing
+//! `J ← Exp(φ_c)ᵀ J + J_r(φ_c) (Γ_cᵀ ⊗ I)` (the preintegration recursion; the coning term's small
+//! derivative is left out, which slows Gauss–Newton a little but does not move its fixed point)
+//! gives `R(K + δK) ≈ R Exp(J δk)`. In the tangent basis `(e₁, e₂)` of `g_i` the residual is
+//! `r_k = e_kᵀ R g_j` with the row `∂r_k/∂k = −e_kᵀ R [g_j]× J`.
+//!
+//! Noise (1σ per row, rad): `σ² = σ_i² + σ_j² + σ_Γ²`, `σ_i` the direction noise of pose `i`
+//! (its mean's noise per component over `|f|`), `σ_Γ` the gyro integral's noise over one move.
+
+use crate::accel::AccelCal;
+use crate::axis::{Poses, MAX_POSES};
+use crate::linalg::sym_eigen;
+use crate::lsq::NormalEquations;
+use crate::vec3::to_f64 as v64;
+use crate::{Error, Vec3};
+use nalgebra::{Matrix3, Vector3};
+
+/// Chunks of all moves together (24 B each).
+pub const MAX_CHUNKS: usize = 384;
+/// Rotation moves kept.
+pub const MAX_ROTATION_MOVES: usize = 32;
+/// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
+/// below 1e-5 rad per chunk.
+pub const CHUNK_DEG: f64 = 5.0;
+
+/// Requirements of the rotation constraints.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RotationLimits {
+    /// Moves that turn less than this (°, raw `|Σ Γ_c|` or the gravity angle) are not used.
+    pub min_move_deg: f32,
+    /// Largest raw turn between two samples (°): beyond it the move is too fast for the log's rate.
+    pub max_step_deg: f32,
+    /// Largest change of the bias-free gyro mean between the two poses of a move (°/s): beyond it
+    /// the bias drifted over the move.
+    pub max_bias_change_dps: f32,
+    /// Smallest eigenvalue (of 1) of the mean `n nᵀ` of the moves' rotation axes: below it the
+    /// moves do not turn about three dimensions.
+    pub min_axis_spread: f32,
+    /// 1σ of a move's gyro integral per component (°).
+    pub gamma_sigma_deg: f32,
+    /// Floor of a pose's direction noise (rad).
+    pub min_direction_sigma: f32,
+    /// Largest RMS residual of the rotation rows (°).
+    pub max_residual_rms_deg: f32,
+}
+
+impl RotationLimits {
+    /// The defaults (also as `Default`).
+    pub const DEFAULT: RotationLimits = RotationLimits {
+        min_move_deg: 15.0,
+        max_step_deg: 4.0,
+        max_bias_change_dps: 0.2,
+        min_axis_spread: 0.02,
+        gamma_sigma_deg: 0.02,
+        min_direction_sigma: 1e-5,
+        max_residual_rms_deg: 0.2,
+    };
+}
+
+impl Default for RotationLimits {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Why a move was not kept (counted in [`Rotations::rejected`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Rejected {
+    /// A sample reached the gyro's full scale.
+    Saturated,
+    /// A step between two samples turned more than `max_step_deg`.
+    TooFast,
+    /// The move turned less than `min_move_deg`.
+    TooShort,
+    /// The bias-free gyro mean differs between its two poses by more than `max_bias_change_dps`.
+    BiasDrifted,
+    /// No room for its chunks or for one more move.
+    Full,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Chunk {
+    gamma: [f32; 3],
+    coning: [f32; 3],
+}
+
+/// One kept move between two poses.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct RotationMove {
+    /// Start pose.
+    pub from: u8,
+    /// End pose.
+    pub to: u8,
+    first: u16,
+    n: u16,
+    /// Duration (s).
+    pub duration_s: f32,
+    /// Raw gyro turn `|Σ Γ_c|` (°).
+    pub turn_deg: f32,
+}
+
+/// The move being integrated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Open {
+    from: u8,
+    first: usize,
+    gamma: [f64; 3],
+    coning: [f64; 3],
+    last: Option<(f64, [f64; 3])>,
+    t0: f64,
+    total: [f64; 3],
+    max_step_deg: f64,
+    why: Option<Rejected>,
+}
+
+/// The static poses and the chunked moves between them (bounded).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rotations {
+    poses: Poses,
+    sigma_g: [f32; MAX_POSES],
+    gyro_dps: [Vec3; MAX_POSES],
+    chunks: [Chunk; MAX_CHUNKS],
+    nc: usize,
+    moves: [RotationMove; MAX_ROTATION_MOVES],
+    nm: usize,
+    open: Option<Open>,
+    rejected: [u16; 5],
+}
+
+impl Default for Rotations {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// `[v]×`.
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v[2], v[1], v[2], 0.0, -v[0], -v[1], v[0], 0.0)
+}
+
+/// `Exp(φ)` and the right Jacobian `J_r(φ)` (rad).
+fn exp_jr(phi: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let t2 = phi.norm_squared();
+    let s = skew(phi);
+    let s2 = s * s;
+    let (a, b, c) = if t2 < 1e-12 {
+        (1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
+    } else {
+        let t = libm::sqrt(t2);
+        (libm::sin(t) / t, (1.0 - libm::cos(t)) / t2, (t - libm::sin(t)) / (t2 * t))
+    };
+    (Matrix3::identity() + s * a + s2 * b, Matrix3::identity() - s * b + s2 * c)
+}
+
+/// A unit vector's tangent basis.
+fn tangent(g: &Vector3<f64>) -> [Vector3<f64>; 2] {
+    let helper = if g[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
+    let e1 = g.cross(&helper).normalize();
+    [e1, g.cross(&e1)]
+}
+
+impl Rotations {
+    /// Nothing recorded.
+    pub const fn new() -> Self {
+        Self {
+            poses: Poses::new(),
+            sigma_g: [0.0; MAX_POSES],
+            gyro_dps: [[0.0; 3]; MAX_POSES],
+            chunks: [Chunk { gamma: [0.0; 3], coning: [0.0; 3] }; MAX_CHUNKS],
+            nc: 0,
+            moves: [RotationMove { from: 0, to: 0, first: 0, n: 0, duration_s: 0.0, turn_deg: 0.0 }; MAX_ROTATION_MOVES],
+            nm: 0,
+            open: None,
+            rejected: [0; 5],
+        }
+    }
+
+    /// Forgets everything.
+    pub fn clear(&mut self) {
+        *self = Self::new();
+    }
+
+    /// Adds a static pose: its mean specific force (raw until [`Self::calibrate_poses`], g), the
+    /// noise of that mean per component (g) and its bias-free gyro mean (°/s); returns its index.
+    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, gyro_dps: Vec3) -> Result<u8, Error> {
+        let i = self.poses.push(accel_g)?;
+        self.sigma_g[i as usize] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
+        self.gyro_dps[i as usize] = gyro_dps;
+        Ok(i)
+    }
+
+    /// Starts integrating a move from pose `from` (a move still open is dropped).
+    pub fn begin(&mut self, from: u8) {
+        self.open = Some(Open {
+            from,
+            first: self.nc,
+            gamma: [0.0; 3],
+            coning: [0.0; 3],
+            last: None,
+            t0: 0.0,
+            total: [0.0; 3],
+            max_step_deg: 0.0,
+            why: None,
+        });
+    }
+
+    /// Adds a sample of the open move: MCU time (s) and bias-free gyro (°/s); `saturated` if it
+    /// reached full scale. Without an open move, nothing.
+    pub fn add(&mut self, t_s: f64, w_dps: Vec3, saturated: bool) {
+        let Some(mut o) = self.open else { return };
+        let w = [w_dps[0] as f64, w_dps[1] as f64, w_dps[2] as f64];
+        if saturated {
+            o.why.get_or_insert(Rejected::Saturated);
+        }
+        match o.last {
+            None => o.t0 = t_s,
+            Some((t_prev, w_prev)) => {
+                let dt = t_s - t_prev;
+                if !(dt > 0.0) {
+                    return;
+                }
+                let d: [f64; 3] = core::array::from_fn(|i| 0.5 * (w_prev[i] + w[i]) * dt);
+                let g = Vector3::from(o.gamma);
+                let c = g.cross(&Vector3::from(d)) * 0.5;
+                for i in 0..3 {
+                    o.coning[i] += c[i];
+                    o.gamma[i] += d[i];
+                    o.total[i] += d[i];
+                }
+                o.max_step_deg = o.max_step_deg.max(Vector3::from(d).norm());
+                if Vector3::from(o.gamma).norm() >= CHUNK_DEG {
+                    self.flush(&mut o);
+                }
+            }
+        }
+        o.last = Some((t_s, w));
+        self.open = Some(o);
+    }
+
+    fn flush(&mut self, o: &mut Open) {
+        if self.nc == MAX_CHUNKS {
+            o.why.get_or_insert(Rejected::Full);
+        } else {
+            self.chunks[self.nc] = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32) };
+            self.nc += 1;
+        }
+        o.gamma = [0.0; 3];
+        o.coning = [0.0; 3];
+    }
+
+    /// Ends the open move at pose `to` and keeps it, or counts why not.
+    pub fn end(&mut self, to: u8, limits: &RotationLimits) -> Result<(), Rejected> {
+        let Some(mut o) = self.open.take() else { return Ok(()) };
+        if Vector3::from(o.gamma).norm() > 0.0 {
+            self.flush(&mut o);
+        }
+        let turn = Vector3::from(o.total).norm();
+        let (a, b) = (v64(self.gyro_dps[o.from as usize % MAX_POSES]), v64(self.gyro_dps[to as usize % MAX_POSES]));
+        let why = o
+            .why
+            .or((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast))
+            .or((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort))
+            .or(((a - b).amax() > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted))
+            .or((self.nm == MAX_ROTATION_MOVES).then_some(Rejected::Full));
+        if let Some(why) = why {
+            self.nc = o.first;
+            self.rejected[why as usize] = self.rejected[why as usize].saturating_add(1);
+            return Err(why);
+        }
+        let duration_s = o.last.map_or(0.0, |(t, _)| (t - o.t0) as f32);
+        self.moves[self.nm] =
+            RotationMove { from: o.from, to, first: o.first as u16, n: (self.nc - o.first) as u16, duration_s, turn_deg: turn as f32 };
+        self.nm += 1;
+        Ok(())
+    }
+
+    /// Moves rejected, by reason (in the order of [`Rejected`]).
+    pub fn rejected(&self) -> [u16; 5] {
+        self.rejected
+    }
+
+    /// The kept moves.
+    pub fn moves(&self) -> &[RotationMove] {
+        &self.moves[..self.nm]
+    }
+
+    /// The poses.
+    pub fn poses(&self) -> &Poses {
+        &self.poses
+    }
+
+    /// Replaces every raw pose by the calibrated `f = M (a − o)` (and scales its noise by `M`'s).
+    pub fn calibrate_poses(&mut self, accel: &AccelCal) {
+        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as f64);
+        let o = v64(accel.offset_g);
+        self.poses.map(|a| m * (a - o));
+        let gain = (m.norm() / libm::sqrt(3.0)) as f32;
+        for s in &mut self.sigma_g[..self.poses.len()] {
+            *s *= gain;
+        }
+    }
+
+    /// `R` and `J` (3×9, rad per unit of `vec K`) of move `m` at `K`.
+    fn compose(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> (Matrix3<f64>, [[f64; 9]; 3]) {
+        let (mut r, mut j) = (Matrix3::identity(), [[0.0; 9]; 3]);
+        for c in &self.chunks[m.first as usize..(m.first + m.n) as usize] {
+            let gamma = v64(c.gamma).map(f64::to_radians);
+            let coning = v64(c.coning).map(|v| v.to_radians().to_radians());
+            let phi = k * gamma + cof * coning * 0.5;
+            let (e, jr) = exp_jr(&phi);
+            let et = e.transpose();
+            let mut next = [[0.0; 9]; 3];
+            for (row, n) in next.iter_mut().enumerate() {
+                for (col, x) in n.iter_mut().enumerate() {
+                    // Eᵀ J + J_r (Γᵀ ⊗ I): column 3c + r of the second term is J_r[row][r] Γ_c.
+                    let prior: f64 = (0..3).map(|i| et[(row, i)] * j[i][col]).sum();
+                    *x = prior + jr[(row, col % 3)] * gamma[col / 3];
+                }
+            }
+            j = next;
+            r *= e;
+        }
+        (r, j)
+    }
+
+    /// Adds the rows of every kept move, linearised at `k` (vec `K`), as rows linear in vec `K`:
+    /// `H·k' ≈ H·k − r`. Returns the weighted and the unweighted (rad²) residual sums at `k`.
+    pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64), Error> {
+        let km = Matrix3::from_fn(|r, c| k[crate::full::vec_index(r, c)]);
+        let cof = km.try_inverse().map(|i| i.transpose() * km.determinant()).ok_or(Error::Singular)?;
+        let sg = (limits.gamma_sigma_deg as f64).to_radians();
+        let (mut wrss, mut rss) = (0.0, 0.0);
+        for m in self.moves() {
+            let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
+            let (gi, gj) = (pi.normalize(), pj.normalize());
+            let dir = |p: &Vector3<f64>, i: u8| (self.sigma_g[i as usize] as f64 / p.norm()).max(limits.min_direction_sigma as f64);
+            let (di, dj) = (dir(&pi, m.from), dir(&pj, m.to));
+            let w = 1.0 / (di * di + dj * dj + sg * sg);
+            let (r, j) = self.compose(m, &km, &cof);
+            let rg = r * gj;
+            let a = -(r * skew(&gj)); // ∂(R g_j)/∂(J δk) = −R [g_j]×
+            for e in tangent(&gi) {
+                let res = e.dot(&rg);
+                let ea = e.transpose() * a;
+                let h: [f64; 9] = core::array::from_fn(|c| (0..3).map(|i| ea[i] * j[i][c]).sum());
+                let y = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - res;
+                ne.add_row(&h, y, w)?;
+                wrss += w * res * res;
+                rss += res * res;
+            }
+        }
+        Ok((wrss, rss))
+    }
+
+    /// Smallest eigenvalue (of 1) of the mean `n nᵀ` over the kept moves' raw rotation axes:
+    /// 1/3 for axes spread evenly in three dimensions, 0 for coplanar ones.
+    pub fn axis_spread(&self) -> f32 {
+        let mut s = [[0.0; 3]; 3];
+        let n = self.nm.max(1) as f64;
+        for m in self.moves() {
+            let total: Vector3<f64> = self.chunks[m.first as usize..(m.first + m.n) as usize].iter().map(|c| v64(c.gamma)).sum();
+            let u = total.normalize();
+            for i in 0..3 {
+                for j in 0..3 {
+                    s[i][j] += u[i] * u[j] / n;
+                }
+            }
+        }
+        sym_eigen(&s).0[0] as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exp_and_its_right_jacobian_match_finite_differences() {
+        let phi = Vector3::new(0.3, -0.2, 0.5);
+        let (e, jr) = exp_jr(&phi);
+        assert!((e * e.transpose() - Matrix3::identity()).amax() < 1e-12);
+        // Exp(φ + δ) ≈ Exp(φ) Exp(J_r δ).
+        let d = Vector3::new(1e-6, -2e-6, 1.5e-6);
+        let lhs = exp_jr(&(phi + d)).0;
+        let rhs = e * exp_jr(&(jr * d)).0;
+        assert!((lhs - rhs).amax() < 1e-11, "{}", (lhs - rhs).amax());
+    }
+
+    #[test]
+    fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
+        let mut r = Rotations::new();
+        r.push_pose([0.0, 0.0, 1.0], 1e-4, [0.0; 3]).unwrap();
+        r.push_pose([0.0, 1.0, 0.0], 1e-4, [0.0; 3]).unwrap();
+        r.begin(0);
+        for i in 0..=900 {
+            r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);
+        }
+        assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
+        assert_eq!(r.moves()[0].n, 17);
+        let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
+        let cof = k.try_inverse().unwrap().transpose() * k.determinant();
+        let (rot, _) = r.compose(&r.moves()[0], &k, &cof);
+        let expect = exp_jr(&Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).0;
+        // The chunks are stored in f32: 17 of them round to ≈ 1e-8 rad.
+        assert!((rot - expect).amax() < 1e-7, "{rot} vs {expect}");
+    }
+}

@@ -1,0 +1,92 @@
+//! The full 3×3 gyro K from every rotation a log holds: `calib`'s data-driven path with the
+//! rotation constraints of the hand-held moves on and off, on simulated logs of three rigs
+//! (gyro cross-axis U(±1 %), accelerometer misalignment U(±0.3 %), servo angle-scale error
+//! U(±3 %), LSM9DS1 noise and ODR error): one servo + 12 hand-held poses, pan/tilt + 12
+//! hand-held poses, 12 hand-held poses and no servo. Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the
+//! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
+
+use bench::moments::Moments;
+use calib::{csvlog, offline};
+use clap::Parser;
+use rig_sim::pan_tilt;
+use rig_sim::sim::Rig;
+use serde_json::json;
+
+/// The full K from every rotation in a log.
+#[derive(Parser, Debug)]
+#[command(name = "rotation-bench")]
+struct Args {
+    /// Simulated rigs per row.
+    #[arg(long, default_value_t = 20)]
+    rigs: usize,
+    /// Random seed.
+    #[arg(long, default_value_t = 2027)]
+    seed: u64,
+    /// Print a JSON summary as the last line.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The three rigs: a log of each from one simulated rig.
+fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
+    match rig_kind {
+        0 => pan_tilt::log_at(rig, true, &[0.0]),
+        1 => pan_tilt::log(rig, true),
+        // No servo: only the hand-held rows (both servo columns empty) are kept.
+        _ => {
+            let log = pan_tilt::log_at(rig, true, &[]);
+            let keep = |l: &&str| l.starts_with('#') || *l == calib_core::log::HEADER || l.ends_with(",,");
+            log.lines().filter(keep).collect::<Vec<_>>().join("\n")
+        }
+    }
+}
+
+fn main() {
+    let args = Args::parse_from(calib::cli_args());
+    let names = ["one servo + 12 hand-held poses", "pan/tilt + 12 hand-held poses", "12 hand-held poses, no servo"];
+    let mut table = vec![];
+    println!("rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %)", args.rigs);
+    println!("{:<34}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
+    for (kind, name) in names.iter().enumerate() {
+        for on in [true, false] {
+            let (mut rms, mut max, mut failed) = (vec![], 0.0f64, vec![]);
+            for run in 0..args.rigs {
+                let mut rig = Rig::new(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64);
+                let log = log_of(kind, &mut rig);
+                let c = csvlog::parse(&log)
+                    .map_err(|e| e.to_string())
+                    .and_then(|l| offline::calibrate_with(&l.rows, None, on).map_err(|e| e.to_string()));
+                let k = match c.as_ref().map(|c| (c.full.as_ref(), &c.gyro, c.accel.m)) {
+                    Ok((Some(Ok(f)), _, m)) => Some((f.k, m)),
+                    Ok((_, Ok(g), m)) => Some((g.k, m)),
+                    Ok((Some(Err(e)), _, _)) => {
+                        failed.push(e.to_string());
+                        None
+                    }
+                    Ok((None, Err(e), _)) => {
+                        failed.push(e.to_string());
+                        None
+                    }
+                    Err(e) => {
+                        failed.push(e.clone());
+                        None
+                    }
+                };
+                if let Some((mx, r)) = k.and_then(|(k, m)| pan_tilt::k_error(k, m, &rig)) {
+                    rms.push(r);
+                    max = max.max(mx);
+                }
+            }
+            let mean = Moments::of(&rms).mean;
+            let label = if on { "on" } else { "off" };
+            println!("{name:<34}{label:<16}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
+            if !failed.is_empty() {
+                println!("    failed: {failed:?}");
+            }
+            table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed}));
+        }
+    }
+    if args.json {
+        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "rows": table}));
+    }
+}
