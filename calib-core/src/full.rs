@@ -377,6 +377,17 @@ impl Axes {
     /// ([`Error::RotationAxesCoplanar`]); a rotation residual above its limit is
     /// [`Error::MovesInconsistent`].
     pub fn solve_with(&self, limits: &FullLimits, rotations: Option<(&Rotations, &RotationLimits)>) -> Result<FullCal, Error> {
+        self.solve_from(limits, rotations, None)
+    }
+
+    /// [`Self::solve_with`] with Gauss–Newton started at `start` (vec `K`, column-major) instead:
+    /// the rotations are re-composed at every iterate, so the result does not depend on it.
+    pub fn solve_from(
+        &self,
+        limits: &FullLimits,
+        rotations: Option<(&Rotations, &RotationLimits)>,
+        start: Option<[f64; 9]>,
+    ) -> Result<FullCal, Error> {
         let mut fits: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
         let mut fallbacks: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
         // Pose noise: the median over axes of each plane's residual noise `√(ss / (n − 3))`.
@@ -502,8 +513,9 @@ impl Axes {
         let (ne, rotation) = match rotations {
             None => (ne, None),
             Some((r, rl)) => {
-                let mut k = match ne.solve() {
-                    Ok(s) if ne.condition() <= limits.max_condition as f64 => s.x,
+                let mut k = match (start, ne.solve()) {
+                    (Some(k), _) => k,
+                    (None, Ok(s)) if ne.condition() <= limits.max_condition as f64 => s.x,
                     _ => core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 }),
                 };
                 let mut iterations = 0u8;

@@ -152,6 +152,25 @@ fn a_pan_tilt_firmware_log_is_replayed_to_the_firmware_s_full_k() {
     assert!(largest < 1.5e-3, "{largest:.2e}");
 }
 
+#[test]
+fn hand_held_poses_alone_give_the_full_k_and_the_accelerometer() {
+    use rig_sim::pan_tilt;
+    let mut rig = Rig::new(pan_tilt::rig_config(40, 0), 40);
+    let log = pan_tilt::handheld_only(&pan_tilt::log_at(&mut rig, true, &[]));
+    let rows = csvlog::parse(&log).unwrap().rows;
+    assert!(rows.iter().all(|r| r.servo_deg.is_none() && r.tilt_deg.is_none()), "no servo at all");
+    let c = offline::calibrate(&rows, None).unwrap();
+    assert!(c.missing().is_empty(), "{:?}", c.missing());
+    assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
+    let full = c.full.expect("a full K").expect("solved");
+    assert!(full.rotation_moves >= 10, "{} moves", full.rotation_moves);
+    let (largest, rms) = pan_tilt::k_error(full.k, c.accel.m, &rig).unwrap();
+    assert!(largest < 3e-3 && rms < 1e-3, "largest {largest:.2e}, rms {rms:.2e}");
+    // Without the rotation constraints there is no gyro calibration at all.
+    let off = offline::calibrate_with(&rows, None, false).unwrap();
+    assert!(off.full.is_none() && off.gyro.is_err());
+}
+
 /// A simulated log rewritten row by row.
 fn rewrite(log: &str, f: impl Fn(&mut Row) -> bool) -> String {
     let mut text = csvlog::header();

@@ -96,6 +96,13 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     s.text
 }
 
+/// The same log with only its hand-held rows (both servo columns empty), comments and header:
+/// a log of hand-held poses and no servo, as other tools record.
+pub fn handheld_only(log: &str) -> String {
+    let keep = |l: &&str| l.starts_with('#') || *l == log::HEADER || l.ends_with(",,");
+    log.lines().filter(keep).map(|l| format!("{l}\n")).collect()
+}
+
 /// `E = Qᵀ K̂ K⁻¹ − I`: a full `K̂` (row-major) in the frame of the calibrated accelerometer `M̂`,
 /// against the simulator's truth, after aligning the two frames (`Q = polar(M̂ C_a)`, `C_a` the
 /// simulated accelerometer's matrix). Its diagonal is the scale error, the rest the cross-axis error.

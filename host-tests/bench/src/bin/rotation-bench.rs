@@ -33,11 +33,7 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
         0 => pan_tilt::log_at(rig, true, &[0.0]),
         1 => pan_tilt::log(rig, true),
         // No servo: only the hand-held rows (both servo columns empty) are kept.
-        _ => {
-            let log = pan_tilt::log_at(rig, true, &[]);
-            let keep = |l: &&str| l.starts_with('#') || *l == calib_core::log::HEADER || l.ends_with(",,");
-            log.lines().filter(keep).collect::<Vec<_>>().join("\n")
-        }
+        _ => pan_tilt::handheld_only(&pan_tilt::log_at(rig, true, &[])),
     }
 }
 

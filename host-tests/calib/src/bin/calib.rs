@@ -1,4 +1,4 @@
-//! `calib LOG.csv [--method paper|sweep] [--columns MAP]`: calibrates a recorded log with
+//! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations]`: calibrates a recorded log with
 //! calib-core and prints one JSON object. `calib --help` says everything. (A log to try it on:
 //! `cargo run --release -p rig-sim --target host-tuple --bin simulate -- OUT.csv`.)
 //!
@@ -33,6 +33,10 @@ struct Args {
     /// `t_s=time/1000,ax_g=acc_x/9.80665,gx_dps=gyr_x*57.29578`.
     #[arg(long, value_name = "MAP")]
     columns: Option<String>,
+    /// Leave out the rotation constraints of the moves between hand-held poses (to see what
+    /// they add to the full K).
+    #[arg(long)]
+    no_rotations: bool,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -62,7 +66,7 @@ fn main() -> ExitCode {
         Ok(l) => l,
         Err(e) => return fail(3, format!("{path}: {e}")),
     };
-    let c = match offline::calibrate(&log.rows, method) {
+    let c = match offline::calibrate_with(&log.rows, method, !args.no_rotations) {
         Ok(c) => c,
         Err(e) => return fail(1, format!("{path}: {e}")),
     };

@@ -1,0 +1,123 @@
+//! The full K from rotation constraints on synthetic hand-held moves generated here (no
+//! simulator): exact recovery with no servo at all, independence from the Gauss–Newton start,
+//! moves about one axis named, and bad moves rejected and counted.
+//!
+//! World frame W: z up; at rest the accelerometer measures `R_WBᵀ z` (1 g). A move slerps the
+//! board between two attitudes with smooth-step timing; the raw gyro is `K⁻¹ ω_B`.
+
+use calib_core::full::{Axes, FullLimits};
+use calib_core::rotation::{Rejected, RotationLimits, Rotations};
+use calib_core::Error;
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+type V3 = Vector3<f64>;
+
+/// `diag(1.02, 0.97, 1.01)` with fixed off-diagonals of up to 1 %.
+fn k_true() -> Matrix3<f64> {
+    Matrix3::new(1.02, 0.008, -0.006, -0.01, 0.97, 0.004, 0.007, -0.009, 1.01)
+}
+
+fn vec_k(k: &Matrix3<f64>) -> [f64; 9] {
+    core::array::from_fn(|i| k[(i % 3, i / 3)])
+}
+
+/// Attitudes about varied axes (or, `one_axis`, all about body x).
+fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
+    (0..10)
+        .map(|i| {
+            let a = i as f64;
+            if one_axis {
+                UnitQuaternion::from_euler_angles(0.7 * a + 0.3, 0.0, 0.0)
+            } else {
+                UnitQuaternion::from_euler_angles(0.9 * a, 0.6 * (a * 1.7).sin(), 1.3 * a)
+            }
+        })
+        .collect()
+}
+
+/// Records poses and the moves between them at `hz` into `r`, with `rate` times the nominal
+/// angular rate; pose `bad_bias` (if any) sees a gyro offset.
+fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, bad_bias: Option<usize>) -> Vec<Result<(), Rejected>> {
+    let kinv = k_true().try_inverse().unwrap();
+    let lim = RotationLimits::DEFAULT;
+    let mut out = vec![];
+    let mut t = 0.0;
+    let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize| {
+        let a = q.inverse() * V3::z();
+        let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, [off, 0.0, 0.0]).unwrap()
+    };
+    let mut prev = pose(r, &atts[0], 0);
+    for (i, w) in atts.windows(2).enumerate() {
+        let (qa, qb) = (w[0], w[1]);
+        let dur = 1.5 / rate;
+        let n = (dur * hz) as usize;
+        r.begin(prev);
+        let att = |x: f64| qa.slerp(&qb, x * x * (3.0 - 2.0 * x));
+        for s in 0..=n {
+            let x = s as f64 / n as f64;
+            // Body rate from the attitude's derivative (central difference).
+            let h = 1e-6;
+            let (q0, q1) = (att((x - h).max(0.0)), att((x + h).min(1.0)));
+            let dq = q0.inverse() * q1;
+            let omega = dq.scaled_axis() / ((x + h).min(1.0) - (x - h).max(0.0)) / dur;
+            let g = kinv * omega.map(f64::to_degrees);
+            r.add(t, [g[0] as f32, g[1] as f32, g[2] as f32], false);
+            t += 1.0 / hz;
+        }
+        let next = pose(r, &qb, i + 1);
+        out.push(r.end(next, &lim));
+        prev = next;
+    }
+    out
+}
+
+#[test]
+fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
+    let mut r = Rotations::new();
+    assert!(record(&mut r, &attitudes(false), 952.0, 1.0, None).iter().all(|m| m.is_ok()));
+    let with = Some((&r, &RotationLimits::DEFAULT));
+    let truth = k_true();
+    let mut results = vec![];
+    for start in [None, Some(vec_k(&Matrix3::identity())), Some(vec_k(&(truth * 1.08))), Some(vec_k(&(truth * 0.93)))] {
+        let cal = Axes::new().solve_from(&FullLimits::DEFAULT, with, start).expect("the full K");
+        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+        let e = (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax();
+        assert!(e < 2e-5, "start {start:?}: E {e:.2e}");
+        assert!(cal.iterations < 20 && cal.rotation_moves == 9, "{} iterations, {} moves", cal.iterations, cal.rotation_moves);
+        results.push(k);
+    }
+    for k in &results[1..] {
+        assert!((k - results[0]).amax() < 1e-6, "the result moved with the start: {:.2e}", (k - results[0]).amax());
+    }
+}
+
+#[test]
+fn moves_about_one_axis_are_named() {
+    let mut r = Rotations::new();
+    record(&mut r, &attitudes(true), 238.0, 1.0, None);
+    let e = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).unwrap_err();
+    assert!(matches!(e, Error::RotationAxesCoplanar { .. }), "{e:?}");
+}
+
+#[test]
+fn moves_too_fast_for_the_rate_or_with_a_drifting_bias_are_rejected_and_counted() {
+    // 10× the rate at 59.5 Hz: steps of several degrees per sample.
+    let mut r = Rotations::new();
+    let out = record(&mut r, &attitudes(false), 59.5, 10.0, None);
+    assert!(out.iter().any(|m| *m == Err(Rejected::TooFast)), "{out:?}");
+    assert_eq!(r.rejected()[Rejected::TooFast as usize] as usize, out.iter().filter(|m| m.is_err()).count());
+    // A pose whose still gyro mean is off by 0.5 °/s: both of its moves are rejected.
+    let mut r = Rotations::new();
+    let out = record(&mut r, &attitudes(false), 238.0, 1.0, Some(4));
+    assert_eq!(out.iter().filter(|m| **m == Err(Rejected::BiasDrifted)).count(), 2, "{out:?}");
+    assert_eq!(r.moves().len(), 7);
+    // A saturated sample.
+    let mut r = Rotations::new();
+    r.push_pose([0.0, 0.0, 1.0], 1e-4, [0.0; 3]).unwrap();
+    r.push_pose([0.0, 1.0, 0.0], 1e-4, [0.0; 3]).unwrap();
+    r.begin(0);
+    r.add(0.0, [90.0, 0.0, 0.0], false);
+    r.add(0.01, [90.0, 0.0, 0.0], true);
+    assert_eq!(r.end(1, &RotationLimits::DEFAULT), Err(Rejected::Saturated));
+}
