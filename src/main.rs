@@ -300,6 +300,15 @@ fn log_report(r: &Report) {
             s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
             axes, non_coplanar_deg, moves, residual_rms_deg, condition
         ),
+        Report::HandMove { from, to, kept: true, turn_deg, spread, need } => defmt::info!(
+            "hand-held move {=u8} -> {=u8}: turned {=f32} deg; axes spread {=f32} (need {=f32}: turn about varied axes)",
+            from, to, turn_deg, spread, need
+        ),
+        Report::HandMove { from, to, .. } => defmt::warn!("hand-held move {=u8} -> {=u8} not used (too fast, too short, saturated or the bias drifted)", from, to),
+        Report::Rotations { moves, rejected, residual_deg } => defmt::info!(
+            "rotation constraints: {=u8} moves, misfit {=[?]} deg; rejected: {=u16} saturated, {=u16} too fast, {=u16} too short, {=u16} bias drifted, {=u16} no room",
+            moves, &residual_deg[..(*moves as usize).min(residual_deg.len())], rejected[0], rejected[1], rejected[2], rejected[3], rejected[4]
+        ),
         Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
         Report::Done(rec) => log_record("calibration done: stored", rec),
         Report::Failed(e) => defmt::error!("calibration failed, nothing stored: {}", e),

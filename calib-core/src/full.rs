@@ -86,6 +86,11 @@ pub struct FullLimits {
     pub gamma_sigma_deg: f32,
     /// Floor of the measured pose-mean noise per component (g).
     pub min_accel_sigma_g: f32,
+    /// Systematic error of a calibrated pose (g) that averaging does not remove (what the
+    /// accelerometer fit leaves): it tilts an axis fitted to a circle of radius `r` by up to
+    /// `accel_systematic_g / r`, which floors the axis direction's 1σ (small circles: axes near
+    /// vertical).
+    pub accel_systematic_g: f32,
 }
 
 impl FullLimits {
@@ -100,6 +105,7 @@ impl FullLimits {
         max_plane_noise_ratio: 4.0,
         gamma_sigma_deg: 0.01,
         min_accel_sigma_g: 1e-5,
+        accel_systematic_g: 1e-4,
     };
 }
 
@@ -207,6 +213,8 @@ struct Fit {
     e: [Vector3<f64>; 2],
     /// `1 / √(n λ_k)` (1/g): axis tilt towards `e_k` per unit pose noise.
     tilt_per_g: [f64; 2],
+    /// Least 1σ of the direction (rad): the axis' own tilt when it is taken along gravity.
+    floor_rad: f64,
     direction_only: bool,
     tilt_deg: f64,
     plane_rms_g: f64,
@@ -214,6 +222,13 @@ struct Fit {
     ss: f64,
     dof: u32,
     poses: u8,
+}
+
+impl Fit {
+    /// 1σ (rad) of the axis direction towards `e_k` for a pose noise `sigma_a` (g).
+    fn dir_sigma(&self, k: usize, sigma_a: f64) -> f64 {
+        (sigma_a * self.tilt_per_g[k]).max(self.floor_rad)
+    }
 }
 
 impl Axes {
@@ -326,7 +341,21 @@ impl Axes {
             let r = 1.0 / libm::sqrt(nf);
             let tilt_deg = libm::atan2(spread, mean.norm()).to_degrees();
             let e = [e1, u.cross(&e1)];
-            sign(Fit { u, e, tilt_per_g: [r, r], direction_only: true, tilt_deg, plane_rms_g: 0.0, ss: 0.0, dof: 0, poses: n as u8 })
+            // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
+            let floor_rad = libm::atan2(spread, mean.norm());
+            let f = Fit {
+                u,
+                e,
+                tilt_per_g: [r, r],
+                floor_rad,
+                direction_only: true,
+                tilt_deg,
+                plane_rms_g: 0.0,
+                ss: 0.0,
+                dof: 0,
+                poses: n as u8,
+            };
+            sign(f)
         };
         if n < 3 {
             if vertical {
@@ -349,6 +378,7 @@ impl Axes {
             u,
             e: [col(1), col(2)],
             tilt_per_g: [per(vals[1]), per(vals[2])],
+            floor_rad: limits.accel_systematic_g as f64 / radial.max(1e-3),
             direction_only: vertical || tilt_deg < limits.geometry.min_tilt_deg as f64,
             tilt_deg,
             plane_rms_g,
@@ -414,7 +444,7 @@ impl Axes {
                 return Err(Error::AxisNotFixed { plane_rms_g: f.plane_rms_g as f32, limit_g: limit_g as f32 });
             }
         }
-        let sigma_deg = |f: &Fit| (sigma_a * f.tilt_per_g[0].max(f.tilt_per_g[1])).to_degrees();
+        let sigma_deg = |f: &Fit| f.dir_sigma(0, sigma_a).max(f.dir_sigma(1, sigma_a)).to_degrees();
         for a in 0..MAX_AXES {
             let Some(f) = fits[a] else { continue };
             if !(sigma_deg(&f) <= limits.max_axis_sigma_deg as f64) {
@@ -441,7 +471,7 @@ impl Axes {
             let f = fits[m.axis as usize]?;
             let gamma = Vector3::from(m.gamma_deg);
             let (pa, pb) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
-            let e_row = |k: usize, turn: f64| (f.e[k], 0.0, sg2 + sq(turn.abs() * sigma_a * f.tilt_per_g[k]));
+            let e_row = |k: usize, turn: f64| (f.e[k], 0.0, sg2 + sq(turn.abs() * f.dir_sigma(k, sigma_a)));
             if f.direction_only {
                 let turn = gamma.norm();
                 (turn >= limits.min_move_deg as f64).then(|| ([e_row(0, turn), e_row(1, turn), (f.u, 0.0, 1.0)], 2, gamma, gamma.dot(&f.u)))
@@ -586,7 +616,7 @@ impl Axes {
                     }
                 }
                 let c: [f64; 9] = core::array::from_fn(|i| (0..9).map(|j| ninv[i][j] * v[j]).sum());
-                let s2u = sq(sigma_a * f.tilt_per_g[k]);
+                let s2u = sq(f.dir_sigma(k, sigma_a));
                 for i in 0..9 {
                     for j in 0..9 {
                         cov[i][j] += s2u * c[i] * c[j];

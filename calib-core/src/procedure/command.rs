@@ -5,6 +5,7 @@ use crate::accel::AccelCal;
 use crate::bias::Bias;
 use crate::gyro::{GyroCal, Method};
 use crate::record::{Record, StoreError};
+use crate::rotation::MAX_ROTATION_MOVES;
 use crate::{Error, Mat3, Vec3};
 
 /// LED patterns (the shell maps them to pins and blink timing).
@@ -102,6 +103,13 @@ pub enum Report {
     /// The full 3×3 `K` of the pan/tilt plan (row-major, with the 1σ of every element), the
     /// condition of its normal matrix, its axes' angle from coplanar (°) and its residual (°).
     FullK { k: Mat3, sigma_k: Mat3, condition: f32, non_coplanar_deg: f32, residual_rms_deg: f32, axes: u8, moves: u16 },
+    /// A hand-held move was kept for the rotation constraints: its raw turn (°) and the spread
+    /// of the kept moves' axes so far (smallest eigenvalue of their mean `n nᵀ`, 1/3 at best;
+    /// `need` is the least accepted), or rejected (`kept == false`, the reason counted).
+    HandMove { from: u8, to: u8, kept: bool, turn_deg: f32, spread: f32, need: f32 },
+    /// The rotation constraints used in the full `K`: the misfit (°) of each of the `moves`
+    /// kept moves at the solution, and the moves rejected by reason ([`crate::rotation::Rejected`]).
+    Rotations { moves: u8, rejected: [u16; 5], residual_deg: [f32; MAX_ROTATION_MOVES] },
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },
     /// The calibration was stored (verified) and is applied from now on.

@@ -6,6 +6,7 @@ use crate::bias::BiasLimits;
 use crate::full::FullLimits;
 use crate::pipeline::Acceptance;
 use crate::rest::RestConfig;
+use crate::rotation::RotationLimits;
 
 /// Tilt settings of the pan/tilt plan (each one pan axis; with the hinge, five axes).
 pub const TILT_SETTINGS: usize = 4;
@@ -81,8 +82,11 @@ pub struct Config {
     pub pan_tilt: bool,
     /// Tilt settings of the pan/tilt plan (°, 0 = level), in the order visited.
     pub tilt_settings_deg: [f32; TILT_SETTINGS],
-    /// The full-`K` estimator's requirements (pan/tilt plan).
+    /// The full-`K` estimator's requirements (pan/tilt plan, and the rig's axis with the
+    /// hand-held rotations).
     pub full: FullLimits,
+    /// The rotation constraints of the moves between hand-held poses.
+    pub rotation: RotationLimits,
     /// Stillness thresholds.
     pub rest: RestConfig,
     /// Bias limits.
@@ -133,6 +137,7 @@ impl Config {
         pan_tilt: false,
         tilt_settings_deg: [-60.0, -20.0, 20.0, 60.0],
         full: FullLimits::DEFAULT,
+        rotation: RotationLimits::DEFAULT,
         rest: RestConfig::DEFAULT,
         bias: BiasLimits::DEFAULT,
         geometry: GeometryLimits::DEFAULT,

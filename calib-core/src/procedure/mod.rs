@@ -14,7 +14,7 @@
 //! store → report → apply. No user action after the press.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
-//! (one call queues at most 8 commands; the queue holds 16; a full queue fails the calibration
+//! (one call queues at most 10 commands; the queue holds 16; a full queue fails the calibration
 //! with [`Error::CommandQueueFull`]). A [`Command::Store`] is answered with
 //! [`Procedure::handle_stored`]; only then are the result reported, applied and shown as done.
 //! [`Procedure::drive`] does both for a [`Shell`].
@@ -32,6 +32,7 @@ use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::Method;
 use crate::record::{Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
+use crate::rotation::Rotations;
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
@@ -219,6 +220,9 @@ impl Rotation {
     }
 }
 
+/// `K = I` (row-major).
+const IDENTITY: crate::Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
 
@@ -246,6 +250,7 @@ pub struct Procedure {
     poses: Poses,
     moves: Moves,
     axes: Axes,
+    rotations: Rotations,
     full: Option<FullCal>,
     integ: Integrator,
     gbar: Option<(Vec3, f32)>,
@@ -275,6 +280,7 @@ impl Procedure {
             poses: Poses::new(),
             moves: Moves::new(),
             axes: Axes::new(),
+            rotations: Rotations::new(),
             full: None,
             integ: Integrator::new(),
             gbar: None,
@@ -397,6 +403,7 @@ impl Procedure {
                 }
             }
             Step::HandHeld { mut capture } => {
+                self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
                     match capture.feed(&w, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Done => self.finish_accel_pose(&capture, s.t_s),
@@ -485,6 +492,7 @@ impl Procedure {
         self.poses.clear();
         self.moves.clear();
         self.axes.clear();
+        self.rotations.clear();
         self.full = None;
         self.integ = Integrator::new();
         self.gbar = None;
@@ -626,11 +634,34 @@ impl Procedure {
         }
         let index = (self.accel_poses.len() - 1) as u8;
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
+        // The move from the previous pose to this one: a rotation constraint on the full K.
+        let sigma = (capture.accel.max_std() / libm::sqrt(capture.accel.count().max(1) as f64)) as f32;
+        let gyro = capture.gyro.mean().map(|v| v as f32);
+        let gyro = self.bias.map_or(gyro, |b| sub(gyro, b.bias_dps));
+        match self.rotations.push_pose(a, sigma, gyro) {
+            Ok(to) if to > 0 => {
+                let kept = self.rotations.end(to, &self.cfg.rotation).is_ok();
+                let turn_deg = self.rotations.moves().last().filter(|_| kept).map_or(0.0, |m| m.turn_deg);
+                let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
+                self.push(Command::Report(Report::HandMove { from: to - 1, to, kept, turn_deg, spread, need }));
+                self.rotations.begin(to);
+            }
+            Ok(to) => self.rotations.begin(to),
+            Err(e) => return self.fail(e),
+        }
         if self.accel_poses.len() < self.cfg.accel_poses.max(6) as usize {
             return;
         }
+        // The hand-held moves must turn about three dimensions to give the full K.
+        let spread = self.rotations.axis_spread();
+        if self.rotations.moves().len() >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
+            return self.fail(Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread });
+        }
         match self.fit_accel() {
-            Ok(()) => self.enter(Step::Reattach, t_s),
+            Ok(()) => {
+                self.rotations.calibrate_poses(&self.accel_cal);
+                self.enter(Step::Reattach, t_s)
+            }
             Err(e) => self.fail(e),
         }
     }
@@ -767,6 +798,12 @@ impl Procedure {
         if let Err(e) = self.one_axis_beside(setting) {
             return self.fail(e);
         }
+        self.store_full(full, t_s);
+    }
+
+    /// Reports a full `K` (or fails with why there is none), validates it and hands its record
+    /// to the shell.
+    fn store_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
         let full = match full {
             Ok(f) => f,
             Err(e) => return self.fail(e),
@@ -853,6 +890,15 @@ impl Procedure {
                 None => {}
             }
         }
+        // With hand-held moves: the rig's axis and their rotation constraints give the full K.
+        if !self.rotations.moves().is_empty() {
+            let full = self.full_from_rotations();
+            let k = full.as_ref().map_or(IDENTITY, |f| f.k);
+            let residual_deg = self.rotations.residuals_deg(&k);
+            let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
+            self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
+            return self.store_full(full, t_s);
+        }
         let chosen = match pipeline::choose(sweep, paper).and_then(|c| pipeline::validate(&c, &self.cfg.acceptance).map(|_| c)) {
             Ok(c) => c,
             Err(e) => return self.fail(e),
@@ -873,6 +919,18 @@ impl Procedure {
             ..r
         });
         self.store(record, t_s);
+    }
+
+    /// The full `K` from the rig's poses and moves (one axis) and the hand-held rotations.
+    fn full_from_rotations(&mut self) -> Result<FullCal, Error> {
+        self.axes.clear();
+        for p in self.poses.iter() {
+            self.axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
+        }
+        for m in self.moves.as_slice() {
+            self.axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
+        }
+        self.axes.solve_with(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)))
     }
 
     /// Hands a built record to the shell to store (or fails with why it could not be built).

@@ -516,7 +516,9 @@ pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) 
         a.dedup();
         a.len()
     };
-    let full = (pan_tilt || with_rotations.is_some()).then(|| {
+    // `--method paper|sweep` asks for that one-axis estimator alone.
+    let one_axis_only = matches!(method, Some(Method::Paper | Method::Sweep));
+    let full = (!one_axis_only && (pan_tilt || with_rotations.is_some())).then(|| {
         let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
         let mut axes = full::Axes::new();
         let mut prev: Option<(&Segment, u8)> = None;

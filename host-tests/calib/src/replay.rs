@@ -33,10 +33,11 @@ pub struct Replay {
     pub sweep: Option<Result<GyroCal, Error>>,
     /// The paper estimator's outcome, if it ran.
     pub paper: Option<Result<GyroCal, Error>>,
-    /// The one-axis result the firmware would store, or why it would not (on a pan/tilt run:
-    /// the sweep estimator of the first tilt setting, reported beside the full `K`).
+    /// The one-axis result the firmware would store, or why it would not (beside a full `K`: the
+    /// sweep estimator of the rig's axis, as reported).
     pub result: Result<GyroCal, Error>,
-    /// On a pan/tilt run: the full `K` the firmware would store, or why it would not.
+    /// On a pan/tilt run, or a run with hand-held moves: the full `K` the firmware would store,
+    /// or why it would not.
     pub full: Option<Result<FullCal, Error>>,
 }
 
@@ -49,6 +50,8 @@ struct Collect {
     paper: Option<Result<GyroCal, Error>>,
     failed: Option<Error>,
     done: Option<Record>,
+    /// The procedure went for the full K with rotation constraints.
+    rotations: bool,
 }
 
 impl Shell for Collect {
@@ -65,6 +68,7 @@ impl Shell for Collect {
             Report::EstimatorFailed { error, .. } => self.paper = Some(Err(error)),
             Report::Failed(e) => self.failed = Some(e),
             Report::Done(rec) => self.done = Some(rec),
+            Report::Rotations { .. } => self.rotations = true,
             _ => {}
         }
     }
@@ -132,7 +136,8 @@ fn run(rows: &[Row], cfg: Config) -> Option<(Collect, Option<FullCal>)> {
 pub fn replay(rows: &[Row]) -> Option<Replay> {
     configs().into_iter().find_map(|(name, cfg)| {
         let (c, full) = run(rows, cfg)?;
-        let full = cfg.pan_tilt.then_some(match (c.done, c.failed, full) {
+        let attempted = cfg.pan_tilt || c.rotations;
+        let full = attempted.then_some(match (c.done, c.failed, full) {
             (Some(_), _, Some(f)) => Ok(f),
             (_, Some(e), _) => Err(e),
             _ => Err(Error::NoUsableMove),
@@ -140,9 +145,7 @@ pub fn replay(rows: &[Row]) -> Option<Replay> {
         let result = match (c.done, c.failed) {
             // Beside the full K: the sweep estimator of one setting, as reported, under the
             // firmware's acceptance (the firmware would not store it, but it is a valid one-axis K).
-            _ if cfg.pan_tilt => {
-                c.sweep.unwrap_or(Err(Error::NoUsableMove)).and_then(|g| pipeline::validate(&g, &cfg.acceptance).map(|_| g))
-            }
+            _ if attempted => c.sweep.unwrap_or(Err(Error::NoUsableMove)).and_then(|g| pipeline::validate(&g, &cfg.acceptance).map(|_| g)),
             (Some(rec), _) => {
                 let chosen = [&c.sweep, &c.paper].into_iter().flatten().flatten().find(|g| g.method == rec.method && g.k == rec.gyro_k);
                 Ok(*chosen?)

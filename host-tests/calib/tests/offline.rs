@@ -92,7 +92,10 @@ fn cli_calibrates_a_log_into_one_json_object_and_names_bad_input() {
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert_eq!(out.trim().lines().count(), 1);
-    assert_eq!(v["gyro"]["method"], "sweep");
+    // A log of the procedure with hand-held moves: the full K; the one-axis estimators beside it.
+    assert_eq!(v["gyro"]["method"], "full");
+    assert!(v["quality"]["full"]["rotation_moves"].as_u64().unwrap() >= 9, "{v}");
+    assert_eq!(v["quality"]["estimators"]["sweep"]["method"], "sweep");
     assert_eq!(v["gyro"]["K"].as_array().unwrap().len(), 3);
     assert_eq!(v["gyro"]["bias_dps"].as_array().unwrap().len(), 3);
     assert_eq!(v["accel"]["M"][2].as_array().unwrap().len(), 3);
@@ -250,14 +253,17 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     for (a, t) in k(&good).iter().zip(truth) {
         assert!((a / t - 1.0).abs() < 0.003);
     }
-    // Hand-held poses only (no servo at all): the accelerometer calibration, exit 4, the gyro
-    // named as missing.
+    // Hand-held poses only (no servo at all): the full K from their moves and the
+    // accelerometer, exit 0; without the rotation constraints the gyro is named as missing, exit 4.
     let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none()));
     let (code, out, err) = calib(&[&hand]);
+    assert_eq!(code, 0, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!((&v["gyro"]["method"], &v["quality"]["accel"]["model"]), (&"full".into(), &"nine_param".into()), "{v}");
+    let (code, out, err) = calib(&[&hand, "--no-rotations"]);
     assert_eq!(code, 4, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert!(v["gyro"].is_null());
-    assert_eq!(v["quality"]["accel"]["model"], "nine_param");
     assert!(v["quality"]["missing"][0].as_str().unwrap().starts_with("gyro:"), "{v}");
     assert!(err.contains("partial calibration"));
     std::fs::remove_dir_all(&dir).ok();
@@ -272,11 +278,12 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let stored = run.stored[0];
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
     assert_eq!(c.replayed, Some("default"));
-    let k = c.gyro.as_ref().unwrap().k;
+    // The full K (the rig's axis and the hand-held moves), as stored.
+    assert_eq!(stored.method, calib_core::gyro::Method::Full);
+    let k = c.full.as_ref().unwrap().as_ref().unwrap().k;
     let diff = (0..9).map(|i| (k[i / 3][i % 3] - stored.gyro_k[i / 3][i % 3]).abs()).fold(0.0f32, f32::max);
     println!("MEASURED calib_vs_procedure_max_abs_k_diff={diff:e}");
     assert!(diff <= 1e-6, "{diff}");
-    assert_eq!(c.gyro.as_ref().unwrap().method, stored.method);
     assert_eq!(c.bias.bias_dps.map(|b| (b * 1e4).round()), stored.gyro_bias_dps.map(|b| (b * 1e4).round()));
     // Rejected (a gyro scale the acceptance refuses): the same verdict, the same error.
     let mut cfg = Variant::Hobby.config(28, 0);
@@ -293,19 +300,6 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     assert_eq!(offline::calibrate(&hand, None).unwrap().replayed, None);
 }
 
-/// `E = Qᵀ K̂ K⁻¹ − I` after aligning the calibrated accelerometer frame to the simulator's
-/// (`Q = polar(M̂ C_a)`), the largest |element| and the RMS over the 9.
-fn full_k_error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> (f64, f64) {
-    use nalgebra::Matrix3;
-    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
-    let t = rig.truth();
-    let r = m(m_hat) * rig.config().accel.matrix();
-    let svd = r.svd(true, true);
-    let q = svd.u.unwrap() * svd.v_t.unwrap();
-    let e = q.transpose() * m(k_hat) * t.gyro_k.try_inverse().unwrap() - Matrix3::identity();
-    (e.amax(), (e.norm_squared() / 9.0).sqrt())
-}
-
 #[test]
 fn pan_tilt_logs_of_another_protocol_give_the_full_k() {
     use rig_sim::pan_tilt;
@@ -314,7 +308,7 @@ fn pan_tilt_logs_of_another_protocol_give_the_full_k() {
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
     assert_eq!(c.replayed, None);
     let f = c.full.as_ref().unwrap().as_ref().unwrap();
-    let (max, rms) = full_k_error(f.k, c.accel.m, &rig);
+    let (max, rms) = pan_tilt::k_error(f.k, c.accel.m, &rig).unwrap();
     println!("MEASURED pan_tilt_full_k max={max:.2e} rms={rms:.2e} axes={} moves={}", f.n_axes, f.moves);
     assert!(rms <= 5e-4 && max <= 1.5e-3, "rms {rms:e} max {max:e}");
     let v: serde_json::Value = serde_json::from_str(&c.json(0)).unwrap();
@@ -327,7 +321,8 @@ fn pan_tilt_rigs_that_cannot_give_the_full_k_are_named() {
     let full_error = |cfg: RigConfig, tilts: &[f32]| {
         let mut rig = Rig::new(cfg, 32);
         let log = pan_tilt::log_at(&mut rig, true, tilts);
-        let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+        // The rig alone (the hand-held moves would give the full K anyway).
+        let c = offline::calibrate_with(&csvlog::parse(&log).unwrap().rows, None, false).unwrap();
         let e = c.full.expect("a pan/tilt log").expect_err("no full K");
         (e, c.missing().join("; "))
     };

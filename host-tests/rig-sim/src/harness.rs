@@ -5,10 +5,10 @@
 //! asked (moving to the next one after each captured pose), clamps it back on the shaft and
 //! presses again. Faults are injected through [`Faults`].
 
-use crate::sim::{Reading, Rig};
+use crate::sim::{Reading, Rig, RigConfig};
 use calib_core::gyro::GyroCal;
 use calib_core::log::{self, Row};
-use calib_core::procedure::{Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use nalgebra::{UnitQuaternion, Vector3};
@@ -167,27 +167,31 @@ impl Shell for SimBoard<'_> {
 
 /// Runs `proc` on `rig` until it is done or failed (or `max_s` of MCU time passed).
 /// `log` sees every delivered sample with the commanded rotation and tilt angles.
-pub fn run(
+pub fn run(rig: &mut Rig, proc: &mut Procedure, faults: Faults, max_s: f64, log: impl FnMut(&Reading, Option<f32>, Option<f32>)) -> Run {
+    run_posed(rig, proc, faults, max_s, handheld_attitudes(), log)
+}
+
+/// A fresh rig (seed 5) and procedure, with the operator holding the board at `attitude(i)`
+/// (body → world) for hand-held pose `i` instead of the icosahedron's.
+pub fn run_with_attitudes(cfg: RigConfig, pcfg: Config, attitude: impl Fn(usize) -> UnitQuaternion<f64>) -> Run {
+    let mut rig = Rig::new(cfg, 5);
+    let mut p = Procedure::new(pcfg, None);
+    run_posed(&mut rig, &mut p, Faults::default(), 900.0, (0..40).map(attitude).collect(), |_, _, _| {})
+}
+
+fn run_posed(
     rig: &mut Rig,
     proc: &mut Procedure,
     faults: Faults,
     max_s: f64,
+    attitudes: Vec<UnitQuaternion<f64>>,
     mut log: impl FnMut(&Reading, Option<f32>, Option<f32>),
 ) -> Run {
     let mut out = Run::default();
     let mut last_bump = f64::NEG_INFINITY;
     let mut started = false;
     let mut samples = 0;
-    let mut b = SimBoard {
-        rig,
-        out: &mut out,
-        faults,
-        attitudes: handheld_attitudes(),
-        next_pose: 0,
-        handheld: false,
-        press_at: Some(1.0),
-        t: 0.0,
-    };
+    let mut b = SimBoard { rig, out: &mut out, faults, attitudes, next_pose: 0, handheld: false, press_at: Some(1.0), t: 0.0 };
     b.rig.stall_tilt(faults.tilt_stalled);
     while b.t < max_s {
         let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);

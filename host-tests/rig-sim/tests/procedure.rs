@@ -37,10 +37,17 @@ fn positional_servo_at_every_odr_and_several_mounts() {
         assert_eq!((rec.seq, out.applied.len()), (1, 1));
         let err = max_rel_error(&rec, &rig);
         assert!(err < 0.003, "ODR {odr}: max scale error {:.4} %", err * 100.0);
-        // Both estimators ran and reported their quality; the sweep one was chosen.
+        // Both diagonal estimators ran and reported their quality; with the hand-held moves the
+        // full K was stored, each of its 9 elements with a 1σ.
         assert_eq!(out.gyro_results().len(), 2);
-        assert_eq!(rec.method, calib_core::gyro::Method::Sweep);
-        assert!(rec.invariant_after_rel < rec.invariant_before_rel);
+        assert_eq!(rec.method, Method::Full);
+        assert!(rec.sigma_k.iter().flatten().all(|s| *s > 0.0 && *s < 2e-3), "{:?}", rec.sigma_k);
+        let (largest, _) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig).unwrap();
+        assert!(largest < 1.5e-3, "ODR {odr}: E largest {largest:.2e}");
+        let Some(Report::Rotations { moves, residual_deg, .. }) = out.reports.iter().find(|r| matches!(r, Report::Rotations { .. })) else {
+            panic!("no rotation report")
+        };
+        assert!(*moves >= 9 && residual_deg[..*moves as usize].iter().all(|r| *r < 0.1), "{moves} moves: {residual_deg:?}");
         assert_eq!(Record::decode(&rec.encode()), Ok(rec));
     }
 }
@@ -98,12 +105,36 @@ fn stalled_servo_ends_in_servo_not_turning() {
 }
 
 #[test]
-fn nearly_vertical_axis_is_rejected() {
+fn nearly_vertical_axis_is_rejected_without_hand_held_moves_and_needs_none_with_them() {
     let mut cfg = Variant::Hobby.config(16, 0);
     let axis = cfg.axis_b();
     cfg.shaft_tilt_deg = 3.0;
     let cfg = cfg.with_axis(axis, 10.0);
-    expect_failure(cfg, Config::default(), Faults::default(), |e| matches!(e, Error::AxisNearVertical { .. }));
+    // With the hand-held moves the axis only has to be fixed: the full K from its direction and
+    // the rotations.
+    let (first, rig) = calibrate(cfg, Config::default(), None, Faults::default());
+    assert_eq!(first.error, None);
+    let rec = first.stored[0];
+    let (largest, _) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig).unwrap();
+    assert!(largest < 1.5e-3, "E largest {largest:.2e}");
+    // A second run reuses the stored accelerometer (no hand-held step): the one-axis estimators
+    // need the shaft tilted.
+    let (second, _) = calibrate(cfg, Config::default(), Some(rec), Faults::default());
+    assert!(matches!(second.error, Some(Error::AxisNearVertical { .. })), "{:?}", second.error);
+    assert!(second.stored.is_empty());
+}
+
+#[test]
+fn hand_held_moves_about_one_axis_are_named_while_the_user_holds_the_board() {
+    // Every hand-held attitude a turn about one body axis: no full K, a named error before the
+    // board goes back on the shaft.
+    let pcfg = Config { accel_poses: 6, ..Config::default() };
+    let out = rig_sim::harness::run_with_attitudes(Variant::Hobby.config(18, 0), pcfg, |i| {
+        nalgebra::UnitQuaternion::from_euler_angles(0.9 * i as f64 + 0.2, 0.0, 0.0)
+    });
+    assert!(matches!(out.error, Some(Error::RotationAxesCoplanar { .. })), "{:?}", out.error);
+    assert!(!out.reports.contains(&Report::Phase(Phase::Reattach)) && out.stored.is_empty());
+    assert!(out.reports.iter().any(|r| matches!(r, Report::HandMove { kept: true, .. })));
 }
 
 #[test]

@@ -257,10 +257,29 @@ impl Bench {
         [0usize, 4096].iter().filter_map(|&o| Record::decode(&bytes[o..o + calib_core::record::LEN]).ok()).max_by_key(|r| r.seq)
     }
 
-    /// Largest |K̂_ii / K_ii − 1| of a record against the simulator's truth (%).
+    /// Largest scale error of a record against the simulator's truth (%): of a full `K` the
+    /// largest |E_ii| of `E = Qᵀ K̂ K⁻¹ − I` (the calibrated accelerometer frame aligned to the
+    /// simulator's, [`rig_sim::pan_tilt::k_error_matrix`]), of a diagonal one |K̂_ii / K_ii − 1|.
     pub fn max_scale_error_pct(&self, rec: &Record) -> f64 {
-        let k = self.mcu.periph.borrow().sensor.rig().truth().gyro_k;
-        (0..3).map(|i| (rec.gyro_k[i][i] as f64 / k[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max)
+        self.k_errors_pct(rec).0
+    }
+
+    /// (largest scale error, largest cross-axis error |E_ij|, i ≠ j) of a record (%); the
+    /// cross-axis error is NaN for a diagonal `K`.
+    pub fn k_errors_pct(&self, rec: &Record) -> (f64, f64) {
+        let p = self.mcu.periph.borrow();
+        let rig = p.sensor.rig();
+        if rec.method != calib_core::gyro::Method::Full {
+            let k = rig.truth().gyro_k;
+            return ((0..3).map(|i| (rec.gyro_k[i][i] as f64 / k[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max), f64::NAN);
+        }
+        match rig_sim::pan_tilt::k_error_matrix(rec.gyro_k, rec.accel_m, rig) {
+            Some(e) => {
+                let cross = (0..9).filter(|i| i / 3 != i % 3).map(|i| e[(i / 3, i % 3)].abs()).fold(0.0, f64::max);
+                (e.diagonal().amax() * 100.0, cross * 100.0)
+            }
+            None => (f64::NAN, f64::NAN),
+        }
     }
 
     /// A reset of the MCU (power cycle): flash, sensor and rig keep their state.

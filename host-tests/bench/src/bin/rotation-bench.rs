@@ -77,7 +77,10 @@ fn main() {
             let label = if on { "on" } else { "off" };
             println!("{name:<34}{label:<16}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
             if !failed.is_empty() {
-                println!("    failed: {failed:?}");
+                let mut kinds = failed.clone();
+                kinds.sort();
+                kinds.dedup();
+                println!("    failed {}: {kinds:?}", failed.len());
             }
             table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed}));
         }

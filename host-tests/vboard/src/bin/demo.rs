@@ -139,35 +139,28 @@ fn main() -> ExitCode {
         None => f64::NAN,
     };
     // The full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
-    let full_err = stored.as_ref().filter(|_| tilt).map(|r| {
-        match pan_tilt::k_error_matrix(r.gyro_k, r.accel_m, bench.mcu.periph.borrow().sensor.rig()) {
-            Some(e) => {
-                let cross = (0..9).filter(|i| i / 3 != i % 3).map(|i| e[(i / 3, i % 3)].abs()).fold(0.0, f64::max);
-                (e.diagonal().amax() * 100.0, cross * 100.0)
-            }
-            None => (f64::NAN, f64::NAN),
-        }
-    });
+    let full_err = stored.as_ref().filter(|_| tilt).map(|r| bench.k_errors_pct(r));
     let ok = stored.is_some() && outcome == Outcome::Done;
     // The raw log through the offline path of `calib` (the same code): the same K as the
-    // firmware's record within 0.05 %, and within 0.1 % of the truth (the diagonal; with
-    // `--tilt` every element of the full K against the record, E's diagonal against the truth).
+    // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
+    // against the record, E's diagonal against the truth).
     if let (Some(text), Some(rec)) = (&raw_text, &stored) {
+        // calib's full K when it gives one (the record is then a full K too), else its diagonal.
         let k = calib::csvlog::parse(text)
             .map_err(|e| e.to_string())
             .and_then(|l| calib::offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
             .and_then(|c| match c.full {
-                Some(f) if tilt => f.map(|f| (f.k, c.accel.m)).map_err(|e| e.to_string()),
-                _ => c.gyro.map(|g| (g.k, c.accel.m)).map_err(|e| e.to_string()),
+                Some(f) => f.map(|f| (f.k, c.accel.m, true)).map_err(|e| e.to_string()),
+                None => c.gyro.map(|g| (g.k, c.accel.m, false)).map_err(|e| e.to_string()),
             });
         match k {
-            Ok((k, m)) => {
-                let cells = if tilt { 9 } else { 3 };
-                let at = |i: usize| if tilt { (i / 3, i % 3) } else { (i, i) };
+            Ok((k, m, full)) => {
+                let cells = if full { 9 } else { 3 };
+                let at = |i: usize| if full { (i / 3, i % 3) } else { (i, i) };
                 let vs_fw = (0..cells)
                     .map(|i| ((k[at(i).0][at(i).1] - rec.gyro_k[at(i).0][at(i).1]) / rec.gyro_k[at(i).0][at(i).0]).abs() as f64 * 100.0)
                     .fold(0.0, f64::max);
-                let vs_truth = if tilt {
+                let vs_truth = if full {
                     pan_tilt::k_error_matrix(k, m, bench.mcu.periph.borrow().sensor.rig()).map_or(f64::NAN, |e| e.diagonal().amax() * 100.0)
                 } else {
                     (0..3).map(|i| (k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max)
