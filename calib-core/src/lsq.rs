@@ -124,6 +124,13 @@ impl<const N: usize> NormalEquations<N> {
         }
     }
 
+    /// The parameters alone, by Cholesky (no condition number, no covariance): for the
+    /// iterates of an iterative solve, whose last step is checked by [`Self::solve`].
+    pub fn estimate(&self) -> Result<[f64; N], Error> {
+        let l = cholesky(&self.matrix(), 1e-13).ok_or(Error::Singular)?;
+        Ok(cholesky_solve(&l, &self.xty))
+    }
+
     /// Solves by Cholesky. Errors: fewer rows than unknowns, a singular or ill-conditioned matrix.
     pub fn solve(&self) -> Result<Solution<N>, Error> {
         if (self.rows as usize) < N {

@@ -29,7 +29,7 @@ use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::{turn_deg, Poses};
 use crate::bias::{Bias, BiasEstimator};
 use crate::full::{Axes, FullAxis, FullCal};
-use crate::gyro::Method;
+use crate::gyro::{GyroCal, Method};
 use crate::record::{Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::rotation::Rotations;
@@ -344,7 +344,8 @@ impl Procedure {
         if !self.running() {
             return;
         }
-        if let Some(last) = self.last_sample_t {
+        // Storing needs no samples (and follows the solve, the longest call).
+        if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {
             let gap = t_s - last;
             if gap > self.cfg.sample_timeout_s as f64 {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
@@ -892,7 +893,8 @@ impl Procedure {
         }
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
         if !self.rotations.moves().is_empty() {
-            let full = self.full_from_rotations();
+            let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
+            let full = self.full_from_rotations(start.copied().as_ref());
             let k = full.as_ref().map_or(IDENTITY, |f| f.k);
             let residual_deg = self.rotations.residuals_deg(&k);
             let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
@@ -921,8 +923,9 @@ impl Procedure {
         self.store(record, t_s);
     }
 
-    /// The full `K` from the rig's poses and moves (one axis) and the hand-held rotations.
-    fn full_from_rotations(&mut self) -> Result<FullCal, Error> {
+    /// The full `K` from the rig's poses and moves (one axis) and the hand-held rotations,
+    /// Gauss–Newton started at the diagonal `K` of the one-axis estimator when there is one.
+    fn full_from_rotations(&mut self, start: Option<&GyroCal>) -> Result<FullCal, Error> {
         self.axes.clear();
         for p in self.poses.iter() {
             self.axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
@@ -930,7 +933,8 @@ impl Procedure {
         for m in self.moves.as_slice() {
             self.axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
         }
-        self.axes.solve_with(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)))
+        let start = start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64));
+        self.axes.solve_from(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)), start)
     }
 
     /// Hands a built record to the shell to store (or fails with why it could not be built).

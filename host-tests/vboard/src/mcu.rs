@@ -92,6 +92,8 @@ pub struct Mcu {
     rtt_write_seen: Rc<Cell<(u64, u64)>>,
     /// Instructions spent in `Procedure::handle_sample` and its calls, and calls counted.
     pub handle_sample: Rc<Cell<(u64, u64)>>,
+    /// Instructions of the longest single `Procedure::handle_sample` call (e.g. the solve).
+    pub handle_sample_max: Rc<Cell<u64>>,
 }
 
 struct UcDma<'a, 'b>(&'a mut Unicorn<'b, ()>);
@@ -156,7 +158,8 @@ impl Mcu {
         // Instructions inside `Procedure::handle_sample` (callees included): from its entry to
         // the return address found in LR at the entry.
         let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
-        let (hs, entry) = (handle_sample.clone(), firmware.handle_sample.map(|r| r.0));
+        let handle_sample_max = Rc::new(Cell::new(0u64));
+        let (hs, hs_max, entry) = (handle_sample.clone(), handle_sample_max.clone(), firmware.handle_sample.map(|r| r.0));
         let open: Cell<Option<(u64, u64)>> = Cell::new(None);
         uc.add_code_hook(0x1_0000, FLASH_END, move |uc, addr, _size| {
             let n = count.get() + 1;
@@ -171,6 +174,7 @@ impl Mcu {
                 if addr == ret {
                     let (i, calls) = hs.get();
                     hs.set((i + n - n0, calls + 1));
+                    hs_max.set(hs_max.get().max(n - n0));
                     open.set(None);
                 }
             }
@@ -252,6 +256,7 @@ impl Mcu {
             rtt: RttHost { reading: true, ..RttHost::default() },
             rtt_write_seen,
             handle_sample,
+            handle_sample_max,
         };
         mcu.reset()?;
         Ok(mcu)

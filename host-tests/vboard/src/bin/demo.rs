@@ -125,6 +125,8 @@ fn main() -> ExitCode {
         calls,
         if calls > 0 { instr as f64 / calls as f64 } else { 0.0 }
     );
+    let longest = bench.mcu.handle_sample_max.get();
+    println!("[demo] the longest handle_sample call (the solve): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
     let stored = bench.stored();
     let truth = bench.mcu.periph.borrow().sensor.rig().truth().gyro_k;
     println!("[demo] true K diagonal   {:.6} {:.6} {:.6}", truth[(0, 0)], truth[(1, 1)], truth[(2, 2)]);
