@@ -548,12 +548,11 @@ impl Axes {
             None => (ne, None),
             Some((r, rl)) => {
                 let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
+                // The rig's own K when it determines one, else `K = I`.
                 let mut k = match start {
                     Some(k) => k,
-                    None => match ne.solve() {
-                        Ok(s) => s.x,
-                        Err(_) => identity,
-                    },
+                    None if ne.condition() <= limits.max_condition as f64 => ne.solve().map_or(identity, |s| s.x),
+                    None => identity,
                 };
                 let mut iterations = 0u8;
                 let (total, rss) = loop {

@@ -156,6 +156,19 @@ fn a_pan_tilt_firmware_log_is_replayed_to_the_firmware_s_full_k() {
 }
 
 #[test]
+fn one_servo_logs_of_another_protocol_give_the_full_k_from_the_hand_held_moves() {
+    use rig_sim::pan_tilt;
+    let mut rig = Rig::new(pan_tilt::rig_config(41, 0), 41);
+    let log = pan_tilt::log_at(&mut rig, true, &[0.0]);
+    let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
+    assert_eq!(c.replayed, None);
+    let full = c.full.expect("a full K").expect("solved");
+    assert_eq!(full.n_axes, 1);
+    let (largest, rms) = pan_tilt::k_error(full.k, c.accel.m, &rig).unwrap();
+    assert!(largest < 1e-3 && rms < 3e-4, "largest {largest:.2e}, rms {rms:.2e}");
+}
+
+#[test]
 fn hand_held_poses_alone_give_the_full_k_and_the_accelerometer() {
     use rig_sim::pan_tilt;
     let mut rig = Rig::new(pan_tilt::rig_config(40, 0), 40);

@@ -2,12 +2,16 @@
 //! rotation constraints of the hand-held moves on and off, on simulated logs of three rigs
 //! (gyro cross-axis U(±1 %), accelerometer misalignment U(±0.3 %), servo angle-scale error
 //! U(±3 %), LSM9DS1 noise and ODR error): one servo + 12 hand-held poses, pan/tilt + 12
-//! hand-held poses, 12 hand-held poses and no servo. Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the
+//! hand-held poses, 12 hand-held poses and no servo; and the firmware's own procedure (default
+//! configuration, one servo, the simulated operator's 12 hand-held poses) on the same kind of
+//! rigs. Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the
 //! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
 
 use bench::moments::Moments;
 use calib::{csvlog, offline};
+use calib_core::procedure::{Config, Procedure};
 use clap::Parser;
+use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
 use rig_sim::sim::Rig;
 use serde_json::json;
@@ -42,7 +46,7 @@ fn main() {
     let names = ["one servo + 12 hand-held poses", "pan/tilt + 12 hand-held poses", "12 hand-held poses, no servo"];
     let mut table = vec![];
     println!("rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %)", args.rigs);
-    println!("{:<34}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
+    println!("{:<38}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
             let (mut rms, mut max, mut failed) = (vec![], 0.0f64, vec![]);
@@ -75,7 +79,7 @@ fn main() {
             }
             let mean = Moments::of(&rms).mean;
             let label = if on { "on" } else { "off" };
-            println!("{name:<34}{label:<16}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
+            println!("{name:<38}{label:<16}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
             if !failed.is_empty() {
                 let mut kinds = failed.clone();
                 kinds.sort();
@@ -84,6 +88,36 @@ fn main() {
             }
             table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed}));
         }
+    }
+    // The firmware's own procedure (default configuration) on the one-servo rigs: the full K it
+    // stores, and the diagonal sweep K it reports beside it.
+    let (mut full, mut diag, mut max, mut dmax, mut failed) = (vec![], vec![], 0.0f64, 0.0f64, vec![]);
+    for run_idx in 0..args.rigs {
+        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let mut p = Procedure::new(Config::DEFAULT, None);
+        let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+        let Some(rec) = out.stored.first() else {
+            failed.push(format!("{:?}", out.error));
+            continue;
+        };
+        if let Some((mx, r)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
+            full.push(r);
+            max = max.max(mx);
+        }
+        let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::gyro::Method::Sweep);
+        if let Some((mx, r)) = sweep.and_then(|g| pan_tilt::k_error(g.k, rec.accel_m, &rig)) {
+            diag.push(r);
+            dmax = dmax.max(mx);
+        }
+    }
+    let name = "one servo + 12 hand-held (firmware)";
+    for (label, rms, mx) in [("on", &full, max), ("off (its sweep)", &diag, dmax)] {
+        let mean = Moments::of(rms).mean;
+        println!("{name:<38}{label:<16}{mean:>12.2e}{mx:>12.2e}{:>7}", rms.len());
+        table.push(json!({"rig": name, "rotations": label == "on", "rms_mean": mean, "max": mx, "rigs": rms.len(), "failed": failed}));
+    }
+    if !failed.is_empty() {
+        println!("    failed {}: {failed:?}", failed.len());
     }
     if args.json {
         println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "rows": table}));
