@@ -110,7 +110,7 @@ fn moves_too_fast_for_the_rate_or_with_a_drifting_bias_are_rejected_and_counted(
     // 10× the rate at 59.5 Hz: steps of several degrees per sample.
     let mut r = Rotations::new();
     let out = record(&mut r, &attitudes(false), 59.5, 10.0, None);
-    assert!(out.iter().any(|m| *m == Err(Rejected::TooFast)), "{out:?}");
+    assert!(out.contains(&Err(Rejected::TooFast)), "{out:?}");
     assert_eq!(r.rejected()[Rejected::TooFast as usize] as usize, out.iter().filter(|m| m.is_err()).count());
     // A pose whose still gyro mean is off by 0.5 °/s: both of its moves are rejected.
     let mut r = Rotations::new();
