@@ -3,15 +3,17 @@
 //! allocation, bounded work per input. The firmware and the host tests drive the same machine.
 //!
 //! Phases: wait for rest → gyro bias → accelerometer (hand-held poses, skipped when a valid
-//! stored calibration exists) → re-clamp and press → static rig poses and the moves between
-//! them, there and back → the paper's constant-rate rotation → solve both estimators →
-//! validate → store → (verified) report → apply.
+//! stored calibration exists; every move between two of them is kept as a rotation constraint,
+//! [`crate::rotation`]) → re-clamp and press → static rig poses and the moves between them,
+//! there and back → the paper's constant-rate rotation → both one-axis estimators, and with
+//! hand-held moves the full 3×3 `K` from the rig's axis and the rotations → validate → store →
+//! (verified) report → apply.
 //!
 //! With a pan/tilt bracket ([`Config::pan_tilt`]): wait for rest → gyro bias → the rig poses,
 //! there and back across the pan range at every tilt setting, tilt moves between the settings
-//! at pan `pose_first_deg` and back down through them → the accelerometer fitted to those poses → the full 3×3 `K`
-//! ([`crate::full`]), the one-axis sweep estimator of the first setting beside it → validate →
-//! store → report → apply. No user action after the press.
+//! at pan `pose_first_deg` and back down through them → the accelerometer fitted to those
+//! poses → the full 3×3 `K` ([`crate::full`]), the sweep estimator of the most oblique pan axis
+//! beside it → validate → store → report → apply. No user action after the press.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
 //! (one call queues at most 10 commands; the queue holds 16; a full queue fails the calibration
