@@ -361,6 +361,20 @@ fn gyro_units(k: f64) -> Option<OfflineError> {
     Some(OfflineError::GyroUnits { k, hint })
 }
 
+/// The gyro scale a result implies (the mean of its diagonal), or an error implies (an
+/// implausible scale, or a move whose gyro turn was that far from the commanded one): a scale
+/// near a unit factor names the mistake ([`gyro_units`]).
+fn implied_scale(r: Result<&GyroCal, &Error>) -> Option<f64> {
+    match r {
+        Ok(c) => Some((c.k[0][0] + c.k[1][1] + c.k[2][2]) as f64 / 3.0),
+        Err(Error::ServoNotTurning { commanded_deg, measured_deg, .. }) if *measured_deg != 0.0 => {
+            Some((commanded_deg / measured_deg).abs() as f64)
+        }
+        Err(Error::ImplausibleScale { value, .. }) => Some(*value as f64),
+        Err(_) => None,
+    }
+}
+
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
 /// Fails only if nothing at all can be calibrated (no rest, wrong units); a log that supports
 /// only part of the calibration gives what it can, with the gyro's error in
@@ -378,20 +392,11 @@ pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) 
         return Err(OfflineError::NoRest);
     }
     check_accel_units(&ph)?;
-    // A run of the firmware's own procedure: replayed through it, the firmware's results.
-    if method.is_none() {
+    // A run of the firmware's own procedure: replayed through it, the firmware's results (which
+    // use the rotation constraints: `--no-rotations` takes the data-driven path).
+    if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows) {
-            // A scale near a unit factor names the mistake: from the result, or from a move
-            // whose gyro turn was that far from the commanded one.
-            let scale = match &r.result {
-                Ok(c) => Some(c.k.iter().enumerate().map(|(i, row)| row[i] as f64).sum::<f64>() / 3.0),
-                Err(Error::ServoNotTurning { commanded_deg, measured_deg, .. }) if *measured_deg != 0.0 => {
-                    Some((commanded_deg / measured_deg).abs() as f64)
-                }
-                Err(Error::ImplausibleScale { value, .. }) => Some(*value as f64),
-                Err(_) => None,
-            };
-            let gyro = match (scale.and_then(gyro_units), r.result) {
+            let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
                 (Some(e), _) => Err(e),
                 (None, Ok(c)) => Ok(c),
                 (None, Err(error)) => Err(OfflineError::Calib { stage: "the firmware's procedure", error }),
@@ -573,11 +578,10 @@ pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) 
     };
     // The firmware's acceptance: a result it would not store is not given either; a scale near
     // a unit factor names the mistake.
-    let scale = match &chosen {
-        Ok(c) => Some((c.k[0][0] + c.k[1][1] + c.k[2][2]) as f64 / 3.0),
-        Err(OfflineError::Calib { error: Error::ImplausibleScale { value, .. }, .. }) => Some(*value as f64),
-        Err(_) => None,
-    };
+    let scale = implied_scale(chosen.as_ref().map_err(|e| match e {
+        OfflineError::Calib { error, .. } => error,
+        _ => &Error::NoUsableMove,
+    }));
     let gyro = match scale.and_then(gyro_units) {
         Some(e) => Err(e),
         None => chosen.and_then(|c| pipeline::validate(&c, &acceptance).map(|_| c).map_err(stage("validation"))),

@@ -291,6 +291,9 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let stored = run.stored[0];
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
     assert_eq!(c.replayed, Some("default"));
+    // Without the rotation constraints: not the firmware's run any more, no full K.
+    let off = offline::calibrate_with(&csvlog::parse(&log).unwrap().rows, None, false).unwrap();
+    assert!(off.replayed.is_none() && off.full.is_none() && off.gyro.is_ok());
     // The full K (the rig's axis and the hand-held moves), as stored.
     assert_eq!(stored.method, calib_core::gyro::Method::Full);
     let k = c.full.as_ref().unwrap().as_ref().unwrap().k;
