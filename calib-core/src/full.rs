@@ -42,7 +42,7 @@ use crate::linalg::{cholesky, cholesky_inverse, sym_eigen};
 use crate::lsq::NormalEquations;
 use crate::rotation::{RotationLimits, Rotations};
 use crate::sweep::MAX_MOVES;
-use crate::vec3::to_f64 as v64;
+use crate::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -340,13 +340,11 @@ impl Axes {
         };
         let along_gravity = || {
             let u = mean.normalize();
-            let helper = if u[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
-            let e1 = u.cross(&helper).normalize();
             let r = 1.0 / libm::sqrt(nf);
-            let tilt_deg = libm::atan2(spread, mean.norm()).to_degrees();
-            let e = [e1, u.cross(&e1)];
+            let e = tangent_basis(&u);
             // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
             let floor_rad = libm::atan2(spread, mean.norm());
+            let tilt_deg = floor_rad.to_degrees();
             let f = Fit {
                 u,
                 e,

@@ -24,7 +24,7 @@ use crate::accel::AccelCal;
 use crate::axis::{Poses, MAX_POSES};
 use crate::linalg::sym_eigen;
 use crate::lsq::NormalEquations;
-use crate::vec3::to_f64 as v64;
+use crate::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -169,13 +169,6 @@ fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
     let b = series([0.5, -1.0 / 24.0, 1.0 / 720.0, -1.0 / 40_320.0, 1.0 / 3_628_800.0]);
     let c = series([1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0, -1.0 / 362_880.0, 1.0 / 39_916_800.0]);
     (Matrix3::identity() + s * a + s2 * b, Matrix3::identity() - s * b + s2 * c)
-}
-
-/// A unit vector's tangent basis.
-fn tangent(g: &Vector3<f64>) -> [Vector3<f64>; 2] {
-    let helper = if g[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
-    let e1 = g.cross(&helper).normalize();
-    [e1, g.cross(&e1)]
 }
 
 impl Rotations {
@@ -359,7 +352,7 @@ impl Rotations {
             let (r, j) = self.compose(m, &km, &cof);
             let rg = r * gj;
             let a = -(r * skew(&gj)); // ∂(R g_j)/∂(J δk) = −R [g_j]×
-            for e in tangent(&gi) {
+            for e in tangent_basis(&gi) {
                 let res = e.dot(&rg);
                 let ea = e.transpose() * a;
                 let h: [f64; 9] = core::array::from_fn(|c| (0..3).map(|i| ea[i] * j[i][c]).sum());

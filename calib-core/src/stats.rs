@@ -67,6 +67,11 @@ impl Welford3 {
         let v = self.variance();
         libm::sqrt(v[0].max(v[1]).max(v[2]))
     }
+
+    /// Largest per-axis standard deviation of the mean, `max_std / √n`.
+    pub fn max_std_of_mean(&self) -> f64 {
+        self.max_std() / libm::sqrt(self.n.max(1) as f64)
+    }
 }
 
 /// Running mean, standard deviation and range of a scalar: the spread of the dot-product

@@ -1,4 +1,4 @@
-//! The two 3-vector helpers every shell needs around the `[f32; 3]` API.
+//! The 3-vector helpers around the `[f32; 3]` API.
 
 use crate::Vec3;
 use nalgebra::Vector3;
@@ -6,6 +6,13 @@ use nalgebra::Vector3;
 /// `a − b`, element-wise (e.g. a raw gyro reading minus the bias, °/s).
 pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// An orthonormal basis `(e₁, e₂)` of the plane ⟂ the unit vector `u`.
+pub fn tangent_basis(u: &Vector3<f64>) -> [Vector3<f64>; 2] {
+    let helper = if u[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
+    let e1 = u.cross(&helper).normalize();
+    [e1, u.cross(&e1)]
 }
 
 /// The same vector in `f64` for the math.

@@ -108,7 +108,8 @@ pub enum Report {
     /// `need` is the least accepted), or rejected (`kept == false`, the reason counted).
     HandMove { from: u8, to: u8, kept: bool, turn_deg: f32, spread: f32, need: f32 },
     /// The rotation constraints used in the full `K`: the misfit (°) of each of the `moves`
-    /// kept moves at the solution, and the moves rejected by reason ([`crate::rotation::Rejected`]).
+    /// kept moves at the solution (0 when none was solved), and the moves rejected by reason
+    /// ([`crate::rotation::Rejected`]).
     Rotations { moves: u8, rejected: [u16; 5], residual_deg: [f32; MAX_ROTATION_MOVES] },
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },

@@ -34,7 +34,7 @@ use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::{GyroCal, Method};
 use crate::record::{Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
-use crate::rotation::Rotations;
+use crate::rotation::{Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
@@ -221,9 +221,6 @@ impl Rotation {
         }
     }
 }
-
-/// `K = I` (row-major).
-const IDENTITY: crate::Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
@@ -638,7 +635,7 @@ impl Procedure {
         let index = (self.accel_poses.len() - 1) as u8;
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
-        let sigma = (capture.accel.max_std() / libm::sqrt(capture.accel.count().max(1) as f64)) as f32;
+        let sigma = capture.accel.max_std_of_mean() as f32;
         let gyro = capture.gyro.mean().map(|v| v as f32);
         let gyro = self.bias.map_or(gyro, |b| sub(gyro, b.bias_dps));
         match self.rotations.push_pose(a, sigma, gyro) {
@@ -896,9 +893,9 @@ impl Procedure {
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
         if !self.rotations.moves().is_empty() {
             let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
-            let full = self.full_from_rotations(start.copied().as_ref());
-            let k = full.as_ref().map_or(IDENTITY, |f| f.k);
-            let residual_deg = self.rotations.residuals_deg(&k);
+            let full = self.full_from_rotations(start);
+            // Each move's misfit at the solution (none without one).
+            let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k));
             let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
             self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
             return self.store_full(full, t_s);

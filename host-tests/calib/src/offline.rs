@@ -495,8 +495,7 @@ pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) 
             prev = None;
             continue;
         }
-        let n = s.accel.count().max(1) as f64;
-        let sigma = s.accel.max_std() / n.sqrt();
+        let sigma = s.accel.max_std_of_mean();
         let gyro = sub(s.gyro.mean().map(|v| v as f32), bias.bias_dps);
         let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, gyro) else { break };
         if let Some((from, end)) = prev {
