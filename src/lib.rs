@@ -7,6 +7,8 @@
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
 //! - [`rtt`]: the never-blocking defmt RTT logger.
+//! - [`serial`]: the USB serial console's outbox, commands and 1200-baud touch; `usb` (target
+//!   only): the CDC-ACM port over the USBD.
 #![no_std]
 #![deny(missing_docs)]
 
@@ -16,4 +18,7 @@ pub mod led;
 pub mod lsm9ds1;
 pub mod rtt;
 pub mod stamp;
+pub mod serial;
 pub mod storage;
+#[cfg(target_os = "none")]
+pub mod usb;

@@ -270,6 +270,26 @@ pub enum SensorError {
     ResetTimeout,
 }
 
+impl core::fmt::Display for SensorError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            SensorError::Bus(b) => f.write_str(match b {
+                BusFault::Nack => "I2C: not acknowledged",
+                BusFault::Bus => "I2C: bus error or lost arbitration",
+                BusFault::Overrun => "I2C: data overrun",
+                BusFault::Other => "I2C: driver error",
+            }),
+            SensorError::Missing => f.write_str("LSM9DS1 missing"),
+            SensorError::Rev2Bmi270 => f.write_str("Nano 33 BLE Rev2"),
+            SensorError::WrongId(id) => write!(f, "WHO_AM_I 0x{id:02X} at 0x6B is not an LSM9DS1"),
+            SensorError::ConfigMismatch { reg, wrote, read } => {
+                write!(f, "register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
+            }
+            SensorError::ResetTimeout => f.write_str("no answer after the software reset"),
+        }
+    }
+}
+
 /// One FIFO slot: raw gyro and accelerometer counts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -10,8 +10,11 @@
 #![no_std]
 #![no_main]
 
-use calib_core::procedure::{Config, ErrorClass, Led, Procedure, Report, Sample, Shell};
+use calib_core::export::Format;
+use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::record::Record;
+use calib_core::text::{Level as Log, V3};
+use core::fmt::{self, Write};
 use cortex_m::peripheral::NVIC;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{InputPin, OutputPin};
@@ -19,6 +22,8 @@ use embedded_hal::i2c::{ErrorType, I2c, Operation};
 use gyrocal_fw::bootloader::FlashMap;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::{render, Lights};
+use gyrocal_fw::serial::{self, Command};
+use gyrocal_fw::usb::{Error as UsbError, Usb};
 use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
@@ -253,117 +258,171 @@ fn start_hfxo(clock: &pac::CLOCK) -> bool {
     false
 }
 
-fn log_report(r: &Report) {
-    match r {
-        Report::Phase(p) => defmt::info!("phase: {}", p.name()),
-        Report::Bias(b) => defmt::info!(
-            "gyro bias [{=f32} {=f32} {=f32}] dps, 1 sigma [{=f32} {=f32} {=f32}], {=u32} samples",
-            b.bias_dps[0],
-            b.bias_dps[1],
-            b.bias_dps[2],
-            b.sigma_dps[0],
-            b.sigma_dps[1],
-            b.sigma_dps[2],
-            b.samples
-        ),
-        Report::AccelPose { index, accel_g } => {
-            defmt::info!("hand-held pose {=u8}: a = [{=f32} {=f32} {=f32}] g", index, accel_g[0], accel_g[1], accel_g[2])
+/// Longest log line (B): the full `K` line is ~330 B; a longer one is cut.
+const LINE: usize = 640;
+/// Longest export text (B): the C snippet is ~1.3 KiB.
+const EXPORT: usize = 2048;
+
+/// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
+/// over USB serial, with the same text (`calib_core::text`).
+struct Console {
+    usb: Option<Usb>,
+    /// The USBD until USB starts (VBUS present and the USBD ready).
+    usbd: Option<pac::USBD>,
+    next_usb_try: f64,
+    usb_dropped_reported: u32,
+}
+
+impl Console {
+    /// Formats and sends a line.
+    #[inline(never)]
+    fn say(&mut self, level: Log, args: fmt::Arguments) {
+        let mut line = heapless::String::<LINE>::new();
+        // A line longer than LINE is sent cut.
+        let _ = line.write_fmt(args);
+        self.send(level, &line);
+    }
+
+    /// Sends a line.
+    #[inline(never)]
+    fn send(&mut self, level: Log, line: &str) {
+        match level {
+            Log::Info => defmt::info!("{=str}", line),
+            Log::Warn => defmt::warn!("{=str}", line),
+            Log::Error => defmt::error!("{=str}", line),
         }
-        Report::Accel(c) => defmt::info!(
-            "accelerometer {}: | |a| - 1 | rms {=f32} g -> {=f32} g over {=u8} poses; offset [{=f32} {=f32} {=f32}] g",
-            c.model,
-            c.rms_before_g,
-            c.rms_after_g,
-            c.poses,
-            c.offset_g[0],
-            c.offset_g[1],
-            c.offset_g[2]
-        ),
-        Report::RigPose { index, servo_deg, accel_g } => {
-            defmt::info!("rig pose {=u8} at {=f32} deg: A = [{=f32} {=f32} {=f32}] g", index, servo_deg, accel_g[0], accel_g[1], accel_g[2])
+        if let Some(u) = self.usb.as_mut() {
+            u.line(line);
         }
-        Report::Retake { index, retries } => defmt::warn!("pose {=u8} disturbed: retake {=u8}", index, retries),
-        Report::Move { from, to, gyro_turn_deg } => {
-            defmt::info!("move {=u8} -> {=u8}: gyro turned {=f32} deg", from, to, gyro_turn_deg)
+    }
+
+    /// Sends a line of the raw log (a CSV row, its header or its end marker): printed without
+    /// a level, so that the message text alone is a log `calib` reads.
+    #[inline(never)]
+    fn raw(&mut self, line: &str) {
+        defmt::println!("{=str}", line);
+        if let Some(u) = self.usb.as_mut() {
+            u.line(line);
         }
-        Report::Gyro(c) => {
-            let q = &c.quality;
-            defmt::info!(
-                "{} estimator: K = diag({=f32} {=f32} {=f32}) +- ({=f32} {=f32} {=f32}) 1 sigma; invariant spread {=f32} -> {=f32}; cond {=f32}; tilt {=f32} deg, span {=f32} deg",
-                c.method.name(), c.k[0][0], c.k[1][1], c.k[2][2], q.sigma_k[0], q.sigma_k[1], q.sigma_k[2],
-                q.invariant_before.relative_std(), q.invariant_after.relative_std(), q.condition, q.tilt_deg, q.span_deg
-            )
+    }
+
+    /// Sends a multi-line text (export snippets) line by line.
+    #[inline(never)]
+    fn lines(&mut self, text: &str) {
+        text.lines().for_each(|l| self.send(Log::Info, l));
+    }
+
+    #[inline(never)]
+    fn report(&mut self, r: &Report) {
+        let mut line = heapless::String::<LINE>::new();
+        let _ = calib_core::text::report(&mut line, r);
+        self.send(calib_core::text::level(r), &line);
+        if let Report::Done(rec) = r {
+            self.export(rec, Format::Json);
         }
-        Report::FullK { k, sigma_k: s, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => defmt::info!(
-            "full K = [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}] +- [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}] 1 sigma; {=u8} axes {=f32} deg from coplanar, {=u16} moves, residual {=f32} deg rms, cond {=f32}",
-            k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2], k[2][0], k[2][1], k[2][2],
-            s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
-            axes, non_coplanar_deg, moves, residual_rms_deg, condition
-        ),
-        Report::HandMove { from, to, kept: true, turn_deg, spread, need } => defmt::info!(
-            "hand-held move {=u8} -> {=u8}: turned {=f32} deg; axes spread {=f32} (need {=f32}: turn about varied axes)",
-            from, to, turn_deg, spread, need
-        ),
-        Report::HandMove { from, to, .. } => defmt::warn!("hand-held move {=u8} -> {=u8} not used (too fast, too short, saturated or the bias drifted)", from, to),
-        Report::Rotations { moves, rejected, residual_deg } => defmt::info!(
-            "rotation constraints: {=u8} moves, misfit {=[?]} deg; rejected: {=u16} saturated, {=u16} too fast, {=u16} too short, {=u16} bias drifted, {=u16} no room",
-            moves, &residual_deg[..(*moves as usize).min(residual_deg.len())], rejected[0], rejected[1], rejected[2], rejected[3], rejected[4]
-        ),
-        Report::EstimatorFailed { method, error } => defmt::warn!("{} estimator failed: {}", method.name(), error),
-        Report::Done(rec) => log_record("calibration done: stored", rec),
-        Report::Failed(e) => defmt::error!("calibration failed, nothing stored: {}", e),
+    }
+
+    /// Sends a record in an export format.
+    #[inline(never)]
+    fn export(&mut self, rec: &Record, format: Format) {
+        let mut text = heapless::String::<EXPORT>::new();
+        match calib_core::export::write(&mut text, rec, format) {
+            Ok(()) => self.lines(&text),
+            Err(_) => self.send(Log::Error, "export did not fit its buffer"),
+        }
+    }
+
+    /// The stored calibration (`s`): its line, the JSON line, the C snippet.
+    #[inline(never)]
+    fn stored(&mut self, rec: Option<&Record>) {
+        let Some(rec) = rec else {
+            return self.send(Log::Info, "no calibration stored");
+        };
+        let mut line = heapless::String::<LINE>::new();
+        let _ = calib_core::text::record(&mut line, "stored", rec);
+        self.send(Log::Info, &line);
+        self.export(rec, Format::Json);
+        self.export(rec, Format::C);
+    }
+
+    /// Starts USB once VBUS is present (retried every second), serves it every tick, and says
+    /// once a second how many bytes a terminal that stopped reading missed.
+    #[inline(never)]
+    fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, 8>) {
+        if self.usb.is_none() && now >= self.next_usb_try {
+            if let Some(usbd) = self.usbd.take() {
+                match Usb::start(usbd, power) {
+                    Ok(u) => {
+                        self.usb = Some(u);
+                        self.say(Log::Info, format_args!("USB: started (CDC-ACM serial; type h for help)"));
+                    }
+                    Err((e, usbd)) => {
+                        if e == UsbError::NotReady {
+                            defmt::warn!("USB: VBUS present but the USBD did not become ready; retrying");
+                        }
+                        self.usbd = Some(usbd);
+                        self.next_usb_try = now + 1.0;
+                    }
+                }
+            }
+        }
+        if let Some(u) = self.usb.as_mut() {
+            u.poll(power, now, |c| {
+                let _ = commands.push(c);
+            });
+            let dropped = u.out.dropped();
+            if dropped != self.usb_dropped_reported && u.out.is_empty() && u.listening() {
+                self.usb_dropped_reported = dropped;
+                self.say(Log::Warn, format_args!("USB: {dropped} bytes dropped since boot (the host was not reading)"));
+            }
+        }
     }
 }
 
-/// Logs a record's gyro calibration: `K` in full (row-major) and the bias.
-fn log_record(what: &str, rec: &Record) {
-    let (k, b) = (&rec.gyro_k, &rec.gyro_bias_dps);
-    defmt::info!(
-        "{=str} record {=u32} ({=str} K): K = [{=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}; {=f32} {=f32} {=f32}], b = [{=f32} {=f32} {=f32}] dps",
-        what, rec.seq, rec.method.name(), k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2], k[2][0], k[2][1], k[2][2], b[0], b[1], b[2]
-    );
-}
-
-fn sensor_error(e: &SensorError) {
-    match e {
-        SensorError::Rev2Bmi270 => {
-            defmt::error!("{}: BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported", e)
+impl Console {
+    #[inline(never)]
+    fn sensor_error(&mut self, e: &SensorError) {
+        match e {
+            SensorError::Rev2Bmi270 => self.say(
+                Log::Error,
+                format_args!("{e}: BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported"),
+            ),
+            SensorError::Missing => self.say(
+                Log::Error,
+                format_args!("{e}: no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision"),
+            ),
+            other => self.say(Log::Error, format_args!("LSM9DS1 error: {other}")),
         }
-        SensorError::Missing => {
-            defmt::error!("{}: no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision", e)
+    }
+
+    /// Raw-log mode (a long press or `r` toggles it): every sample as a row of
+    /// `calib_core::log` after its header line; the end marker when it is switched off. The
+    /// other log lines in between are not rows (`calib` skips and counts them), so the message
+    /// text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends) is a log
+    /// `calib` reads.
+    #[inline(never)]
+    fn set_raw_log(&mut self, on: bool) {
+        self.raw(if on { calib_core::log::HEADER } else { calib_core::log::END });
+    }
+
+    #[inline(never)]
+    fn raw_row(&mut self, s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
+        let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
+        let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
+        if calib_core::log::write_row(&mut line, &row).is_ok() {
+            self.raw(&line);
         }
-        other => defmt::error!("LSM9DS1 error: {}", other),
-    }
-}
-
-/// Raw-log mode (a long press toggles it): every sample as a row of `calib_core::log` after its
-/// header line; the end marker when it is switched off. The other log lines in between are not
-/// rows (`calib` skips and counts them), so the message text alone
-/// (`probe-rs run --log-format "{s}"`) is a log `calib` reads.
-/// Switches raw-log mode: the header line on, the end marker off.
-fn set_raw_log(on: bool) {
-    if on {
-        defmt::println!("{=str}", calib_core::log::HEADER);
-    } else {
-        defmt::println!("{=str}", calib_core::log::END);
-    }
-}
-
-fn raw_log(s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-    let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
-    let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
-    if calib_core::log::write_row(&mut line, &row).is_ok() {
-        defmt::println!("{=str}", line.as_str());
     }
 }
 
 /// The outputs the procedure drives: servo PWM, LEDs, the record storage, the applied
-/// calibration.
+/// calibration, the log.
 struct Io {
     pwm: Pwm<pac::PWM0>,
     storage: Option<Storage<hal::nvmc::Nvmc<pac::NVMC>>>,
     led: Led,
     applied: Option<Record>,
+    console: Console,
 }
 
 fn channel(ch: u8) -> Channel {
@@ -387,13 +446,14 @@ impl Shell for Io {
         self.led = led;
     }
 
+    #[inline(never)]
     fn report(&mut self, report: &Report) {
-        log_report(report);
+        self.console.report(report);
     }
 
     fn store(&mut self, rec: &Record) -> Result<(), StoreError> {
         let slot = self.storage.as_mut().ok_or(StoreError::Unavailable)?.store(rec)?;
-        defmt::info!("record {=u32} stored in slot {=usize} and verified", rec.seq, slot);
+        self.console.say(Log::Info, format_args!("record {} stored in slot {slot} and verified", rec.seq));
         Ok(())
     }
 
@@ -501,21 +561,22 @@ fn main() -> ! {
             None
         }
     };
+    let mut console = Console { usb: None, usbd: Some(p.USBD), next_usb_try: 0.0, usb_dropped_reported: 0 };
     let mut applied: Option<Record> = None;
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {
-            log_record("loaded", &rec);
-            defmt::info!("record read from slot {=usize}; applied", slot);
+            let mut line = heapless::String::<LINE>::new();
+            let _ = calib_core::text::record(&mut line, "loaded", &rec);
+            console.send(Log::Info, &line);
+            console.say(Log::Info, format_args!("record read from slot {slot}; applied"));
             applied = Some(rec);
         }
-        Some(Ok(None)) => {
-            defmt::warn!("no calibration stored: raw gyro readings until the button is pressed")
-        }
-        _ => defmt::error!("calibration storage unreadable"),
+        Some(Ok(None)) => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),
+        _ => console.send(Log::Error, "calibration storage unreadable"),
     }
 
     let procedure = procedure(applied);
-    let mut io = Io { pwm, storage, led: Led::Idle, applied };
+    let mut io = Io { pwm, storage, led: Led::Idle, applied, console };
     let mut button = Button::new();
     let mut stamper = Stamper::new(sensor_cfg.odr.hz());
     let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) = (false, 0.0f64, 0.0f64, 0.0f64);
@@ -531,12 +592,21 @@ fn main() -> ! {
             if let Some(i2c) = bus.take() {
                 match Lsm9ds1::init(i2c, sensor_cfg, &mut Wait(&mut clock)) {
                     Ok(s) => {
-                        defmt::info!("LSM9DS1 ready: {}", sensor_cfg);
+                        let c = sensor_cfg;
+                        io.console.say(
+                            Log::Info,
+                            format_args!(
+                                "LSM9DS1 ready: {} Hz, +-{} dps, +-{} g",
+                                c.odr.hz() as u32,
+                                c.gyro.range_dps() as u32,
+                                c.accel.range_g() as u32
+                            ),
+                        );
                         stamper.restart();
                         sensor = Some(s);
                     }
                     Err((e, i2c)) => {
-                        sensor_error(&e);
+                        io.console.sensor_error(&e);
                         io.led = Led::Error(ErrorClass::Sensor);
                         bus = Some(i2c);
                         next_sensor_try = now + 2.0;
@@ -549,7 +619,7 @@ fn main() -> ! {
             if let Some(s) = sensor.as_mut() {
                 let result = s.fifo_status().and_then(|st| {
                     if st.overrun {
-                        defmt::warn!("FIFO overrun: samples lost");
+                        io.console.send(Log::Warn, "FIFO overrun: samples lost");
                         stamper.restart();
                     }
                     let n = st.level.min(FIFO_DEPTH) as usize;
@@ -561,7 +631,7 @@ fn main() -> ! {
                         let (accel_g, gyro_dps) = s.convert(&raw);
                         let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                         if raw_mode {
-                            raw_log(&sample, procedure.servo_deg(), procedure.tilt_deg());
+                            io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
                         }
                         if let Some(rec) = io.applied {
                             rate.add(rec.apply_gyro(gyro_dps));
@@ -572,20 +642,42 @@ fn main() -> ! {
                     Ok(())
                 });
                 if let Err(e) = result {
-                    defmt::error!("LSM9DS1 read failed: {}; reinitialising", e);
+                    io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
                     bus = sensor.take().map(|s| s.release());
                     next_sensor_try = now + 0.5;
                 }
             }
         }
 
+        let mut commands = heapless::Vec::<Command, 8>::new();
+        io.console.poll_usb(&p.POWER, now, &mut commands);
         match button.update(now, button_pin.is_low().unwrap_or(false)) {
-            Some(Press::Short) => procedure.handle_button(now),
+            Some(Press::Short) => {
+                let _ = commands.push(Command::Calibrate);
+            }
             Some(Press::Long) => {
-                raw_mode = !raw_mode;
-                set_raw_log(raw_mode);
+                let _ = commands.push(Command::RawLog);
             }
             None => {}
+        }
+        for c in commands {
+            match c {
+                Command::Calibrate => {
+                    if matches!(procedure.phase(), Phase::Idle | Phase::Done | Phase::Failed) {
+                        let (rig, hand) = procedure.plan();
+                        let mut line = heapless::String::<LINE>::new();
+                        let _ = calib_core::text::plan(&mut line, rig as usize, hand as usize);
+                        io.console.send(Log::Info, &line);
+                    }
+                    procedure.handle_button(now);
+                }
+                Command::RawLog => {
+                    raw_mode = !raw_mode;
+                    io.console.set_raw_log(raw_mode);
+                }
+                Command::Stored => io.console.stored(io.applied.as_ref()),
+                Command::Help => serial::HELP.iter().for_each(|l| io.console.send(Log::Info, l)),
+            }
         }
         procedure.drive(now, &mut io);
         procedure.handle_tick(now);
@@ -594,7 +686,7 @@ fn main() -> ! {
         // After calibration: the calibrated rate, averaged, once a second.
         if io.applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
             let m = rate.mean();
-            defmt::info!("rate [{=f32} {=f32} {=f32}] dps (calibrated, 1 s mean)", m[0] as f32, m[1] as f32, m[2] as f32);
+            io.console.say(Log::Info, format_args!("rate {} dps (calibrated, 1 s mean)", V3(m.map(|v| v as f32), 3)));
             rate = calib_core::stats::Welford3::new();
             last_rate_line = now;
         }
@@ -604,7 +696,7 @@ fn main() -> ! {
             last_drop_check = now;
             let dropped = gyrocal_fw::rtt::dropped_bytes();
             if dropped != dropped_reported {
-                defmt::warn!("RTT: {=u32} log bytes dropped since boot (no host was reading)", dropped);
+                io.console.say(Log::Warn, format_args!("RTT: {dropped} log bytes dropped since boot (no host was reading)"));
                 dropped_reported = dropped;
             }
         }

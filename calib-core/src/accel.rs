@@ -31,6 +31,17 @@ pub enum AccelModel {
     NineParam,
 }
 
+impl AccelModel {
+    /// Lower-case name, as in logs and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            AccelModel::None => "none",
+            AccelModel::SixParam => "six_param",
+            AccelModel::NineParam => "nine_param",
+        }
+    }
+}
+
 /// An accelerometer calibration `f = M (a − o)` (g, sensor frame) with its fit quality.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

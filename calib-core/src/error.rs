@@ -2,6 +2,7 @@
 
 use crate::procedure::Phase;
 use crate::record::StoreError;
+use crate::text::Fixed;
 use core::fmt;
 
 /// Why a calibration step failed. Values in the variants are in the units their names state.
@@ -88,67 +89,58 @@ impl fmt::Display for Error {
             Error::TooFewRows { have, need } => write!(f, "least squares needs {need} rows, has {have}"),
             Error::Singular => f.write_str("normal matrix singular: the data do not determine every parameter"),
             Error::IllConditioned { condition, limit } => {
-                write!(f, "normal matrix ill-conditioned: condition {condition:.3e} > limit {limit:.1e}")
+                write!(f, "normal matrix ill-conditioned: condition {condition} > limit {limit}", condition = Fixed(condition as f64, 0), limit = Fixed(limit as f64, 0))
             }
             Error::NonFinite => f.write_str("non-finite value (NaN or infinity) in the input"),
             Error::TooFewPoses { have, need } => write!(f, "too few static poses: {have}, need {need}"),
             Error::CapacityExceeded { max } => write!(f, "capacity exceeded: at most {max} entries"),
             Error::AxisNearVertical { tilt_deg, limit_deg } => write!(
                 f,
-                "rotation axis {tilt_deg:.1} deg from vertical, need at least {limit_deg:.1} deg: tilt the servo"
-            ),
+                "rotation axis {tilt_deg} deg from vertical, need at least {limit_deg} deg: tilt the servo", tilt_deg = Fixed(tilt_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
             Error::AxisNearHorizontal { tilt_deg, limit_deg } => write!(
                 f,
-                "rotation axis {tilt_deg:.1} deg from vertical, need at most {limit_deg:.1} deg for the paper method"
-            ),
+                "rotation axis {tilt_deg} deg from vertical, need at most {limit_deg} deg for the paper method", tilt_deg = Fixed(tilt_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
             Error::WeakSensorAxis { axis, component, min } => write!(
                 f,
-                "sensor axis {} has rotation-axis component {component:.3} < {min:.3}: remount the board askew",
-                ["x", "y", "z"][axis as usize % 3]
-            ),
+                "sensor axis {} has rotation-axis component {component} < {min}: remount the board askew",
+                ["x", "y", "z"][axis as usize % 3], component = Fixed(component as f64, 3), min = Fixed(min as f64, 3)),
             Error::AngleSpanTooSmall { span_deg, min_deg } => {
-                write!(f, "poses span {span_deg:.1} deg of shaft angle, need {min_deg:.1} deg")
+                write!(f, "poses span {span_deg} deg of shaft angle, need {min_deg} deg", span_deg = Fixed(span_deg as f64, 1), min_deg = Fixed(min_deg as f64, 1))
             }
             Error::AxisNotFixed { plane_rms_g, limit_g } => write!(
                 f,
-                "pose accelerations off their plane by {plane_rms_g:.4} g rms > {limit_g:.4} g: the axis moved"
-            ),
+                "pose accelerations off their plane by {plane_rms_g} g rms > {limit_g} g: the axis moved", plane_rms_g = Fixed(plane_rms_g as f64, 4), limit_g = Fixed(limit_g as f64, 4)),
             Error::NoRotation { rate_dps, min_dps } => {
-                write!(f, "rotation rate {rate_dps:.2} deg/s below {min_dps:.2} deg/s")
+                write!(f, "rotation rate {rate_dps} deg/s below {min_dps} deg/s", rate_dps = Fixed(rate_dps as f64, 2), min_dps = Fixed(min_dps as f64, 2))
             }
             Error::ImplausibleScale { axis, value } => write!(
                 f,
-                "implausible scale factor {value:.4} on axis {}",
-                ["x", "y", "z"][axis as usize % 3]
-            ),
+                "implausible scale factor {value} on axis {}",
+                ["x", "y", "z"][axis as usize % 3], value = Fixed(value as f64, 4)),
             Error::NoUsableMove => f.write_str("no move between poses turned the shaft by a usable angle"),
             Error::TooFewSamples { have, need } => write!(f, "too few samples: {have}, need {need}"),
             Error::NotStill { gyro_std_dps, accel_std_g } => write!(
                 f,
-                "motion during a still period: gyro std {gyro_std_dps:.3} deg/s, accel std {accel_std_g:.4} g"
-            ),
+                "motion during a still period: gyro std {gyro_std_dps} deg/s, accel std {accel_std_g} g", gyro_std_dps = Fixed(gyro_std_dps as f64, 3), accel_std_g = Fixed(accel_std_g as f64, 4)),
             Error::BiasOutOfRange { axis, bias_dps, limit_dps } => write!(
                 f,
-                "gyro bias {bias_dps:.2} deg/s on axis {} exceeds {limit_dps:.1} deg/s",
-                ["x", "y", "z"][axis as usize % 3]
-            ),
+                "gyro bias {bias_dps} deg/s on axis {} exceeds {limit_dps} deg/s",
+                ["x", "y", "z"][axis as usize % 3], bias_dps = Fixed(bias_dps as f64, 2), limit_dps = Fixed(limit_dps as f64, 1)),
             Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
-            Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s:.2} s: sensor or I2C bus stopped"),
-            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s:.0} s", phase.name()),
+            Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s} s: sensor or I2C bus stopped", gap_s = Fixed(gap_s as f64, 2)),
+            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s} s", phase.name(), limit_s = Fixed(limit_s as f64, 0)),
             Error::ServoNotTurning { channel, commanded_deg, measured_deg } => write!(
                 f,
-                "{} servo commanded {commanded_deg:.1} deg but the gyro saw {measured_deg:.1} deg: servo unplugged or stalled",
-                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }
-            ),
+                "{} servo commanded {commanded_deg} deg but the gyro saw {measured_deg} deg: servo unplugged or stalled",
+                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }, commanded_deg = Fixed(commanded_deg as f64, 1), measured_deg = Fixed(measured_deg as f64, 1)),
             Error::PoseDisturbed { index, retries } => {
                 write!(f, "static pose {index} disturbed {retries} times: keep the rig still")
             }
             Error::Saturated => f.write_str("sensor saturated during a move: lower the servo rate or raise the range"),
             Error::ResultRejected { axis, k, sigma } => write!(
                 f,
-                "result rejected: axis {} scale {k:.4} (1 sigma {sigma:.4}) outside the accepted range",
-                ["x", "y", "z"][axis as usize % 3]
-            ),
+                "result rejected: axis {} scale {k} (1 sigma {sigma}) outside the accepted range",
+                ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4)),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::NoTemperature => f.write_str("no temperature reading during the calibration: sensor or I2C bus failing"),
@@ -158,24 +150,19 @@ impl fmt::Display for Error {
             ),
             Error::AxesCoplanar { angle_deg, limit_deg } => write!(
                 f,
-                "rotation axes nearly coplanar: best axis {angle_deg:.1} deg from the plane of two others, need {limit_deg:.1} deg: add tilt moves (the hinge axis) or spread the tilt settings"
-            ),
+                "rotation axes nearly coplanar: best axis {angle_deg} deg from the plane of two others, need {limit_deg} deg: add tilt moves (the hinge axis) or spread the tilt settings", angle_deg = Fixed(angle_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
             Error::AxisUndetermined { axis, sigma_deg, limit_deg } => write!(
                 f,
-                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg:.2} deg > {limit_deg:.2} deg): give it at least 3 poses at distinct angles"
-            ),
+                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg} deg > {limit_deg} deg): give it at least 3 poses at distinct angles", sigma_deg = Fixed(sigma_deg as f64, 2), limit_deg = Fixed(limit_deg as f64, 2)),
             Error::FullKUnobservable { condition, limit } => write!(
                 f,
-                "full K unobservable: normal-matrix condition {condition:.3e} > {limit:.1e} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical"
-            ),
+                "full K unobservable: normal-matrix condition {condition} > {limit} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical", condition = Fixed(condition as f64, 0), limit = Fixed(limit as f64, 0)),
             Error::RotationAxesCoplanar { spread, limit } => write!(
                 f,
-                "the moves between poses turn about too few directions (axis spread {spread:.3} < {limit:.3}): turn the board about varied axes, not only about one"
-            ),
+                "the moves between poses turn about too few directions (axis spread {spread} < {limit}): turn the board about varied axes, not only about one", spread = Fixed(spread as f64, 3), limit = Fixed(limit as f64, 3)),
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,
-                "moves disagree with one K: residual {residual_rms_deg:.3} deg rms > {limit_deg:.3} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun"
-            ),
+                "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg as f64, 3), limit_deg = Fixed(limit_deg as f64, 3)),
         }
     }
 }

@@ -52,6 +52,7 @@ pub mod accel;
 pub mod axis;
 pub mod bias;
 mod error;
+pub mod export;
 pub mod full;
 pub mod gyro;
 mod linalg;
@@ -65,6 +66,7 @@ pub mod rest;
 pub mod rotation;
 pub mod stats;
 pub mod sweep;
+pub mod text;
 pub mod vec3;
 
 pub use error::Error;

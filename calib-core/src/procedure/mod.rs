@@ -287,6 +287,14 @@ impl Procedure {
         }
     }
 
+    /// What a calibration started now asks for: (rig poses, hand-held poses). No hand-held
+    /// poses when the stored accelerometer calibration is reused or the pan/tilt plan fits it.
+    pub fn plan(&self) -> (u16, u8) {
+        let reuse = self.stored.is_some_and(|r| r.accel().model != AccelModel::None);
+        let hand = if self.cfg.pan_tilt || reuse { 0 } else { self.cfg.accel_poses.max(6) };
+        (self.cfg.plan_steps(), hand)
+    }
+
     /// The current phase.
     pub fn phase(&self) -> Phase {
         match self.step {

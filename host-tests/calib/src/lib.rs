@@ -1,12 +1,14 @@
 //! The PC side of gyrocal: the recorded log read whole ([`csvlog`], over the format of
 //! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
-//! log of the firmware's own run is replayed through its procedure ([`replay`]). The
+//! log of the firmware's own run is replayed through its procedure ([`replay`]); a board
+//! calibrated over its USB serial port, its log saved and cross-checked ([`port`]). The
 //! binaries `calib` and `flash-usb` are what a user installs (`cargo install --locked --path
 //! host-tests/calib --target host-tuple`); nothing here depends on the simulator.
 #![deny(missing_docs)]
 
 pub mod csvlog;
 pub mod offline;
+pub mod port;
 pub mod replay;
 
 /// The process arguments for a clap parser, without a leading `--`: the cargo aliases

@@ -13,6 +13,7 @@ use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
 use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::procedure::Config;
+use calib_core::record::Record;
 use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::rotation::{RotationLimits, Rotations};
 use calib_core::stats::Welford3;
@@ -805,6 +806,64 @@ impl Calibration {
                 replayed: self.replayed,
             },
         }
+    }
+
+    /// The result as a flash record, for `calib_core::export`: the gyro `K` of
+    /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
+    /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
+    /// NaN (a log has none). `None` without a gyro result.
+    pub fn record(&self) -> Option<Record> {
+        let base = Record {
+            seq: 0,
+            temp_c: f32::NAN,
+            gyro_k: [[0.0; 3]; 3],
+            gyro_bias_dps: self.bias.bias_dps,
+            method: Method::Full,
+            accel_m: self.accel.m,
+            accel_offset_g: self.accel.offset_g,
+            accel_model: self.accel.model,
+            poses: 0,
+            rows: 0,
+            sigma_k: [[0.0; 3]; 3],
+            invariant_before_rel: 0.0,
+            invariant_after_rel: 0.0,
+            condition: 0.0,
+            tilt_deg: 0.0,
+            span_deg: 0.0,
+            accel_rms_g: self.accel.rms_after_g,
+            residual_rms: 0.0,
+            non_coplanar_deg: 0.0,
+        };
+        if let Some(Ok(f)) = &self.full {
+            let axes = &f.axes[..(f.n_axes as usize).min(f.axes.len())];
+            return Some(Record {
+                gyro_k: f.k,
+                sigma_k: f.sigma_k,
+                poses: axes.iter().fold(0u8, |n, a| n.saturating_add(a.poses)),
+                rows: f.rows,
+                condition: f.condition,
+                tilt_deg: axes.iter().filter(|a| a.moves > 0).map(|a| a.tilt_deg).fold(f32::INFINITY, f32::min),
+                residual_rms: f.residual_rms_deg,
+                non_coplanar_deg: f.non_coplanar_deg,
+                ..base
+            });
+        }
+        let g = self.gyro.as_ref().ok()?;
+        let (q, s) = (&g.quality, g.quality.sigma_k);
+        Some(Record {
+            gyro_k: g.k,
+            method: g.method,
+            sigma_k: [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]],
+            poses: q.poses,
+            rows: q.rows,
+            invariant_before_rel: q.invariant_before.relative_std(),
+            invariant_after_rel: q.invariant_after.relative_std(),
+            condition: q.condition,
+            tilt_deg: q.tilt_deg,
+            span_deg: q.span_deg,
+            residual_rms: q.residual_rms,
+            ..base
+        })
     }
 
     /// The output as one line of JSON.

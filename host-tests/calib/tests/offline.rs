@@ -4,19 +4,12 @@ use calib::csvlog::{self, Row, HEADER};
 use calib::offline::{self, OfflineError};
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure};
+use common::{calib, simulated_log};
 use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::{Rig, RigConfig, ServoModel};
 use rig_sim::variant::Variant;
-use std::process::Command;
 
-/// Runs the procedure on `cfg` and returns the log text and the true K diagonal.
-fn simulated_log(cfg: RigConfig) -> (String, [f64; 3]) {
-    let mut rig = Rig::new(cfg, 3);
-    let mut p = Procedure::new(Config::default(), None);
-    let (text, _) = record_log(&mut rig, &mut p, Faults::default(), "# test log\n");
-    let k = rig.truth().gyro_k;
-    (text, [k[(0, 0)], k[(1, 1)], k[(2, 2)]])
-}
+mod common;
 
 fn errors(k: [[f32; 3]; 3], truth: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|i| k[i][i] as f64 / truth[i] - 1.0)
@@ -74,11 +67,6 @@ fn degenerate_logs_are_named_errors() {
     let (log, _) = simulated_log(cfg.with_axis(axis, 0.0));
     let e = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap().gyro.unwrap_err();
     assert!(matches!(e, OfflineError::Calib { error: calib_core::Error::AxisNearVertical { .. }, .. }), "{e}");
-}
-
-fn calib(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_calib")).args(args).output().unwrap();
-    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }
 
 #[test]

@@ -10,3 +10,4 @@ pub mod bench;
 pub mod elf;
 pub mod mcu;
 pub mod periph;
+pub mod usb_host;

@@ -1,42 +1,75 @@
-//! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations]`: calibrates a recorded log with
-//! calib-core and prints one JSON object. `calib --help` says everything. (A log to try it on:
+//! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations] [--export c|json|rust]`:
+//! calibrates a recorded log with calib-core and prints one JSON object. `calib --port PATH`:
+//! calibrates a board over its USB serial port, saves its log, prints its result and
+//! cross-checks it. `calib --help` says everything. (A log to try it on:
 //! `cargo run --release -p rig-sim --target host-tuple --bin simulate -- OUT.csv`.)
 //!
-//! Exit codes: 0 a full calibration, 4 partial, 1 nothing calibrated, 2 usage or I/O error,
-//! 3 malformed log.
+//! Exit codes: 0 a full calibration (with `--port`: the board's, cross-checked), 4 partial,
+//! 1 nothing calibrated (the board's calibration failed), 2 usage, I/O or port error, 3 malformed
+//! log (or result line), 5 cross-check failed, 6 the board went silent or `--timeout`.
 
+use calib::port::{self, Options};
 use calib::{csvlog, offline};
 use calib_core::accel::AccelModel;
+use calib_core::export::{self, Format};
 use calib_core::gyro::Method;
+use calib_core::record::Record;
 use clap::{Parser, ValueEnum};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 
 fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
     eprintln!("calib: {msg}");
     ExitCode::from(code)
 }
 
-/// Gyro and accelerometer calibration of a recorded log with the firmware's own calib-core code.
+/// Gyro and accelerometer calibration of a recorded log with the firmware's own calib-core code,
+/// or of a board over its USB serial port (--port).
 ///
-/// Exit codes: 0 a full calibration; 4 partial (the log supports only part of it: the JSON has
-/// what could be calibrated and `quality.missing` names the rest); 1 nothing could be
-/// calibrated; 2 usage or file error; 3 malformed log.
+/// Exit codes: 0 a full calibration (with --port: the board's, and the cross-check passed);
+/// 4 partial (the log supports only part of it: the JSON has what could be calibrated and
+/// `quality.missing` names the rest); 1 nothing could be calibrated (with --port: the board's
+/// calibration failed); 2 usage, file or port error; 3 malformed log (or the board's result
+/// line); 5 the cross-check failed (the board's K and calib's on the saved log differ); 6 the
+/// board sent nothing for 30 s, or the session exceeded --timeout.
 #[derive(Parser, Debug)]
 #[command(name = "calib", version)]
 struct Args {
     /// The log to calibrate (CSV: t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg[,tilt_deg]).
-    log: String,
+    #[arg(required_unless_present = "port", conflicts_with = "port")]
+    log: Option<String>,
     /// Use only this gyro estimator (default: sweep, else paper).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, conflicts_with = "port")]
     method: Option<MethodArg>,
     /// Read a log with other column names or units: COLUMN=SOURCE[*F|/F],… e.g.
     /// `t_s=time/1000,ax_g=acc_x/9.80665,gx_dps=gyr_x*57.29578`.
-    #[arg(long, value_name = "MAP")]
+    #[arg(long, value_name = "MAP", conflicts_with = "port")]
     columns: Option<String>,
     /// Leave out the rotation constraints of the moves between hand-held poses (to see what
     /// they add to the full K).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "port")]
     no_rotations: bool,
+    /// Calibrate the board on this USB serial port (Linux /dev/ttyACM0, macOS
+    /// /dev/cu.usbmodemXXXX, Windows COM5): follow the phases shown, press Enter when asked.
+    /// Its result (JSON) is printed, its log saved and calibrated by calib too: the two K must
+    /// agree.
+    #[arg(long, value_name = "PATH")]
+    port: Option<String>,
+    /// With --port: where to save the board's log (default gyrocal-<unix time>.csv).
+    #[arg(long = "log", id = "save_log", value_name = "FILE", requires = "port")]
+    save_log: Option<PathBuf>,
+    /// With --port: the longest session (s), the re-clamp included.
+    #[arg(long, value_name = "SECS", default_value_t = 600, requires = "port")]
+    timeout: u64,
+    /// Write the result as JSON (one line), a C snippet (arrays and gyrocal_apply()) or Rust
+    /// constants: to stdout instead of the usual output, or to --out.
+    #[arg(long, value_enum)]
+    export: Option<ExportArg>,
+    /// With --export: the file to write it to (the usual output stays on stdout).
+    #[arg(long, value_name = "FILE", requires = "export")]
+    out: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -45,14 +78,80 @@ enum MethodArg {
     Sweep,
 }
 
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum ExportArg {
+    C,
+    Json,
+    Rust,
+}
+
+impl From<ExportArg> for Format {
+    fn from(e: ExportArg) -> Format {
+        match e {
+            ExportArg::C => Format::C,
+            ExportArg::Json => Format::Json,
+            ExportArg::Rust => Format::Rust,
+        }
+    }
+}
+
+/// Prints `usual` on stdout unless the export goes there instead; writes the export.
+fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>) -> Result<(), String> {
+    let Some((rec, format)) = export else {
+        println!("{usual}");
+        return Ok(());
+    };
+    let mut text = String::new();
+    export::write(&mut text, rec, format.into()).map_err(|_| "--export: the record could not be written".to_string())?;
+    match out {
+        Some(path) => {
+            println!("{usual}");
+            std::fs::write(path, text + "\n").map_err(|e| format!("{}: {e}", path.display()))
+        }
+        None => {
+            println!("{text}");
+            Ok(())
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let args = Args::parse_from(calib::cli_args());
-    let path = args.log;
+    // clap requires LOG without --port.
+    match &args.port {
+        Some(p) => by_port(&args, p),
+        None => offline_log(&args, args.log.as_deref().unwrap_or_default()),
+    }
+}
+
+fn by_port(args: &Args, path: &str) -> ExitCode {
+    let mut opts = Options::new(args.save_log.clone().unwrap_or_else(port::default_log_path));
+    opts.timeout = Duration::from_secs(args.timeout);
+    opts.redraw = std::io::stderr().is_terminal();
+    let result = port::open(path).and_then(|mut p| port::run(&mut *p, std::io::BufReader::new(std::io::stdin()), &mut std::io::stderr(), &opts));
+    match result {
+        Ok(o) => {
+            eprintln!("calib: the board's log is in {} ({} lines)", opts.log.display(), o.lines);
+            match output(&o.json, args.export.map(|f| (&o.record, f)), args.out.as_deref()) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => fail(2, e),
+            }
+        }
+        Err(e) => {
+            if !matches!(e, port::SessionError::Open { .. }) {
+                eprintln!("calib: the lines received are in {}", opts.log.display());
+            }
+            fail(e.exit_code(), format!("{path}: {e}"))
+        }
+    }
+}
+
+fn offline_log(args: &Args, path: &str) -> ExitCode {
     let method = args.method.map(|m| match m {
         MethodArg::Paper => Method::Paper,
         MethodArg::Sweep => Method::Sweep,
     });
-    let mut text = match std::fs::read_to_string(&path) {
+    let mut text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) => return fail(2, format!("{path}: {e}")),
     };
@@ -71,18 +170,24 @@ fn main() -> ExitCode {
         Err(e) => return fail(1, format!("{path}: {e}")),
     };
     let missing = c.missing();
-    match &c.gyro {
-        Err(e) if c.accel.model == AccelModel::None && !matches!(c.full, Some(Ok(_))) => fail(1, format!("{path}: {e}")),
-        _ => {
-            println!("{}", c.json(log.messages));
-            for m in &missing {
-                eprintln!("calib: {path}: partial calibration, missing {m}");
-            }
-            if missing.is_empty() {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(4)
-            }
+    if let Err(e) = &c.gyro {
+        if c.accel.model == AccelModel::None && !matches!(c.full, Some(Ok(_))) {
+            return fail(1, format!("{path}: {e}"));
         }
+    }
+    let record = c.record();
+    if args.export.is_some() && record.is_none() {
+        return fail(4, format!("{path}: --export: no gyro calibration to export (partial: {})", missing.join("; ")));
+    }
+    if let Err(e) = output(&c.json(log.messages), args.export.zip(record.as_ref()).map(|(f, r)| (r, f)), args.out.as_deref()) {
+        return fail(2, e);
+    }
+    for m in &missing {
+        eprintln!("calib: {path}: partial calibration, missing {m}");
+    }
+    if missing.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(4)
     }
 }

@@ -72,6 +72,11 @@ impl Clock {
         }
     }
 
+    /// INTENSET/INTENCLR (shared with POWER: bits 7–9 are POWER's USB events).
+    pub fn inten(&self) -> u32 {
+        self.inten
+    }
+
     /// A register access at offset `o` of the CLOCK block.
     pub fn access(&mut self, o: u32, a: Access, now: f64) -> Result<u32, String> {
         self.settle(now);

@@ -6,8 +6,9 @@
 //! Modelled: CLOCK/POWER, GPIO P0/P1 (LEDs, sensor power, pull-up enable, button), TWIM0 with
 //! EasyDMA (against the LSM9DS1 model; the CPU is charged the bus time), PWM0 (sequence values →
 //! servo pulses on the pins PSEL routes them to), TIMER0–4, RTC0–2, UARTE0, NVMC (page erase and
-//! word writes on a NOR flash model with injectable power cuts, ICACHECNF), WDT, FICR/UICR, and
-//! the SCS (NVIC, SCB, MPU, FPU). Any other register, and any access the models reject, stops
+//! word writes on a NOR flash model with injectable power cuts, ICACHECNF), WDT, FICR/UICR, USBD
+//! (with the virtual USB host of [`crate::usb_host`] on its port, and POWER's VBUS detection),
+//! and the SCS (NVIC, SCB, MPU, FPU). Any other register, and any access the models reject, stops
 //! the run with the address and PC.
 //!
 //! Boot: by default the board boots as the Arduino Nano 33 BLE's bootloader hands over (see
@@ -24,6 +25,7 @@ pub mod scs;
 pub mod timer;
 pub mod twim;
 pub mod uarte;
+pub mod usbd;
 pub mod wdt;
 
 pub use power::ResetKind;
@@ -96,6 +98,12 @@ fn base(p: *const u8) -> u32 {
 
 /// Interrupt numbers of TIMER0–4.
 pub const TIMER_IRQ: [u32; 5] = [8, 9, 10, 26, 27];
+/// Interrupt number of USBD.
+pub const USBD_IRQ: u32 = 39;
+/// Interrupt number of POWER_CLOCK.
+pub const POWER_CLOCK_IRQ: u32 = 0;
+/// POWER's USB events in INTEN (USBDETECTED, USBREMOVED, USBPWRRDY).
+const POWER_USB_EVENTS: u32 = power::USBDETECTED | power::USBREMOVED | power::USBPWRRDY;
 
 /// The LEDs as the operator sees them (lit = true).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -158,6 +166,10 @@ pub struct Periph {
     pub nvmc: nvmc::Nvmc,
     /// WDT.
     pub wdt: wdt::Wdt,
+    /// USBD.
+    pub usbd: usbd::Usbd,
+    /// The USB host on the board's port (outside the chip: a reset does not touch it).
+    pub usb_host: crate::usb_host::Host,
     /// NVIC, SCB, MPU.
     pub scs: scs::Scs,
     /// The interrupt being handled (set by the CPU model).
@@ -215,6 +227,8 @@ impl Periph {
             uarte: uarte::Uarte::new(false),
             nvmc: Default::default(),
             wdt: wdt::Wdt::new(),
+            usbd: usbd::Usbd::new(),
+            usb_host: crate::usb_host::Host::new(),
             scs: Default::default(),
             active_irq: None,
             watchdog_reset: false,
@@ -259,6 +273,12 @@ impl Periph {
         if kind.resets_wdt() {
             self.wdt = wdt::Wdt::new();
         }
+        // The USBD to its reset state (pull-up off: the host sees a disconnect); the generation
+        // moves on so that the host retries what it was waiting for.
+        let generation = self.usbd.generation + 1;
+        self.usbd = usbd::Usbd::new();
+        self.usbd.generation = generation;
+        self.usbd.changed_at = t;
         self.scs = scs::Scs::new(bl);
         self.active_irq = None;
         self.watchdog_reset = false;
@@ -311,7 +331,49 @@ impl Periph {
         if let Some(d) = self.wdt.deadline() {
             add(d);
         }
+        // The USB host's activity wakes a CPU that waits for the USBD interrupt.
+        if self.scs.nvic_enabled & (1 << USBD_IRQ) != 0 && self.usbd.inten() != 0 {
+            let phy = self.usb_phy();
+            if let Some(e) = self.usb_host.next_time(&self.usbd) {
+                add(e);
+            }
+            if let Some(e) = self.usbd.ready_time(phy) {
+                add(e);
+            }
+        }
+        if self.scs.nvic_enabled & (1 << POWER_CLOCK_IRQ) != 0 && self.clock.inten() & power::USBPWRRDY != 0 {
+            if let Some(e) = self.power.output_ready_time() {
+                add(e);
+            }
+        }
         next
+    }
+
+    /// What the USBD sees of VBUS and the clocks.
+    pub fn usb_phy(&self) -> usbd::Phy {
+        usbd::Phy { vbus: self.power.vbus(), output_ready: self.power.output_ready(), hfxo: self.clock.hfxo_running }
+    }
+
+    /// Runs the USB supply, the USBD's READY and the host up to now, and raises the USBD and
+    /// POWER interrupt lines.
+    pub fn advance_usb(&mut self) {
+        let t = self.now();
+        self.power.settle(t);
+        let phy = self.usb_phy();
+        self.usbd.settle(t, phy);
+        if let Err(e) = self.usb_host.advance(t, &mut self.usbd, phy) {
+            self.fail(e, base(pac::USBD::PTR.cast()) as u64);
+        }
+        self.usb_lines();
+    }
+
+    fn usb_lines(&mut self) {
+        if self.usbd.line() && self.active_irq != Some(USBD_IRQ) {
+            self.scs.nvic_pending |= 1 << USBD_IRQ;
+        }
+        if self.power.usb_events & self.clock.inten() & POWER_USB_EVENTS != 0 && self.active_irq != Some(POWER_CLOCK_IRQ) {
+            self.scs.nvic_pending |= 1 << POWER_CLOCK_IRQ;
+        }
     }
 
     /// Raises timer events and interrupt lines, and the watchdog, up to now.
@@ -329,6 +391,7 @@ impl Periph {
         }
         self.sensor.advance_to(t);
         self.sync_sensor_power();
+        self.advance_usb();
     }
 
     /// The CPU returns from the handler of `irq`: a level interrupt still asserted (an event not
@@ -341,6 +404,9 @@ impl Periph {
                 self.scs.nvic_pending |= 1 << irq;
             }
             self.timers[i].note_return(instr);
+        }
+        if irq == USBD_IRQ || irq == POWER_CLOCK_IRQ {
+            self.usb_lines();
         }
     }
 
@@ -388,7 +454,7 @@ impl Periph {
         match blk {
             b if b == base(pac::CLOCK::PTR.cast()) => {
                 if power::Power::claims(o) {
-                    self.power.access(o, a)
+                    self.power.access(o, a, t)
                 } else {
                     self.clock.access(o, a, t)
                 }
@@ -439,6 +505,14 @@ impl Periph {
                 Ok(v)
             }
             b if b == base(pac::WDT::PTR.cast()) => self.wdt.access(o, a, t),
+            b if b == base(pac::USBD::PTR.cast()) => {
+                self.advance_usb();
+                let phy = self.usb_phy();
+                let v = self.usbd.access(o, a, t, phy, mem);
+                self.usb_lines();
+                v
+            }
+            usbd::ERRATA_BLOCK => self.usbd.errata_access(o, a),
             b if b == base(pac::FICR::PTR.cast()) => match (o, a) {
                 (0x010, Access::Read) => Ok(4096), // CODEPAGESIZE
                 (0x014, Access::Read) => Ok(256),  // CODESIZE

@@ -1,7 +1,22 @@
 //! POWER (nRF52840 PS v1.7 §5.3): RESETREAS (cumulative reset reasons, cleared by writing 1),
-//! DCDCEN/DCDCEN0, POFCON, GPREGRET, RAM power. Shares its address block with CLOCK.
+//! DCDCEN/DCDCEN0, POFCON, GPREGRET, RAM power, and the USB supply (§5.3.3 "USB regulator"):
+//! VBUS plugged with [`Power::plug`] sets USBREGSTATUS.VBUSDETECT and EVENTS_USBDETECTED at
+//! once, then USBREGSTATUS.OUTPUTRDY and EVENTS_USBPWRRDY [`USB_OUTPUTRDY_S`] later;
+//! [`Power::unplug`] clears both and sets EVENTS_USBREMOVED. The events are cleared by writing 0;
+//! their INTEN bits (USBDETECTED 7, USBREMOVED 8, USBPWRRDY 9) live in the INTEN register shared
+//! with CLOCK (the CLOCK model holds it). VBUS is physical: it survives every reset. The board
+//! starts without VBUS. Shares its address block with CLOCK.
 
 use super::{off, Access};
+
+/// Time from VBUS to USBREGSTATUS.OUTPUTRDY (s): the USB regulator's start-up, ~1 ms.
+pub const USB_OUTPUTRDY_S: f64 = 1e-3;
+/// EVENTS_USBDETECTED's bit in `usb_events` and in INTEN.
+pub const USBDETECTED: u32 = 1 << 7;
+/// EVENTS_USBREMOVED's bit.
+pub const USBREMOVED: u32 = 1 << 8;
+/// EVENTS_USBPWRRDY's bit.
+pub const USBPWRRDY: u32 = 1 << 9;
 
 /// Why the chip reset (PS §5.3.6 "Reset behavior").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,6 +67,12 @@ pub struct Power {
     gpregret2: u32,
     inten: u32,
     ram_power: [u32; 9],
+    /// VBUS present since this time (s); `None`: unplugged.
+    pub vbus_since: Option<f64>,
+    /// USBREGSTATUS.OUTPUTRDY.
+    output_ready: bool,
+    /// EVENTS_USBDETECTED/USBREMOVED/USBPWRRDY (bits as in INTEN).
+    pub usb_events: u32,
 }
 
 impl Power {
@@ -67,15 +88,64 @@ impl Power {
             gpregret2: 0,
             inten: 0,
             ram_power: [0xFFFF; 9],
+            vbus_since: None,
+            output_ready: false,
+            usb_events: 0,
         }
+    }
+
+    /// VBUS is plugged in at time `t` (s).
+    pub fn plug(&mut self, t: f64) {
+        if self.vbus_since.is_none() {
+            self.vbus_since = Some(t);
+            self.output_ready = false;
+            self.usb_events |= USBDETECTED;
+        }
+    }
+
+    /// VBUS is removed at time `t` (s).
+    pub fn unplug(&mut self, t: f64) {
+        self.settle(t);
+        if self.vbus_since.take().is_some() {
+            self.output_ready = false;
+            self.usb_events |= USBREMOVED;
+        }
+    }
+
+    /// Raises OUTPUTRDY/USBPWRRDY when the regulator is up.
+    pub fn settle(&mut self, t: f64) {
+        if let Some(t0) = self.vbus_since {
+            if !self.output_ready && t >= t0 + USB_OUTPUTRDY_S {
+                self.output_ready = true;
+                self.usb_events |= USBPWRRDY;
+            }
+        }
+    }
+
+    /// When OUTPUTRDY will come (s), if it is pending.
+    pub fn output_ready_time(&self) -> Option<f64> {
+        self.vbus_since.filter(|_| !self.output_ready).map(|t0| t0 + USB_OUTPUTRDY_S)
+    }
+
+    /// VBUS present (USBREGSTATUS.VBUSDETECT).
+    pub fn vbus(&self) -> bool {
+        self.vbus_since.is_some()
+    }
+
+    /// The USB regulator's output is ready (USBREGSTATUS.OUTPUTRDY).
+    pub fn output_ready(&self) -> bool {
+        self.output_ready
     }
 
     /// After a reset of `kind`: RESETREAS accumulates; GPREGRET and DCDCEN survive all but
     /// power-on (retained registers).
     pub fn reset(&mut self, kind: ResetKind) {
+        let (vbus, ready) = (self.vbus_since, self.output_ready);
         if kind == ResetKind::PowerOn {
             *self = Self::new();
+            (self.vbus_since, self.output_ready) = (vbus, ready);
         } else {
+            self.usb_events = 0;
             self.resetreas |= kind.resetreas_bit();
             self.resetreas_read = None;
             self.pofcon = 0;
@@ -111,20 +181,32 @@ impl Power {
         // INTENSET/INTENCLR are shared with CLOCK (one register): CLOCK models them.
     }
 
-    /// A register access at offset `o`.
-    pub fn access(&mut self, o: u32, a: Access) -> Result<u32, String> {
+    /// A register access at offset `o` at time `t` (s).
+    pub fn access(&mut self, o: u32, a: Access, t: f64) -> Result<u32, String> {
+        self.settle(t);
         let ram0 = off!(power, ram0);
+        let usb_event = [
+            (off!(power, events_usbdetected), USBDETECTED),
+            (off!(power, events_usbremoved), USBREMOVED),
+            (off!(power, events_usbpwrrdy), USBPWRRDY),
+        ]
+        .iter()
+        .find(|e| e.0 == o)
+        .map(|e| e.1);
         Ok(match o {
             o if o == off!(power, tasks_constlat) || o == off!(power, tasks_lowpwr) => 0,
-            o if o == off!(power, events_pofwarn)
-                || o == off!(power, events_sleepenter)
-                || o == off!(power, events_sleepexit)
-                || o == off!(power, events_usbdetected)
-                || o == off!(power, events_usbremoved)
-                || o == off!(power, events_usbpwrrdy) =>
-            {
-                0
+            _ if usb_event.is_some() => {
+                let bit = usb_event.unwrap_or(0);
+                if let Access::Write(v) = a {
+                    if v & 1 != 0 {
+                        self.usb_events |= bit;
+                    } else {
+                        self.usb_events &= !bit;
+                    }
+                }
+                u32::from(self.usb_events & bit != 0)
             }
+            o if o == off!(power, events_pofwarn) || o == off!(power, events_sleepenter) || o == off!(power, events_sleepexit) => 0,
             o if o == off!(power, resetreas) => {
                 self.resetreas_read.get_or_insert(self.resetreas);
                 if let Access::Write(v) = a {
@@ -133,7 +215,12 @@ impl Power {
                 self.resetreas
             }
             o if o == off!(power, ramstatus) => 0xF,
-            o if o == off!(power, usbregstatus) => 0,
+            o if o == off!(power, usbregstatus) => {
+                if a.is_write() {
+                    return Err("POWER.USBREGSTATUS is read-only".into());
+                }
+                u32::from(self.vbus()) | (u32::from(self.output_ready) << 1)
+            }
             o if o == off!(power, systemoff) => {
                 if a.is_write() {
                     return Err("POWER.SYSTEMOFF written (System OFF is not modelled)".into());

@@ -1,0 +1,255 @@
+//! A calibration record for the user: one line of JSON (the `calib` tool's schema), a C snippet
+//! to paste into Arduino/C code, or Rust constants. No allocation, no `core::fmt` float code:
+//! numbers go through the log's fixed-point writer.
+//!
+//! Decimals written: `K` and `M` 7 (a K element round-trips to 5e-8, below f32's 6e-8 ulp at
+//! 1); gyro bias 5 (10 µ°/s, the log's gyro resolution); accel offset 6 (1 µg, the log's accel
+//! resolution); 1σ of `K` 9; accel residual 7 (0.1 µg); fit residual 6; temperature 2 (°C);
+//! condition and angles 3. A value that cannot be written (NaN, infinite, or beyond 9.2e18 /
+//! 10^decimals) is `null` in JSON, `NAN` (math.h) in C and `f32::NAN` in Rust; a valid record
+//! has none in `K`, `b`, `M`, `o`.
+//!
+//! JSON's `quality.source` is `board`, or `calib` for a record of sequence 0 (never stored: the
+//! offline tool's result).
+//!
+//! The C and Rust formats are several lines separated by `\n` (no line ending after the last),
+//! each at most [`MAX_LINE`] bytes.
+
+use crate::log::fixed;
+use crate::record::Record;
+use crate::{Mat3, Vec3};
+use core::fmt::{self, Write};
+
+/// Output formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// One line: `{"gyro":{…},"accel":{…},"quality":{…}}`.
+    Json,
+    /// `static const float` arrays and `gyrocal_apply()`, with comments.
+    C,
+    /// `pub const` arrays, with comments.
+    Rust,
+}
+
+/// Longest line of the C and Rust formats (bytes).
+pub const MAX_LINE: usize = 120;
+
+/// Decimals of `K` and `M`.
+const D_MATRIX: u32 = 7;
+/// Decimals of the gyro bias (°/s).
+const D_BIAS: u32 = 5;
+/// Decimals of the accelerometer offset (g).
+const D_OFFSET: u32 = 6;
+
+/// Writes `rec` in `format`.
+pub fn write(w: &mut impl Write, rec: &Record, format: Format) -> fmt::Result {
+    match format {
+        Format::Json => json(w, rec),
+        Format::C => c(w, rec),
+        Format::Rust => rust(w, rec),
+    }
+}
+
+/// `v` with `decimals` into a small buffer: `None` if [`fixed`] cannot write it as a number.
+fn digits(v: f32, decimals: u32) -> Option<heapless::String<24>> {
+    let mut s = heapless::String::new();
+    // 19 digits, a point and a sign at most: the buffer cannot overflow.
+    fixed(&mut s, v as f64, decimals).ok()?;
+    (s != "nan").then_some(s)
+}
+
+/// One number, `nan` standing for a value that cannot be written, `suffix` after a written one.
+fn num(w: &mut impl Write, v: f32, decimals: u32, nan: &str, suffix: &str) -> fmt::Result {
+    match digits(v, decimals) {
+        Some(s) => {
+            w.write_str(&s)?;
+            w.write_str(suffix)
+        }
+        None => w.write_str(nan),
+    }
+}
+
+fn json_num(w: &mut impl Write, v: f32, decimals: u32) -> fmt::Result {
+    num(w, v, decimals, "null", "")
+}
+
+fn json_vec(w: &mut impl Write, v: &Vec3, decimals: u32) -> fmt::Result {
+    for (i, x) in v.iter().enumerate() {
+        w.write_str(if i == 0 { "[" } else { "," })?;
+        json_num(w, *x, decimals)?;
+    }
+    w.write_str("]")
+}
+
+fn json_mat(w: &mut impl Write, m: &Mat3, decimals: u32) -> fmt::Result {
+    for (i, r) in m.iter().enumerate() {
+        w.write_str(if i == 0 { "[" } else { "," })?;
+        json_vec(w, r, decimals)?;
+    }
+    w.write_str("]")
+}
+
+fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
+    w.write_str("{\"gyro\":{\"K\":")?;
+    json_mat(w, &r.gyro_k, D_MATRIX)?;
+    w.write_str(",\"bias_dps\":")?;
+    json_vec(w, &r.gyro_bias_dps, D_BIAS)?;
+    write!(w, ",\"method\":\"{}\"}},\"accel\":{{\"M\":", r.method.name())?;
+    json_mat(w, &r.accel_m, D_MATRIX)?;
+    w.write_str(",\"offset_g\":")?;
+    json_vec(w, &r.accel_offset_g, D_OFFSET)?;
+    // A stored record's seq starts at 1; 0 is a result never stored (calib's, from a log).
+    let source = if r.seq == 0 { "calib" } else { "board" };
+    write!(w, "}},\"quality\":{{\"source\":\"{source}\",\"seq\":{},\"temp_c\":", r.seq)?;
+    json_num(w, r.temp_c, 2)?;
+    w.write_str(",\"sigma_K\":")?;
+    json_mat(w, &r.sigma_k, 9)?;
+    write!(w, ",\"poses\":{},\"rows\":{},\"condition\":", r.poses, r.rows)?;
+    json_num(w, r.condition, 3)?;
+    w.write_str(",\"residual_rms\":")?;
+    json_num(w, r.residual_rms, 6)?;
+    w.write_str(",\"non_coplanar_deg\":")?;
+    json_num(w, r.non_coplanar_deg, 3)?;
+    write!(w, ",\"accel_model\":\"{}\",\"accel_rms_g\":", r.accel_model.name())?;
+    json_num(w, r.accel_rms_g, 7)?;
+    w.write_str("}}")
+}
+
+/// The syntax of an array initialiser: brackets, a float's suffix and NaN.
+struct Syntax {
+    open: &'static str,
+    close: &'static str,
+    suffix: &'static str,
+    nan: &'static str,
+}
+
+const C_SYNTAX: Syntax = Syntax { open: "{", close: "}", suffix: "f", nan: "NAN" };
+const RUST_SYNTAX: Syntax = Syntax { open: "[", close: "]", suffix: "", nan: "f32::NAN" };
+
+fn array(w: &mut impl Write, s: &Syntax, v: &Vec3, decimals: u32) -> fmt::Result {
+    for (i, x) in v.iter().enumerate() {
+        w.write_str(if i == 0 { s.open } else { ", " })?;
+        num(w, *x, decimals, s.nan, s.suffix)?;
+    }
+    w.write_str(s.close)
+}
+
+/// A 3×3 initialiser, one row per line (after `decl`'s line).
+fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
+    writeln!(w, "{decl} = {}", s.open)?;
+    for r in m {
+        w.write_str("    ")?;
+        array(w, s, r, D_MATRIX)?;
+        w.write_str(",\n")?;
+    }
+    writeln!(w, "{};", s.close)
+}
+
+/// The header comment lines, each between `open` and `close`: what the record is and the two
+/// models with their units.
+fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
+    write!(w, "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor at ", r.seq, r.method.name(), r.accel_model.name())?;
+    num(w, r.temp_c, 1, "unknown", " degC")?;
+    writeln!(w, "{close}")?;
+    writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
+    writeln!(w, "{open}Accel: f = M (a - o): a raw accel (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
+    writeln!(w, "{open}K maps the gyro into the calibrated accelerometer's frame; both matrices row-major.{close}")
+}
+
+fn c(w: &mut impl Write, r: &Record) -> fmt::Result {
+    let s = &C_SYNTAX;
+    header(w, r, "/* ", " */")?;
+    matrix(w, s, "static const float GYRO_K[3][3]", &r.gyro_k)?;
+    w.write_str("static const float GYRO_BIAS_DPS[3] = ")?;
+    array(w, s, &r.gyro_bias_dps, D_BIAS)?;
+    w.write_str(";\n")?;
+    matrix(w, s, "static const float ACCEL_M[3][3]", &r.accel_m)?;
+    w.write_str("static const float ACCEL_OFFSET_G[3] = ")?;
+    array(w, s, &r.accel_offset_g, D_OFFSET)?;
+    w.write_str(";\n")?;
+    w.write_str(concat!(
+        "/* Calibrated rate out_dps = K (g_dps - b) (deg/s) from a raw gyro reading g_dps (deg/s). */\n",
+        "static inline void gyrocal_apply(const float g_dps[3], float out_dps[3]) {\n",
+        "    const float d[3] = {g_dps[0] - GYRO_BIAS_DPS[0], g_dps[1] - GYRO_BIAS_DPS[1], g_dps[2] - GYRO_BIAS_DPS[2]};\n",
+        "    for (int i = 0; i < 3; i++) {\n",
+        "        out_dps[i] = GYRO_K[i][0] * d[0] + GYRO_K[i][1] * d[1] + GYRO_K[i][2] * d[2];\n",
+        "    }\n",
+        "}",
+    ))
+}
+
+fn rust(w: &mut impl Write, r: &Record) -> fmt::Result {
+    let s = &RUST_SYNTAX;
+    header(w, r, "// ", "")?;
+    w.write_str("/// Gyro scale matrix K (row-major, dimensionless): omega = K (g - b).\n")?;
+    matrix(w, s, "pub const GYRO_K: [[f32; 3]; 3]", &r.gyro_k)?;
+    w.write_str("/// Gyro bias b (deg/s).\npub const GYRO_BIAS_DPS: [f32; 3] = ")?;
+    array(w, s, &r.gyro_bias_dps, D_BIAS)?;
+    w.write_str(";\n/// Accelerometer matrix M (row-major, dimensionless): f = M (a - o).\n")?;
+    matrix(w, s, "pub const ACCEL_M: [[f32; 3]; 3]", &r.accel_m)?;
+    w.write_str("/// Accelerometer offset o (g).\npub const ACCEL_OFFSET_G: [f32; 3] = ")?;
+    array(w, s, &r.accel_offset_g, D_OFFSET)?;
+    w.write_str(";")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gyro::Method;
+    use crate::record::tests::sample;
+    extern crate std;
+    use std::string::String;
+
+    fn text(rec: &Record, f: Format) -> String {
+        let mut s = String::new();
+        write(&mut s, rec, f).unwrap();
+        s
+    }
+
+    #[test]
+    fn json_is_one_line_with_the_schema_and_seven_decimals() {
+        let s = text(&sample(), Format::Json);
+        assert_eq!(s.lines().count(), 1);
+        assert!(s.starts_with("{\"gyro\":{\"K\":[[1.0100000,0.0000000,0.0000000],[0.0000000,0.9900000,"), "{s}");
+        assert!(s.contains("\"bias_dps\":[0.50000,-1.25000,2.00000],\"method\":\"sweep\"},\"accel\":{\"M\":[[1.0010000,"), "{s}");
+        assert!(s.contains("\"offset_g\":[0.010000,-0.020000,0.015000]}"), "{s}");
+        assert!(s.contains("\"quality\":{\"source\":\"board\",\"seq\":7,\"temp_c\":24.50,\"sigma_K\":[[0.000100000,"), "{s}");
+        assert!(s.ends_with("\"accel_model\":\"nine_param\",\"accel_rms_g\":0.0004000}}"), "{s}");
+    }
+
+    #[test]
+    fn non_finite_and_huge_values_are_null_nan() {
+        let rec = Record { temp_c: f32::NAN, condition: 3e30, gyro_k: [[f32::INFINITY, 0.0, 0.0], [0.0; 3], [0.0; 3]], ..sample() };
+        let s = text(&rec, Format::Json);
+        assert!(s.contains("\"K\":[[null,0.0000000,") && s.contains("\"temp_c\":null,") && s.contains("\"condition\":null,"), "{s}");
+        assert!(!s.contains("nan"), "{s}");
+        let c = text(&rec, Format::C);
+        assert!(c.contains("{NAN, 0.0000000f, 0.0000000f}") && c.contains("sensor at unknown */"), "{c}");
+        assert!(text(&rec, Format::Rust).contains("[f32::NAN, 0.0000000, 0.0000000]"));
+    }
+
+    #[test]
+    fn c_and_rust_have_the_arrays_units_and_short_lines() {
+        let rec = Record { method: Method::Full, seq: 12, gyro_k: [[1.0123457, -0.0023456, 0.0001], [0.0, 0.99, 0.0], [0.0, 0.0, 1.02]], ..sample() };
+        let c = text(&rec, Format::C);
+        for needle in [
+            "record 12, full K, accelerometer model nine_param, sensor at 24.5 degC */",
+            "omega = K (g - b)",
+            "f = M (a - o)",
+            "static const float GYRO_K[3][3] = {\n    {1.0123457f, -0.0023456f, 0.0001000f},\n",
+            "static const float GYRO_BIAS_DPS[3] = {0.50000f, -1.25000f, 2.00000f};",
+            "static const float ACCEL_M[3][3] = {",
+            "static const float ACCEL_OFFSET_G[3] = {0.010000f, -0.020000f, 0.015000f};",
+            "static inline void gyrocal_apply(const float g_dps[3], float out_dps[3]) {",
+        ] {
+            assert!(c.contains(needle), "{needle:?} not in\n{c}");
+        }
+        let r = text(&rec, Format::Rust);
+        assert!(r.contains("pub const GYRO_K: [[f32; 3]; 3] = [\n    [1.0123457, -0.0023456, 0.0001000],\n"), "{r}");
+        assert!(r.contains("pub const ACCEL_OFFSET_G: [f32; 3] = [0.010000, -0.020000, 0.015000];"), "{r}");
+        for s in [&c, &r] {
+            assert!(!s.ends_with('\n'));
+            assert!(s.lines().all(|l| l.len() <= MAX_LINE && l.is_ascii()), "{s}");
+        }
+    }
+}

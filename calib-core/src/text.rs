@@ -1,0 +1,189 @@
+//! The procedure's reports as text lines: the one wording of every line the firmware logs, over
+//! RTT (as a defmt string) and over USB serial alike, and of [`crate::Error`]'s messages.
+//!
+//! Numbers are written digit by digit ([`Fixed`]): `core::fmt`'s float code is ~6 KiB
+//! of flash the firmware does not have.
+
+use crate::log::fixed;
+use crate::procedure::{Phase, Report};
+use crate::record::Record;
+use crate::{Mat3, Vec3};
+use core::fmt::{self, Display, Write};
+
+/// `v` with this many decimals (≤ 9), e.g. `Fixed(1.23456, 3)` → `1.235`; NaN → `nan`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fixed(pub f64, pub u32);
+
+impl Display for Fixed {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fixed(f, self.0, self.1)
+    }
+}
+
+/// Three numbers in brackets with this many decimals: `[x y z]`.
+pub struct V3(pub Vec3, pub u32);
+
+impl Display for V3 {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [x, y, z] = self.0.map(|v| Fixed(v as f64, self.1));
+        write!(f, "[{x} {y} {z}]")
+    }
+}
+
+/// A matrix with this many decimals, rows separated by `;`: `[a b c; d e f; g h i]`.
+pub struct M3(pub Mat3, pub u32);
+
+impl Display for M3 {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, r) in self.0.iter().enumerate() {
+            f.write_str(if i == 0 { "[" } else { "; " })?;
+            let [x, y, z] = r.map(|v| Fixed(v as f64, self.1));
+            write!(f, "{x} {y} {z}")?;
+        }
+        f.write_str("]")
+    }
+}
+
+/// How much a line matters (the defmt level the firmware logs it at).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Level {
+    /// Progress and results.
+    Info,
+    /// Something went wrong but the calibration goes on.
+    Warn,
+    /// The calibration failed.
+    Error,
+}
+
+/// The level of a report's line.
+pub fn level(r: &Report) -> Level {
+    match r {
+        Report::Retake { .. } | Report::HandMove { kept: false, .. } | Report::EstimatorFailed { .. } => Level::Warn,
+        Report::Failed(_) => Level::Error,
+        _ => Level::Info,
+    }
+}
+
+/// Writes a report as one line (no line ending).
+pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
+    match r {
+        Report::Phase(p) => match p.instruction() {
+            Some(i) => write!(w, "phase: {}: {i}", p.name()),
+            None => write!(w, "phase: {}", p.name()),
+        },
+        Report::Bias(b) => {
+            write!(w, "gyro bias {} dps, 1 sigma {}, {} samples", V3(b.bias_dps, 4), V3(b.sigma_dps, 5), b.samples)
+        }
+        Report::AccelPose { index, accel_g } => write!(w, "hand-held pose {index}: a = {} g", V3(*accel_g, 4)),
+        Report::Accel(c) => write!(
+            w,
+            "accelerometer {}: | |a| - 1 | rms {} g -> {} g over {} poses; offset {} g",
+            c.model.name(),
+            Fixed(c.rms_before_g as f64, 5),
+            Fixed(c.rms_after_g as f64, 5),
+            c.poses,
+            V3(c.offset_g, 4)
+        ),
+        Report::RigPose { index, servo_deg, accel_g } => {
+            write!(w, "rig pose {index} at {} deg: A = {} g", Fixed(*servo_deg as f64, 1), V3(*accel_g, 4))
+        }
+        Report::Retake { index, retries } => write!(w, "pose {index} disturbed: retake {retries}"),
+        Report::Move { from, to, gyro_turn_deg } => {
+            write!(w, "move {from} -> {to}: gyro turned {} deg", Fixed(*gyro_turn_deg as f64, 2))
+        }
+        Report::Gyro(c) => {
+            let q = &c.quality;
+            write!(
+                w,
+                "{} estimator: K = diag{} +- {} 1 sigma; invariant spread {} -> {}; cond {}; tilt {} deg, span {} deg",
+                c.method.name(),
+                V3([c.k[0][0], c.k[1][1], c.k[2][2]], 6),
+                V3(q.sigma_k, 6),
+                Fixed(q.invariant_before.relative_std() as f64, 6),
+                Fixed(q.invariant_after.relative_std() as f64, 6),
+                Fixed(q.condition as f64, 0),
+                Fixed(q.tilt_deg as f64, 1),
+                Fixed(q.span_deg as f64, 1)
+            )
+        }
+        Report::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => write!(
+            w,
+            "full K = {} +- {} 1 sigma; {axes} axes {} deg from coplanar, {moves} moves, residual {} deg rms, cond {}",
+            M3(*k, 6),
+            M3(*sigma_k, 6),
+            Fixed(*non_coplanar_deg as f64, 1),
+            Fixed(*residual_rms_deg as f64, 4),
+            Fixed(*condition as f64, 0)
+        ),
+        Report::HandMove { from, to, kept: true, turn_deg, spread, need } => write!(
+            w,
+            "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
+            Fixed(*turn_deg as f64, 1),
+            Fixed(*spread as f64, 3),
+            Fixed(*need as f64, 3)
+        ),
+        Report::HandMove { from, to, .. } => {
+            write!(w, "hand-held move {from} -> {to} not used (too fast, too short, saturated or the bias drifted)")
+        }
+        Report::Rotations { moves, rejected: r, residual_deg } => {
+            write!(w, "rotation constraints: {moves} moves, misfit [")?;
+            for (i, m) in residual_deg[..(*moves as usize).min(residual_deg.len())].iter().enumerate() {
+                write!(w, "{}{}", if i == 0 { "" } else { " " }, Fixed(*m as f64, 3))?;
+            }
+            write!(w, "] deg; rejected: {} saturated, {} too fast, {} too short, {} bias drifted, {} no room", r[0], r[1], r[2], r[3], r[4])
+        }
+        Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
+        Report::Done(rec) => record(w, "calibration done: stored", rec),
+        Report::Failed(e) => write!(w, "calibration failed, nothing stored: {e}"),
+    }
+}
+
+/// Writes a record's gyro calibration as one line: `K` in full (row-major) and the bias.
+pub fn record(w: &mut impl Write, what: &str, rec: &Record) -> fmt::Result {
+    write!(w, "{what} record {} ({} K): K = {}, b = {} dps", rec.seq, rec.method.name(), M3(rec.gyro_k, 6), V3(rec.gyro_bias_dps, 4))
+}
+
+/// Writes the plan announced when a calibration starts.
+pub fn plan(w: &mut impl Write, rig_poses: usize, handheld_poses: usize) -> fmt::Result {
+    write!(w, "plan: {rig_poses} rig poses, {handheld_poses} hand-held poses")
+}
+
+impl Phase {
+    /// What the user must do in this phase, if anything.
+    pub fn instruction(self) -> Option<&'static str> {
+        Some(match self {
+            Phase::WaitRest | Phase::Bias => "keep the rig still",
+            Phase::HandHeld => {
+                "unclamp the board; hold it still in a new orientation each time the LED blinks yellow, about 3 s each, turning it about varied axes in between"
+            }
+            Phase::Reattach => "clamp the board back on the servo shaft, then press the button (or send c)",
+            Phase::RigPoses | Phase::Rotation => "hands off: the servos move the board",
+            _ => return None,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    extern crate std;
+    use std::format;
+    use std::string::String;
+
+    #[test]
+    fn fixed_matches_core_fmt() {
+        for v in [0.0, 1.25, -3.14159, 1234.5678, 0.001, 123456789.4] {
+            assert_eq!(format!("{}", Fixed(v, 3)), format!("{v:.3}"));
+            assert_eq!(format!("{}", Fixed(v, 0)), format!("{v:.0}"));
+        }
+    }
+
+    #[test]
+    fn a_record_line_has_k_in_full() {
+        let rec = Record { seq: 7, gyro_k: [[1.01, 0.002, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]], ..crate::record::tests::sample() };
+        let mut s = String::new();
+        record(&mut s, "loaded", &rec).unwrap();
+        assert!(s.starts_with("loaded record 7 ("), "{s}");
+        assert!(s.contains("K = [1.010000 0.002000 0.000000; 0.000000 0.990000"), "{s}");
+    }
+}

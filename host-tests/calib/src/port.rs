@@ -1,0 +1,641 @@
+//! A calibration over the board's USB serial port (`calib --port`), nothing but a USB cable: the
+//! board's protocol is single-letter commands in, text lines out (`r` raw-log mode on/off, `c`
+//! calibrate / continue after the re-clamp).
+//!
+//! The session: open the port ([`open`]), drain stale input, `r` until the log header arrives
+//! (an end marker instead means raw-log mode was on: `r` again), `c`; then every line is saved
+//! to the log file as received (without CR), the phases and a progress bar (from the `plan:` and
+//! pose lines) go to the user, and in the `reattach` phase the user's Enter is answered with
+//! `c`. It ends on `calibration failed, nothing stored: …` ([`SessionError::CalibrationFailed`])
+//! or on the JSON line after `calibration done`, then `r` again and the end marker. The saved log
+//! is then calibrated on the PC ([`offline::calibrate_with`]) and the two `K` compared
+//! ([`cross_check`]).
+//!
+//! The port is read all the time, also while waiting for the user: the board never blocks on
+//! USB, it drops whole lines the PC does not read, and a row lost is a gap in the log.
+
+use crate::csvlog::{self, Row};
+use crate::offline;
+use calib_core::accel::AccelModel;
+use calib_core::gyro::Method;
+use calib_core::log::{END, HEADER};
+use calib_core::record::Record;
+use serde::Deserialize;
+use serialport::SerialPort;
+use std::fmt;
+use std::fs::File;
+use std::io::{self, BufRead, BufWriter, Write};
+use std::path::PathBuf;
+use std::sync::mpsc::{self, TryRecvError};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Baud rate the port is opened at: CDC-ACM ignores it, but 1200 would reset the board into its
+/// bootloader (the 1200-baud touch).
+pub const BAUD: u32 = 115_200;
+/// Largest |ΔK| over the nine elements for the cross-check to pass. The board and calib run the
+/// same code on the same samples: what differs is the log's rounding of each sample (1 µs,
+/// 1 µg, 10 µ°/s: 1.2e-7 in K measured on a simulated run), the JSON's 7 decimals (5e-8) and
+/// f32 rounding (6e-8 at 1). 1e-5 is ~50× that, and ~100× below what one row lost in a move
+/// does (its gyro integral short by one sample: ~1e-3 of K).
+pub const K_TOLERANCE: f32 = 1e-5;
+/// How long one read of the port waits: the session checks its timeouts and the user's Enter
+/// this often.
+const POLL: Duration = Duration::from_millis(50);
+
+/// The session's limits and where it saves the log.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Where every received line is saved.
+    pub log: PathBuf,
+    /// Longest time without a byte from the board.
+    pub silence: Duration,
+    /// Longest whole session (the user's re-clamp included).
+    pub timeout: Duration,
+    /// Redraw the progress bar in place with `\r` (the user's output is a terminal); otherwise
+    /// one line per captured pose.
+    pub redraw: bool,
+}
+
+impl Options {
+    /// Saving to `log`; 30 s of silence, 600 s in all; no redraw.
+    pub fn new(log: impl Into<PathBuf>) -> Self {
+        Options { log: log.into(), silence: Duration::from_secs(30), timeout: Duration::from_secs(600), redraw: false }
+    }
+}
+
+/// `gyrocal-<unix time in s>.csv`, in the current directory.
+pub fn default_log_path() -> PathBuf {
+    let t = SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    PathBuf::from(format!("gyrocal-{t}.csv"))
+}
+
+/// What a session brought back.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// The board's result line (JSON), as received.
+    pub json: String,
+    /// The board's record rebuilt from it ([`record_from_json`]).
+    pub record: Record,
+    /// Lines saved to the log.
+    pub lines: usize,
+    /// The board's `K` beside calib's on the saved log.
+    pub check: CrossCheck,
+}
+
+/// calib's result on the saved log, beside the board's.
+#[derive(Debug, Clone)]
+pub struct CrossCheck {
+    /// calib's result as a record ([`offline::Calibration::record`]).
+    pub calib: Record,
+    /// Largest |K_board − K_calib| over the elements.
+    pub max_diff: f32,
+    /// Where it is (row, column).
+    pub at: (usize, usize),
+    /// Rows in the saved log.
+    pub rows: usize,
+    /// Rows missing from it: gaps in its time column (a gap of n sample periods is n − 1 rows).
+    pub lost_rows: usize,
+    /// Bytes the board said it dropped since its boot (its last `USB: <n> bytes dropped` line).
+    pub dropped_bytes: u64,
+    /// The configuration calib replayed the log under; `None`: calib found the phases from the
+    /// data (the board reused its stored accelerometer calibration, which the log lacks), so
+    /// the two `K` are not comparable to [`K_TOLERANCE`] and the check was skipped.
+    pub replayed: Option<&'static str>,
+}
+
+/// Why a session failed. [`SessionError::exit_code`] is `calib`'s exit code for it.
+#[derive(Debug)]
+pub enum SessionError {
+    /// The port could not be opened.
+    Open {
+        /// The port's path.
+        port: String,
+        /// Why.
+        error: serialport::Error,
+    },
+    /// Reading or writing the port failed (the board was unplugged or reset).
+    Port(io::Error),
+    /// The log file could not be written.
+    LogFile {
+        /// Its path.
+        path: PathBuf,
+        /// Why.
+        error: io::Error,
+    },
+    /// No byte from the board for this long.
+    Silent {
+        /// The limit (s).
+        secs: u64,
+        /// What the session was waiting for.
+        waiting_for: &'static str,
+    },
+    /// The whole session took longer than its limit.
+    Timeout {
+        /// The limit (s).
+        secs: u64,
+        /// What the session was waiting for.
+        waiting_for: &'static str,
+    },
+    /// The user's input ended while the session waited for Enter.
+    InputClosed,
+    /// The board's calibration failed: its message.
+    CalibrationFailed(String),
+    /// The board's result line is not the expected JSON: why.
+    BadResult(String),
+    /// The saved log is not a valid log.
+    Log(csvlog::LogError),
+    /// calib could not calibrate the saved log: why.
+    Offline(String),
+    /// The board's `K` and calib's on the saved log disagree.
+    Mismatch {
+        /// The comparison.
+        check: Box<CrossCheck>,
+        /// The board's `K`.
+        board: Record,
+        /// The likely cause.
+        reason: String,
+    },
+}
+
+impl SessionError {
+    /// `calib`'s exit code: 1 the calibration failed (on the board, or calib on the log), 2 port,
+    /// file or input error, 3 malformed data from the board, 5 cross-check failed, 6 timeout.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            SessionError::CalibrationFailed(_) | SessionError::Offline(_) => 1,
+            SessionError::Open { .. } | SessionError::Port(_) | SessionError::LogFile { .. } | SessionError::InputClosed => 2,
+            SessionError::BadResult(_) | SessionError::Log(_) => 3,
+            SessionError::Mismatch { .. } => 5,
+            SessionError::Silent { .. } | SessionError::Timeout { .. } => 6,
+        }
+    }
+}
+
+impl fmt::Display for SessionError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SessionError::Open { port, error } => write!(f, "{port}: cannot open the port: {error}"),
+            SessionError::Port(e) => write!(f, "the port failed: {e} (board unplugged or reset?)"),
+            SessionError::LogFile { path, error } => write!(f, "{}: cannot write the log: {error}", path.display()),
+            SessionError::Silent { secs, waiting_for } => {
+                write!(f, "no byte from the board for {secs} s while waiting for {waiting_for}: is the gyrocal firmware running on it?")
+            }
+            SessionError::Timeout { secs, waiting_for } => {
+                write!(f, "the session took longer than {secs} s (--timeout), waiting for {waiting_for}")
+            }
+            SessionError::InputClosed => f.write_str("the input ended while waiting for Enter (clamp the board back and press Enter)"),
+            SessionError::CalibrationFailed(m) => write!(f, "calibration failed, nothing stored: {m}"),
+            SessionError::BadResult(m) => write!(f, "the board's result line: {m}"),
+            SessionError::Log(e) => write!(f, "the saved log: {e}"),
+            SessionError::Offline(m) => write!(f, "calib on the saved log: {m}"),
+            SessionError::Mismatch { check: c, board, reason } => {
+                let (i, j) = c.at;
+                write!(
+                    f,
+                    "cross-check failed: the board's K[{i}][{j}] = {:.7} ({} K), calib's on the saved log {:.7} ({} K), differ by \
+                     {:.1e} (tolerance {K_TOLERANCE:.0e}): {reason}",
+                    board.gyro_k[i][j],
+                    board.method.name(),
+                    c.calib.gyro_k[i][j],
+                    c.calib.method.name(),
+                    c.max_diff
+                )
+            }
+        }
+    }
+}
+
+impl std::error::Error for SessionError {}
+
+/// Opens `path` at [`BAUD`] with DTR on (the DTR/RTS ioctls fail on a pseudo-terminal: ignored).
+pub fn open(path: &str) -> Result<Box<dyn SerialPort>, SessionError> {
+    serialport::new(path, BAUD).dtr_on_open(true).timeout(POLL).open().map_err(|error| SessionError::Open { port: path.into(), error })
+}
+
+/// Runs a session on `port` (see the module): `input` gives the user's Enter (the CLI passes
+/// stdin; each line answers one `reattach`, also if typed ahead; read on a thread of its own
+/// that ends with `input` or at its next line), `ui` gets the phases, instructions and progress. The board's result line is in the [`Outcome`], not
+/// printed.
+pub fn run(
+    port: &mut dyn SerialPort,
+    input: impl BufRead + Send + 'static,
+    ui: &mut dyn Write,
+    opts: &Options,
+) -> Result<Outcome, SessionError> {
+    let file = File::create(&opts.log).map_err(|error| SessionError::LogFile { path: opts.log.clone(), error })?;
+    let mut ui = Ui { out: ui, redraw: opts.redraw, bar_open: false };
+    let enter = enter_lines(input);
+    port.set_timeout(POLL).map_err(|e| SessionError::Port(e.into()))?;
+    let mut link = Link::new(port, file, opts);
+    link.drain()?;
+
+    // Raw-log mode on; `r` toggles, so the end marker instead of the header: it was on, again.
+    link.send(b'r')?;
+    loop {
+        match link.line("the raw-log header (the answer to r)")? {
+            Some(l) if l.trim() == HEADER => break,
+            Some(l) if l.trim() == END => link.send(b'r')?,
+            _ => {}
+        }
+    }
+    ui.say(&format!("calib: raw log on, saving every line to {}; calibrating (c)", opts.log.display()));
+    link.send(b'c')?;
+
+    let (mut progress, mut reattach, mut done, mut dropped) = (Progress::default(), false, false, 0u64);
+    let json = loop {
+        if reattach {
+            match enter.try_recv() {
+                Ok(()) => {
+                    link.send(b'c')?;
+                    reattach = false;
+                    ui.say("calib: continuing (c)");
+                }
+                Err(TryRecvError::Empty) => {}
+                Err(TryRecvError::Disconnected) => return Err(SessionError::InputClosed),
+            }
+        }
+        let waiting_for = if reattach { "Enter (the board clamped back)" } else { "the calibration" };
+        let Some(l) = link.line(waiting_for)? else { continue };
+        if let Some(p) = l.strip_prefix("plan: ") {
+            progress.total = plan_poses(p);
+            ui.say(&l);
+        } else if let Some(rest) = l.strip_prefix("phase: ") {
+            let (name, instruction) = rest.split_once(": ").map_or((rest, None), |(n, i)| (n, Some(i)));
+            ui.say(&match instruction {
+                Some(i) => format!("phase {name}: {i}"),
+                None => format!("phase {name}"),
+            });
+            if name == "reattach" {
+                ui.say("calib: clamp the board back on the servo shaft, then press Enter");
+                reattach = true;
+            } else if reattach {
+                ui.say("calib: the board goes on (its button was pressed)");
+                reattach = false;
+            }
+        } else if let Some(i) = pose_index(&l, "hand-held pose ", ':') {
+            progress.handheld = progress.handheld.max(i + 1);
+            ui.bar(&progress);
+        } else if let Some(i) = pose_index(&l, "rig pose ", ' ') {
+            progress.rig = progress.rig.max(i + 1);
+            ui.bar(&progress);
+        } else if let Some(m) = l.strip_prefix("calibration failed, nothing stored: ") {
+            let _ = link.send(b'r'); // best effort: the board back to its normal log
+            link.finish()?;
+            return Err(SessionError::CalibrationFailed(m.to_string()));
+        } else if l.starts_with("calibration done") {
+            done = true;
+            ui.say(&l);
+        } else if done && l.starts_with("{\"gyro\":") {
+            break l;
+        } else if let Some(n) = dropped_bytes(&l) {
+            dropped = n;
+            ui.say(&format!("calib: warning: the board says {l}"));
+        }
+    };
+    // Raw-log mode off: the end marker closes the log.
+    link.send(b'r')?;
+    while link.line("the end of the raw log (the answer to r)")?.is_none_or(|l| l.trim() != END) {}
+    let (text, lines) = link.finish()?;
+
+    let record = record_from_json(&json).map_err(SessionError::BadResult)?;
+    let check = cross_check(&record, &text, dropped)?;
+    ui.say(&match check.replayed {
+        Some(cfg) => format!(
+            "calib: cross-check passed: calib's K on the saved log ({} rows, replayed as `{cfg}`) agrees with the board's to \
+             {:.1e} (tolerance {K_TOLERANCE:.0e})",
+            check.rows, check.max_diff
+        ),
+        None => format!(
+            "calib: cross-check skipped: the board reused its stored accelerometer calibration (no hand-held poses in this \
+             run), which the log lacks, so calib cannot replay the run; its K from the data alone differs by {:.1e}",
+            check.max_diff
+        ),
+    });
+    Ok(Outcome { json, record, lines, check })
+}
+
+/// Reads `input` on a thread: one message per line (the user's Enter); disconnected at its end.
+fn enter_lines(input: impl BufRead + Send + 'static) -> mpsc::Receiver<()> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for l in input.lines() {
+            if l.is_err() || tx.send(()).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// The board's lines, saved as they arrive, with the session's timeouts.
+struct Link<'a> {
+    port: &'a mut dyn SerialPort,
+    pending: Vec<u8>,
+    log: BufWriter<File>,
+    text: String,
+    lines: usize,
+    opts: &'a Options,
+    start: Instant,
+    last_byte: Instant,
+}
+
+impl<'a> Link<'a> {
+    fn new(port: &'a mut dyn SerialPort, file: File, opts: &'a Options) -> Self {
+        let now = Instant::now();
+        Link { port, pending: vec![], log: BufWriter::new(file), text: String::new(), lines: 0, opts, start: now, last_byte: now }
+    }
+
+    fn send(&mut self, cmd: u8) -> Result<(), SessionError> {
+        self.port.write_all(&[cmd]).and_then(|_| self.port.flush()).map_err(SessionError::Port)
+    }
+
+    /// One read of the port (up to [`POLL`]) into `pending`; the number of bytes.
+    fn read(&mut self) -> Result<usize, SessionError> {
+        let mut buf = [0u8; 4096];
+        match self.port.read(&mut buf) {
+            Ok(n) => {
+                self.pending.extend_from_slice(&buf[..n]);
+                Ok(n)
+            }
+            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted) => Ok(0),
+            Err(e) => Err(SessionError::Port(e)),
+        }
+    }
+
+    /// Discards what the board sent before the session: until 250 ms of quiet, at most 2 s
+    /// (a board already in raw-log mode never goes quiet).
+    fn drain(&mut self) -> Result<(), SessionError> {
+        let (t0, mut quiet) = (Instant::now(), Instant::now());
+        while t0.elapsed() < Duration::from_secs(2) && quiet.elapsed() < Duration::from_millis(250) {
+            if self.read()? > 0 {
+                quiet = Instant::now();
+            }
+        }
+        self.pending.clear();
+        self.last_byte = Instant::now();
+        Ok(())
+    }
+
+    /// The next line, saved; `None` if no whole line arrived within one poll. Fails after
+    /// [`Options::silence`] without a byte or [`Options::timeout`] in all.
+    fn line(&mut self, waiting_for: &'static str) -> Result<Option<String>, SessionError> {
+        if self.pending.contains(&b'\n') {
+            return self.take_line().map(Some);
+        }
+        if self.read()? > 0 {
+            self.last_byte = Instant::now();
+        } else if self.last_byte.elapsed() >= self.opts.silence {
+            return Err(SessionError::Silent { secs: self.opts.silence.as_secs(), waiting_for });
+        }
+        if self.start.elapsed() >= self.opts.timeout {
+            return Err(SessionError::Timeout { secs: self.opts.timeout.as_secs(), waiting_for });
+        }
+        if self.pending.contains(&b'\n') {
+            self.take_line().map(Some)
+        } else {
+            Ok(None)
+        }
+    }
+
+    fn take_line(&mut self) -> Result<String, SessionError> {
+        let end = self.pending.iter().position(|&b| b == b'\n').unwrap_or(self.pending.len());
+        let raw: Vec<u8> = self.pending.drain(..(end + 1).min(self.pending.len())).collect();
+        let mut l = String::from_utf8_lossy(&raw[..end]).into_owned();
+        if l.ends_with('\r') {
+            l.pop();
+        }
+        writeln!(self.log, "{l}").map_err(|error| SessionError::LogFile { path: self.opts.log.clone(), error })?;
+        self.text.push_str(&l);
+        self.text.push('\n');
+        self.lines += 1;
+        Ok(l)
+    }
+
+    /// Flushes the log file; the saved text and its number of lines.
+    fn finish(mut self) -> Result<(String, usize), SessionError> {
+        self.log.flush().map_err(|error| SessionError::LogFile { path: self.opts.log.clone(), error })?;
+        Ok((self.text, self.lines))
+    }
+}
+
+/// Poses announced and captured so far.
+#[derive(Debug, Default)]
+struct Progress {
+    total: usize,
+    handheld: usize,
+    rig: usize,
+}
+
+/// The user's output: messages, and the progress bar between them.
+struct Ui<'a> {
+    out: &'a mut dyn Write,
+    redraw: bool,
+    bar_open: bool,
+}
+
+impl Ui<'_> {
+    /// One message line (write errors on the user's output are ignored).
+    fn say(&mut self, msg: &str) {
+        if std::mem::take(&mut self.bar_open) {
+            let _ = writeln!(self.out);
+        }
+        let _ = writeln!(self.out, "{msg}");
+    }
+
+    /// `[#####-----] 5/32 poses (h hand-held, r rig)`.
+    fn bar(&mut self, p: &Progress) {
+        const WIDTH: usize = 30;
+        let done = p.handheld + p.rig;
+        let fill = (done * WIDTH).checked_div(p.total).unwrap_or(0).min(WIDTH);
+        let bar = format!("[{}{}] {done}/{} poses ({} hand-held, {} rig)", "#".repeat(fill), "-".repeat(WIDTH - fill), p.total, p.handheld, p.rig);
+        if self.redraw {
+            let _ = write!(self.out, "\r{bar}");
+            let _ = self.out.flush();
+            self.bar_open = true;
+        } else {
+            let _ = writeln!(self.out, "{bar}");
+        }
+    }
+}
+
+/// `<R> rig poses, <H> hand-held poses` → R + H (0 if unreadable).
+fn plan_poses(p: &str) -> usize {
+    p.split(',').filter_map(|part| part.split_whitespace().next()?.parse::<usize>().ok()).sum()
+}
+
+/// The index in `<prefix><i><sep>…`.
+fn pose_index(line: &str, prefix: &str, sep: char) -> Option<usize> {
+    line.strip_prefix(prefix)?.split(sep).next()?.parse().ok()
+}
+
+/// `USB: <n> bytes dropped …` → n.
+fn dropped_bytes(line: &str) -> Option<u64> {
+    line.strip_prefix("USB: ")?.split(' ').next()?.parse().ok()
+}
+
+#[derive(Deserialize)]
+struct BoardJson {
+    gyro: GyroJson,
+    accel: AccelJson,
+    quality: QualityJson,
+}
+
+#[derive(Deserialize)]
+struct GyroJson {
+    #[serde(rename = "K")]
+    k: [[Option<f32>; 3]; 3],
+    bias_dps: [Option<f32>; 3],
+    method: String,
+}
+
+#[derive(Deserialize)]
+struct AccelJson {
+    #[serde(rename = "M")]
+    m: [[Option<f32>; 3]; 3],
+    offset_g: [Option<f32>; 3],
+}
+
+#[derive(Deserialize)]
+struct QualityJson {
+    seq: u32,
+    temp_c: Option<f32>,
+    #[serde(rename = "sigma_K")]
+    sigma_k: [[Option<f32>; 3]; 3],
+    poses: u8,
+    rows: u16,
+    condition: Option<f32>,
+    residual_rms: Option<f32>,
+    non_coplanar_deg: Option<f32>,
+    accel_model: String,
+    accel_rms_g: Option<f32>,
+}
+
+/// The record a result line (`calib_core::export`'s JSON) was written from: `null` is NaN; the
+/// fields the JSON does not carry (invariant spreads, tilt, span) are 0. `K`, `b`, `M` and `o`
+/// must be numbers, the names known.
+pub fn record_from_json(line: &str) -> Result<Record, String> {
+    let j: BoardJson = serde_json::from_str(line).map_err(|e| format!("not the expected JSON ({e}): {line}"))?;
+    let v = |x: [Option<f32>; 3]| x.map(|e| e.unwrap_or(f32::NAN));
+    let m = |x: [[Option<f32>; 3]; 3]| x.map(v);
+    let method = [Method::Paper, Method::Sweep, Method::Full]
+        .into_iter()
+        .find(|x| x.name() == j.gyro.method)
+        .ok_or_else(|| format!("unknown gyro method {:?}", j.gyro.method))?;
+    let accel_model = [AccelModel::None, AccelModel::SixParam, AccelModel::NineParam]
+        .into_iter()
+        .find(|x| x.name() == j.quality.accel_model)
+        .ok_or_else(|| format!("unknown accelerometer model {:?}", j.quality.accel_model))?;
+    let q = j.quality;
+    let rec = Record {
+        seq: q.seq,
+        temp_c: q.temp_c.unwrap_or(f32::NAN),
+        gyro_k: m(j.gyro.k),
+        gyro_bias_dps: v(j.gyro.bias_dps),
+        method,
+        accel_m: m(j.accel.m),
+        accel_offset_g: v(j.accel.offset_g),
+        accel_model,
+        poses: q.poses,
+        rows: q.rows,
+        sigma_k: m(q.sigma_k),
+        invariant_before_rel: 0.0,
+        invariant_after_rel: 0.0,
+        condition: q.condition.unwrap_or(f32::NAN),
+        tilt_deg: 0.0,
+        span_deg: 0.0,
+        accel_rms_g: q.accel_rms_g.unwrap_or(f32::NAN),
+        residual_rms: q.residual_rms.unwrap_or(f32::NAN),
+        non_coplanar_deg: q.non_coplanar_deg.unwrap_or(f32::NAN),
+    };
+    let cal = [rec.gyro_k.as_flattened(), &rec.gyro_bias_dps, rec.accel_m.as_flattened(), &rec.accel_offset_g];
+    if cal.iter().any(|s| s.iter().any(|x| !x.is_finite())) {
+        return Err(format!("gyro K, bias_dps, accel M and offset_g must all be numbers: {line}"));
+    }
+    Ok(rec)
+}
+
+/// Rows missing from a log: a gap of n median sample periods (n ≥ 1.5) is n − 1 rows.
+pub fn lost_rows(rows: &[Row]) -> usize {
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    if dt.is_empty() {
+        return 0;
+    }
+    dt.sort_by(f64::total_cmp);
+    let median = dt[dt.len() / 2];
+    dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum()
+}
+
+/// Whether the run had hand-held poses: rows with no servo commanded after the first commanded one.
+fn has_handheld(rows: &[Row]) -> bool {
+    let commanded = |r: &Row| r.servo_deg.is_some() || r.tilt_deg.is_some();
+    rows.iter().skip_while(|r| !commanded(r)).any(|r| !commanded(r))
+}
+
+/// Calibrates the saved log (`log_text`) with calib ([`offline::calibrate_with`], defaults) and
+/// compares its `K` with the board's. Passes when every element agrees to [`K_TOLERANCE`] with
+/// the same method on a replayed log; skipped (`replayed: None`) when the board used its
+/// stored accelerometer calibration; otherwise [`SessionError::Mismatch`] naming the likely
+/// cause (rows lost on USB, with their number). `dropped_bytes`: the board's own count.
+pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64) -> Result<CrossCheck, SessionError> {
+    let log = csvlog::parse(log_text).map_err(SessionError::Log)?;
+    let c = offline::calibrate_with(&log.rows, None, true).map_err(|e| SessionError::Offline(e.to_string()))?;
+    let calib = c.record().ok_or_else(|| SessionError::Offline(format!("no gyro calibration: {}", c.missing().join("; "))))?;
+    let (mut max_diff, mut at) = (0.0f32, (0, 0));
+    for i in 0..3 {
+        for j in 0..3 {
+            let d = (board.gyro_k[i][j] - calib.gyro_k[i][j]).abs();
+            if d > max_diff {
+                (max_diff, at) = (d, (i, j));
+            }
+        }
+    }
+    let check =
+        CrossCheck { calib, max_diff, at, rows: log.rows.len(), lost_rows: lost_rows(&log.rows), dropped_bytes, replayed: c.replayed };
+    if max_diff <= K_TOLERANCE && board.method == calib.method && c.replayed.is_some() {
+        return Ok(check);
+    }
+    if check.lost_rows == 0 && c.replayed.is_none() && !has_handheld(&log.rows) {
+        return Ok(check);
+    }
+    let reason = if check.lost_rows > 0 {
+        format!(
+            "{} of {} rows were lost on USB (gaps in the saved log's time column; the board says {dropped_bytes} bytes dropped \
+             since boot): the PC did not read the port fast enough. Run again (no USB hub, a less busy PC)",
+            check.lost_rows,
+            check.rows + check.lost_rows
+        )
+    } else if c.replayed.is_none() {
+        "calib could not replay the saved log through the firmware's procedure (not a whole run of this firmware's \
+         procedure: another firmware version than this calib's?)"
+            .into()
+    } else {
+        "every row arrived and the log replays, yet the results differ: the board's firmware and this calib are not the \
+         same version?"
+            .into()
+    };
+    Err(SessionError::Mismatch { check: Box::new(check), board: *board, reason })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn protocol_lines_are_read() {
+        assert_eq!(plan_poses("20 rig poses, 12 hand-held poses"), 32);
+        assert_eq!(pose_index("hand-held pose 11: a = [0 0 1] g", "hand-held pose ", ':'), Some(11));
+        assert_eq!(pose_index("rig pose 3 at 90.0 deg: A = [0 0 1] g", "rig pose ", ' '), Some(3));
+        assert_eq!(pose_index("hand-held move 1 -> 2: turned 40 deg", "hand-held pose ", ':'), None);
+        assert_eq!(dropped_bytes("USB: 4096 bytes dropped since boot (the host was not reading)"), Some(4096));
+    }
+
+    #[test]
+    fn gaps_in_time_are_lost_rows() {
+        let row = |t_s| Row { t_s, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.0; 3], servo_deg: None, tilt_deg: None };
+        let mut rows: Vec<Row> = (0..100).map(|i| row(i as f64 / 119.0)).collect();
+        assert_eq!(lost_rows(&rows), 0);
+        rows.drain(40..43);
+        rows.remove(70);
+        assert_eq!(lost_rows(&rows), 4);
+    }
+}

@@ -1,0 +1,238 @@
+//! `calib --port` without hardware: a fake board on the master side of a pseudo-terminal plays a
+//! simulated log through the firmware's procedure (button presses on `c`, the procedure's report
+//! lines in calib-core's wording, its record as calib-core's JSON), the session on the slave.
+#![cfg(unix)]
+
+use calib::csvlog;
+use calib::port::{self, Options, SessionError, K_TOLERANCE};
+use calib_core::export::{self, Format};
+use calib_core::log::{self, END, HEADER};
+use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::record::{Record, StoreError};
+use calib_core::text;
+use common::{calib, simulated_log};
+use rig_sim::variant::Variant;
+use serialport::{SerialPort, TTYPort};
+use std::io::{Cursor, Read, Write};
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+mod common;
+
+/// One simulated run of the default procedure, shared by the tests.
+fn sim_log() -> &'static str {
+    static LOG: OnceLock<String> = OnceLock::new();
+    LOG.get_or_init(|| simulated_log(Variant::Hobby.config(8, 0)).0)
+}
+
+/// How the fake board misbehaves.
+#[derive(Clone, Copy, Default)]
+struct Faults {
+    /// Never answers.
+    silent: bool,
+    /// Adds this to K[0][1] in its JSON line.
+    k_offset: f32,
+    /// Does not send these rows (they are still sampled: USB dropped them).
+    drop_rows: Option<(usize, usize)>,
+}
+
+/// The board's report lines, in the firmware's wording; its JSON after `calibration done`.
+struct Lines {
+    out: Vec<String>,
+    k_offset: f32,
+}
+
+impl Shell for Lines {
+    fn servo(&mut self, _: u8, _: u16) {}
+    fn servo_off(&mut self, _: u8) {}
+    fn led(&mut self, _: Led) {}
+    fn report(&mut self, r: &Report) {
+        let mut l = String::new();
+        text::report(&mut l, r).unwrap();
+        self.out.push(l);
+        if let Report::Done(rec) = r {
+            let mut rec = *rec;
+            rec.gyro_k[0][1] += self.k_offset;
+            let mut j = String::new();
+            export::write(&mut j, &rec, Format::Json).unwrap();
+            self.out.push(j);
+        }
+    }
+    fn store(&mut self, _: &Record) -> Result<(), StoreError> {
+        Ok(())
+    }
+    fn apply(&mut self, _: &Record) {}
+}
+
+/// Waits (≤ 60 s) for the command byte `want`, ignoring others; false if it never came.
+fn wait_for(m: &mut TTYPort, want: u8) -> bool {
+    let t0 = Instant::now();
+    let mut b = [0u8; 1];
+    while t0.elapsed() < Duration::from_secs(60) {
+        if m.read(&mut b).is_ok_and(|n| n == 1) && b[0] == want {
+            return true;
+        }
+    }
+    false
+}
+
+fn send(m: &mut TTYPort, lines: &mut Vec<String>) -> std::io::Result<()> {
+    let mut bytes = Vec::new();
+    for l in lines.drain(..) {
+        bytes.extend_from_slice(l.as_bytes());
+        bytes.extend_from_slice(b"\r\n");
+    }
+    m.write_all(&bytes)
+}
+
+/// The fake board: the firmware's main loop over the log's samples (button presses where the
+/// servo columns change, as `calib::replay` finds them), every row sent in raw-log mode.
+fn board(mut m: TTYPort, log_text: &str, f: Faults) -> std::io::Result<()> {
+    m.set_timeout(Duration::from_secs(5))?;
+    if f.silent || !wait_for(&mut m, b'r') {
+        return Ok(());
+    }
+    let rows = csvlog::parse(log_text).unwrap().rows;
+    let mut p = Procedure::new(Config::DEFAULT, None);
+    let mut sh = Lines { out: vec![HEADER.to_string()], k_offset: f.k_offset };
+    let mut prev_t = rows[0].t_s;
+    let mut started = false;
+    for (i, r) in rows.iter().enumerate() {
+        let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
+        if (!started && commanded) || (p.phase() == Phase::Reattach && commanded) {
+            send(&mut m, &mut sh.out)?;
+            if !wait_for(&mut m, b'c') {
+                return Ok(());
+            }
+            if !started {
+                let (rig, hand) = p.plan();
+                let mut l = String::new();
+                text::plan(&mut l, rig as usize, hand as usize).unwrap();
+                sh.out.push(l);
+            }
+            p.handle_button(prev_t);
+            p.drive(prev_t, &mut sh);
+            started = true;
+        }
+        if !f.drop_rows.is_some_and(|(a, b)| (a..b).contains(&i)) {
+            let mut l = String::new();
+            log::write_row(&mut l, r).unwrap();
+            sh.out.push(l);
+        }
+        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: Some(25.0) });
+        p.drive(r.t_s, &mut sh);
+        if sh.out.len() >= 64 {
+            send(&mut m, &mut sh.out)?;
+        }
+        if matches!(p.phase(), Phase::Done | Phase::Failed) {
+            break;
+        }
+        prev_t = r.t_s;
+    }
+    send(&mut m, &mut sh.out)?;
+    if wait_for(&mut m, b'r') {
+        sh.out.push(END.to_string());
+        send(&mut m, &mut sh.out)?;
+    }
+    // Keep the master open until the session has read everything.
+    std::thread::sleep(Duration::from_millis(500));
+    Ok(())
+}
+
+fn log_path(name: &str) -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("port");
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+/// A session against the fake board: its result, what the user saw, the saved log's path.
+fn session(name: &str, f: Faults, silence: Duration) -> (Result<port::Outcome, SessionError>, String, PathBuf) {
+    let (master, slave) = TTYPort::pair().unwrap();
+    let path = slave.name().unwrap();
+    let fake = std::thread::spawn(move || board(master, sim_log(), f));
+    let mut opts = Options::new(log_path(name));
+    opts.silence = silence;
+    let mut ui = Vec::new();
+    let mut p = port::open(&path).unwrap();
+    let r = port::run(&mut *p, Cursor::new(b"\n".to_vec()), &mut ui, &opts);
+    drop(p);
+    fake.join().unwrap().unwrap();
+    drop(slave);
+    let ui = String::from_utf8(ui).unwrap();
+    eprintln!("--- {name}:\n{ui}");
+    (r, ui, opts.log)
+}
+
+#[test]
+fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
+    let (r, ui, path) = session("ok.csv", Faults::default(), Duration::from_secs(20));
+    let o = r.unwrap();
+    // The log as received: every row of the simulated log, the messages between them.
+    let saved = std::fs::read_to_string(&path).unwrap();
+    assert!(!saved.contains('\r'));
+    let (got, want) = (csvlog::parse(&saved).unwrap(), csvlog::parse(sim_log()).unwrap());
+    assert!(got.rows.len() + 1 >= want.rows.len(), "{} of {} rows", got.rows.len(), want.rows.len());
+    assert_eq!(got.rows[..], want.rows[..got.rows.len()]);
+    assert!(got.messages > 20, "{} messages", got.messages);
+    assert!(saved.lines().any(|l| l == END) && saved.lines().filter(|l| l.starts_with("{\"gyro\":")).count() == 1);
+    assert_eq!(o.lines, saved.lines().count());
+    // The board's result, parsed, and the cross-check.
+    assert!(o.json.starts_with("{\"gyro\":{\"K\":[["), "{}", o.json);
+    let v: serde_json::Value = serde_json::from_str(&o.json).unwrap();
+    assert_eq!(v["gyro"]["method"], "full");
+    assert_eq!(o.check.replayed, Some("default"));
+    assert!(o.check.max_diff <= K_TOLERANCE, "{}", o.check.max_diff);
+    assert_eq!(o.check.lost_rows, 0);
+    for i in 0..3 {
+        assert!((o.record.gyro_k[i][i] - v["gyro"]["K"][i][i].as_f64().unwrap() as f32).abs() < 1e-7);
+    }
+    // What the user saw: the phases with their instructions, the prompt, the progress bar.
+    for needle in ["phase hand-held: ", "phase reattach: ", "press Enter", "phase rig-poses", "] 32/32 poses", "cross-check passed"] {
+        assert!(ui.contains(needle), "{needle:?} not shown");
+    }
+}
+
+#[test]
+fn a_board_k_that_disagrees_fails_the_cross_check() {
+    let (r, _, _) = session("bad-k.csv", Faults { k_offset: 1e-3, ..Faults::default() }, Duration::from_secs(20));
+    let e = r.unwrap_err();
+    assert_eq!(e.exit_code(), 5);
+    let msg = e.to_string();
+    assert!(msg.starts_with("cross-check failed: the board's K[0][1] = ") && msg.contains("every row arrived"), "{msg}");
+}
+
+#[test]
+fn rows_lost_on_usb_are_counted_in_the_cross_check_failure() {
+    // Three rows in the middle of the first rig move after the re-clamp.
+    let rows = csvlog::parse(sim_log()).unwrap().rows;
+    let reclamped = rows.iter().rposition(|r| r.servo_deg.is_none()).unwrap();
+    let moving = (reclamped + 1..rows.len()).find(|&i| rows[i].servo_deg != rows[i - 1].servo_deg).unwrap() + 20;
+    let (r, _, path) = session("lost.csv", Faults { drop_rows: Some((moving, moving + 3)), ..Faults::default() }, Duration::from_secs(20));
+    let e = r.unwrap_err();
+    assert_eq!(e.exit_code(), 5);
+    assert!(e.to_string().contains(&format!("3 of {} rows were lost on USB", rows_until_done(&path) + 3)), "{e}");
+}
+
+/// Rows in a saved log.
+fn rows_until_done(path: &PathBuf) -> usize {
+    csvlog::parse(&std::fs::read_to_string(path).unwrap()).unwrap().rows.len()
+}
+
+#[test]
+fn a_silent_board_is_a_timeout_error() {
+    let (r, _, _) = session("silent.csv", Faults { silent: true, ..Faults::default() }, Duration::from_secs(1));
+    let e = r.unwrap_err();
+    assert!(matches!(e, SessionError::Silent { secs: 1, .. }), "{e}");
+    assert_eq!(e.exit_code(), 6);
+    assert!(e.to_string().contains("raw-log header"), "{e}");
+}
+
+#[test]
+fn a_port_that_does_not_exist_is_named() {
+    let (code, out, err) = calib(&["--port", "/nonexistent/ttyACM9"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(out.is_empty() && err.contains("/nonexistent/ttyACM9: cannot open the port"), "{err}");
+    let (code, _, err) = calib(&["--log", "x.csv"]);
+    assert_eq!(code, 2, "{err}");
+}
