@@ -17,8 +17,8 @@ pub mod button;
 pub mod led;
 pub mod lsm9ds1;
 pub mod rtt;
-pub mod stamp;
 pub mod serial;
+pub mod stamp;
 pub mod storage;
 #[cfg(target_os = "none")]
 pub mod usb;

@@ -107,13 +107,10 @@ impl Command {
     }
 }
 
-/// The help, one line per command.
-pub const HELP: [&str; 5] = [
-    "commands: c calibrate (also: continue after re-clamping), r raw-log mode on/off, s stored calibration, h help",
-    "c: the same as a short press of the button",
-    "r: the CSV header, then one row per sample (calib reads the captured text), the end marker when off",
-    "s: the stored record, as a JSON line (calib's schema) and as C code for your own firmware",
-    "1200-baud touch (open the port at 1200 Bd and close it): resets into the Arduino bootloader for bossac",
+/// The help.
+pub const HELP: [&str; 2] = [
+    "commands: c calibrate, or continue after re-clamping (= the button); r raw log (CSV rows) on/off; s stored calibration (JSON, C); h help",
+    "1200-baud touch (open the port at 1200 Bd, then close it): resets into the Arduino bootloader for bossac",
 ];
 
 /// Line coding rate (Bd) that asks for the bootloader (Arduino's "1200-baud touch").

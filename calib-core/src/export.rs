@@ -148,7 +148,13 @@ fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
 /// The header comment lines, each between `open` and `close`: what the record is and the two
 /// models with their units.
 fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
-    write!(w, "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor at ", r.seq, r.method.name(), r.accel_model.name())?;
+    write!(
+        w,
+        "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor at ",
+        r.seq,
+        r.method.name(),
+        r.accel_model.name()
+    )?;
     num(w, r.temp_c, 1, "unknown", " degC")?;
     writeln!(w, "{close}")?;
     writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
@@ -230,7 +236,12 @@ mod tests {
 
     #[test]
     fn c_and_rust_have_the_arrays_units_and_short_lines() {
-        let rec = Record { method: Method::Full, seq: 12, gyro_k: [[1.0123457, -0.0023456, 0.0001], [0.0, 0.99, 0.0], [0.0, 0.0, 1.02]], ..sample() };
+        let rec = Record {
+            method: Method::Full,
+            seq: 12,
+            gyro_k: [[1.0123457, -0.0023456, 0.0001], [0.0, 0.99, 0.0], [0.0, 0.0, 1.02]],
+            ..sample()
+        };
         let c = text(&rec, Format::C);
         for needle in [
             "record 12, full K, accelerometer model nine_param, sensor at 24.5 degC */",

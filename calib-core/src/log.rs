@@ -45,7 +45,8 @@ const DECIMALS: (u32, u32, u32, u32) = (6, 6, 5, 2);
 
 /// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
 /// written as `nan`, which the parser rejects. Digits by hand: no `core::fmt` number code.
-pub(crate) fn fixed(w: &mut impl Write, v: f64, decimals: u32) -> fmt::Result {
+#[inline(never)] // one copy for the log, the text lines and the exports (flash)
+pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
     let scaled = v * 10u64.pow(decimals) as f64;
     if !(scaled.abs() < 9.2e18) {
         return w.write_str("nan");

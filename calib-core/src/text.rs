@@ -172,7 +172,7 @@ mod tests {
 
     #[test]
     fn fixed_matches_core_fmt() {
-        for v in [0.0, 1.25, -3.14159, 1234.5678, 0.001, 123456789.4] {
+        for v in [0.0, 1.25, -3.25159, 1234.5678, 0.001, 123456789.4] {
             assert_eq!(format!("{}", Fixed(v, 3)), format!("{v:.3}"));
             assert_eq!(format!("{}", Fixed(v, 0)), format!("{v:.0}"));
         }

@@ -387,6 +387,16 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
 /// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
 /// (`calib --no-rotations`: to see what they add).
 pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
+    calibrate_from(rows, method, rotations_on, None)
+}
+
+/// [`calibrate`] of a log of the firmware's run that started with `stored` in its flash (the
+/// board's `s` answer): the replay starts from it, as the board did.
+pub fn calibrate_stored(rows: &[Row], stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+    calibrate_from(rows, None, true, stored)
+}
+
+fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
     check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
@@ -396,7 +406,7 @@ pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) 
     // A run of the firmware's own procedure: replayed through it, the firmware's results (which
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
-        if let Some(r) = crate::replay::replay(rows) {
+        if let Some(r) = crate::replay::replay(rows, stored) {
             let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
                 (Some(e), _) => Err(e),
                 (None, Ok(c)) => Ok(c),

@@ -2,7 +2,8 @@
 //! board's protocol is single-letter commands in, text lines out (`r` raw-log mode on/off, `c`
 //! calibrate / continue after the re-clamp).
 //!
-//! The session: open the port ([`open`]), drain stale input, `r` until the log header arrives
+//! The session: open the port ([`open`]), drain stale input, `s` for the stored record (the
+//! run starts from its accelerometer calibration), `r` until the log header arrives
 //! (an end marker instead means raw-log mode was on: `r` again), `c`; then every line is saved
 //! to the log file as received (without CR), the phases and a progress bar (from the `plan:` and
 //! pose lines) go to the user, and in the `reattach` phase the user's Enter is answered with
@@ -35,12 +36,20 @@ pub const BAUD: u32 = 115_200;
 /// Largest |ΔK| over the nine elements for the cross-check to pass. The board and calib run the
 /// same code on the same samples: what differs is the log's rounding of each sample (1 µs,
 /// 1 µg, 10 µ°/s: 1.2e-7 in K measured on a simulated run), the JSON's 7 decimals (5e-8) and
-/// f32 rounding (6e-8 at 1). 1e-5 is ~50× that, and ~100× below what one row lost in a move
-/// does (its gyro integral short by one sample: ~1e-3 of K).
+/// f32 rounding (6e-8 at 1). Measured in the tests: 4.6e-8 to 1.2e-7 (the fake board), 2.4e-7
+/// (the simulated board's own record, from unrounded samples). 1e-5 is 40× that, and 20× below
+/// what one row lost in a move does (its gyro integral short by a sample: 3 rows lost moved K by
+/// 5.8e-4).
 pub const K_TOLERANCE: f32 = 1e-5;
 /// How long one read of the port waits: the session checks its timeouts and the user's Enter
 /// this often.
 const POLL: Duration = Duration::from_millis(50);
+/// The board's answer to `s` without a stored record.
+pub const NO_RECORD: &str = "no calibration stored";
+/// How long the board may take to answer a command.
+const ANSWER: Duration = Duration::from_secs(10);
+/// Lines after `calibration done` within which its result line must come.
+const RESULT_WITHIN_LINES: usize = 200;
 
 /// The session's limits and where it saves the log.
 #[derive(Debug, Clone)]
@@ -97,9 +106,8 @@ pub struct CrossCheck {
     pub lost_rows: usize,
     /// Bytes the board said it dropped since its boot (its last `USB: <n> bytes dropped` line).
     pub dropped_bytes: u64,
-    /// The configuration calib replayed the log under; `None`: calib found the phases from the
-    /// data (the board reused its stored accelerometer calibration, which the log lacks), so
-    /// the two `K` are not comparable to [`K_TOLERANCE`] and the check was skipped.
+    /// The configuration calib replayed the log under; `None` (a failed check): calib found the
+    /// phases from the data instead.
     pub replayed: Option<&'static str>,
 }
 
@@ -136,8 +144,13 @@ pub enum SessionError {
         /// What the session was waiting for.
         waiting_for: &'static str,
     },
-    /// The user's input ended while the session waited for Enter.
-    InputClosed,
+    /// The board did not answer a command in time.
+    NoAnswer {
+        /// What the session waited for.
+        waiting_for: &'static str,
+        /// The limit (s).
+        secs: u64,
+    },
     /// The board's calibration failed: its message.
     CalibrationFailed(String),
     /// The board's result line is not the expected JSON: why.
@@ -150,8 +163,8 @@ pub enum SessionError {
     Mismatch {
         /// The comparison.
         check: Box<CrossCheck>,
-        /// The board's `K`.
-        board: Record,
+        /// The board's record.
+        board: Box<Record>,
         /// The likely cause.
         reason: String,
     },
@@ -163,10 +176,10 @@ impl SessionError {
     pub fn exit_code(&self) -> u8 {
         match self {
             SessionError::CalibrationFailed(_) | SessionError::Offline(_) => 1,
-            SessionError::Open { .. } | SessionError::Port(_) | SessionError::LogFile { .. } | SessionError::InputClosed => 2,
+            SessionError::Open { .. } | SessionError::Port(_) | SessionError::LogFile { .. } => 2,
             SessionError::BadResult(_) | SessionError::Log(_) => 3,
             SessionError::Mismatch { .. } => 5,
-            SessionError::Silent { .. } | SessionError::Timeout { .. } => 6,
+            SessionError::Silent { .. } | SessionError::Timeout { .. } | SessionError::NoAnswer { .. } => 6,
         }
     }
 }
@@ -183,7 +196,11 @@ impl fmt::Display for SessionError {
             SessionError::Timeout { secs, waiting_for } => {
                 write!(f, "the session took longer than {secs} s (--timeout), waiting for {waiting_for}")
             }
-            SessionError::InputClosed => f.write_str("the input ended while waiting for Enter (clamp the board back and press Enter)"),
+            SessionError::NoAnswer { waiting_for, secs } => write!(
+                f,
+                "the board did not send {waiting_for} within {secs} s: is the gyrocal firmware with the USB protocol \
+                 running on it?"
+            ),
             SessionError::CalibrationFailed(m) => write!(f, "calibration failed, nothing stored: {m}"),
             SessionError::BadResult(m) => write!(f, "the board's result line: {m}"),
             SessionError::Log(e) => write!(f, "the saved log: {e}"),
@@ -212,10 +229,11 @@ pub fn open(path: &str) -> Result<Box<dyn SerialPort>, SessionError> {
     serialport::new(path, BAUD).dtr_on_open(true).timeout(POLL).open().map_err(|error| SessionError::Open { port: path.into(), error })
 }
 
-/// Runs a session on `port` (see the module): `input` gives the user's Enter (the CLI passes
-/// stdin; each line answers one `reattach`, also if typed ahead; read on a thread of its own
-/// that ends with `input` or at its next line), `ui` gets the phases, instructions and progress. The board's result line is in the [`Outcome`], not
-/// printed.
+/// Runs a session on `port` (see the module). `input` gives the user's Enter (the CLI passes
+/// stdin): each line answers one `reattach`, also if typed ahead; it is read on a thread of its
+/// own that ends with `input` or at its next line; without input the board's button goes on.
+/// `ui` gets the phases, instructions and progress. The board's result line is returned in the
+/// [`Outcome`], not printed.
 pub fn run(
     port: &mut dyn SerialPort,
     input: impl BufRead + Send + 'static,
@@ -229,21 +247,40 @@ pub fn run(
     let mut link = Link::new(port, file, opts);
     link.drain()?;
 
+    // The record the run starts from (its accelerometer calibration replaces the hand-held
+    // poses): the answer to `s` is a record line, its JSON, a C snippet, or none stored.
+    link.send(b's')?;
+    let asked = Instant::now();
+    let stored = loop {
+        let waiting_for = "the stored calibration (its answer to s)";
+        match link.line(waiting_for)? {
+            Some(l) if l.starts_with("{\"gyro\":") => break Some(record_from_json(&l).map_err(SessionError::BadResult)?),
+            Some(l) if l.trim() == NO_RECORD => break None,
+            _ if asked.elapsed() >= ANSWER => return Err(SessionError::NoAnswer { waiting_for, secs: ANSWER.as_secs() }),
+            _ => {}
+        }
+    };
+
     // Raw-log mode on; `r` toggles, so the end marker instead of the header: it was on, again.
     link.send(b'r')?;
+    let asked = Instant::now();
     loop {
-        match link.line("the raw-log header (the answer to r)")? {
+        let waiting_for = "the raw-log header (its answer to r)";
+        match link.line(waiting_for)? {
             Some(l) if l.trim() == HEADER => break,
             Some(l) if l.trim() == END => link.send(b'r')?,
+            _ if asked.elapsed() >= ANSWER => return Err(SessionError::NoAnswer { waiting_for, secs: ANSWER.as_secs() }),
             _ => {}
         }
     }
     ui.say(&format!("calib: raw log on, saving every line to {}; calibrating (c)", opts.log.display()));
     link.send(b'c')?;
 
-    let (mut progress, mut reattach, mut done, mut dropped) = (Progress::default(), false, false, 0u64);
+    // `done`: lines since `calibration done`.
+    let (mut progress, mut reattach, mut done, mut dropped) = (Progress::default(), false, None, 0u64);
+    let mut input_open = true;
     let json = loop {
-        if reattach {
+        if reattach && input_open {
             match enter.try_recv() {
                 Ok(()) => {
                     link.send(b'c')?;
@@ -251,7 +288,10 @@ pub fn run(
                     ui.say("calib: continuing (c)");
                 }
                 Err(TryRecvError::Empty) => {}
-                Err(TryRecvError::Disconnected) => return Err(SessionError::InputClosed),
+                Err(TryRecvError::Disconnected) => {
+                    input_open = false;
+                    ui.say("calib: no input to press Enter on: press the board's button (D2) once it is clamped back");
+                }
             }
         }
         let waiting_for = if reattach { "Enter (the board clamped back)" } else { "the calibration" };
@@ -283,34 +323,49 @@ pub fn run(
             link.finish()?;
             return Err(SessionError::CalibrationFailed(m.to_string()));
         } else if l.starts_with("calibration done") {
-            done = true;
+            done = Some(0);
             ui.say(&l);
-        } else if done && l.starts_with("{\"gyro\":") {
+        } else if done.is_some() && l.starts_with("{\"gyro\":") {
             break l;
         } else if let Some(n) = dropped_bytes(&l) {
             dropped = n;
             ui.say(&format!("calib: warning: the board says {l}"));
+        } else if let Some(n) = done.as_mut() {
+            *n += 1;
+            if *n > RESULT_WITHIN_LINES {
+                let _ = link.send(b'r');
+                link.finish()?;
+                return Err(SessionError::BadResult(format!(
+                    "no result line (JSON) within {RESULT_WITHIN_LINES} lines after `calibration done` (a firmware without it?)"
+                )));
+            }
         }
     };
     // Raw-log mode off: the end marker closes the log.
     link.send(b'r')?;
-    while link.line("the end of the raw log (the answer to r)")?.is_none_or(|l| l.trim() != END) {}
+    let asked = Instant::now();
+    let waiting_for = "the end marker of the raw log (its answer to r)";
+    while link.line(waiting_for)?.is_none_or(|l| l.trim() != END) {
+        if asked.elapsed() >= ANSWER {
+            return Err(SessionError::NoAnswer { waiting_for, secs: ANSWER.as_secs() });
+        }
+    }
     let (text, lines) = link.finish()?;
 
     let record = record_from_json(&json).map_err(SessionError::BadResult)?;
-    let check = cross_check(&record, &text, dropped)?;
-    ui.say(&match check.replayed {
-        Some(cfg) => format!(
-            "calib: cross-check passed: calib's K on the saved log ({} rows, replayed as `{cfg}`) agrees with the board's to \
-             {:.1e} (tolerance {K_TOLERANCE:.0e})",
-            check.rows, check.max_diff
-        ),
-        None => format!(
-            "calib: cross-check skipped: the board reused its stored accelerometer calibration (no hand-held poses in this \
-             run), which the log lacks, so calib cannot replay the run; its K from the data alone differs by {:.1e}",
-            check.max_diff
-        ),
-    });
+    let check = cross_check(&record, &text, dropped, stored.as_ref())?;
+    ui.say(&format!(
+        "calib: cross-check passed: calib's K on the saved log ({} rows, replayed as `{}`{}) agrees with the board's to \
+         {:.1e} (tolerance {K_TOLERANCE:.0e}){}",
+        check.rows,
+        check.replayed.unwrap_or_default(),
+        if stored.is_some() { " from the stored record" } else { "" },
+        check.max_diff,
+        match check.lost_rows {
+            0 => String::new(),
+            n => format!("; {n} rows were lost on USB, without effect on K"),
+        }
+    ));
     Ok(Outcome { json, record, lines, check })
 }
 
@@ -447,7 +502,14 @@ impl Ui<'_> {
         const WIDTH: usize = 30;
         let done = p.handheld + p.rig;
         let fill = (done * WIDTH).checked_div(p.total).unwrap_or(0).min(WIDTH);
-        let bar = format!("[{}{}] {done}/{} poses ({} hand-held, {} rig)", "#".repeat(fill), "-".repeat(WIDTH - fill), p.total, p.handheld, p.rig);
+        let bar = format!(
+            "[{}{}] {done}/{} poses ({} hand-held, {} rig)",
+            "#".repeat(fill),
+            "-".repeat(WIDTH - fill),
+            p.total,
+            p.handheld,
+            p.rig
+        );
         if self.redraw {
             let _ = write!(self.out, "\r{bar}");
             let _ = self.out.flush();
@@ -565,20 +627,14 @@ pub fn lost_rows(rows: &[Row]) -> usize {
     dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum()
 }
 
-/// Whether the run had hand-held poses: rows with no servo commanded after the first commanded one.
-fn has_handheld(rows: &[Row]) -> bool {
-    let commanded = |r: &Row| r.servo_deg.is_some() || r.tilt_deg.is_some();
-    rows.iter().skip_while(|r| !commanded(r)).any(|r| !commanded(r))
-}
-
-/// Calibrates the saved log (`log_text`) with calib ([`offline::calibrate_with`], defaults) and
-/// compares its `K` with the board's. Passes when every element agrees to [`K_TOLERANCE`] with
-/// the same method on a replayed log; skipped (`replayed: None`) when the board used its
-/// stored accelerometer calibration; otherwise [`SessionError::Mismatch`] naming the likely
-/// cause (rows lost on USB, with their number). `dropped_bytes`: the board's own count.
-pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64) -> Result<CrossCheck, SessionError> {
+/// Calibrates the saved log (`log_text`) with calib ([`offline::calibrate_stored`]: defaults,
+/// the replay starting from `stored`, the record the board had when the run started, as it did)
+/// and compares its `K` with the board's. Passes when every element agrees to [`K_TOLERANCE`]
+/// with the same method on a replayed log; otherwise [`SessionError::Mismatch`] naming the
+/// likely cause (rows lost on USB, with their number). `dropped_bytes`: the board's own count.
+pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64, stored: Option<&Record>) -> Result<CrossCheck, SessionError> {
     let log = csvlog::parse(log_text).map_err(SessionError::Log)?;
-    let c = offline::calibrate_with(&log.rows, None, true).map_err(|e| SessionError::Offline(e.to_string()))?;
+    let c = offline::calibrate_stored(&log.rows, stored).map_err(|e| SessionError::Offline(e.to_string()))?;
     let calib = c.record().ok_or_else(|| SessionError::Offline(format!("no gyro calibration: {}", c.missing().join("; "))))?;
     let (mut max_diff, mut at) = (0.0f32, (0, 0));
     for i in 0..3 {
@@ -594,26 +650,27 @@ pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64) -> Result
     if max_diff <= K_TOLERANCE && board.method == calib.method && c.replayed.is_some() {
         return Ok(check);
     }
-    if check.lost_rows == 0 && c.replayed.is_none() && !has_handheld(&log.rows) {
-        return Ok(check);
-    }
     let reason = if check.lost_rows > 0 {
+        let board_says = match dropped_bytes {
+            0 => String::new(),
+            n => format!("; the board says {n} bytes dropped since boot"),
+        };
         format!(
-            "{} of {} rows were lost on USB (gaps in the saved log's time column; the board says {dropped_bytes} bytes dropped \
-             since boot): the PC did not read the port fast enough. Run again (no USB hub, a less busy PC)",
+            "{} of {} rows were lost on USB (gaps in the saved log's time column{board_says}): the PC did not read the \
+             port fast enough. Run again (no USB hub, a less busy PC)",
             check.lost_rows,
             check.rows + check.lost_rows
         )
     } else if c.replayed.is_none() {
-        "calib could not replay the saved log through the firmware's procedure (not a whole run of this firmware's \
-         procedure: another firmware version than this calib's?)"
+        "calib could not replay the saved log through the firmware's procedure from the board's stored record (not a \
+         whole run of this firmware's procedure: another firmware version than this calib's?)"
             .into()
     } else {
         "every row arrived and the log replays, yet the results differ: the board's firmware and this calib are not the \
          same version?"
             .into()
     };
-    Err(SessionError::Mismatch { check: Box::new(check), board: *board, reason })
+    Err(SessionError::Mismatch { check: Box::new(check), board: Box::new(*board), reason })
 }
 
 #[cfg(test)]

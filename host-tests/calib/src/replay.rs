@@ -8,8 +8,10 @@
 //! empty → commanded (back on the shaft). The press times only set phase timeouts. While
 //! replaying, the procedure's own commanded angles must equal the logged ones at every row;
 //! the first mismatch means the log is not a run of this procedure with this configuration
-//! (another protocol, a stored accelerometer calibration on the board, another servo type), and
-//! the replay gives up for the data-driven path of [`crate::offline`].
+//! (another protocol, a stored accelerometer calibration on the board that the replay was not
+//! given, another servo type), and the replay gives up for the data-driven path of
+//! [`crate::offline`]. Given the board's stored record, the replay starts from it as the board
+//! did (its accelerometer calibration instead of the hand-held poses).
 
 use crate::csvlog::Row;
 use calib_core::accel::AccelCal;
@@ -99,8 +101,8 @@ fn same(a: Option<f32>, b: Option<f32>) -> bool {
 
 /// Replays `rows` under `cfg`; `None` at the first row whose logged angles differ from the
 /// procedure's, or if the run never ends. With the full `K`, if one was solved.
-fn run(rows: &[Row], cfg: Config) -> Option<(Collect, Option<FullCal>)> {
-    let mut p = Procedure::new(cfg, None);
+fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, Option<FullCal>)> {
+    let mut p = Procedure::new(cfg, stored.copied());
     let mut out = Collect::default();
     let mut prev_t = rows.first()?.t_s;
     let mut started = false;
@@ -133,9 +135,10 @@ fn run(rows: &[Row], cfg: Config) -> Option<(Collect, Option<FullCal>)> {
 }
 
 /// Replays a log of the firmware's procedure; `None` if it is not one (see the module).
-pub fn replay(rows: &[Row]) -> Option<Replay> {
+/// `stored`: the record the board had in flash when the run started, if any.
+pub fn replay(rows: &[Row], stored: Option<&Record>) -> Option<Replay> {
     configs().into_iter().find_map(|(name, cfg)| {
-        let (c, full) = run(rows, cfg)?;
+        let (c, full) = run(rows, cfg, stored)?;
         let attempted = cfg.pan_tilt || c.rotations;
         let full = attempted.then_some(match (c.done, c.failed, full) {
             (Some(_), _, Some(f)) => Ok(f),

@@ -427,3 +427,55 @@ fn bossac_failures_are_forwarded() {
     assert!(stderr(&o).contains("did not appear within 1 s. The board was not changed"));
     assert!(!d.join("args.txt").exists());
 }
+
+#[test]
+fn the_1200_baud_touch_sets_1200_baud_and_falls_back_to_the_double_tap() {
+    let d = dir("touch");
+    let bossac = fake_bossac(&d, "bin/bossac", 0);
+    let (e, bin) = (crafted(&d), d.join("fw.bin"));
+    // A pseudo-terminal takes the touch (its DTR ioctl fails: ignored) but never resets.
+    let (_master, slave) = serialport::TTYPort::pair().unwrap();
+    let port = serialport::SerialPort::name(&slave).unwrap();
+    let args = ["--elf", e.to_str().unwrap(), "--bossac", bossac.to_str().unwrap(), "--out", bin.to_str().unwrap(), "--port", &port];
+    let o = run(&args, &d, &[]);
+    assert!(o.status.success());
+    assert_eq!(serialport::SerialPort::baud_rate(&slave).unwrap(), 1200, "the touch's line coding");
+    let err = stderr(&o);
+    assert!(err.contains(&format!("1200-baud touch on {port}")), "{err}");
+    assert!(err.contains("did not go away within 3 s of the 1200-baud touch") && err.contains("double-tap"), "{err}");
+    assert_eq!(recorded(&d), expected(&port, &bin));
+}
+
+#[test]
+fn after_the_touch_bossac_waits_for_the_port_to_come_back() {
+    let d = dir("touch-reset");
+    let bossac = fake_bossac(&d, "bin/bossac", 0);
+    let (e, bin) = (crafted(&d), d.join("fw.bin"));
+    // The board's port: a link to a pseudo-terminal that goes away once touched at 1200 baud
+    // and comes back, as the board re-enumerates in its bootloader.
+    let (_master, slave) = serialport::TTYPort::pair().unwrap();
+    let pts = serialport::SerialPort::name(&slave).unwrap();
+    let port = d.join("ttyACM5");
+    std::os::unix::fs::symlink(&pts, &port).unwrap();
+    let board = {
+        let port = port.clone();
+        std::thread::spawn(move || {
+            let t0 = std::time::Instant::now();
+            while serialport::SerialPort::baud_rate(&slave).unwrap() != 1200 {
+                assert!(t0.elapsed().as_secs() < 60, "no touch");
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            std::fs::remove_file(&port).unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(400));
+            std::os::unix::fs::symlink(&pts, &port).unwrap();
+        })
+    };
+    let port = port.to_str().unwrap();
+    let args = ["--elf", e.to_str().unwrap(), "--bossac", bossac.to_str().unwrap(), "--out", bin.to_str().unwrap(), "--port", port];
+    let o = run(&args, &d, &[]);
+    board.join().unwrap();
+    assert!(o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains(&format!("the bootloader's port: {port}")) && !err.contains("double-tap the RESET"), "{err}");
+    assert_eq!(recorded(&d), expected(port, &bin));
+}

@@ -4,13 +4,15 @@
 #![cfg(unix)]
 
 use calib::csvlog;
-use calib::port::{self, Options, SessionError, K_TOLERANCE};
+use calib::port::{self, Options, SessionError, K_TOLERANCE, NO_RECORD};
 use calib_core::export::{self, Format};
 use calib_core::log::{self, END, HEADER};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::record::{Record, StoreError};
 use calib_core::text;
-use common::{calib, simulated_log};
+use common::calib;
+use rig_sim::harness::{record_log, Faults};
+use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
 use serialport::{SerialPort, TTYPort};
 use std::io::{Cursor, Read, Write};
@@ -20,21 +22,48 @@ use std::time::{Duration, Instant};
 
 mod common;
 
-/// One simulated run of the default procedure, shared by the tests.
+/// Two simulated runs of the default procedure on one rig, shared by the tests: the first from
+/// an empty flash, the second from the record the first stored.
+struct Runs {
+    first: String,
+    stored: Record,
+    second: String,
+    second_record: Record,
+}
+
+fn runs() -> &'static Runs {
+    static RUNS: OnceLock<Runs> = OnceLock::new();
+    RUNS.get_or_init(|| {
+        let run = |seed, stored| {
+            let mut rig = Rig::new(Variant::Hobby.config(8, 0), seed);
+            let (log, out) = record_log(&mut rig, &mut Procedure::new(Config::DEFAULT, stored), Faults::default(), "");
+            (log, out.stored[0])
+        };
+        let (first, stored) = run(3, None);
+        let (second, second_record) = run(4, Some(stored));
+        Runs { first, stored, second, second_record }
+    })
+}
+
 fn sim_log() -> &'static str {
-    static LOG: OnceLock<String> = OnceLock::new();
-    LOG.get_or_init(|| simulated_log(Variant::Hobby.config(8, 0)).0)
+    &runs().first
 }
 
 /// How the fake board misbehaves.
 #[derive(Clone, Copy, Default)]
-struct Faults {
-    /// Never answers.
+struct Quirks {
+    /// Never answers (its port open).
     silent: bool,
     /// Adds this to K[0][1] in its JSON line.
     k_offset: f32,
     /// Does not send these rows (they are still sampled: USB dropped them).
     drop_rows: Option<(usize, usize)>,
+    /// Is in raw-log mode already: the first `r` switches it off.
+    raw_on: bool,
+    /// Fails the calibration once it starts.
+    fails: bool,
+    /// The record in its flash (the run starts from it).
+    stored: Option<Record>,
 }
 
 /// The board's report lines, in the firmware's wording; its JSON after `calibration done`.
@@ -88,19 +117,43 @@ fn send(m: &mut TTYPort, lines: &mut Vec<String>) -> std::io::Result<()> {
 
 /// The fake board: the firmware's main loop over the log's samples (button presses where the
 /// servo columns change, as `calib::replay` finds them), every row sent in raw-log mode.
-fn board(mut m: TTYPort, log_text: &str, f: Faults) -> std::io::Result<()> {
+fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
     m.set_timeout(Duration::from_secs(5))?;
-    if f.silent || !wait_for(&mut m, b'r') {
+    if f.silent {
+        // Open but mute (a closed master would be a hang-up, not silence).
+        std::thread::sleep(Duration::from_secs(3));
+        return Ok(());
+    }
+    if !wait_for(&mut m, b's') {
+        return Ok(());
+    }
+    let mut sh = Lines { out: vec![], k_offset: f.k_offset };
+    match &f.stored {
+        Some(rec) => {
+            let (mut l, mut j, mut c) = (String::new(), String::new(), String::new());
+            text::record(&mut l, "stored", rec).unwrap();
+            export::write(&mut j, rec, Format::Json).unwrap();
+            export::write(&mut c, rec, Format::C).unwrap();
+            sh.out.extend([l, j]);
+            sh.out.extend(c.lines().map(String::from));
+        }
+        None => sh.out.push(NO_RECORD.into()),
+    }
+    send(&mut m, &mut sh.out)?;
+    if f.raw_on && wait_for(&mut m, b'r') {
+        send(&mut m, &mut vec!["0.500000,0.000000,0.000000,1.000000,0.00000,0.00000,0.00000,,".into(), END.into()])?;
+    }
+    if !wait_for(&mut m, b'r') {
         return Ok(());
     }
     let rows = csvlog::parse(log_text).unwrap().rows;
-    let mut p = Procedure::new(Config::DEFAULT, None);
-    let mut sh = Lines { out: vec![HEADER.to_string()], k_offset: f.k_offset };
+    let mut p = Procedure::new(Config::DEFAULT, f.stored);
+    sh.out.push(HEADER.to_string());
     let mut prev_t = rows[0].t_s;
     let mut started = false;
     for (i, r) in rows.iter().enumerate() {
         let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
-        if (!started && commanded) || (p.phase() == Phase::Reattach && commanded) {
+        if commanded && (!started || p.phase() == Phase::Reattach) {
             send(&mut m, &mut sh.out)?;
             if !wait_for(&mut m, b'c') {
                 return Ok(());
@@ -110,6 +163,12 @@ fn board(mut m: TTYPort, log_text: &str, f: Faults) -> std::io::Result<()> {
                 let mut l = String::new();
                 text::plan(&mut l, rig as usize, hand as usize).unwrap();
                 sh.out.push(l);
+            }
+            if f.fails {
+                sh.out.push("calibration failed, nothing stored: the servo did not turn".into());
+                send(&mut m, &mut sh.out)?;
+                wait_for(&mut m, b'r');
+                return Ok(());
             }
             p.handle_button(prev_t);
             p.drive(prev_t, &mut sh);
@@ -147,10 +206,10 @@ fn log_path(name: &str) -> PathBuf {
 }
 
 /// A session against the fake board: its result, what the user saw, the saved log's path.
-fn session(name: &str, f: Faults, silence: Duration) -> (Result<port::Outcome, SessionError>, String, PathBuf) {
+fn session(name: &str, log: &'static str, f: Quirks, silence: Duration) -> (Result<port::Outcome, SessionError>, String, PathBuf) {
     let (master, slave) = TTYPort::pair().unwrap();
     let path = slave.name().unwrap();
-    let fake = std::thread::spawn(move || board(master, sim_log(), f));
+    let fake = std::thread::spawn(move || board(master, log, f));
     let mut opts = Options::new(log_path(name));
     opts.silence = silence;
     let mut ui = Vec::new();
@@ -160,13 +219,13 @@ fn session(name: &str, f: Faults, silence: Duration) -> (Result<port::Outcome, S
     fake.join().unwrap().unwrap();
     drop(slave);
     let ui = String::from_utf8(ui).unwrap();
-    eprintln!("--- {name}:\n{ui}");
+    eprintln!("--- {name}:\n{ui}{}", r.as_ref().err().map(|e| format!("error: {e}")).unwrap_or_default());
     (r, ui, opts.log)
 }
 
 #[test]
 fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
-    let (r, ui, path) = session("ok.csv", Faults::default(), Duration::from_secs(20));
+    let (r, ui, path) = session("ok.csv", sim_log(), Quirks::default(), Duration::from_secs(20));
     let o = r.unwrap();
     // The log as received: every row of the simulated log, the messages between them.
     let saved = std::fs::read_to_string(&path).unwrap();
@@ -188,14 +247,21 @@ fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
         assert!((o.record.gyro_k[i][i] - v["gyro"]["K"][i][i].as_f64().unwrap() as f32).abs() < 1e-7);
     }
     // What the user saw: the phases with their instructions, the prompt, the progress bar.
-    for needle in ["phase hand-held: ", "phase reattach: ", "press Enter", "phase rig-poses", "] 32/32 poses", "cross-check passed"] {
+    for needle in [
+        "phase hand-held: ",
+        "phase reattach: ",
+        "press Enter",
+        "phase rig-poses",
+        "] 25/25 poses (12 hand-held, 13 rig)",
+        "cross-check passed",
+    ] {
         assert!(ui.contains(needle), "{needle:?} not shown");
     }
 }
 
 #[test]
 fn a_board_k_that_disagrees_fails_the_cross_check() {
-    let (r, _, _) = session("bad-k.csv", Faults { k_offset: 1e-3, ..Faults::default() }, Duration::from_secs(20));
+    let (r, _, _) = session("bad-k.csv", sim_log(), Quirks { k_offset: 1e-3, ..Quirks::default() }, Duration::from_secs(20));
     let e = r.unwrap_err();
     assert_eq!(e.exit_code(), 5);
     let msg = e.to_string();
@@ -207,8 +273,9 @@ fn rows_lost_on_usb_are_counted_in_the_cross_check_failure() {
     // Three rows in the middle of the first rig move after the re-clamp.
     let rows = csvlog::parse(sim_log()).unwrap().rows;
     let reclamped = rows.iter().rposition(|r| r.servo_deg.is_none()).unwrap();
-    let moving = (reclamped + 1..rows.len()).find(|&i| rows[i].servo_deg != rows[i - 1].servo_deg).unwrap() + 20;
-    let (r, _, path) = session("lost.csv", Faults { drop_rows: Some((moving, moving + 3)), ..Faults::default() }, Duration::from_secs(20));
+    let moving = (reclamped + 2..rows.len()).find(|&i| rows[i].servo_deg != rows[i - 1].servo_deg).unwrap() + 20;
+    let (r, _, path) =
+        session("lost.csv", sim_log(), Quirks { drop_rows: Some((moving, moving + 3)), ..Quirks::default() }, Duration::from_secs(20));
     let e = r.unwrap_err();
     assert_eq!(e.exit_code(), 5);
     assert!(e.to_string().contains(&format!("3 of {} rows were lost on USB", rows_until_done(&path) + 3)), "{e}");
@@ -221,11 +288,11 @@ fn rows_until_done(path: &PathBuf) -> usize {
 
 #[test]
 fn a_silent_board_is_a_timeout_error() {
-    let (r, _, _) = session("silent.csv", Faults { silent: true, ..Faults::default() }, Duration::from_secs(1));
+    let (r, _, _) = session("silent.csv", sim_log(), Quirks { silent: true, ..Quirks::default() }, Duration::from_secs(1));
     let e = r.unwrap_err();
     assert!(matches!(e, SessionError::Silent { secs: 1, .. }), "{e}");
     assert_eq!(e.exit_code(), 6);
-    assert!(e.to_string().contains("raw-log header"), "{e}");
+    assert!(e.to_string().contains("(its answer to s)"), "{e}");
 }
 
 #[test]
@@ -235,4 +302,33 @@ fn a_port_that_does_not_exist_is_named() {
     assert!(out.is_empty() && err.contains("/nonexistent/ttyACM9: cannot open the port"), "{err}");
     let (code, _, err) = calib(&["--log", "x.csv"]);
     assert_eq!(code, 2, "{err}");
+}
+
+#[test]
+fn a_board_in_raw_log_mode_is_switched_back_on_and_a_failed_calibration_is_named() {
+    let (r, _, path) = session("failed.csv", sim_log(), Quirks { raw_on: true, fails: true, ..Quirks::default() }, Duration::from_secs(20));
+    let e = r.unwrap_err();
+    assert_eq!(e.exit_code(), 1);
+    assert_eq!(e.to_string(), "calibration failed, nothing stored: the servo did not turn");
+    let saved = std::fs::read_to_string(path).unwrap();
+    assert!(saved.contains(&format!("{END}\n{HEADER}\n")), "{saved}");
+}
+
+#[test]
+fn a_run_from_the_stored_record_is_replayed_from_it() {
+    // No hand-held poses: the board calibrates with its stored accelerometer calibration, which
+    // calib gets from the answer to `s`.
+    let r = &runs();
+    let (res, ui, _) = session("stored.csv", &r.second, Quirks { stored: Some(r.stored), ..Quirks::default() }, Duration::from_secs(20));
+    let o = res.unwrap();
+    assert!(!ui.contains("phase hand-held"), "{ui}");
+    assert_eq!((o.record.seq, o.check.replayed), (r.stored.seq + 1, Some("default")));
+    assert!(o.check.max_diff <= K_TOLERANCE, "{}", o.check.max_diff);
+    assert!(ui.contains("from the stored record"), "{ui}");
+    // The simulated board's own record (from unrounded samples) agrees too. Without the stored
+    // record the log is not replayed, and its one cone of rig poses gives no accelerometer.
+    let c = port::cross_check(&r.second_record, &r.second, 0, Some(&r.stored)).unwrap();
+    assert!(c.max_diff <= K_TOLERANCE / 10.0, "{}", c.max_diff);
+    let e = port::cross_check(&r.second_record, &r.second, 0, None).unwrap_err();
+    assert!(matches!(e, SessionError::Offline(_)), "{e}");
 }

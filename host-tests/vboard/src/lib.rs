@@ -10,4 +10,5 @@ pub mod bench;
 pub mod elf;
 pub mod mcu;
 pub mod periph;
+pub mod pty;
 pub mod usb_host;

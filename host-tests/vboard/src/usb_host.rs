@@ -9,7 +9,9 @@
 //! 1. GET_DESCRIPTOR(device, wLength 64) at address 0 (EP0 max packet assumed 64), then a second
 //!    bus reset;
 //! 2. SET_ADDRESS, [`SET_ADDRESS_WAIT_S`];
-//! 3. GET_DESCRIPTOR(device, 18), GET_DESCRIPTOR(configuration, 9), then with wTotalLength;
+//! 3. GET_DESCRIPTOR(device, 18); for bcdUSB ≥ 2.01 (usb-device says 2.1) the BOS descriptor
+//!    (5 bytes, then wTotalLength; a STALL there is tolerated, as Linux does);
+//!    GET_DESCRIPTOR(configuration, 9), then with wTotalLength;
 //! 4. GET_DESCRIPTOR(string 0, 255), then the product, manufacturer and serial-number strings
 //!    (wLength 255, the first language id);
 //! 5. SET_CONFIGURATION(bConfigurationValue) (the host's data toggles to DATA0);
@@ -133,7 +135,12 @@ pub struct Cdc {
 /// Parses a device descriptor.
 pub fn parse_device(d: &[u8]) -> Result<DeviceDescriptor, String> {
     if d.len() != 18 || d[0] != 18 || d[1] != 1 {
-        return Err(format!("malformed device descriptor: {} bytes, bLength {}, bDescriptorType {}", d.len(), d.first().copied().unwrap_or(0), d.get(1).copied().unwrap_or(0)));
+        return Err(format!(
+            "malformed device descriptor: {} bytes, bLength {}, bDescriptorType {}",
+            d.len(),
+            d.first().copied().unwrap_or(0),
+            d.get(1).copied().unwrap_or(0)
+        ));
     }
     let u = |i: usize| u16::from_le_bytes([d[i], d[i + 1]]);
     if ![8, 16, 32, 64].contains(&d[7]) {
@@ -165,7 +172,9 @@ pub fn parse_configuration(d: &[u8]) -> Result<Configuration, String> {
     while i < d.len() {
         let (len, ty) = (d[i] as usize, d.get(i + 1).copied().unwrap_or(0));
         if len < 2 || i + len > d.len() {
-            return Err(format!("malformed configuration descriptor: a descriptor of bLength {len} at byte {i} overruns wTotalLength {total}"));
+            return Err(format!(
+                "malformed configuration descriptor: a descriptor of bLength {len} at byte {i} overruns wTotalLength {total}"
+            ));
         }
         let s = &d[i..i + len];
         match ty {
@@ -198,9 +207,12 @@ pub fn parse_configuration(d: &[u8]) -> Result<Configuration, String> {
 /// The CDC-ACM function of a configuration: the communication interface (class 2, subclass 2)
 /// and the data interface (class 10) with one bulk IN and one bulk OUT endpoint.
 pub fn find_cdc(c: &Configuration) -> Result<Cdc, String> {
-    let comm = c.interfaces.iter().find(|i| i.class.0 == 2 && i.class.1 == 2).ok_or("no CDC-ACM communication interface (class 2, subclass 2)")?;
+    let comm =
+        c.interfaces.iter().find(|i| i.class.0 == 2 && i.class.1 == 2).ok_or("no CDC-ACM communication interface (class 2, subclass 2)")?;
     let data = c.interfaces.iter().find(|i| i.class.0 == 10).ok_or("no CDC data interface (class 10)")?;
-    let bulk = |dir_in: bool| data.endpoints.iter().find(|e| e.attributes & 3 == 2 && (e.address & 0x80 != 0) == dir_in).map(|e| (e.address, e.max_packet));
+    let bulk = |dir_in: bool| {
+        data.endpoints.iter().find(|e| e.attributes & 3 == 2 && (e.address & 0x80 != 0) == dir_in).map(|e| (e.address, e.max_packet))
+    };
     let notify_in = comm.endpoints.iter().find(|e| e.attributes & 3 == 3 && e.address & 0x80 != 0).map(|e| e.address);
     Ok(Cdc {
         comm_interface: comm.number,
@@ -213,7 +225,7 @@ pub fn find_cdc(c: &Configuration) -> Result<Cdc, String> {
 
 /// Parses a string descriptor (UTF-16LE).
 pub fn parse_string(d: &[u8]) -> Result<String, String> {
-    if d.len() < 2 || d[0] as usize != d.len() || d[1] != 3 || d.len() % 2 != 0 {
+    if d.len() < 2 || d[0] as usize != d.len() || d[1] != 3 || !d.len().is_multiple_of(2) {
         return Err(format!("malformed string descriptor: {} bytes, bLength {}", d.len(), d.first().copied().unwrap_or(0)));
     }
     let units: Vec<u16> = d[2..].chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();
@@ -226,6 +238,8 @@ enum Tag {
     Device64,
     SetAddress(u8),
     Device18,
+    Bos5,
+    BosFull(u16),
     Config9,
     ConfigFull,
     String0,
@@ -243,6 +257,8 @@ enum Op {
     Reset,
     Wait(f64),
     Control(Tag),
+    /// A class request asked for through the API (waits for the enumeration).
+    User(Tag),
     /// The enumeration is complete.
     Configured,
 }
@@ -316,6 +332,8 @@ pub struct Host {
     pub device: Option<DeviceDescriptor>,
     /// The configuration as parsed.
     pub configuration: Option<Configuration>,
+    /// The BOS descriptor (raw), if the device has one.
+    pub bos: Option<Vec<u8>>,
     /// The CDC-ACM function.
     pub cdc: Option<Cdc>,
     /// The first language id (string descriptor 0).
@@ -363,6 +381,8 @@ fn describe(tag: Tag) -> String {
         Tag::Device64 => "GET_DESCRIPTOR(device, 64)".into(),
         Tag::SetAddress(a) => format!("SET_ADDRESS({a})"),
         Tag::Device18 => "GET_DESCRIPTOR(device, 18)".into(),
+        Tag::Bos5 => "GET_DESCRIPTOR(BOS, 5)".into(),
+        Tag::BosFull(n) => format!("GET_DESCRIPTOR(BOS, {n})"),
         Tag::Config9 => "GET_DESCRIPTOR(configuration, 9)".into(),
         Tag::ConfigFull => "GET_DESCRIPTOR(configuration, wTotalLength)".into(),
         Tag::String0 => "GET_DESCRIPTOR(string 0)".into(),
@@ -391,6 +411,7 @@ impl Host {
             enumerated: false,
             device: None,
             configuration: None,
+            bos: None,
             cdc: None,
             langid: None,
             strings: vec![],
@@ -465,12 +486,23 @@ impl Host {
 
     /// Queues SET_LINE_CODING(baud, 8N1) (sent once enumerated).
     pub fn set_line_coding(&mut self, baud: u32) {
-        self.script.push_back(Op::Control(Tag::LineCoding(baud)));
+        self.script.push_back(Op::User(Tag::LineCoding(baud)));
     }
 
     /// Queues SET_CONTROL_LINE_STATE with DTR (and RTS) set or cleared.
     pub fn set_dtr(&mut self, dtr: bool) {
-        self.script.push_back(Op::Control(Tag::LineState(if dtr { 3 } else { 0 })));
+        self.script.push_back(Op::User(Tag::LineState(if dtr { 3 } else { 0 })));
+    }
+
+    /// The control requests queued and not yet started, described.
+    pub fn queued(&self) -> Vec<String> {
+        self.script
+            .iter()
+            .filter_map(|op| match op {
+                Op::Control(t) | Op::User(t) => Some(describe(*t)),
+                _ => None,
+            })
+            .collect()
     }
 
     /// Whether control requests are still queued or running.
@@ -501,7 +533,7 @@ impl Host {
         }
         self.port = PortState::NoDevice;
         self.enumerated = false;
-        self.script.retain(|op| matches!(op, Op::Control(Tag::LineCoding(_) | Tag::LineState(_))));
+        self.script.retain(|op| matches!(op, Op::User(_)));
         self.ctrl = None;
         self.running = Running::Idle;
         self.next_sof = None;
@@ -513,6 +545,7 @@ impl Host {
         self.error = None;
         self.device = None;
         self.configuration = None;
+        self.bos = None;
         self.cdc = None;
         self.langid = None;
         self.strings.clear();
@@ -580,7 +613,7 @@ impl Host {
             // Start the next step of the script when nothing runs.
             if self.port == PortState::Active && self.running == Running::Idle && self.ctrl.is_none() {
                 if let Some(op) = self.script.front().copied() {
-                    let user = matches!(op, Op::Control(Tag::LineCoding(_) | Tag::LineState(_)));
+                    let user = matches!(op, Op::User(_));
                     if !user || self.enumerated {
                         self.script.pop_front();
                         self.begin(op, dev, phy);
@@ -616,12 +649,14 @@ impl Host {
                 self.out_next = Next::At(self.now);
                 self.note("enumerated".into());
             }
-            Op::Control(tag) => {
+            Op::Control(tag) | Op::User(tag) => {
                 let iface = self.cdc.map_or(0, |c| c.comm_interface as u16);
                 let (s, out) = match tag {
                     Tag::Device64 => (setup(0x80, 6, 0x0100, 0, 64), vec![]),
                     Tag::SetAddress(a) => (setup(0x00, 5, a as u16, 0, 0), vec![]),
                     Tag::Device18 => (setup(0x80, 6, 0x0100, 0, 18), vec![]),
+                    Tag::Bos5 => (setup(0x80, 6, 0x0F00, 0, 5), vec![]),
+                    Tag::BosFull(n) => (setup(0x80, 6, 0x0F00, 0, n), vec![]),
                     Tag::Config9 => (setup(0x80, 6, 0x0200, 0, 9), vec![]),
                     Tag::ConfigFull => {
                         let total = self.configuration.as_ref().map_or(9, |c| c.raw.len() as u16);
@@ -688,7 +723,14 @@ impl Host {
                 let stage = c.stage;
                 let tag = c.tag;
                 self.ctrl = None;
-                self.control_done(tag, Err(format!("timeout: {} not completed within {CONTROL_TIMEOUT_S} s (stage {stage:?}, the device NAKs)", describe(tag))), dev);
+                self.control_done(
+                    tag,
+                    Err(format!(
+                        "timeout: {} not completed within {CONTROL_TIMEOUT_S} s (stage {stage:?}, the device NAKs)",
+                        describe(tag)
+                    )),
+                    dev,
+                );
                 return Ok(());
             }
             if due(c.next, dev) {
@@ -835,6 +877,12 @@ impl Host {
                 self.note(format!("{} ok ({} bytes)", describe(tag), d.len()));
                 d
             }
+            Err(e) if matches!(tag, Tag::Bos5 | Tag::BosFull(_)) && e.starts_with("STALL") => {
+                // Linux goes on without the BOS descriptor.
+                self.note(format!("{e}: ignored"));
+                self.script.push_front(Op::Control(Tag::Config9));
+                return;
+            }
             Err(e) => {
                 self.fail(e);
                 return;
@@ -866,7 +914,30 @@ impl Host {
                 Tag::Device18 => {
                     let dd = parse_device(&d)?;
                     self.mps0 = dd.max_packet0 as usize;
+                    let bos = dd.usb >= 0x0201;
                     self.device = Some(dd);
+                    front(self, &[Op::Control(if bos { Tag::Bos5 } else { Tag::Config9 })]);
+                }
+                Tag::Bos5 => {
+                    if d.len() != 5 || d[0] != 5 || d[1] != 0x0F {
+                        return Err(format!("malformed BOS descriptor: {} bytes to GET_DESCRIPTOR(BOS, 5)", d.len()));
+                    }
+                    let total = u16::from_le_bytes([d[2], d[3]]);
+                    front(self, &[Op::Control(if total > 5 { Tag::BosFull(total) } else { Tag::Config9 })]);
+                }
+                Tag::BosFull(n) => {
+                    if d.len() != n as usize {
+                        return Err(format!("malformed BOS descriptor: wTotalLength {n}, {} bytes received", d.len()));
+                    }
+                    let mut i = 5;
+                    while i < d.len() {
+                        let len = d[i] as usize;
+                        if len < 3 || i + len > d.len() || d[i + 1] != 0x10 {
+                            return Err(format!("malformed BOS descriptor: a capability of bLength {len} at byte {i}"));
+                        }
+                        i += len;
+                    }
+                    self.bos = Some(d.clone());
                     front(self, &[Op::Control(Tag::Config9)]);
                 }
                 Tag::Config9 => {
@@ -877,7 +948,13 @@ impl Host {
                     if total < 9 {
                         return Err(format!("malformed configuration descriptor: wTotalLength {total}"));
                     }
-                    self.configuration = Some(Configuration { raw: vec![0; total as usize], value: d[5], attributes: d[7], max_power: d[8], interfaces: vec![] });
+                    self.configuration = Some(Configuration {
+                        raw: vec![0; total as usize],
+                        value: d[5],
+                        attributes: d[7],
+                        max_power: d[8],
+                        interfaces: vec![],
+                    });
                     front(self, &[Op::Control(Tag::ConfigFull)]);
                 }
                 Tag::ConfigFull => {
@@ -985,6 +1062,16 @@ impl UsbHost {
     /// The host of `mcu`'s board.
     pub fn new(mcu: &Mcu) -> Self {
         Self { periph: mcu.periph.clone() }
+    }
+
+    /// The host of these peripherals (a board without a CPU, for model tests).
+    pub fn from_periph(periph: Rc<RefCell<Periph>>) -> Self {
+        Self { periph }
+    }
+
+    /// The control requests queued and not yet started, described.
+    pub fn queued(&self) -> Vec<String> {
+        self.with(|h| h.queued())
     }
 
     /// Runs `f` on the host state.
@@ -1101,7 +1188,10 @@ impl UsbHost {
         if self.enumerated() {
             return Ok(());
         }
-        Err(format!("timeout: not enumerated within {timeout_s} s (host log tail: {:?})", self.log().iter().rev().take(4).collect::<Vec<_>>()))
+        Err(format!(
+            "timeout: not enumerated within {timeout_s} s (host log tail: {:?})",
+            self.log().iter().rev().take(4).collect::<Vec<_>>()
+        ))
     }
 
     /// Runs `mcu` until the host's queued control requests are done (at most `timeout_s`).

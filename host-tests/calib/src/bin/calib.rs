@@ -6,7 +6,7 @@
 //!
 //! Exit codes: 0 a full calibration (with `--port`: the board's, cross-checked), 4 partial,
 //! 1 nothing calibrated (the board's calibration failed), 2 usage, I/O or port error, 3 malformed
-//! log (or result line), 5 cross-check failed, 6 the board went silent or `--timeout`.
+//! log (or result line), 5 cross-check failed, 6 the board did not answer or `--timeout`.
 
 use calib::port::{self, Options};
 use calib::{csvlog, offline};
@@ -33,7 +33,8 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
 /// `quality.missing` names the rest); 1 nothing could be calibrated (with --port: the board's
 /// calibration failed); 2 usage, file or port error; 3 malformed log (or the board's result
 /// line); 5 the cross-check failed (the board's K and calib's on the saved log differ); 6 the
-/// board sent nothing for 30 s, or the session exceeded --timeout.
+/// board did not answer (nothing for 30 s, or no answer to a command in 10 s), or the session
+/// exceeded --timeout.
 #[derive(Parser, Debug)]
 #[command(name = "calib", version)]
 struct Args {
@@ -128,7 +129,8 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     let mut opts = Options::new(args.save_log.clone().unwrap_or_else(port::default_log_path));
     opts.timeout = Duration::from_secs(args.timeout);
     opts.redraw = std::io::stderr().is_terminal();
-    let result = port::open(path).and_then(|mut p| port::run(&mut *p, std::io::BufReader::new(std::io::stdin()), &mut std::io::stderr(), &opts));
+    let result =
+        port::open(path).and_then(|mut p| port::run(&mut *p, std::io::BufReader::new(std::io::stdin()), &mut std::io::stderr(), &opts));
     match result {
         Ok(o) => {
             eprintln!("calib: the board's log is in {} ({} lines)", opts.log.display(), o.lines);
@@ -141,7 +143,7 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
             if !matches!(e, port::SessionError::Open { .. }) {
                 eprintln!("calib: the lines received are in {}", opts.log.display());
             }
-            fail(e.exit_code(), format!("{path}: {e}"))
+            fail(e.exit_code(), e)
         }
     }
 }

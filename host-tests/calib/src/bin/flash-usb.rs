@@ -34,12 +34,17 @@ What it does:
          arduino-cli core install arduino:mbed_nano
      (or the IDE's Boards Manager: \"Arduino Mbed OS Nano Boards\"). A bossac built from
      upstream BOSSA (e.g. Debian's bossa-cli) may not know the nRF52840: use Arduino's.
-  5. asks you to double-tap the board's RESET button: the orange LED (L) fades in and out
-     while the bootloader runs. Then it runs, as the Arduino IDE does, plus -v (verify):
+  5. puts the board in its bootloader as the Arduino IDE does for it (use_1200bps_touch,
+     wait_for_upload_port): opens PORT at 1200 baud and drops DTR, which makes the gyrocal
+     firmware reset into the bootloader's serial mode, then waits (up to --wait) for the
+     bootloader's port (a new one, or PORT back). If PORT cannot be opened as a serial port, or does not go away within
+     3 s (another firmware, or the bootloader already runs), it asks you to double-tap the
+     board's RESET button instead: the orange LED (L) fades in and out while the bootloader
+     runs. Then it runs, as the Arduino IDE does, plus -v (verify):
          bossac -d --port=PORT -U -i -e -w -v target/gyrocal-fw.bin -R
      PORT is the bootloader's serial port (Linux /dev/ttyACM0, macOS /dev/cu.usbmodemXXXX,
      Windows COM9); it is passed bare like the IDE does (ttyACM0, cu.usbmodemXXXX, COM9).
-     It may differ from the port the board had before the double tap. -R resets the board
+     It may differ from the port the board had before the reset. -R resets the board
      into the new firmware.
 
 The upload never touches the calibration records: the bootloader writes (and erases) only
@@ -338,7 +343,7 @@ fn shell_line(prog: &Path, args: &[String]) -> String {
 const GET_BOSSAC: &str = "Get Arduino's bossac 1.9.1-arduino2 with\n    arduino-cli core install arduino:mbed_nano\n\
      (or the Arduino IDE's Boards Manager: \"Arduino Mbed OS Nano Boards\"), or pass --bossac PATH / set BOSSAC.";
 
-/// The device file to wait for after the double tap (POSIX only; Windows COM ports are no files).
+/// The device file to wait for after the reset (POSIX only; Windows COM ports are no files).
 fn port_device(port: &str) -> Option<PathBuf> {
     if cfg!(windows) {
         return None;
@@ -369,12 +374,87 @@ fn wait_for_port(port: &str, wait: Duration) -> Result<(), String> {
     Ok(())
 }
 
+/// How long the port may take to go away after the 1200-baud touch (the board resets).
+const TOUCH_RESET: Duration = Duration::from_secs(3);
+/// How long to let the bootloader's port settle once it is back (udev sets its permissions).
+const PORT_SETTLE: Duration = Duration::from_millis(500);
+
+/// Arduino's 1200-baud touch: the port opened at 1200 baud, DTR dropped, closed. The gyrocal
+/// firmware (like Arduino's own cores) then resets into the bootloader's serial mode. The DTR
+/// ioctl fails on a pseudo-terminal: ignored.
+fn touch_1200(port: &str) -> Result<(), serialport::Error> {
+    let mut p = serialport::new(port, 1200).timeout(Duration::from_millis(100)).open()?;
+    let _ = p.write_data_terminal_ready(false);
+    Ok(())
+}
+
+/// The serial ports the system lists (none if it cannot list them).
+fn listed_ports() -> Vec<String> {
+    serialport::available_ports().map(|v| v.into_iter().map(|p| p.port_name).collect()).unwrap_or_default()
+}
+
+/// Whether `port` exists: its device file (POSIX), or listed (Windows).
+fn present(port: &str) -> bool {
+    match port_device(port) {
+        Some(dev) => dev.exists(),
+        None => listed_ports().iter().any(|p| p == port),
+    }
+}
+
+/// After the touch, as Arduino's wait_for_upload_port: the bootloader's port is one not listed
+/// `before` the touch, or `port` itself back after going away. Err: `port` did not go away
+/// within [`TOUCH_RESET`] (the board did not reset), or no port came within `wait` more.
+fn wait_after_touch(port: &str, before: &[String], wait: Duration) -> Result<String, String> {
+    let t0 = Instant::now();
+    let mut gone = false;
+    loop {
+        let new = listed_ports().into_iter().find(|p| !before.contains(p));
+        let here = present(port);
+        gone |= !here;
+        if let Some(p) = new.or_else(|| (gone && here).then(|| port.to_string())) {
+            std::thread::sleep(PORT_SETTLE);
+            return Ok(p);
+        }
+        if !gone && t0.elapsed() >= TOUCH_RESET {
+            return Err(format!(
+                "{port} did not go away within {} s of the 1200-baud touch: the board did not reset (another firmware \
+                 than gyrocal's, or its bootloader already runs)",
+                TOUCH_RESET.as_secs()
+            ));
+        }
+        if t0.elapsed() >= TOUCH_RESET + wait {
+            return Err(format!("no bootloader port appeared within {} s of the 1200-baud touch", (TOUCH_RESET + wait).as_secs()));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The 1200-baud touch and the wait for the bootloader's port: that port, or `None` (the
+/// reason said) if the board must be put in its bootloader by hand.
+fn reset_into_bootloader(port: &str, wait: Duration) -> Option<String> {
+    let before = listed_ports();
+    let r = touch_1200(port).map_err(|e| format!("{port}: {e}")).and_then(|()| {
+        eprintln!("flash-usb: 1200-baud touch on {port}: the board resets into its bootloader ...");
+        wait_after_touch(port, &before, wait)
+    });
+    match r {
+        Ok(p) => {
+            eprintln!("flash-usb: the bootloader's port: {p}");
+            Some(p)
+        }
+        Err(e) => {
+            eprintln!("flash-usb: no reset by the 1200-baud touch: {e}");
+            None
+        }
+    }
+}
+
 /// cargo flash-usb: flash the firmware over USB through the Arduino bootloader (no SWD probe).
 #[derive(Parser, Debug)]
 #[command(name = "flash-usb", after_help = ABOUT)]
 #[command(group(ArgGroup::new("target").required(true).multiple(true).args(["port", "bin_only"])))]
 struct Args {
-    /// The bootloader's serial port; flash the board.
+    /// The board's serial port (the gyrocal firmware's, or the bootloader's); flash the board.
     #[arg(long)]
     port: Option<String>,
     /// Only build, check and write OUT.bin, and print the bossac command.
@@ -395,7 +475,7 @@ struct Args {
     /// Do everything but run bossac: print its command line.
     #[arg(long)]
     dry_run: bool,
-    /// How long to wait for PORT to appear after the double tap (s).
+    /// How long to wait for PORT to appear after the reset (s).
     #[arg(long = "wait", value_name = "SECS", default_value_t = 30)]
     wait_s: u64,
 }
@@ -451,19 +531,25 @@ fn main() -> ExitCode {
         return ExitCode::SUCCESS;
     }
 
-    eprintln!(
-        "flash-usb: put the board in its bootloader: double-tap the RESET button (two presses within half a second).\n\
-         flash-usb: the orange-yellow LED L (D13) then fades in and out, and the bootloader's serial port appears."
-    );
-    if std::io::stdin().is_terminal() {
-        eprint!("flash-usb: press Enter when the LED fades (Ctrl-C to stop) ");
-        let _ = std::io::stderr().flush();
-        let mut s = String::new();
-        let _ = std::io::stdin().lock().read_line(&mut s);
-    }
-    if let Err(e) = wait_for_port(&port, wait) {
-        return fail(e);
-    }
+    let args = match reset_into_bootloader(&port, wait) {
+        Some(p) => bossac_args(&p, &bin),
+        None => {
+            eprintln!(
+                "flash-usb: put the board in its bootloader: double-tap the RESET button (two presses within half a second).\n\
+                 flash-usb: the orange-yellow LED L (D13) then fades in and out, and the bootloader's serial port appears."
+            );
+            if std::io::stdin().is_terminal() {
+                eprint!("flash-usb: press Enter when the LED fades (Ctrl-C to stop) ");
+                let _ = std::io::stderr().flush();
+                let mut s = String::new();
+                let _ = std::io::stdin().lock().read_line(&mut s);
+            }
+            if let Err(e) = wait_for_port(&port, wait) {
+                return fail(e);
+            }
+            args
+        }
+    };
     eprintln!("flash-usb: {}", shell_line(&bossac, &args));
     let status = match Command::new(&bossac).args(&args).status() {
         Ok(s) => s,

@@ -57,7 +57,8 @@ impl Clock {
         c
     }
 
-    fn settle(&mut self, now: f64) {
+    /// Completes the HFXO and LFCLK starts due by `now` (s).
+    pub fn settle(&mut self, now: f64) {
         if self.hf_ready_at.is_some_and(|t| now >= t) {
             self.hf_ready_at = None;
             self.hfxo_running = true;

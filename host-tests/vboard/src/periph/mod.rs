@@ -359,6 +359,7 @@ impl Periph {
     pub fn advance_usb(&mut self) {
         let t = self.now();
         self.power.settle(t);
+        self.clock.settle(t);
         let phy = self.usb_phy();
         self.usbd.settle(t, phy);
         if let Err(e) = self.usb_host.advance(t, &mut self.usbd, phy) {
