@@ -206,8 +206,8 @@ impl AccelCalibrator {
         for _ in 0..GAUSS_NEWTON_STEPS {
             let mut ne = NormalEquations::<P>::new();
             for a in &self.poses[..self.n] {
-                let (r, jac) = residual::<P>(&p, a);
-                ne.add_row(&jac, -r, 1.0)?;
+                let (r, jac) = residual(&p, a, P == 6);
+                ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
             }
             let sol = ne.solve()?;
             let mut step = 0.0f64;
@@ -221,32 +221,39 @@ impl AccelCalibrator {
             }
         }
         let sol = last.ok_or(Error::AccelFitFailed)?;
-        let m = gain_matrix::<P>(&p);
+        let sigma = |i: [usize; 3]| i.map(|i| sol.sigma(i) as f32);
+        let gains = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
+        self.calibration(&p, model, sol.condition, sigma([0, 1, 2]), sigma(gains))
+    }
+
+    /// The calibration of the refined parameters `p` with the 1σ of its offsets (g) and diagonal
+    /// gains; the same code for both models.
+    fn calibration(
+        &self,
+        p: &Params,
+        model: AccelModel,
+        condition: f64,
+        sigma_offset_g: Vec3,
+        sigma_gain: Vec3,
+    ) -> Result<AccelCal, Error> {
+        let six = model == AccelModel::SixParam;
+        let m = gain_matrix(p, six);
         if !(0..3).all(|i| m[i][i] > 0.0) || !p.iter().all(|v| v.is_finite()) {
             return Err(Error::AccelFitFailed);
         }
         let rms =
             |f: &dyn Fn(&[f64; 3]) -> f64| libm::sqrt(self.poses[..self.n].iter().map(|a| f(a) * f(a)).sum::<f64>() / self.n as f64) as f32;
-        let diag_index: [usize; 3] = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
-        let mut cal = AccelCal {
-            m: [[0.0; 3]; 3],
+        Ok(AccelCal {
+            m: m.map(|row| row.map(|v| v as f32)),
             offset_g: [p[0] as f32, p[1] as f32, p[2] as f32],
             model,
             rms_before_g: rms(&|a| norm(a) - 1.0),
-            rms_after_g: rms(&|a| residual::<P>(&p, a).0),
-            sigma_offset_g: [0.0; 3],
-            sigma_gain: [0.0; 3],
-            condition: sol.condition as f32,
+            rms_after_g: rms(&|a| residual(p, a, six).0),
+            sigma_offset_g,
+            sigma_gain,
+            condition: condition as f32,
             poses: self.n as u8,
-        };
-        for i in 0..3 {
-            for j in 0..3 {
-                cal.m[i][j] = m[i][j] as f32;
-            }
-            cal.sigma_offset_g[i] = sol.sigma(i) as f32;
-            cal.sigma_gain[i] = sol.sigma(diag_index[i]) as f32;
-        }
-        Ok(cal)
+        })
     }
 }
 
@@ -254,26 +261,28 @@ fn norm(v: &[f64; 3]) -> f64 {
     libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
-/// Gain matrix from the parameters: `[o; kx, ky, kz]` (P = 6) or `[o; m00, m01, m02, m11, m12, m22]`.
-fn gain_matrix<const P: usize>(p: &Params) -> [[f64; 3]; 3] {
-    if P == 6 {
+/// Gain matrix from the parameters: `[o; kx, ky, kz]` (`six`) or `[o; m00, m01, m02, m11, m12, m22]`.
+fn gain_matrix(p: &Params, six: bool) -> [[f64; 3]; 3] {
+    if six {
         [[p[3], 0.0, 0.0], [0.0, p[4], 0.0], [0.0, 0.0, p[5]]]
     } else {
         [[p[3], p[4], p[5]], [0.0, p[6], p[7]], [0.0, 0.0, p[8]]]
     }
 }
 
-/// Residual `|M (a − o)| − 1` and its gradient with respect to the `P` parameters.
-fn residual<const P: usize>(p: &Params, a: &[f64; 3]) -> (f64, [f64; P]) {
-    let m = gain_matrix::<P>(p);
+/// Residual `|M (a − o)| − 1` (g) and its gradient with respect to the parameters (the first 6
+/// when `six`). One copy for both models: not inlined.
+#[inline(never)]
+fn residual(p: &Params, a: &[f64; 3], six: bool) -> (f64, Params) {
+    let m = gain_matrix(p, six);
     let d = [a[0] - p[0], a[1] - p[1], a[2] - p[2]];
     let f: [f64; 3] = core::array::from_fn(|i| (0..3).map(|j| m[i][j] * d[j]).sum());
     let n = norm(&f).max(1e-12);
-    let mut jac = [0.0; P];
+    let mut jac = [0.0; 9];
     for k in 0..3 {
         jac[k] = -(0..3).map(|i| m[i][k] * f[i]).sum::<f64>() / n;
     }
-    if P == 6 {
+    if six {
         for i in 0..3 {
             jac[3 + i] = f[i] * d[i] / n;
         }

@@ -128,33 +128,41 @@ impl Poses {
         self.a[..self.n].iter().map(|a| Vector3::new(a[0], a[1], a[2]))
     }
 
+    /// Plane fit of the poses whose bit is set in `mask` (bit `p`: pose `p`).
+    pub(crate) fn plane(&self, mask: u64) -> Plane {
+        let tips = || (0..self.n).filter(move |&p| mask >> p & 1 != 0).map(|p| self.get(p));
+        let n = tips().count();
+        let nf = n as f64;
+        let mean = tips().sum::<Vector3<f64>>() / nf;
+        let mut scatter = [[0.0; 3]; 3];
+        for t in tips() {
+            let d = t - mean;
+            for i in 0..3 {
+                for j in 0..3 {
+                    scatter[i][j] += d[i] * d[j] / nf;
+                }
+            }
+        }
+        let (vals, vecs) = sym_eigen(&scatter);
+        let col = |k: usize| Vector3::new(vecs[0][k], vecs[1][k], vecs[2][k]);
+        let mut u = col(0);
+        if u.dot(&mean) < 0.0 {
+            u = -u;
+        }
+        let (axial, radial) = tips().fold((0.0, 0.0), |(ax, ra), t| {
+            let along = t.dot(&u);
+            (ax + along / nf, ra + (t - u * along).norm() / nf)
+        });
+        Plane { n, mean, vals, u, e: [col(1), col(2)], tilt_deg: libm::atan2(radial, axial).to_degrees(), radial }
+    }
+
     /// Measures and checks the geometry. `paper` adds the paper estimator's own requirement
     /// (axis not near horizontal, where `A·u → 0`).
     pub fn geometry(&self, limits: &GeometryLimits, paper: bool) -> Result<Geometry, Error> {
         if self.n < (limits.min_poses as usize).max(3) {
             return Err(Error::TooFewPoses { have: self.n as u8, need: limits.min_poses.max(3) });
         }
-        let n = self.n as f64;
-        let mean = self.iter().sum::<Vector3<f64>>() / n;
-        let mut scatter = [[0.0; 3]; 3];
-        for a in self.iter() {
-            let d = a - mean;
-            for i in 0..3 {
-                for j in 0..3 {
-                    scatter[i][j] += d[i] * d[j] / n;
-                }
-            }
-        }
-        let (vals, vecs) = sym_eigen(&scatter);
-        let mut u = Vector3::new(vecs[0][0], vecs[1][0], vecs[2][0]);
-        if u.dot(&mean) < 0.0 {
-            u = -u;
-        }
-        let (axial, radial) = self.iter().fold((0.0, 0.0), |(ax, ra), a| {
-            let along = a.dot(&u);
-            (ax + along / n, ra + (a - u * along).norm() / n)
-        });
-        let tilt_deg = libm::atan2(radial, axial).to_degrees();
+        let Plane { mean, vals, u, tilt_deg, .. } = self.plane(u64::MAX);
         // Gravity that barely changes between poses means a vertical axis whatever the fit says
         // (a circle of radius sin(tilt) ≤ tilt in rad; no trigonometry on the target).
         let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
@@ -187,6 +195,24 @@ impl Poses {
         }
         Ok(Geometry { u, tilt_deg, span_deg, min_component, plane_rms_g })
     }
+}
+
+/// Plane fit of pose tips ([`Poses::plane`]).
+pub(crate) struct Plane {
+    /// Number of tips.
+    pub n: usize,
+    /// Mean tip (g).
+    pub mean: Vector3<f64>,
+    /// Eigenvalues (ascending, g²) of the tips' scatter `Σ d dᵀ / n` about the mean.
+    pub vals: [f64; 3],
+    /// Unit normal (the first eigenvector), signed towards the mean.
+    pub u: Vector3<f64>,
+    /// The other two eigenvectors (in-plane, same order as `vals[1..]`).
+    pub e: [Vector3<f64>; 2],
+    /// Angle of `u` from the mean tip direction (°): `atan2` of the mean radial and axial distances.
+    pub tilt_deg: f64,
+    /// Mean distance of the tips from the line along `u` (g).
+    pub radial: f64,
 }
 
 /// Shaft turn (°, in (−180, 180]) about `u` that takes pose `from` to pose `to`.

@@ -36,9 +36,8 @@
 //! equations themselves do not depend on the sign (`Δθ` flips with `u`).
 
 use crate::accel::AccelCal;
-use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses, MAX_POSES};
+use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Plane, Poses};
 use crate::gyro::SCALE_RANGE;
-use crate::linalg::{cholesky, cholesky_inverse, sym_eigen};
 use crate::lsq::NormalEquations;
 use crate::rotation::{RotationLimits, Rotations};
 use crate::sweep::MAX_MOVES;
@@ -304,23 +303,8 @@ impl Axes {
     /// Plane fit of axis `a`, signed by its moves, and for a near-vertical axis the fallback along
     /// gravity. `σ_a` is not known yet: the caller chooses and checks the axis' direction 1σ.
     fn fit(&self, a: usize, limits: &FullLimits) -> Result<(Fit, Option<Fit>), Error> {
-        let mask = self.members[a];
-        let on = |p: usize| p < MAX_POSES && mask & (1u64 << p) != 0;
-        let n = (0..self.poses.len()).filter(|&p| on(p)).count();
-        let tips = || (0..self.poses.len()).filter(move |&p| on(p)).map(|p| self.poses.get(p));
+        let Plane { n, mean, vals, u, e, tilt_deg, radial } = self.poses.plane(self.members[a]);
         let nf = n as f64;
-        let mean = tips().sum::<Vector3<f64>>() / nf;
-        let mut scatter = [[0.0; 3]; 3];
-        for t in tips() {
-            let d = t - mean;
-            for i in 0..3 {
-                for j in 0..3 {
-                    scatter[i][j] += d[i] * d[j] / nf;
-                }
-            }
-        }
-        let (vals, vecs) = sym_eigen(&scatter);
-        let col = |k: usize| Vector3::new(vecs[0][k], vecs[1][k], vecs[2][k]);
         let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
         let min_tilt = (limits.geometry.min_tilt_deg as f64).to_radians();
         // Every tip nearly at one place: a (near) vertical axis. Its circle, when the noise lets it
@@ -365,12 +349,6 @@ impl Axes {
             }
             return Err(Error::AxisUndetermined { axis: a as u8, sigma_deg: f32::INFINITY, limit_deg: limits.max_axis_sigma_deg });
         }
-        let mut u = col(0);
-        if u.dot(&mean) < 0.0 {
-            u = -u;
-        }
-        let (axial, radial) = tips().fold((0.0, 0.0), |(ax, ra), t| (ax + t.dot(&u) / nf, ra + (t - u * t.dot(&u)).norm() / nf));
-        let tilt_deg = libm::atan2(radial, axial).to_degrees();
         let plane_rms_g = libm::sqrt(vals[0].max(0.0));
         if !(plane_rms_g <= limits.geometry.max_plane_rms_g as f64) {
             return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.geometry.max_plane_rms_g });
@@ -378,7 +356,7 @@ impl Axes {
         let per = |l: f64| if l > 0.0 { 1.0 / libm::sqrt(nf * l) } else { f64::INFINITY };
         let plane = sign(Fit {
             u,
-            e: [col(1), col(2)],
+            e,
             tilt_per_g: [per(vals[1]), per(vals[2])],
             floor_rad: limits.accel_systematic_g as f64 / radial.max(1e-3),
             direction_only: vertical || tilt_deg < limits.geometry.min_tilt_deg as f64,
@@ -436,7 +414,14 @@ impl Axes {
             }
         }
         let noise = &mut noise[..n_noise];
-        noise.sort_unstable_by(|a, b| a.total_cmp(b));
+        // Insertion sort (at most MAX_AXES values): the core sort would link 2 KiB into the firmware.
+        for i in 1..n_noise {
+            let mut j = i;
+            while j > 0 && noise[j - 1].total_cmp(&noise[j]).is_gt() {
+                noise.swap(j - 1, j);
+                j -= 1;
+            }
+        }
         let floor = limits.min_accel_sigma_g as f64;
         let sigma_a = if n_noise > 0 { noise[(n_noise - 1) / 2].max(floor) } else { floor };
         // A plane much noisier than the others: the board slipped (or the shaft wobbles) on that axis.
@@ -531,7 +516,8 @@ impl Axes {
                 min_pair = min_pair.min(libm::atan2(c.norm(), us[i].dot(&us[j]).abs()));
                 if c.norm() > 1e-9 {
                     for k in (0..n_axes).filter(|&k| k != i && k != j) {
-                        non_coplanar = non_coplanar.max(libm::asin((us[k].dot(&c).abs() / c.norm()).min(1.0)));
+                        // The angle of u_k from the plane ⟂ c (no asin linked into the firmware).
+                        non_coplanar = non_coplanar.max(libm::atan2(us[k].dot(&c).abs(), us[k].cross(&c).norm()));
                     }
                 }
             }
@@ -607,7 +593,7 @@ impl Axes {
         // 1σ: `s² N⁻¹` treats rows as independent, but an axis' direction error is shared by all its
         // moves (it is absorbed into K, not seen in the residual): add it once per axis and
         // direction, `δk = N⁻¹ Σ_m w x (turn_m δu_k)` with `δu_k` of 1σ `σ_a / √(n λ_k)` (rad).
-        let ninv = cholesky_inverse(&cholesky(&ne.matrix(), 1e-13).ok_or(Error::Singular)?);
+        let ninv = ne.inverse()?;
         let mut cov = sol.covariance;
         for (a, f) in fits.iter().enumerate() {
             let Some(f) = f else { continue };

@@ -1,143 +1,171 @@
 //! Small dense linear algebra on `[[f64; N]; N]`: Cholesky factorisation and the symmetric
-//! Jacobi eigen-decomposition. Fixed sizes, no allocation, bounded iteration counts.
+//! Jacobi eigen-decomposition. No allocation, bounded iteration counts. Each routine is one
+//! non-generic core on a row-major slice (`n × n`, `n ≤ MAX_N`) behind a thin generic wrapper,
+//! so the firmware links one copy whatever the sizes used.
+
+/// Largest dimension of the dense routines.
+pub(crate) const MAX_N: usize = 9;
 
 /// Lower-triangular Cholesky factor `L` of a symmetric positive-definite `a = L Lᵀ`.
 ///
 /// Returns `None` when a pivot is not positive relative to `rel_tol × max diagonal`
 /// (singular or indefinite within the precision of the data).
 pub(crate) fn cholesky<const N: usize>(a: &[[f64; N]; N], rel_tol: f64) -> Option<[[f64; N]; N]> {
-    let scale = (0..N).fold(0.0_f64, |m, i| m.max(a[i][i].abs()));
-    if !(scale > 0.0 && scale.is_finite()) {
-        return None;
-    }
     let mut l = [[0.0; N]; N];
-    for j in 0..N {
-        let mut d = a[j][j];
+    cholesky_in(a.as_flattened(), l.as_flattened_mut(), N, rel_tol).then_some(l)
+}
+
+/// [`cholesky`] of the `n × n` row-major `a` (only its lower triangle is read) into `l` (zeroed
+/// by the caller); `false` for a non-positive pivot.
+pub(crate) fn cholesky_in(a: &[f64], l: &mut [f64], n: usize, rel_tol: f64) -> bool {
+    let scale = (0..n).fold(0.0_f64, |m, i| m.max(a[i * n + i].abs()));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return false;
+    }
+    for j in 0..n {
+        let mut d = a[j * n + j];
         for k in 0..j {
-            d -= l[j][k] * l[j][k];
+            d -= l[j * n + k] * l[j * n + k];
         }
         if !(d > rel_tol * scale) {
-            return None;
+            return false;
         }
         let d = libm::sqrt(d);
-        l[j][j] = d;
-        for i in j + 1..N {
-            let mut s = a[i][j];
+        l[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
             for k in 0..j {
-                s -= l[i][k] * l[j][k];
+                s -= l[i * n + k] * l[j * n + k];
             }
-            l[i][j] = s / d;
+            l[i * n + j] = s / d;
         }
     }
-    Some(l)
+    true
 }
 
 /// Solves `L Lᵀ x = b` for a Cholesky factor `L`.
 pub(crate) fn cholesky_solve<const N: usize>(l: &[[f64; N]; N], b: &[f64; N]) -> [f64; N] {
-    let mut y = [0.0; N];
-    for i in 0..N {
+    const { assert!(N <= MAX_N) };
+    let mut x = [0.0; N];
+    cholesky_solve_in(l.as_flattened(), b, &mut x);
+    x
+}
+
+/// [`cholesky_solve`] with `n = b.len()` and `L` row-major `n × n`.
+pub(crate) fn cholesky_solve_in(l: &[f64], b: &[f64], x: &mut [f64]) {
+    let n = b.len();
+    let mut y = [0.0; MAX_N];
+    for i in 0..n {
         let mut s = b[i];
         for k in 0..i {
-            s -= l[i][k] * y[k];
+            s -= l[i * n + k] * y[k];
         }
-        y[i] = s / l[i][i];
+        y[i] = s / l[i * n + i];
     }
-    let mut x = [0.0; N];
-    for i in (0..N).rev() {
+    for i in (0..n).rev() {
         let mut s = y[i];
-        for k in i + 1..N {
-            s -= l[k][i] * x[k];
+        for k in i + 1..n {
+            s -= l[k * n + i] * x[k];
         }
-        x[i] = s / l[i][i];
+        x[i] = s / l[i * n + i];
     }
-    x
 }
 
 /// Inverse of `L Lᵀ` from its Cholesky factor.
 pub(crate) fn cholesky_inverse<const N: usize>(l: &[[f64; N]; N]) -> [[f64; N]; N] {
+    const { assert!(N <= MAX_N) };
     let mut inv = [[0.0; N]; N];
-    for j in 0..N {
-        let mut e = [0.0; N];
+    cholesky_inverse_in(l.as_flattened(), inv.as_flattened_mut(), N);
+    inv
+}
+
+/// [`cholesky_inverse`] of the `n × n` row-major `l` into `inv`.
+pub(crate) fn cholesky_inverse_in(l: &[f64], inv: &mut [f64], n: usize) {
+    for j in 0..n {
+        let mut e = [0.0; MAX_N];
         e[j] = 1.0;
-        let col = cholesky_solve(l, &e);
-        for i in 0..N {
-            inv[i][j] = col[i];
+        let mut col = [0.0; MAX_N];
+        cholesky_solve_in(l, &e[..n], &mut col[..n]);
+        for i in 0..n {
+            inv[i * n + j] = col[i];
         }
     }
-    inv
 }
 
 /// Eigenvalues (ascending) and unit eigenvectors (columns, same order) of a symmetric matrix,
 /// by cyclic Jacobi rotations (at most 50 sweeps; converges quadratically).
 pub(crate) fn sym_eigen<const N: usize>(a: &[[f64; N]; N]) -> ([f64; N], [[f64; N]; N]) {
     let mut m = *a;
-    let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
+    let (mut vals, mut v) = ([0.0; N], [[0.0; N]; N]);
+    sym_eigen_in(m.as_flattened_mut(), &mut vals, v.as_flattened_mut());
+    (vals, v)
+}
+
+/// [`sym_eigen`] with `n = vals.len()`: diagonalises the row-major `m` in place, `v` zeroed by
+/// the caller.
+pub(crate) fn sym_eigen_in(m: &mut [f64], vals: &mut [f64], v: &mut [f64]) {
+    let n = vals.len();
+    for i in 0..n {
+        v[i * n + i] = 1.0;
     }
     for _sweep in 0..50 {
         let mut off = 0.0;
         let mut diag = 0.0;
-        for i in 0..N {
-            diag += m[i][i] * m[i][i];
-            for j in i + 1..N {
-                off += m[i][j] * m[i][j];
+        for i in 0..n {
+            diag += m[i * n + i] * m[i * n + i];
+            for j in i + 1..n {
+                off += m[i * n + j] * m[i * n + j];
             }
         }
         if off <= 1e-30 * diag || off == 0.0 {
             break;
         }
-        for p in 0..N {
-            for q in p + 1..N {
-                if m[p][q] == 0.0 {
+        for p in 0..n {
+            for q in p + 1..n {
+                let mpq = m[p * n + q];
+                if mpq == 0.0 {
                     continue;
                 }
-                let theta = (m[q][q] - m[p][p]) / (2.0 * m[p][q]);
+                let theta = (m[q * n + q] - m[p * n + p]) / (2.0 * mpq);
                 let t = theta.signum() / (theta.abs() + libm::sqrt(theta * theta + 1.0));
                 let t = if theta == 0.0 { 1.0 } else { t };
                 let c = 1.0 / libm::sqrt(t * t + 1.0);
                 let s = t * c;
-                for k in 0..N {
-                    let mkp = m[k][p];
-                    let mkq = m[k][q];
-                    m[k][p] = c * mkp - s * mkq;
-                    m[k][q] = s * mkp + c * mkq;
-                }
-                for k in 0..N {
-                    let mpk = m[p][k];
-                    let mqk = m[q][k];
-                    m[p][k] = c * mpk - s * mqk;
-                    m[q][k] = s * mpk + c * mqk;
-                }
-                for row in v.iter_mut() {
-                    let vkp = row[p];
-                    let vkq = row[q];
-                    row[p] = c * vkp - s * vkq;
-                    row[q] = s * vkp + c * vkq;
+                // Columns p, q of m, then its rows p, q, then the columns of v.
+                for pass in 0..3 {
+                    let (mat, stride, step) = match pass {
+                        0 => (&mut *m, 1, n),
+                        1 => (&mut *m, n, 1),
+                        _ => (&mut *v, 1, n),
+                    };
+                    for k in 0..n {
+                        let (ip, iq) = (k * step + p * stride, k * step + q * stride);
+                        let (xp, xq) = (mat[ip], mat[iq]);
+                        mat[ip] = c * xp - s * xq;
+                        mat[iq] = s * xp + c * xq;
+                    }
                 }
             }
         }
     }
-    // Sort ascending (selection sort: N ≤ 9).
-    let mut vals = [0.0; N];
+    // Sort ascending (selection sort: n ≤ 9).
     for (i, val) in vals.iter_mut().enumerate() {
-        *val = m[i][i];
+        *val = m[i * n + i];
     }
-    for i in 0..N {
+    for i in 0..n {
         let mut best = i;
-        for j in i + 1..N {
+        for j in i + 1..n {
             if vals[j] < vals[best] {
                 best = j;
             }
         }
         if best != i {
             vals.swap(i, best);
-            for row in v.iter_mut() {
-                row.swap(i, best);
+            for k in 0..n {
+                v.swap(k * n + i, k * n + best);
             }
         }
     }
-    (vals, v)
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 //! number of rows. Every linear solve of the crate goes through it (3 unknowns for the gyro,
 //! 6 and 9 for the accelerometer).
 
-use crate::linalg::{cholesky, cholesky_inverse, cholesky_solve, sym_eigen};
+use crate::linalg::{cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_eigen_in, MAX_N};
 use crate::Error;
 
 /// Largest accepted condition number of the equilibrated normal matrix (unit diagonal).
@@ -13,6 +13,7 @@ pub const MAX_CONDITION: f64 = 1e8;
 /// Accumulated normal equations `(Σ w x xᵀ) β = Σ w x y` of an `N`-unknown problem `x·β ≈ y`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize> {
+    /// Lower triangle (`j ≤ i`) of `Σ w x xᵀ`; the upper one stays zero.
     xtx: [[f64; N]; N],
     xty: [f64; N],
     yty: f64,
@@ -50,6 +51,7 @@ impl<const N: usize> Default for NormalEquations<N> {
 impl<const N: usize> NormalEquations<N> {
     /// Empty equations.
     pub const fn new() -> Self {
+        const { assert!(N <= MAX_N, "more unknowns than the linear algebra's MAX_N") };
         Self { xtx: [[0.0; N]; N], xty: [0.0; N], yty: 0.0, rows: 0 }
     }
 
@@ -60,17 +62,7 @@ impl<const N: usize> NormalEquations<N> {
 
     /// Adds the row `x·β ≈ y` with weight `w` (inverse variance). Non-finite rows are refused.
     pub fn add_row(&mut self, x: &[f64; N], y: f64, w: f64) -> Result<(), Error> {
-        if !(x.iter().all(|v| v.is_finite()) && y.is_finite() && w.is_finite() && w >= 0.0) {
-            return Err(Error::NonFinite);
-        }
-        for i in 0..N {
-            let wxi = w * x[i];
-            for j in 0..=i {
-                self.xtx[i][j] += wxi * x[j];
-            }
-            self.xty[i] += wxi * y;
-        }
-        self.yty += w * y * y;
+        add_row(self.xtx.as_flattened_mut(), &mut self.xty, &mut self.yty, x, y, w)?;
         self.rows += 1;
         Ok(())
     }
@@ -88,73 +80,101 @@ impl<const N: usize> NormalEquations<N> {
         out
     }
 
-    /// The normal matrix `Σ w x xᵀ` (symmetric, full).
-    pub fn matrix(&self) -> [[f64; N]; N] {
-        let mut a = self.xtx;
-        for i in 0..N {
-            for j in i + 1..N {
-                a[i][j] = a[j][i];
-            }
-        }
-        a
+    /// `(Σ w x xᵀ)⁻¹` by Cholesky: the parameter covariance before its scaling by the residual.
+    pub fn inverse(&self) -> Result<[[f64; N]; N], Error> {
+        let l = cholesky(&self.xtx, 1e-13).ok_or(Error::Singular)?;
+        Ok(cholesky_inverse(&l))
     }
 
     /// Condition number of the normal matrix after scaling it to a unit diagonal, so that it
     /// measures geometry, not units. Infinite when a column is all zero.
     pub fn condition(&self) -> f64 {
-        let a = self.matrix();
-        let mut s = [0.0; N];
-        for i in 0..N {
-            if !(a[i][i] > 0.0) {
-                return f64::INFINITY;
-            }
-            s[i] = 1.0 / libm::sqrt(a[i][i]);
-        }
-        let mut e = a;
-        for i in 0..N {
-            for j in 0..N {
-                e[i][j] *= s[i] * s[j];
-            }
-        }
-        let (vals, _) = sym_eigen(&e);
-        if vals[0] > 0.0 {
-            vals[N - 1] / vals[0]
-        } else {
-            f64::INFINITY
-        }
+        condition(self.xtx.as_flattened(), N)
     }
 
     /// The parameters alone, by Cholesky (no condition number, no covariance): for the
     /// iterates of an iterative solve, whose last step is checked by [`Self::solve`].
     pub fn estimate(&self) -> Result<[f64; N], Error> {
-        let l = cholesky(&self.matrix(), 1e-13).ok_or(Error::Singular)?;
+        let l = cholesky(&self.xtx, 1e-13).ok_or(Error::Singular)?;
         Ok(cholesky_solve(&l, &self.xty))
     }
 
     /// Solves by Cholesky. Errors: fewer rows than unknowns, a singular or ill-conditioned matrix.
     pub fn solve(&self) -> Result<Solution<N>, Error> {
-        if (self.rows as usize) < N {
-            return Err(Error::TooFewRows { have: self.rows, need: N as u32 });
-        }
-        let a = self.matrix();
-        let l = cholesky(&a, 1e-13).ok_or(Error::Singular)?;
-        let condition = self.condition();
-        if !(condition <= MAX_CONDITION) {
-            return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
-        }
-        let x = cholesky_solve(&l, &self.xty);
-        let fit: f64 = (0..N).map(|i| x[i] * self.xty[i]).sum();
-        let rss = (self.yty - fit).max(0.0);
-        let dof = self.rows - N as u32;
-        let s2 = if dof > 0 { rss / dof as f64 } else { 0.0 };
-        let mut covariance = cholesky_inverse(&l);
-        for row in covariance.iter_mut() {
-            for c in row.iter_mut() {
-                *c *= s2;
-            }
-        }
+        let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
+        let (rss, dof, condition) = solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, &mut x, covariance.as_flattened_mut())?;
         Ok(Solution { x, rss, dof, covariance, condition })
     }
+}
+
+/// [`NormalEquations::add_row`] into the row-major lower triangle `xtx` (`n = x.len()`), `xty`, `yty`.
+fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[f64], y: f64, w: f64) -> Result<(), Error> {
+    if !(x.iter().all(|v| v.is_finite()) && y.is_finite() && w.is_finite() && w >= 0.0) {
+        return Err(Error::NonFinite);
+    }
+    let n = x.len();
+    for i in 0..n {
+        let wxi = w * x[i];
+        for j in 0..=i {
+            xtx[i * n + j] += wxi * x[j];
+        }
+        xty[i] += wxi * y;
+    }
+    *yty += w * y * y;
+    Ok(())
+}
+
+/// [`NormalEquations::condition`] of the `n × n` row-major lower triangle `xtx`.
+fn condition(xtx: &[f64], n: usize) -> f64 {
+    let mut s = [0.0; MAX_N];
+    for i in 0..n {
+        let d = xtx[i * n + i];
+        if !(d > 0.0) {
+            return f64::INFINITY;
+        }
+        s[i] = 1.0 / libm::sqrt(d);
+    }
+    let mut e = [0.0; MAX_N * MAX_N];
+    for i in 0..n {
+        for j in 0..n {
+            e[i * n + j] = xtx[i.max(j) * n + i.min(j)] * (s[i] * s[j]);
+        }
+    }
+    let (mut vals, mut v) = ([0.0; MAX_N], [0.0; MAX_N * MAX_N]);
+    sym_eigen_in(&mut e[..n * n], &mut vals[..n], &mut v[..n * n]);
+    if vals[0] > 0.0 {
+        vals[n - 1] / vals[0]
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// [`NormalEquations::solve`] with `n = xty.len()` unknowns (`xtx` its row-major lower triangle):
+/// writes `x` and the covariance, returns `(rss, dof, condition)`.
+fn solve(xtx: &[f64], xty: &[f64], yty: f64, rows: u32, x: &mut [f64], covariance: &mut [f64]) -> Result<(f64, u32, f64), Error> {
+    let n = xty.len();
+    if (rows as usize) < n {
+        return Err(Error::TooFewRows { have: rows, need: n as u32 });
+    }
+    let mut l = [0.0; MAX_N * MAX_N];
+    let l = &mut l[..n * n];
+    if !cholesky_in(xtx, l, n, 1e-13) {
+        return Err(Error::Singular);
+    }
+    let condition = condition(xtx, n);
+    if !(condition <= MAX_CONDITION) {
+        return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
+    }
+    cholesky_solve_in(l, xty, x);
+    let fit: f64 = (0..n).map(|i| x[i] * xty[i]).sum();
+    let rss = (yty - fit).max(0.0);
+    let dof = rows - n as u32;
+    let s2 = if dof > 0 { rss / dof as f64 } else { 0.0 };
+    cholesky_inverse_in(l, covariance, n);
+    for c in covariance.iter_mut() {
+        *c *= s2;
+    }
+    Ok((rss, dof, condition))
 }
 
 #[cfg(test)]
@@ -222,6 +242,21 @@ mod tests {
         let (sa, sb) = (a.scaled(&d).solve().unwrap(), b.solve().unwrap());
         for i in 0..3 {
             assert!((sa.x[i] - sb.x[i]).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn inverse_is_the_unscaled_covariance() {
+        let mut ne = NormalEquations::<2>::new();
+        for k in 0..5 {
+            ne.add_row(&[1.0, k as f64], (k * k) as f64, 1.0).unwrap();
+        }
+        let (s, inv) = (ne.solve().unwrap(), ne.inverse().unwrap());
+        let s2 = s.rss / s.dof as f64;
+        for i in 0..2 {
+            for j in 0..2 {
+                assert_eq!(s.covariance[i][j], inv[i][j] * s2);
+            }
         }
     }
 

@@ -155,6 +155,14 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
     Matrix3::new(z, -v[2], v[1], v[2], z, -v[0], -v[1], v[0], z)
 }
 
+/// `det(K) K⁻ᵀ`, the cofactor matrix (columns `k₁ × k₂`, `k₂ × k₀`, `k₀ × k₁` of the columns
+/// `k_c` of `K`); `None` for a singular `K`.
+fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let at = |r: usize, c: usize| k[(r % 3, c % 3)];
+    let cof = Matrix3::from_fn(|r, c| at(r + 1, c + 1) * at(r + 2, c + 2) - at(r + 2, c + 1) * at(r + 1, c + 2));
+    (k.column(0).dot(&cof.column(0)) != 0.0).then_some(cof)
+}
+
 /// `Exp(φ)` and the right Jacobian `J_r(φ)` of a chunk's rotation vector (rad): Rodrigues'
 /// coefficients `sin t / t`, `(1 − cos t) / t²`, `(t − sin t) / t³` by their Taylor series to
 /// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns ≤ [`CHUNK_DEG`] = 0.09 rad
@@ -340,7 +348,7 @@ impl Rotations {
     /// `H·k' ≈ H·k − r`. Returns the weighted and the unweighted (rad²) residual sums at `k`.
     pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64), Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::full::vec_index(r, c)]);
-        let cof = km.try_inverse().map(|i| i.transpose() * km.determinant()).ok_or(Error::Singular)?;
+        let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
         let (mut wrss, mut rss) = (0.0, 0.0);
         for m in self.moves() {
@@ -369,7 +377,7 @@ impl Rotations {
     pub fn residuals_deg(&self, k: &Mat3) -> [f32; MAX_ROTATION_MOVES] {
         let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
         let mut out = [0.0; MAX_ROTATION_MOVES];
-        let Some(cof) = km.try_inverse().map(|i| i.transpose() * km.determinant()) else { return out };
+        let Some(cof) = cofactor(&km) else { return out };
         for (o, m) in out.iter_mut().zip(self.moves()) {
             let (gi, gj) = (self.poses.get(m.from as usize).normalize(), self.poses.get(m.to as usize).normalize());
             let rg = self.compose(m, &km, &cof).0 * gj;
@@ -419,6 +427,14 @@ mod tests {
     }
 
     #[test]
+    fn cofactor_is_det_times_inverse_transpose() {
+        let k = Matrix3::new(1.02, -0.01, 0.03, 0.02, 0.97, -0.04, -0.05, 0.01, 1.01);
+        let expect = k.try_inverse().unwrap().transpose() * k.determinant();
+        assert!((cofactor(&k).unwrap() - expect).amax() < 1e-15);
+        assert_eq!(cofactor(&Matrix3::new(1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 1.0, 1.0)), None);
+    }
+
+    #[test]
     fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
         let mut r = Rotations::new();
         r.push_pose([0.0, 0.0, 1.0], 1e-4, [0.0; 3]).unwrap();
@@ -430,7 +446,7 @@ mod tests {
         assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
         assert_eq!(r.moves()[0].n, 17);
         let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
-        let cof = k.try_inverse().unwrap().transpose() * k.determinant();
+        let cof = cofactor(&k).unwrap();
         let (rot, _) = r.compose(&r.moves()[0], &k, &cof);
         let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).into_inner();
         // Stored and composed in f32: 17 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
