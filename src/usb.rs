@@ -22,8 +22,9 @@ use usbd_serial::CdcAcmClass;
 pub const VID_PID: (u16, u16) = (0x2341, 0x805A);
 /// Bulk and EP0 packet size (B; full speed).
 pub const PACKET: usize = 64;
-/// Outbox size (B): 0.5 s of raw-log rows at 119 Hz.
-pub const OUTBOX: usize = 4096;
+/// Outbox size (B): 1 s of raw-log rows at 119 Hz, more than the longest call that does not
+/// poll USB (the solve, ≤ 0.5 s).
+pub const OUTBOX: usize = 8192;
 /// Polls of EVENTCAUSE.READY after ENABLE (≥ 1 ms at 64 MHz; the PS gives no figure, real
 /// parts take microseconds).
 pub const READY_POLLS: u32 = 20_000;

@@ -4,6 +4,7 @@
 use crate::elf::Firmware;
 use crate::mcu::{Mcu, Stop};
 use crate::periph::{Leds, Periph};
+use crate::pty::PtyBridge;
 use calib_core::record::Record;
 use rig_sim::harness::handheld_attitudes;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
@@ -83,7 +84,23 @@ pub struct Bench {
     printed: usize,
     /// Print log lines as they come.
     pub echo: bool,
+    /// The board's USB port as a pseudo-terminal, pumped as virtual time runs.
+    pub usb: Option<PtyBridge>,
+    /// How the operator says "go" (start, and continue after re-clamping).
+    pub go: Go,
 }
+
+/// How the operator says "go".
+pub enum Go {
+    /// A short press of the button.
+    Button,
+    /// Enter typed to `calib --port` (which sends `c` to the board): a line on this pipe; the
+    /// calibration is started by `calib` itself.
+    Enter(std::io::PipeWriter),
+}
+
+/// Virtual time between two pumps of the USB pty (s): 5 ms, 2.5 main-loop ticks.
+const USB_PUMP_S: f64 = 0.005;
 
 impl Bench {
     /// Powers up `elf` on a rig, with `board`'s sensor and this flash.
@@ -91,7 +108,7 @@ impl Bench {
         let fw = Firmware::load(elf)?;
         let sensor = Lsm9ds1Model::new(Rig::new(rig, seed), board);
         let mcu = Mcu::new(fw, Periph::new(sensor, flash, Rc::new(Cell::new(0))))?;
-        Ok(Self { mcu, printed: 0, echo })
+        Ok(Self { mcu, printed: 0, echo, usb: None, go: Go::Button })
     }
 
     /// New log lines since the last call (echoed when `echo`).
@@ -106,12 +123,35 @@ impl Bench {
         lines
     }
 
-    /// Runs `secs` of virtual time.
+    /// Runs `secs` of virtual time (pumping the USB pty, if any).
     pub fn run_for(&mut self, secs: f64) -> Stop {
         let t = self.mcu.now() + secs;
-        let stop = self.mcu.run_until(t);
+        let stop = match self.usb.as_mut() {
+            None => self.mcu.run_until(t),
+            Some(bridge) => loop {
+                let stop = self.mcu.run_until((self.mcu.now() + USB_PUMP_S).min(t));
+                if let Err(e) = bridge.pump() {
+                    break Stop::Fault(format!("USB pty: {e}"));
+                }
+                if stop != Stop::Time || self.mcu.now() >= t {
+                    break stop;
+                }
+            },
+        };
         self.new_lines();
         stop
+    }
+
+    /// The operator says "go": presses the button, or types Enter to `calib --port`.
+    fn go(&mut self) -> Stop {
+        match &mut self.go {
+            Go::Button => self.press(0.2),
+            Go::Enter(pipe) => {
+                use std::io::Write;
+                let _ = pipe.write_all(b"\n");
+                self.run_for(0.2)
+            }
+        }
     }
 
     /// The LEDs now.
@@ -189,8 +229,11 @@ impl Bench {
         const HOLD_S: f64 = 3.0;
         let attitudes = handheld_attitudes();
         let t_end = self.mcu.now() + max_s;
-        if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
-            return Outcome::Stopped(s);
+        // With `calib --port`, calib starts the calibration itself.
+        if matches!(self.go, Go::Button) {
+            if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
+                return Outcome::Stopped(s);
+            }
         }
         let (mut red_since, mut done_since, mut yellow_seen) = (None::<f64>, None::<f64>, false);
         let (mut next, mut next_at, mut reattached_at) = (0usize, 0.0f64, None::<f64>);
@@ -236,7 +279,7 @@ impl Bench {
                         reattached_at = Some(now + rig.config().attach_transition_s + 1.0);
                     }
                     Some(t) if now >= t && l.red && l.green => {
-                        if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.press(0.2) {
+                        if let s @ (Stop::Fault(_) | Stop::PowerCut) = self.go() {
                             return Outcome::Stopped(s);
                         }
                         inject(Event::Reattached, &mut self.mcu.periph.borrow_mut());

@@ -73,3 +73,76 @@ fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_resets_the_board()
     assert_eq!(b.mcu.resets, 1, "{:#?}\n{:#?}", host.log(), b.mcu.log);
     assert_eq!(b.mcu.periph.borrow_mut().read(0x4000_051C), 0xB0, "GPREGRET");
 }
+
+/// The text the host received in `secs` of board time.
+fn read_for(b: &mut Bench, host: &UsbHost, secs: f64) -> String {
+    String::from_utf8_lossy(&host.run_and_read(&mut b.mcu, secs).unwrap()).into_owned()
+}
+
+#[test]
+fn commands_over_usb_start_a_calibration_and_raw_log_rows_feed_calib() {
+    let (mut b, host) = usb_bench();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    b.run_for(1.0);
+    host.write(b"x\r\n");
+    let help = read_for(&mut b, &host, 0.3);
+    assert!(help.starts_with("commands: c calibrate"), "unknown input gets the help: {help:?}");
+    host.write(b"s");
+    assert_eq!(read_for(&mut b, &host, 0.3), "no calibration stored\r\n");
+    // Raw-log mode: the header, then rows calib reads.
+    host.write(b"R");
+    let text = read_for(&mut b, &host, 3.0);
+    assert!(text.starts_with(calib_core::log::HEADER), "{:?}", &text[..text.len().min(200)]);
+    host.write(b"c");
+    let text = text + &read_for(&mut b, &host, 3.0);
+    assert!(text.contains("\r\nplan: 13 rig poses, 12 hand-held poses\r\n"), "{text:?}");
+    assert!(text.contains("\r\nphase: wait-rest: keep the rig still\r\n"));
+    host.write(b"r");
+    let text = text + &read_for(&mut b, &host, 0.5);
+    assert!(text.ends_with(&format!("{}\r\n", calib_core::log::END)), "{:?}", &text[text.len().saturating_sub(200)..]);
+    let log = calib::csvlog::parse(&text.replace("\r\n", "\n")).unwrap();
+    // 6 s at 119 Hz (the sensor's ODR error: ±10 %), none lost.
+    assert!((600..=800).contains(&log.rows.len()), "{} rows", log.rows.len());
+    assert_eq!(calib::port::lost_rows(&log.rows), 0);
+    assert!(host.errors().is_empty(), "{:?}", host.errors());
+}
+
+#[test]
+fn a_host_that_stops_reading_never_stalls_the_board_and_is_told_what_it_missed() {
+    let (mut b, host) = usb_bench();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    host.write(b"r");
+    read_for(&mut b, &host, 0.5);
+    // The terminal hangs: no IN tokens for 10 s of raw rows (80 KB), more than the outbox holds.
+    host.set_reading(false);
+    let loops = b.mcu.instructions();
+    b.run_for(10.0);
+    assert_eq!(b.mcu.watchdog_resets, 0, "the loop stalled on USB");
+    assert!(b.mcu.instructions() - loops > 10_000_000, "the firmware kept running");
+    host.set_reading(true);
+    let text = read_for(&mut b, &host, 2.0);
+    let line = text.lines().find(|l| l.starts_with("USB: ")).unwrap_or_else(|| panic!("no drop report: {text:?}"));
+    let n: u32 = line.split(' ').nth(1).and_then(|n| n.parse().ok()).unwrap();
+    assert!(n > 50_000, "{line}");
+    assert!(line.ends_with("bytes dropped since boot (the host was not reading)"), "{line}");
+    // Whole lines were dropped: every row that arrived parses.
+    let rows = text.lines().filter(|l| l.matches(',').count() == 8).count();
+    assert!(rows > 100, "{rows}");
+}
+
+#[test]
+fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
+    // (Every other vboard test runs without VBUS too: the calibrations in board.rs among them.)
+    let elf = build_firmware(&[]).unwrap();
+    let mut b = Bench::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
+    b.run_for(3.0);
+    assert_eq!(b.mcu.periph.borrow().usbd.enable, 0, "USBD enabled without VBUS");
+    assert!(b.mcu.log.iter().any(|l| l.contains("LSM9DS1 ready")), "{:#?}", b.mcu.log);
+    assert!(!b.mcu.log.iter().any(|l| l.contains("USB")), "{:#?}", b.mcu.log);
+    // Plugged in later: USB starts then.
+    let host = UsbHost::new(&b.mcu);
+    host.attach();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    b.run_for(0.1);
+    assert!(b.mcu.log.iter().any(|l| l.contains("USB: started")), "{:#?}", b.mcu.log);
+}

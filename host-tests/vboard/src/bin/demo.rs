@@ -21,6 +21,13 @@
 //! the result comes from the emulated flash and from what the RTT buffer holds at the end. The
 //! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
+//!
+//! `--usb`: no button and no probe. The board's USB port (VBUS plugged, the virtual host
+//! enumerates it) is a pseudo-terminal, and `calib --port <pty>` (calib's own session code, on a
+//! thread) does everything: starts the calibration, shows the phases, gets Enter from the
+//! operator after the re-clamp, saves the raw log to `--usb-log` (default `demo-usb.csv`), prints
+//! the board's JSON result and cross-checks it on the PC. The last line is
+//! `RESULT max_scale_error_pct=<x> stored=<bool> via=usb`, `x` from the board's JSON line.
 
 use clap::Parser;
 use rig_sim::lsm_model::Board;
@@ -28,7 +35,9 @@ use rig_sim::nor::NorSim;
 use rig_sim::pan_tilt;
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
-use vboard::bench::{build_firmware, message, Bench, Outcome};
+use vboard::bench::{build_firmware, message, Bench, Go, Outcome};
+use vboard::pty::PtyBridge;
+use vboard::usb_host::UsbHost;
 
 /// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
 #[derive(Parser, Debug)]
@@ -49,10 +58,16 @@ struct Args {
     /// The pan/tilt bracket and the `tilt-servo` firmware: the full 3×3 K.
     #[arg(long)]
     tilt: bool,
+    /// Everything over USB serial with `calib --port` on a pseudo-terminal (no button, no RTT).
+    #[arg(long, conflicts_with_all = ["raw_log", "no_probe"])]
+    usb: bool,
+    /// With `--usb`: where calib saves the raw log.
+    #[arg(long, value_name = "FILE", default_value = "demo-usb.csv")]
+    usb_log: String,
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, usb_log } = Args::parse_from(calib::cli_args());
 
     let features: &[&str] = if tilt { &["tilt-servo"] } else { &[] };
     println!("[demo] building the firmware (cargo build --release{})", if tilt { " --features tilt-servo" } else { "" });
@@ -71,8 +86,11 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    if no_probe {
+    if no_probe || usb {
         bench.mcu.rtt_detach();
+    }
+    if usb {
+        return demo_usb(bench, &usb_log, quiet);
     }
     let wall = std::time::Instant::now();
     println!(
@@ -197,4 +215,86 @@ fn main() -> ExitCode {
         println!("RESULT max_scale_error_pct={err:.4} stored={ok}");
     }
     ExitCode::SUCCESS
+}
+
+/// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
+fn demo_usb(mut bench: Bench, log: &str, quiet: bool) -> ExitCode {
+    let host = UsbHost::new(&bench.mcu);
+    host.attach();
+    println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port");
+    if let Err(e) = host.wait_enumerated(&mut bench.mcu, 5.0) {
+        eprintln!("[demo] the board did not enumerate: {e}");
+        return ExitCode::from(1);
+    }
+    println!(
+        "[demo] enumerated at {:.2} s: {} {:04X}:{:04X}",
+        bench.mcu.now(),
+        host.product().unwrap_or_default(),
+        host.device_descriptor().map_or(0, |d| d.vid),
+        host.device_descriptor().map_or(0, |d| d.pid)
+    );
+    let bridge = match PtyBridge::new(host.clone()) {
+        Ok(b) => b,
+        Err(e) => {
+            eprintln!("[demo] pty: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let path = bridge.slave_path().to_string_lossy().into_owned();
+    bench.usb = Some(bridge);
+    let (enter_rx, enter_tx) = match std::io::pipe() {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("[demo] pipe: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    bench.go = Go::Enter(enter_tx);
+    println!("[demo] calib --port {path} --log {log}");
+    let opts = calib::port::Options::new(log);
+    let session = std::thread::spawn(move || {
+        let mut port = calib::port::open(&path)?;
+        let mut ui: Box<dyn std::io::Write> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
+        calib::port::run(port.as_mut(), std::io::BufReader::new(enter_rx), ui.as_mut(), &opts)
+    });
+    let wall = std::time::Instant::now();
+    let outcome = bench.calibrate(600.0);
+    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
+    // calib switches the raw log off and closes the port: keep the board running until it is done.
+    let t_end = bench.mcu.now() + 60.0;
+    while !session.is_finished() && bench.mcu.now() < t_end {
+        bench.run_for(0.05);
+    }
+    let result = match session.join() {
+        Ok(r) => r,
+        Err(_) => {
+            eprintln!("[demo] the calib session panicked");
+            return ExitCode::from(1);
+        }
+    };
+    let out = match result {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("[demo] calib --port: {e}");
+            println!("RESULT max_scale_error_pct=NaN stored=false via=usb");
+            return ExitCode::from(1);
+        }
+    };
+    println!("[demo] the board's result (JSON over USB): {}", out.json);
+    println!(
+        "[demo] cross-check: calib on the saved log ({} lines, {} rows) agrees with the board to {:.2e} in K",
+        out.lines, out.check.rows, out.check.max_diff
+    );
+    let stored = bench.stored();
+    let same = stored.is_some_and(|r| {
+        r.seq == out.record.seq && (0..9).all(|i| (r.gyro_k[i / 3][i % 3] - out.record.gyro_k[i / 3][i % 3]).abs() < 1e-6)
+    });
+    let ok = same && outcome == Outcome::Done;
+    println!("[demo] the record in flash is the one reported over USB: {same}");
+    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", bench.max_scale_error_pct(&out.record));
+    if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    }
 }
