@@ -150,12 +150,12 @@ fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
 fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
     write!(
         w,
-        "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor at ",
+        "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor ",
         r.seq,
         r.method.name(),
         r.accel_model.name()
     )?;
-    num(w, r.temp_c, 1, "unknown", " degC")?;
+    num(w, r.temp_c, 1, "temperature unknown", " degC")?;
     writeln!(w, "{close}")?;
     writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
     writeln!(w, "{open}Accel: f = M (a - o): a raw accel (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
@@ -230,7 +230,7 @@ mod tests {
         assert!(s.contains("\"K\":[[null,0.0000000,") && s.contains("\"temp_c\":null,") && s.contains("\"condition\":null,"), "{s}");
         assert!(!s.contains("nan"), "{s}");
         let c = text(&rec, Format::C);
-        assert!(c.contains("{NAN, 0.0000000f, 0.0000000f}") && c.contains("sensor at unknown */"), "{c}");
+        assert!(c.contains("{NAN, 0.0000000f, 0.0000000f}") && c.contains("sensor temperature unknown */"), "{c}");
         assert!(text(&rec, Format::Rust).contains("[f32::NAN, 0.0000000, 0.0000000]"));
     }
 
@@ -244,7 +244,7 @@ mod tests {
         };
         let c = text(&rec, Format::C);
         for needle in [
-            "record 12, full K, accelerometer model nine_param, sensor at 24.5 degC */",
+            "record 12, full K, accelerometer model nine_param, sensor 24.5 degC */",
             "omega = K (g - b)",
             "f = M (a - o)",
             "static const float GYRO_K[3][3] = {\n    {1.0123457f, -0.0023456f, 0.0001000f},\n",
