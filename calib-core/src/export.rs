@@ -148,13 +148,7 @@ fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
 /// The header comment lines, each between `open` and `close`: what the record is and the two
 /// models with their units.
 fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
-    write!(
-        w,
-        "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor ",
-        r.seq,
-        r.method.name(),
-        r.accel_model.name()
-    )?;
+    write!(w, "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor ", r.seq, r.method.name(), r.accel_model.name())?;
     num(w, r.temp_c, 1, "temperature unknown", " degC")?;
     writeln!(w, "{close}")?;
     writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
