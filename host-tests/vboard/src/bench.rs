@@ -293,6 +293,40 @@ impl Bench {
         Outcome::Timeout
     }
 
+    /// Plugs in the USB cable, waits for the virtual host to enumerate the board, exposes its
+    /// port as a pseudo-terminal and runs `calib --port` (calib's session, on a thread, its
+    /// phases and progress to `ui`, the raw log saved to `log`) while the operator plays by the
+    /// LEDs and types Enter to calib after the re-clamp. Returns how the calibration ended on
+    /// the LEDs and calib's session result; `Err` if the board never enumerated or the session
+    /// thread panicked.
+    pub fn calibrate_over_usb(
+        &mut self,
+        log: &str,
+        mut ui: Box<dyn std::io::Write + Send>,
+    ) -> Result<(Outcome, Result<calib::port::Outcome, calib::port::SessionError>), String> {
+        let host = crate::usb_host::UsbHost::new(&self.mcu);
+        host.attach();
+        host.wait_enumerated(&mut self.mcu, 5.0).map_err(|e| format!("the board did not enumerate: {e}"))?;
+        let bridge = PtyBridge::new(host).map_err(|e| format!("pty: {e}"))?;
+        let path = bridge.slave_path().to_string_lossy().into_owned();
+        self.usb = Some(bridge);
+        let (enter_rx, enter_tx) = std::io::pipe().map_err(|e| format!("pipe: {e}"))?;
+        self.go = Go::Enter(enter_tx);
+        let opts = calib::port::Options::new(log);
+        let session = std::thread::spawn(move || {
+            let mut port = calib::port::open(&path)?;
+            calib::port::run(port.as_mut(), std::io::BufReader::new(enter_rx), ui.as_mut(), &opts)
+        });
+        let outcome = self.calibrate(600.0);
+        // calib switches the raw log off and closes the port: the board runs until it is done.
+        let t_end = self.mcu.now() + 60.0;
+        while !session.is_finished() && self.mcu.now() < t_end {
+            self.run_for(0.05);
+        }
+        let result = session.join().map_err(|_| "the calib session panicked".to_string())?;
+        Ok((outcome, result))
+    }
+
     /// The newest valid record in the emulated flash (the firmware's A/B slots).
     pub fn stored(&self) -> Option<Record> {
         let p = self.mcu.periph.borrow();

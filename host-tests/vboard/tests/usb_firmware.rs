@@ -146,3 +146,23 @@ fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
     b.run_for(0.1);
     assert!(b.mcu.log.iter().any(|l| l.contains("USB: started")), "{:#?}", b.mcu.log);
 }
+
+#[test]
+fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
+    let elf = build_firmware(&[]).unwrap();
+    let mut b = Bench::new(elf, Variant::Hobby.config(6, 0), 6, Board::Rev1, NorSim::new(8, 6), false).unwrap();
+    b.mcu.rtt_detach();
+    let log = std::env::temp_dir().join(format!("gyrocal-usb-test-{}.csv", std::process::id()));
+    let (outcome, session) = b.calibrate_over_usb(log.to_str().unwrap(), Box::new(std::io::sink())).unwrap();
+    assert_eq!(outcome, vboard::bench::Outcome::Done);
+    let out = session.unwrap_or_else(|e| panic!("calib --port: {e}"));
+    assert!(out.json.starts_with("{\"gyro\":{\"K\":"), "{}", out.json);
+    let stored = b.stored().expect("a record in flash");
+    assert_eq!(out.record.seq, stored.seq);
+    for i in 0..9 {
+        assert!((out.record.gyro_k[i / 3][i % 3] - stored.gyro_k[i / 3][i % 3]).abs() < 1e-6, "K[{i}]");
+    }
+    assert!(out.check.max_diff < calib::port::K_TOLERANCE);
+    assert!(b.max_scale_error_pct(&out.record) < 0.1, "{}", b.max_scale_error_pct(&out.record));
+    let _ = std::fs::remove_file(log);
+}

@@ -35,9 +35,7 @@ use rig_sim::nor::NorSim;
 use rig_sim::pan_tilt;
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
-use vboard::bench::{build_firmware, message, Bench, Go, Outcome};
-use vboard::pty::PtyBridge;
-use vboard::usb_host::UsbHost;
+use vboard::bench::{build_firmware, message, Bench, Outcome};
 
 /// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
 #[derive(Parser, Debug)]
@@ -219,60 +217,19 @@ fn main() -> ExitCode {
 
 /// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
 fn demo_usb(mut bench: Bench, log: &str, quiet: bool) -> ExitCode {
-    let host = UsbHost::new(&bench.mcu);
-    host.attach();
-    println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port");
-    if let Err(e) = host.wait_enumerated(&mut bench.mcu, 5.0) {
-        eprintln!("[demo] the board did not enumerate: {e}");
-        return ExitCode::from(1);
-    }
-    println!(
-        "[demo] enumerated at {:.2} s: {} {:04X}:{:04X}",
-        bench.mcu.now(),
-        host.product().unwrap_or_default(),
-        host.device_descriptor().map_or(0, |d| d.vid),
-        host.device_descriptor().map_or(0, |d| d.pid)
-    );
-    let bridge = match PtyBridge::new(host.clone()) {
-        Ok(b) => b,
-        Err(e) => {
-            eprintln!("[demo] pty: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    let path = bridge.slave_path().to_string_lossy().into_owned();
-    bench.usb = Some(bridge);
-    let (enter_rx, enter_tx) = match std::io::pipe() {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("[demo] pipe: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    bench.go = Go::Enter(enter_tx);
-    println!("[demo] calib --port {path} --log {log}");
-    let opts = calib::port::Options::new(log);
-    let session = std::thread::spawn(move || {
-        let mut port = calib::port::open(&path)?;
-        let mut ui: Box<dyn std::io::Write> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
-        calib::port::run(port.as_mut(), std::io::BufReader::new(enter_rx), ui.as_mut(), &opts)
-    });
+    println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {log})");
+    let ui: Box<dyn std::io::Write + Send> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
     let wall = std::time::Instant::now();
-    let outcome = bench.calibrate(600.0);
-    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
-    // calib switches the raw log off and closes the port: keep the board running until it is done.
-    let t_end = bench.mcu.now() + 60.0;
-    while !session.is_finished() && bench.mcu.now() < t_end {
-        bench.run_for(0.05);
-    }
-    let result = match session.join() {
+    let (outcome, session) = match bench.calibrate_over_usb(log, ui) {
         Ok(r) => r,
-        Err(_) => {
-            eprintln!("[demo] the calib session panicked");
+        Err(e) => {
+            eprintln!("[demo] {e}");
+            println!("RESULT max_scale_error_pct=NaN stored=false via=usb");
             return ExitCode::from(1);
         }
     };
-    let out = match result {
+    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
+    let out = match session {
         Ok(o) => o,
         Err(e) => {
             eprintln!("[demo] calib --port: {e}");
@@ -285,8 +242,7 @@ fn demo_usb(mut bench: Bench, log: &str, quiet: bool) -> ExitCode {
         "[demo] cross-check: calib on the saved log ({} lines, {} rows) agrees with the board to {:.2e} in K",
         out.lines, out.check.rows, out.check.max_diff
     );
-    let stored = bench.stored();
-    let same = stored.is_some_and(|r| {
+    let same = bench.stored().is_some_and(|r| {
         r.seq == out.record.seq && (0..9).all(|i| (r.gyro_k[i / 3][i % 3] - out.record.gyro_k[i / 3][i % 3]).abs() < 1e-6)
     });
     let ok = same && outcome == Outcome::Done;
