@@ -145,6 +145,13 @@ fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
     b.run_for(0.1);
     assert!(b.mcu.log.iter().any(|l| l.contains("USB: started")), "{:#?}", b.mcu.log);
+    // Unplugged and plugged back (the board on another supply): the port comes back.
+    host.detach();
+    b.run_for(1.0);
+    host.attach();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    host.write(b"s");
+    assert_eq!(read_for(&mut b, &host, 0.3), "no calibration stored\r\n");
 }
 
 #[test]
