@@ -268,7 +268,7 @@ const EXPORT: usize = 2048;
 /// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
 /// over USB serial, with the same text (`calib_core::text`).
 struct Console {
-    usb: Option<Usb>,
+    usb: Option<&'static mut Usb>,
     /// The USBD until USB starts (VBUS present and the USBD ready).
     usbd: Option<pac::USBD>,
     next_usb_try: f64,

@@ -22,9 +22,9 @@ use usbd_serial::CdcAcmClass;
 pub const VID_PID: (u16, u16) = (0x2341, 0x805A);
 /// Bulk and EP0 packet size (B; full speed).
 pub const PACKET: usize = 64;
-/// Outbox size (B): 1 s of raw-log rows at 119 Hz, more than the longest call that does not
-/// poll USB (the solve, ≤ 0.5 s).
-pub const OUTBOX: usize = 8192;
+/// Outbox size (B): 0.75 s of raw-log rows at 119 Hz (8.2 KB/s), more than the longest call
+/// that does not poll USB (the solve, ≤ 0.5 s) with its report lines.
+pub const OUTBOX: usize = 6144;
 /// Polls of EVENTCAUSE.READY after ENABLE (≥ 1 ms at 64 MHz; the PS gives no figure, real
 /// parts take microseconds).
 pub const READY_POLLS: u32 = 20_000;
@@ -70,10 +70,11 @@ pub struct Usb {
 
 impl Usb {
     /// Starts USB if VBUS is present and the USBD becomes ready (the caller keeps the HFXO
-    /// running, which the USBD needs). At most once: on success the USBD is owned for good; on
-    /// failure it is disabled again and handed back.
+    /// running, which the USBD needs). At most once: on success the USBD is owned for good (the
+    /// port, its 6 KiB outbox included, in static RAM); on failure it is disabled again and
+    /// handed back.
     #[inline(never)]
-    pub fn start(usbd: pac::USBD, power: &pac::POWER) -> Result<Self, (Error, pac::USBD)> {
+    pub fn start(usbd: pac::USBD, power: &pac::POWER) -> Result<&'static mut Self, (Error, pac::USBD)> {
         if !vbus(power) {
             return Err((Error::NoVbus, usbd));
         }
@@ -108,7 +109,11 @@ impl Usb {
             // Constant arguments within usb-device's limits: unreachable.
             cortex_m::peripheral::SCB::sys_reset();
         };
-        Ok(Self { dev: builder.build(), acm, out: Outbox::new(), touch: Touch::default() })
+        let dev = builder.build();
+        match cortex_m::singleton!(: Usb = Usb { dev, acm, out: Outbox::new(), touch: Touch::default() }) {
+            Some(usb) => Ok(usb),
+            None => cortex_m::peripheral::SCB::sys_reset(),
+        }
     }
 
     /// Whether a terminal has the port open (configured, DTR set): lines are queued only then.
