@@ -99,7 +99,8 @@ fn commands_over_usb_start_a_calibration_and_raw_log_rows_feed_calib() {
     assert!(text.contains("\r\nphase: wait-rest: keep the rig still\r\n"));
     host.write(b"r");
     let text = text + &read_for(&mut b, &host, 0.5);
-    assert!(text.ends_with(&format!("{}\r\n", calib_core::log::END)), "{:?}", &text[text.len().saturating_sub(200)..]);
+    // The end marker (report lines may follow it: the bias phase ends about now).
+    assert!(text.contains(&format!("\r\n{}\r\n", calib_core::log::END)), "{:?}", &text[text.len().saturating_sub(400)..]);
     let log = calib::csvlog::parse(&text.replace("\r\n", "\n")).unwrap();
     // 6 s at 119 Hz (the sensor's ODR error: ±10 %), none lost.
     assert!((600..=800).contains(&log.rows.len()), "{} rows", log.rows.len());
