@@ -173,4 +173,17 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     assert!(out.check.max_diff < calib::port::K_TOLERANCE);
     assert!(b.max_scale_error_pct(&out.record) < 0.1, "{}", b.max_scale_error_pct(&out.record));
     let _ = std::fs::remove_file(log);
+    // A terminal opened afterwards: `s` gives the stored record as its line, the JSON line and C.
+    b.usb = None;
+    let host = UsbHost::new(&b.mcu);
+    host.set_reading(true);
+    host.set_dtr(true);
+    b.run_for(0.1);
+    host.read();
+    host.write(b"s");
+    let text = read_for(&mut b, &host, 0.5);
+    let lines: Vec<&str> = text.lines().filter(|l| !l.starts_with("rate ")).collect();
+    assert!(lines[0].starts_with(&format!("stored record {} (full K): K = [", stored.seq)), "{text}");
+    assert_eq!(lines[1], out.json, "the same JSON line as after the calibration");
+    assert!(text.contains("static const float GYRO_K[3][3] = {") && text.contains("gyrocal_apply"), "{text}");
 }
