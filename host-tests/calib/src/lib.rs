@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 
 pub mod csvlog;
+pub mod firmware;
 pub mod offline;
 pub mod port;
 pub mod replay;

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::Mutex;
 
-const EXE: &str = env!("CARGO_BIN_EXE_flash-usb");
+const EXE: &str = env!("CARGO_BIN_EXE_gyrocal-flash");
 
 /// Writing an executable and forking concurrently can make its exec fail with ETXTBSY (another
 /// thread's child holds the write descriptor until its own exec): both happen under this lock.

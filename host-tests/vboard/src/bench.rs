@@ -22,33 +22,10 @@ pub fn message(line: &str) -> &str {
     }
 }
 
-/// The workspace root.
-fn root() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// The release firmware ELF of this workspace.
-pub fn firmware_path() -> std::path::PathBuf {
-    root().join("target/thumbv7em-none-eabihf/release/gyrocal-fw")
-}
-
-/// Builds the release firmware with `features` (its own target directory per feature set, so
-/// that it never waits on the lock of a running cargo) and returns the ELF bytes.
+/// Builds the release firmware with `features` ([`calib::firmware::build`]) and returns the ELF
+/// bytes.
 pub fn build_firmware(features: &[&str]) -> Result<Vec<u8>, String> {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut cmd = std::process::Command::new(cargo);
-    cmd.args(["build", "--release", "-p", "gyrocal-fw"]).current_dir(root());
-    let path = if features.is_empty() {
-        firmware_path()
-    } else {
-        let dir = root().join("target").join(format!("fw-{}", features.join("-")));
-        cmd.arg("--features").arg(features.join(",")).arg("--target-dir").arg(&dir);
-        dir.join("thumbv7em-none-eabihf/release/gyrocal-fw")
-    };
-    let status = cmd.status().map_err(|e| format!("cargo: {e}"))?;
-    if !status.success() {
-        return Err(format!("firmware build failed: {status}"));
-    }
+    let path = calib::firmware::build(features)?;
     std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
@@ -301,7 +278,7 @@ impl Bench {
     /// thread panicked.
     pub fn calibrate_over_usb(
         &mut self,
-        log: &str,
+        log: &std::path::Path,
         mut ui: Box<dyn std::io::Write + Send>,
     ) -> Result<(Outcome, Result<calib::port::Outcome, calib::port::SessionError>), String> {
         let host = crate::usb_host::UsbHost::new(&self.mcu);

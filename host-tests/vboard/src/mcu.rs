@@ -83,6 +83,10 @@ pub struct Mcu {
     pub log: Vec<String>,
     exception: Option<Exception>,
     wfi_addrs: HashSet<u64>,
+    /// The instruction count at which the running slice ends.
+    stop_at: Rc<Cell<u64>>,
+    /// The CPU has fetched from SRAM: it is mapped executable from then on.
+    sram_exec: Rc<Cell<bool>>,
     /// Resets so far (watchdog, software).
     pub resets: u32,
     /// Watchdog resets so far.
@@ -119,7 +123,19 @@ impl Mcu {
         uc.ctl_set_cpu_model(unicorn_engine::ArmCpuModel::CORTEX_M4 as i32).map_err(err("cpu model"))?;
         // Flash is read/execute for the CPU: it is written only through the NVMC (storage).
         uc.mem_map(0, FLASH_END, Prot::READ | Prot::EXEC).map_err(err("map flash"))?;
-        uc.mem_map(RAM.0, RAM.1 - RAM.0, Prot::ALL).map_err(err("map RAM"))?;
+        // SRAM is not executable until the CPU first fetches from it (`sram_exec`), in its
+        // mapping and in the TLB (identity-mapped by our fill hook): Unicorn sends every store to
+        // an executable page through its self-modifying-code check, the slow path.
+        uc.mem_map(RAM.0, RAM.1 - RAM.0, Prot::READ | Prot::WRITE).map_err(err("map RAM"))?;
+        uc.ctl_set_tlb_type(unicorn_engine::TlbType::VIRTUAL).map_err(err("TLB type"))?;
+        let sram_exec = Rc::new(Cell::new(false));
+        let exec = sram_exec.clone();
+        uc.add_tlb_hook(1, 0, move |_, addr, _| {
+            let ram = (RAM.0..RAM.1).contains(&addr);
+            let perms = if ram && !exec.get() { Prot::READ | Prot::WRITE } else { Prot::ALL };
+            Some(unicorn_engine::TlbEntry { paddr: addr, perms })
+        })
+        .map_err(err("TLB hook"))?;
         let periph = Rc::new(RefCell::new(periph));
         let fault = Rc::new(RefCell::new(None));
         // Storage flash and peripherals: MMIO into the models.
@@ -150,40 +166,50 @@ impl Mcu {
                 uc.mem_write(*addr, data).map_err(err("load"))?;
             }
         }
-        // Every instruction counts for the clock; a `wfi` ends the slice.
-        let wfi = wfi_addresses(&firmware);
-        let wfi_addrs = wfi.clone();
-        let (count, wfi_hit) = (instructions.clone(), Rc::new(Cell::new(false)));
-        let (hit, pc_of) = (wfi_hit.clone(), periph.clone());
-        // Instructions inside `Procedure::handle_sample` (callees included): from its entry to
-        // the return address found in LR at the entry.
+        // The clock counts instructions per translated block, at the block's entry (a block hook,
+        // not a hook on every instruction); the block that reaches the slice's budget ends it.
+        let code = Thumb::new(&firmware);
+        let (count, stop_at) = (instructions.clone(), Rc::new(Cell::new(u64::MAX)));
+        let (budget, block_pc) = (stop_at.clone(), periph.borrow().pc.clone());
+        // Instructions inside `Procedure::handle_sample` (callees included): from its entry block
+        // to the block at the return address found in LR at the entry.
         let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
         let handle_sample_max = Rc::new(Cell::new(0u64));
         let (hs, hs_max, entry) = (handle_sample.clone(), handle_sample_max.clone(), firmware.handle_sample.map(|r| r.0));
         let open: Cell<Option<(u64, u64)>> = Cell::new(None);
-        uc.add_code_hook(0x1_0000, FLASH_END, move |uc, addr, _size| {
-            let n = count.get() + 1;
+        uc.add_block_hook(0x1_0000, FLASH_END - 1, move |uc, addr, size| {
+            let n0 = count.get();
+            let n = n0 + code.instructions(addr, size);
             count.set(n);
-            if let Ok(mut p) = pc_of.try_borrow_mut() {
-                p.pc = addr;
-            }
+            block_pc.set(addr);
             if Some(addr) == entry {
                 let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
-                open.set(Some((n, lr)));
-            } else if let Some((n0, ret)) = open.get() {
+                open.set(Some((n0, lr)));
+            } else if let Some((e0, ret)) = open.get() {
                 if addr == ret {
                     let (i, calls) = hs.get();
-                    hs.set((i + n - n0, calls + 1));
-                    hs_max.set(hs_max.get().max(n - n0));
+                    hs.set((i + n0 - e0, calls + 1));
+                    hs_max.set(hs_max.get().max(n0 - e0));
                     open.set(None);
                 }
             }
-            if wfi.contains(&addr) {
-                hit.set(true);
+            if n >= budget.get() {
                 let _ = uc.emu_stop();
             }
         })
-        .map_err(err("code hook"))?;
+        .map_err(err("block hook"))?;
+        // A `wfi` ends the slice before it executes: one code hook on each (Unicorn instruments
+        // only the instructions inside a hook's range).
+        let wfi_hit = Rc::new(Cell::new(false));
+        let wfi_addrs = wfi_addresses(&firmware);
+        for &a in &wfi_addrs {
+            let hit = wfi_hit.clone();
+            uc.add_code_hook(a, a, move |uc, _, _| {
+                hit.set(true);
+                let _ = uc.emu_stop();
+            })
+            .map_err(err("wfi hook"))?;
+        }
         // The MPU (ours, not Unicorn's): an instruction fetch from SRAM it marks XN faults.
         let (mp, mf) = (periph.clone(), fault.clone());
         uc.add_code_hook(RAM.0, RAM.1, move |uc, addr, _size| {
@@ -194,24 +220,10 @@ impl Mcu {
             }
         })
         .map_err(err("RAM code hook"))?;
-        // RTT: every update of the up-channel's write offset counts the bytes written.
+        // RTT: the bytes written are counted from the up channel's write offset after every
+        // slice (`note_rtt_writes`): a memory hook, even on 4 bytes, would send every load and
+        // store of the emulated CPU through Unicorn's slow path.
         let rtt_write_seen = Rc::new(Cell::new((0u64, 0u64)));
-        if let Some(cb) = firmware.rtt {
-            let seen = rtt_write_seen.clone();
-            uc.add_mem_hook(unicorn_engine::HookType::MEM_WRITE, cb + 36, cb + 39, move |uc, _, _addr, _size, value| {
-                let mut sz = [0u8; 4];
-                if uc.mem_read(cb + 32, &mut sz).is_ok() {
-                    let size = u32::from_le_bytes(sz) as u64;
-                    let (last, total) = seen.get();
-                    let v = value as u64;
-                    if size > 0 && v < size {
-                        seen.set((v, total + (v + size - last % size) % size));
-                    }
-                }
-                true
-            })
-            .map_err(err("RTT hook"))?;
-        }
         let f = fault.clone();
         uc.add_intr_hook(move |uc, intno| {
             let pc = uc.reg_read(RegisterARM::PC).unwrap_or(0);
@@ -251,6 +263,8 @@ impl Mcu {
             log: vec![],
             exception: None,
             wfi_addrs,
+            stop_at,
+            sram_exec,
             resets: 0,
             watchdog_resets: 0,
             rtt: RttHost { reading: true, ..RttHost::default() },
@@ -419,7 +433,24 @@ impl Mcu {
         out
     }
 
+    /// Counts the bytes the firmware wrote to the up buffer since the last call, from its write
+    /// offset (it cannot move by a buffer's size between two calls: it never passes the read
+    /// offset, which only the host moves, between slices).
+    fn note_rtt_writes(&mut self) {
+        let Some(cb) = self.firmware.rtt else { return };
+        let mut h = [0u8; 8];
+        if self.uc.mem_read(cb + 32, &mut h).is_err() {
+            return;
+        }
+        let (size, write) = (u32::from_le_bytes([h[0], h[1], h[2], h[3]]) as u64, u32::from_le_bytes([h[4], h[5], h[6], h[7]]) as u64);
+        let (last, total) = self.rtt_write_seen.get();
+        if size > 0 && write < size && write != last {
+            self.rtt_write_seen.set((write, total + (write + size - last % size) % size));
+        }
+    }
+
     fn drain_rtt(&mut self) {
+        self.note_rtt_writes();
         self.rtt_poll_attach();
         if !self.rtt.reading {
             return;
@@ -586,13 +617,28 @@ impl Mcu {
             }
             let budget = (((t_end - now) * CPU_HZ).ceil() as u64).clamp(1, SLICE);
             self.wfi_hit.set(false);
-            let result = self.uc.emu_start(pc | 1, 0, 0, budget as usize);
+            self.stop_at.set(self.instructions.get() + budget);
+            let result = self.uc.emu_start(pc | 1, 0, 0, 0);
             if let Err(e) = result {
                 let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
                 if pc >= 0xFFFF_FF00 {
                     // Exception return (EXC_RETURN branch): unstack.
                     if let Err(e) = self.exception_return() {
                         return Stop::Fault(e);
+                    }
+                    continue;
+                }
+                let fetch_denied = matches!(e, unicorn_engine::uc_error::FETCH_PROT | unicorn_engine::uc_error::EXCEPTION);
+                if fetch_denied && !self.sram_exec.get() && (RAM.0..RAM.1).contains(&pc) {
+                    // The first fetch from SRAM: a fault if the MPU marks it execute-never, else
+                    // SRAM becomes executable (as it is on the part) and the fetch is retried.
+                    let denied = self.periph.borrow().scs.mpu.check(pc, mpu::Check::Exec).err();
+                    if let Some(f) = denied {
+                        return Stop::Fault(f);
+                    }
+                    self.sram_exec.set(true);
+                    if let Err(e) = self.uc.mem_protect(RAM.0, RAM.1 - RAM.0, Prot::ALL).and_then(|_| self.uc.ctl_flush_tlb()) {
+                        return Stop::Fault(format!("SRAM execute: {e:?}"));
                     }
                     continue;
                 }
@@ -619,6 +665,57 @@ impl Mcu {
                 }
             }
         }
+    }
+}
+
+/// Thumb-2 instruction lengths of the loaded flash, to count a block's instructions.
+struct Thumb {
+    /// Per halfword from 0x10000: 1 if it starts a 32-bit instruction (first halfword
+    /// 0b11101…, 0b11110… or 0b11111…).
+    wide: Vec<u8>,
+    /// Per halfword from 0x10000: (size in bytes, instructions) of the last block counted from
+    /// there.
+    blocks: Cell<Vec<(u32, u32)>>,
+}
+
+impl Thumb {
+    fn new(fw: &Firmware) -> Self {
+        let mut wide = vec![0u8; ((FLASH_END - 0x1_0000) / 2) as usize];
+        for (addr, data) in &fw.segments {
+            if *addr >= 0x1_0000 && *addr < FLASH_END {
+                let first = ((addr - 0x1_0000) / 2) as usize;
+                for (i, h) in data.chunks_exact(2).enumerate() {
+                    if let Some(w) = wide.get_mut(first + i) {
+                        *w = u8::from(u16::from_le_bytes([h[0], h[1]]) >> 11 >= 0b11101);
+                    }
+                }
+            }
+        }
+        let blocks = Cell::new(vec![(u32::MAX, 0); wide.len()]);
+        Self { wide, blocks }
+    }
+
+    /// Instructions in the `size` bytes from `addr`.
+    fn instructions(&self, addr: u64, size: u32) -> u64 {
+        let start = ((addr - 0x1_0000) / 2) as usize;
+        let mut blocks = self.blocks.take();
+        let n = match blocks.get(start) {
+            Some(&(sz, n)) if sz == size => n,
+            _ => {
+                let (mut i, end) = (start, start + size as usize / 2);
+                let mut n = 0;
+                while i < end {
+                    i += 1 + usize::from(self.wide.get(i).copied().unwrap_or(0));
+                    n += 1;
+                }
+                if let Some(b) = blocks.get_mut(start) {
+                    *b = (size, n);
+                }
+                n
+            }
+        };
+        self.blocks.set(blocks);
+        u64::from(n)
     }
 }
 

@@ -161,7 +161,7 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     let mut b = Bench::new(elf, Variant::Hobby.config(6, 0), 6, Board::Rev1, NorSim::new(8, 6), false).unwrap();
     b.mcu.rtt_detach();
     let log = std::env::temp_dir().join(format!("gyrocal-usb-test-{}.csv", std::process::id()));
-    let (outcome, session) = b.calibrate_over_usb(log.to_str().unwrap(), Box::new(std::io::sink())).unwrap();
+    let (outcome, session) = b.calibrate_over_usb(&log, Box::new(std::io::sink())).unwrap();
     assert_eq!(outcome, vboard::bench::Outcome::Done);
     let out = session.unwrap_or_else(|e| panic!("calib --port: {e}"));
     assert!(out.json.starts_with("{\"gyro\":{\"K\":"), "{}", out.json);

@@ -17,6 +17,6 @@ pub fn simulated_log(cfg: RigConfig) -> (String, [f64; 3]) {
 
 /// Runs the `calib` binary: exit code, stdout, stderr.
 pub fn calib(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_calib")).args(args).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_gyrocal-calib")).args(args).output().unwrap();
     (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
 }

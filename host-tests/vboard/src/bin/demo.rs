@@ -3,7 +3,8 @@
 //! presses the button, plays the operator (who watches the LEDs, never the log), prints the
 //! firmware's own defmt log, resets the board,
 //! reads the stored record back from the emulated flash and compares it with the simulator's
-//! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>`.
+//! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>`,
+//! after `SPEED board_s=<virtual s> wall_s=<s> x=<virtual s per wall s>`.
 //!
 //! `--raw-log OUT.csv`: the firmware's raw-log mode (a long press before the calibration, another
 //! after it) and the message text of every line from the header on written to OUT.csv, exactly
@@ -25,7 +26,8 @@
 //! `--usb`: no button and no probe. The board's USB port (VBUS plugged, the virtual host
 //! enumerates it) is a pseudo-terminal, and `calib --port <pty>` (calib's own session code, on a
 //! thread) does everything: starts the calibration, shows the phases, gets Enter from the
-//! operator after the re-clamp, saves the raw log to `--usb-log` (default `demo-usb.csv`), prints
+//! operator after the re-clamp, saves the raw log to `OUT/demo-usb.csv` (`--out`, default
+//! `target/demo`), prints
 //! the board's JSON result and cross-checks it on the PC. The last line is
 //! `RESULT max_scale_error_pct=<x> stored=<bool> via=usb`, `x` from the board's JSON line.
 
@@ -59,13 +61,19 @@ struct Args {
     /// Everything over USB serial with `calib --port` on a pseudo-terminal (no button, no RTT).
     #[arg(long, conflicts_with_all = ["raw_log", "no_probe"])]
     usb: bool,
-    /// With `--usb`: where calib saves the raw log.
-    #[arg(long, value_name = "FILE", default_value = "demo-usb.csv")]
-    usb_log: String,
+    /// Where the demo writes its files (`--usb`: the raw log `demo-usb.csv`); default
+    /// `target/demo` in the workspace.
+    #[arg(long, value_name = "DIR")]
+    out: Option<std::path::PathBuf>,
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt, usb, usb_log } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, out } = Args::parse_from(calib::cli_args());
+    let out = out.unwrap_or_else(|| calib::firmware::target_dir().join("demo"));
+    if let Err(e) = std::fs::create_dir_all(&out) {
+        eprintln!("[demo] {}: {e}", out.display());
+        return ExitCode::from(2);
+    }
 
     let features: &[&str] = if tilt { &["tilt-servo"] } else { &[] };
     println!("[demo] building the firmware (cargo build --release{})", if tilt { " --features tilt-servo" } else { "" });
@@ -87,10 +95,10 @@ fn main() -> ExitCode {
     if no_probe || usb {
         bench.mcu.rtt_detach();
     }
-    if usb {
-        return demo_usb(bench, &usb_log, quiet);
-    }
     let wall = std::time::Instant::now();
+    if usb {
+        return demo_usb(&mut bench, &out.join("demo-usb.csv"), quiet, wall);
+    }
     println!(
         "[demo] power on (seed {seed}); the button is pressed at 2 s{}",
         if no_probe { "; no probe: the operator watches the LEDs" } else { "" }
@@ -194,6 +202,7 @@ fn main() -> ExitCode {
             }
         }
     }
+    print_speed(&bench, wall);
     if no_probe {
         let tail = bench.mcu.rtt_tail();
         println!("[demo] RTT buffer at the end ({} bytes written in all, {} lines held):", bench.mcu.rtt_written(), tail.len());
@@ -215,11 +224,17 @@ fn main() -> ExitCode {
     ExitCode::SUCCESS
 }
 
+/// `SPEED board_s=<virtual s> wall_s=<s> x=<board s per wall s>`: how fast the virtual board ran
+/// (from power-on; the firmware build not counted).
+fn print_speed(bench: &Bench, wall: std::time::Instant) {
+    let (board, wall) = (bench.mcu.now(), wall.elapsed().as_secs_f64());
+    println!("SPEED board_s={board:.1} wall_s={wall:.1} x={:.1}", board / wall.max(1e-9));
+}
+
 /// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
-fn demo_usb(mut bench: Bench, log: &str, quiet: bool) -> ExitCode {
-    println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {log})");
+fn demo_usb(bench: &mut Bench, log: &std::path::Path, quiet: bool, wall: std::time::Instant) -> ExitCode {
+    println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {})", log.display());
     let ui: Box<dyn std::io::Write + Send> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
-    let wall = std::time::Instant::now();
     let (outcome, session) = match bench.calibrate_over_usb(log, ui) {
         Ok(r) => r,
         Err(e) => {
@@ -247,6 +262,7 @@ fn demo_usb(mut bench: Bench, log: &str, quiet: bool) -> ExitCode {
     });
     let ok = same && outcome == Outcome::Done;
     println!("[demo] the record in flash is the one reported over USB: {same}");
+    print_speed(bench, wall);
     println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", bench.max_scale_error_pct(&out.record));
     if ok {
         ExitCode::SUCCESS

@@ -180,8 +180,8 @@ pub struct Periph {
     pub fault: Option<String>,
     /// The flash lost power (injected cut): the run stops.
     pub power_cut: bool,
-    /// Program counter of the current instruction (for fault messages).
-    pub pc: u64,
+    /// Start address of the translated block being executed (for fault messages).
+    pub pc: Rc<Cell<u64>>,
     /// The sensor supply (P0.22) was seen driven high with standard drive: the sensors'
     /// current drops its voltage (brown-out); the sensor does not work.
     pub vdd_env_drop: bool,
@@ -234,7 +234,7 @@ impl Periph {
             watchdog_reset: false,
             fault: None,
             power_cut: false,
-            pc: 0,
+            pc: Rc::new(Cell::new(0)),
             vdd_env_drop: false,
             sensor_powered: false,
         };
@@ -413,7 +413,7 @@ impl Periph {
 
     fn fail(&mut self, what: String, addr: u64) {
         if self.fault.is_none() {
-            self.fault = Some(format!("{what} at 0x{addr:08X} (PC 0x{:08X})", self.pc));
+            self.fault = Some(format!("{what} at 0x{addr:08X} (in the block at PC 0x{:08X})", self.pc.get()));
         }
     }
 

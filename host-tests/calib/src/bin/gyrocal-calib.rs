@@ -36,7 +36,7 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
 /// board did not answer (nothing for 30 s, or no answer to a command in 10 s), or the session
 /// exceeded --timeout.
 #[derive(Parser, Debug)]
-#[command(name = "calib", version)]
+#[command(name = "gyrocal-calib", version)]
 struct Args {
     /// The log to calibrate (CSV: t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg[,tilt_deg]).
     #[arg(required_unless_present = "port", conflicts_with = "port")]

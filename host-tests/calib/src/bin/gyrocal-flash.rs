@@ -5,6 +5,7 @@
 //! Exit codes: 0 done, 1 build, image check, missing tool or upload failed (bossac's own
 //! non-zero exit code is forwarded: 1 error, 2 verify failed), 2 usage.
 
+use calib::firmware::{self, root};
 use clap::{ArgGroup, Parser};
 use object::elf::{FileHeader32, EM_ARM, PT_LOAD};
 use object::read::elf::{FileHeader, ProgramHeader};
@@ -165,30 +166,14 @@ fn check_bin(bin: &[u8], x: Extent) -> Result<(), String> {
     Ok(())
 }
 
-/// The workspace root (this crate is `host-tests/`).
-fn root() -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    p.canonicalize().unwrap_or(p)
-}
-
-/// `cargo build --release -p gyrocal-fw` in the workspace root (the firmware's target is the
-/// default one of `.cargo/config.toml`), as vboard's bench does; returns the ELF path.
+/// Builds the release firmware with `features` (comma-separated) and returns its ELF's path.
 fn build_firmware(features: Option<&str>) -> Result<PathBuf, String> {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut cmd = Command::new(cargo);
-    cmd.args(["build", "--release", "-p", "gyrocal-fw"]).current_dir(root());
-    if let Some(f) = features {
-        cmd.args(["--features", f]);
-    }
     eprintln!(
         "flash-usb: building the firmware: cargo build --release -p gyrocal-fw{}",
         features.map(|f| format!(" --features {f}")).unwrap_or_default()
     );
-    let status = cmd.status().map_err(|e| format!("cannot run cargo: {e}"))?;
-    if !status.success() {
-        return Err(format!("the firmware build failed ({status})"));
-    }
-    Ok(root().join("target/thumbv7em-none-eabihf/release/gyrocal-fw"))
+    let features: Vec<&str> = features.map(|f| f.split(',').map(str::trim).filter(|f| !f.is_empty()).collect()).unwrap_or_default();
+    firmware::build(&features)
 }
 
 /// Runs `rustc ARGS` (the workspace's pinned toolchain) and returns its stdout.
@@ -451,7 +436,7 @@ fn reset_into_bootloader(port: &str, wait: Duration) -> Option<String> {
 
 /// cargo flash-usb: flash the firmware over USB through the Arduino bootloader (no SWD probe).
 #[derive(Parser, Debug)]
-#[command(name = "flash-usb", after_help = ABOUT)]
+#[command(name = "gyrocal-flash", after_help = ABOUT)]
 #[command(group(ArgGroup::new("target").required(true).multiple(true).args(["port", "bin_only"])))]
 struct Args {
     /// The board's serial port (the gyrocal firmware's, or the bootloader's); flash the board.
@@ -495,7 +480,7 @@ fn main() -> ExitCode {
             Err(e) => return fail(e),
         },
     };
-    let bin = a.bin_only.clone().or(a.out.clone()).unwrap_or_else(|| root().join("target/gyrocal-fw.bin"));
+    let bin = a.bin_only.clone().or(a.out.clone()).unwrap_or_else(|| firmware::target_dir().join("gyrocal-fw.bin"));
     if let Err(e) = make_bin(&elf, &bin) {
         return fail(e);
     }

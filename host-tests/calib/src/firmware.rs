@@ -1,0 +1,48 @@
+//! The firmware ELF of this workspace: `cargo build --release -p gyrocal-fw` in the workspace's
+//! one target directory, one variant (feature set) at a time, each ELF copied out to
+//! `target/firmware/<variant>/gyrocal-fw` so that building another variant never replaces it.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The workspace root (this crate is `host-tests/calib`).
+pub fn root() -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    p.canonicalize().unwrap_or(p)
+}
+
+/// The workspace's target directory (`CARGO_TARGET_DIR` if set, else `target/`).
+pub fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| root().join("target"))
+}
+
+/// The directory of a variant's ELF: `target/firmware/default` or `target/firmware/<f1-f2>`.
+pub fn variant_dir(features: &[&str]) -> PathBuf {
+    let name = if features.is_empty() { "default".to_string() } else { features.join("-") };
+    target_dir().join("firmware").join(name)
+}
+
+/// Builds the release firmware with `features` (nothing to do when it is up to date) and
+/// returns the path of its copied-out ELF. Builds and copies are serialised across threads and
+/// processes by a lock file, so that the ELF copied is the one just built.
+pub fn build(features: &[&str]) -> Result<PathBuf, String> {
+    let dir = variant_dir(features);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let lock_path = target_dir().join("firmware/.lock");
+    let lock = std::fs::File::create(&lock_path).map_err(|e| format!("{}: {e}", lock_path.display()))?;
+    lock.lock().map_err(|e| format!("{}: {e}", lock_path.display()))?;
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args(["build", "--release", "-p", "gyrocal-fw"]).current_dir(root());
+    if !features.is_empty() {
+        cmd.arg("--features").arg(features.join(","));
+    }
+    let status = cmd.status().map_err(|e| format!("cannot run cargo: {e}"))?;
+    if !status.success() {
+        return Err(format!("the firmware build failed ({status})"));
+    }
+    let built = target_dir().join("thumbv7em-none-eabihf/release/gyrocal-fw");
+    let elf = dir.join("gyrocal-fw");
+    std::fs::copy(&built, &elf).map_err(|e| format!("{} -> {}: {e}", built.display(), elf.display()))?;
+    Ok(elf)
+}
