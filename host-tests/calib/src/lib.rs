@@ -2,8 +2,9 @@
 //! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
 //! log of the firmware's own run is replayed through its procedure ([`replay`]); a board
 //! calibrated over its USB serial port, its log saved and cross-checked ([`port`]). The
-//! binaries `calib` and `flash-usb` are what a user installs (`cargo install --locked --path
-//! host-tests/calib --target host-tuple`); nothing here depends on the simulator.
+//! binaries `gyrocal-calib` and `gyrocal-flash` are what a user installs (`cargo install --locked
+//! --path host-tests/calib --target host-tuple --profile host`); [`firmware`] builds the firmware
+//! they flash; nothing here depends on the simulator.
 #![deny(missing_docs)]
 
 pub mod csvlog;

@@ -96,6 +96,7 @@ fn main() -> ExitCode {
         bench.mcu.rtt_detach();
     }
     let wall = std::time::Instant::now();
+    bench.mcu.paint_stack();
     if usb {
         return demo_usb(&mut bench, &out.join("demo-usb.csv"), quiet, wall);
     }
@@ -149,6 +150,7 @@ fn main() -> ExitCode {
         calls,
         if calls > 0 { instr as f64 / calls as f64 } else { 0.0 }
     );
+    println!("[demo] peak stack: {} bytes (from power-on)", bench.mcu.peak_stack().unwrap_or(0));
     let longest = bench.mcu.handle_sample_max.get();
     println!("[demo] the longest handle_sample call (the solve): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
     let stored = bench.stored();

@@ -1,0 +1,360 @@
+//! `cargo results [-- --check]`: runs every benchmark (fixed seeds, deterministic) and the
+//! emulated board's demos, and writes `docs/results.md` from their JSON summaries and RESULT
+//! lines. `--check` writes nothing and exits 1 when the page on disk differs from the one the
+//! runs give (CI: the page is never stale). Wall-clock figures (the demo's SPEED line) and the
+//! USB demo (its timing depends on threads) are not on the page.
+
+use clap::Parser;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+/// docs/results.md from the benchmarks.
+#[derive(Parser, Debug)]
+#[command(name = "results")]
+struct Args {
+    /// Compare with docs/results.md instead of writing it; exit 1 if it is stale.
+    #[arg(long)]
+    check: bool,
+}
+
+/// One run: a binary beside this one and its arguments.
+struct Run {
+    bin: &'static str,
+    args: Vec<String>,
+}
+
+fn root() -> PathBuf {
+    calib::firmware::root()
+}
+
+/// The binaries of the host profile (this one's directory).
+fn bin_dir() -> Result<PathBuf, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("current exe: {e}"))?;
+    exe.parent().map(Path::to_path_buf).ok_or_else(|| "no directory for the current exe".into())
+}
+
+/// Builds the benchmark and demo binaries (host profile, this binary's target).
+fn build() -> Result<(), String> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(cargo)
+        .args(["build", "--profile", "host", "--target", "host-tuple", "-p", "bench", "-p", "vboard", "--bins"])
+        .current_dir(root())
+        .status()
+        .map_err(|e| format!("cannot run cargo: {e}"))?;
+    status.success().then_some(()).ok_or_else(|| format!("the benchmark build failed ({status})"))
+}
+
+/// Runs the list with as many at a time as there are cores; stdout of each, in order.
+fn run_all(runs: &[Run]) -> Result<Vec<String>, String> {
+    let dir = bin_dir()?;
+    let workers = std::thread::available_parallelism().map_or(2, |n| n.get()).min(runs.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let out: Vec<std::sync::Mutex<Option<Result<String, String>>>> = runs.iter().map(|_| std::sync::Mutex::new(None)).collect();
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                let Some(r) = runs.get(i) else { break };
+                eprintln!("results: {} {}", r.bin, r.args.join(" "));
+                let res = Command::new(dir.join(r.bin)).args(&r.args).current_dir(root()).output();
+                let res = match res {
+                    Ok(o) if o.status.success() => {
+                        let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+                        // Wall-clock figures are not on the page: shown here.
+                        for l in stdout.lines().filter(|l| l.starts_with("SPEED ")) {
+                            eprintln!("results: {} {}: {l}", r.bin, r.args.join(" "));
+                        }
+                        Ok(stdout)
+                    }
+                    Ok(o) => Err(format!("{} {}: {}\n{}", r.bin, r.args.join(" "), o.status, String::from_utf8_lossy(&o.stderr))),
+                    Err(e) => Err(format!("{}: {e}", r.bin)),
+                };
+                if let Ok(mut slot) = out[i].lock() {
+                    *slot = Some(res);
+                }
+            });
+        }
+    });
+    out.into_iter().map(|m| m.into_inner().ok().flatten().unwrap_or_else(|| Err("no result".into()))).collect()
+}
+
+/// The last stdout line as JSON.
+fn json(stdout: &str) -> Result<Value, String> {
+    let last = stdout.lines().last().ok_or("no output")?;
+    serde_json::from_str(last).map_err(|e| format!("last line is not JSON ({e}): {last}"))
+}
+
+/// `key=value` fields of the first line starting with `tag ` (e.g. `RESULT`).
+fn fields(stdout: &str, tag: &str) -> Result<Vec<(String, String)>, String> {
+    let line = stdout.lines().find(|l| l.starts_with(&format!("{tag} "))).ok_or_else(|| format!("no {tag} line"))?;
+    Ok(line.split_whitespace().skip(1).filter_map(|kv| kv.split_once('=')).map(|(k, v)| (k.to_string(), v.to_string())).collect())
+}
+
+fn field<'a>(f: &'a [(String, String)], k: &str) -> &'a str {
+    f.iter().find(|(key, _)| key == k).map_or("?", |(_, v)| v.as_str())
+}
+
+/// The number after `prefix` in the first line that contains it.
+fn after<'a>(stdout: &'a str, prefix: &str) -> &'a str {
+    stdout.lines().find_map(|l| l.split_once(prefix).map(|(_, r)| r.split_whitespace().next().unwrap_or("?"))).unwrap_or("?")
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or(f64::NAN)
+}
+
+/// 3 significant digits in engineering style (e.g. `1.33e-4`).
+fn e3(x: f64) -> String {
+    if x == 0.0 {
+        "0".into()
+    } else {
+        format!("{x:.2e}")
+    }
+}
+
+fn count(v: &Value) -> usize {
+    v.as_array().map_or(0, Vec::len)
+}
+
+fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, budgets: &[(String, String)]) -> Result<String, String> {
+    let r = fields(plain, "RESULT")?;
+    let t = fields(tilt, "RESULT")?;
+    let rt = fields(raw, "ROUNDTRIP")?;
+    let np = fields(no_probe, "RESULT")?;
+    let mut s = String::from("## Demo\n\nThe firmware ELF on the emulated board (`cargo demo`, seed 1; `host-tests/vboard`).\n\n");
+    s += "| run | result |\n|---|---|\n";
+    s += &format!(
+        "| `cargo demo` (one servo + hand-held poses) | max scale error {} %, stored {} |\n",
+        field(&r, "max_scale_error_pct"),
+        field(&r, "stored")
+    );
+    s += &format!(
+        "| `cargo demo -- --tilt` (pan/tilt, full K) | max scale error {} %, max cross-axis error {} %, stored {}, rig time {} s |\n",
+        field(&t, "max_scale_error_pct"),
+        field(&t, "max_cross_axis_error_pct"),
+        field(&t, "stored"),
+        after(tilt, "rig time: ")
+    );
+    s += &format!(
+        "| `cargo demo -- --raw-log FILE` | calib on the raw log vs the firmware's K: {} % (largest element), vs the truth {} % |\n",
+        field(&rt, "calib_vs_firmware_max_pct"),
+        field(&rt, "calib_scale_error_pct")
+    );
+    s += &format!(
+        "| `cargo demo -- --no-probe` | max scale error {} %, stored {} |\n\n",
+        field(&np, "max_scale_error_pct"),
+        field(&np, "stored")
+    );
+    s += &format!(
+        "Cost on the MCU (`cargo demo`): `Procedure::handle_sample` {} instructions per sample on average; its longest call \
+         (the solve) {} instructions ({} ms at 64 MHz); peak stack {} bytes.\n\n",
+        after(plain, "calls, ").trim_end_matches(','),
+        after(plain, "(the solve): "),
+        after(plain, "instructions, ").trim_end_matches(" ms"),
+        after(plain, "peak stack: ")
+    );
+    s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 128 KiB, static RAM 64 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";
+    for (name, check) in budgets {
+        s += &format!("| {name} | {} B | {} B |\n", after(check, "flash "), after(check, "static RAM "));
+    }
+    Ok(s)
+}
+
+fn paper_section(j: &Value) -> String {
+    let mut s = String::from(
+        "## Paper tables\n\n`cargo paper-tables` (seed 2024): the paper's simulation (Li et al.) with calib-core's estimator, ours beside \
+         the paper's.\n\nTable I (scale-factor error after calibration, 100 runs):\n\n| axis | status | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n",
+    );
+    for r in j["table1"]["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {} / {} | {} / {} |\n",
+            r["axis"].as_str().unwrap_or("?"),
+            r["status"].as_str().unwrap_or("?"),
+            e3(f(&r["ours"]["mean"])),
+            e3(f(&r["paper"]["mean"])),
+            e3(f(&r["ours"]["variance"])),
+            e3(f(&r["paper"]["variance"]))
+        );
+    }
+    s += "\nTable II (RMS error of the scale factors):\n\n| axis | uncalibrated | with accel error | accel pre-calibrated | without accel error |\n|---|---|---|---|---|\n";
+    for r in j["table2"]["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {} | {} | {} |\n",
+            r["axis"].as_str().unwrap_or("?"),
+            e3(f(&r["rms_uncalibrated"])),
+            e3(f(&r["rms_with_accel_error"])),
+            e3(f(&r["rms_with_accel_error_precalibrated"])),
+            e3(f(&r["rms_without_accel_error"]))
+        );
+    }
+    s += "\nTable III (estimated scale factor under gyro noise):\n\n| axis | noise (°/s) | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n";
+    for r in j["table3"]["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {:.4} / {:.4} | {} / {} |\n",
+            r["axis"].as_str().unwrap_or("?"),
+            f(&r["noise_sd_dps"]),
+            f(&r["ours"]["mean"]),
+            f(&r["paper"]["mean"]),
+            e3(f(&r["ours"]["variance"])),
+            e3(f(&r["paper"]["variance"]))
+        );
+    }
+    s += "\nThe paper's estimator (known servo speed) against the speed-free sweep on simulated rigs (scale error, %):\n\n\
+          | rig | paper RMS | paper max | sweep RMS | sweep max | failed (paper / sweep) |\n|---|---|---|---|---|---|\n";
+    for (k, name) in
+        [("exact_servo", "exact servo speed"), ("hobby_servo", "hobby servo"), ("hobby_servo_misaligned", "hobby servo, misaligned")]
+    {
+        let h = &j["hobby_servo"][k];
+        s += &format!(
+            "| {name} | {:.3} | {:.3} | {:.3} | {:.3} | {} / {} |\n",
+            f(&h["paper_rms_pct"]),
+            f(&h["paper_max_pct"]),
+            f(&h["sweep_rms_pct"]),
+            f(&h["sweep_max_pct"]),
+            count(&h["paper_failed"]),
+            count(&h["sweep_failed"])
+        );
+    }
+    s
+}
+
+fn calib_bench_section(j: &Value) -> String {
+    let mut s = format!(
+        "## Calib bench\n\n`calib-bench --logs {}`: `gyrocal-calib`'s offline path on simulated logs (diagonal K, scale error in %).\n\n\
+         | servo | ODR (Hz) | RMS | max | mean | failed |\n|---|---|---|---|---|---|\n",
+        j["logs_per_row"]
+    );
+    for r in j["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {:.4} | {:.4} | {:.4} | {} |\n",
+            r["servo"].as_str().unwrap_or("?"),
+            f(&r["odr_hz"]),
+            f(&r["rms_pct"]),
+            f(&r["max_pct"]),
+            f(&r["mean_pct"]),
+            count(&r["failed"])
+        );
+    }
+    s
+}
+
+fn full_k_section(j: &Value) -> String {
+    let mut s = format!(
+        "## Full-K bench\n\n`full-k-bench` (seed {}, {} pan/tilt rigs): every element of `E = Qᵀ K̂ K⁻¹ − I`; rig time {:.1} s mean, {:.1} s max.\n\n\
+         | method | RMS of E (mean over rigs) | largest | rigs |\n|---|---|---|---|\n",
+        j["seed"],
+        j["rigs"],
+        f(&j["rig_time_s"]["mean"]),
+        f(&j["rig_time_s"]["max"])
+    );
+    for r in j["rows"].as_array().into_iter().flatten() {
+        s += &format!("| {} | {} | {} | {} |\n", r["method"].as_str().unwrap_or("?"), e3(f(&r["rms_mean"])), e3(f(&r["max"])), r["rigs"]);
+    }
+    s
+}
+
+fn rotation_section(j: &Value) -> String {
+    let mut s = format!(
+        "## Rotation bench\n\n`rotation-bench` (seed {}, {} rigs per row): the full K with and without the rotation constraints of the moves \
+         between static poses; E as above.\n\n| rig | rotations | RMS of E | largest | rigs | failed |\n|---|---|---|---|---|---|\n",
+        j["seed"], j["rigs"]
+    );
+    for r in j["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {} | {} | {} | {} |\n",
+            r["rig"].as_str().unwrap_or("?"),
+            if r["rotations"].as_bool() == Some(true) { "on" } else { "off" },
+            e3(f(&r["rms_mean"])),
+            e3(f(&r["max"])),
+            r["rigs"],
+            count(&r["failed"])
+        );
+    }
+    s
+}
+
+fn page() -> Result<String, String> {
+    build()?;
+    let raw = calib::firmware::target_dir().join("results/raw.csv");
+    if let Some(d) = raw.parent() {
+        std::fs::create_dir_all(d).map_err(|e| format!("{}: {e}", d.display()))?;
+    }
+    let a = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let runs = [
+        Run { bin: "rotation-bench", args: a(&["--json"]) },
+        Run { bin: "paper-tables", args: a(&["--json"]) },
+        Run { bin: "full-k-bench", args: a(&["--json"]) },
+        Run { bin: "calib-bench", args: a(&["--logs", "10", "--json"]) },
+        Run { bin: "demo", args: a(&["--quiet"]) },
+        Run { bin: "demo", args: a(&["--quiet", "--tilt"]) },
+        Run { bin: "demo", args: vec!["--quiet".into(), "--raw-log".into(), raw.display().to_string()] },
+        Run { bin: "demo", args: a(&["--quiet", "--no-probe"]) },
+    ];
+    let out = run_all(&runs)?;
+    let mut budgets = vec![];
+    for (name, variant) in [("default", &[][..]), ("`tilt-servo`", &["tilt-servo"][..])] {
+        let elf = calib::firmware::variant_dir(variant).join("gyrocal-fw");
+        let o = Command::new("bash")
+            .arg(".ci/firmware-check")
+            .arg(&elf)
+            .current_dir(root())
+            .output()
+            .map_err(|e| format!("firmware-check: {e}"))?;
+        if !o.status.success() {
+            return Err(format!("firmware-check {}: {}", elf.display(), String::from_utf8_lossy(&o.stdout)));
+        }
+        budgets.push((name.to_string(), String::from_utf8_lossy(&o.stdout).into_owned()));
+    }
+    let mut s = String::from(
+        "# Results\n\n<!-- Generated by `cargo results` from the benchmarks' JSON summaries and the demos' RESULT lines; \
+         CI runs `cargo results -- --check`. Do not edit. -->\n\nEvery figure below comes from a run with a fixed seed: \
+         `cargo results` reruns them all and rewrites this page. No board was used: the demos run the firmware ELF on the \
+         emulated board, the benchmarks run calib-core on simulated rigs ([the virtual board](../host-tests/vboard/README.md), \
+         [testing](testing.md)).\n\n",
+    );
+    s += &demo_section(&out[4], &out[5], &out[6], &out[7], &budgets)?;
+    s += "\n";
+    s += &paper_section(&json(&out[1])?);
+    s += "\n";
+    s += &calib_bench_section(&json(&out[3])?);
+    s += "\n";
+    s += &full_k_section(&json(&out[2])?);
+    s += "\n";
+    s += &rotation_section(&json(&out[0])?);
+    Ok(s)
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse_from(calib::cli_args());
+    let path = root().join("docs/results.md");
+    let new = match page() {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("results: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if args.check {
+        let old = std::fs::read_to_string(&path).unwrap_or_default();
+        if old == new {
+            println!("results: {} is up to date", path.display());
+            return ExitCode::SUCCESS;
+        }
+        let stale = old.lines().zip(new.lines()).position(|(a, b)| a != b).unwrap_or(old.lines().count().min(new.lines().count()));
+        eprintln!(
+            "results: {} is stale (first difference at line {}): run `cargo results` and commit it\n  page: {}\n  runs: {}",
+            path.display(),
+            stale + 1,
+            old.lines().nth(stale).unwrap_or(""),
+            new.lines().nth(stale).unwrap_or("")
+        );
+        return ExitCode::from(1);
+    }
+    if let Err(e) = std::fs::write(&path, &new) {
+        eprintln!("results: {}: {e}", path.display());
+        return ExitCode::from(2);
+    }
+    println!("results: wrote {}", path.display());
+    ExitCode::SUCCESS
+}
