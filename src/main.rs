@@ -38,6 +38,9 @@ use panic_probe as _;
 
 /// Loop period (µs): the FIFO (32 slots) lasts 33 ms at 952 Hz.
 const TICK_US: u32 = 2_000;
+/// Commands (button, USB) one main-loop tick takes; more are reported as ignored, never dropped
+/// silently.
+const COMMANDS_PER_TICK: usize = 8;
 /// FIFO read period (s).
 const FIFO_POLL_S: f64 = 0.010;
 /// Watchdog timeout (s).
@@ -351,7 +354,7 @@ impl Console {
     /// Starts USB once VBUS is present (retried every second), serves it every tick, and says
     /// once a second how many bytes a terminal that stopped reading missed.
     #[inline(never)]
-    fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, 8>) {
+    fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, COMMANDS_PER_TICK>) {
         if self.usb.is_none() && now >= self.next_usb_try {
             if let Some(usbd) = self.usbd.take() {
                 match Usb::start(usbd, power) {
@@ -370,9 +373,16 @@ impl Console {
             }
         }
         if let Some(u) = self.usb.as_mut() {
+            let mut refused = 0u32;
             u.poll(power, now, |c| {
-                let _ = commands.push(c);
+                if commands.push(c).is_err() {
+                    refused += 1;
+                }
             });
+            if refused > 0 {
+                self.say(Log::Warn, format_args!("USB: {refused} command(s) ignored: more than {} in one tick", COMMANDS_PER_TICK));
+            }
+            let Some(u) = self.usb.as_mut() else { return };
             let dropped = u.out.dropped();
             if dropped != self.usb_dropped_reported && u.out.is_empty() && u.listening() {
                 self.usb_dropped_reported = dropped;
@@ -624,6 +634,9 @@ fn main() -> ! {
                     if st.overrun {
                         io.console.send(Log::Warn, "FIFO overrun: samples lost");
                         stamper.restart();
+                        // At least one sample overwritten: a running calibration fails (named).
+                        procedure.handle_samples_lost(1);
+                        procedure.drive(now, &mut io);
                     }
                     let n = st.level.min(FIFO_DEPTH) as usize;
                     let batch = stamper.batch(clock.now_s(), n);
@@ -646,22 +659,28 @@ fn main() -> ! {
                 });
                 if let Err(e) = result {
                     io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
+                    procedure.handle_sensor_fault();
+                    procedure.drive(now, &mut io);
                     bus = sensor.take().map(|s| s.release());
                     next_sensor_try = now + 0.5;
                 }
             }
         }
 
-        let mut commands = heapless::Vec::<Command, 8>::new();
+        let mut commands = heapless::Vec::<Command, COMMANDS_PER_TICK>::new();
         io.console.poll_usb(&p.POWER, now, &mut commands);
-        match button.update(now, button_pin.is_low().unwrap_or(false)) {
-            Some(Press::Short) => {
-                let _ = commands.push(Command::Calibrate);
+        let pressed = match button.update(now, button_pin.is_low().unwrap_or(false)) {
+            Some(Press::Short) => Some(Command::Calibrate),
+            Some(Press::Long) => Some(Command::RawLog),
+            None => None,
+        };
+        // The button goes first: a full tick of USB commands never hides a press.
+        if let Some(c) = pressed {
+            if commands.insert(0, c).is_err() {
+                commands.pop();
+                let _ = commands.insert(0, c);
+                io.console.send(Log::Warn, "USB: a command ignored: the button press came in the same tick");
             }
-            Some(Press::Long) => {
-                let _ = commands.push(Command::RawLog);
-            }
-            None => {}
         }
         for c in commands {
             match c {

@@ -63,6 +63,11 @@ pub enum Error {
     Storage(StoreError),
     /// The shell did not drain the command queue: a command would have been lost.
     CommandQueueFull,
+    /// Samples were lost during the calibration (FIFO overrun, failed read): the gyro integrals
+    /// have a gap.
+    SamplesLost { count: u16 },
+    /// The sensor stopped answering during the calibration (I2C error).
+    SensorFault,
     /// Not one temperature reading during the whole calibration.
     NoTemperature,
     /// Full `K`: moves about too few rotation axes (each tilt setting's pan axis, the hinge).
@@ -143,6 +148,11 @@ impl fmt::Display for Error {
                 ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4)),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
+            Error::SamplesLost { count } => write!(
+                f,
+                "{count} sample(s) lost (FIFO overrun or a failed read): the gyro integral has a gap; keep the host reading and rerun"
+            ),
+            Error::SensorFault => f.write_str("the sensor stopped answering during the calibration (I2C error): check the board, rerun"),
             Error::NoTemperature => f.write_str("no temperature reading during the calibration: sensor or I2C bus failing"),
             Error::TooFewAxes { have, need } => write!(
                 f,

@@ -2,9 +2,12 @@
 //! call these, so that they choose, gate and reject alike.
 
 use crate::accel::{AccelCal, AccelCalibrator};
+use crate::axis::turn_deg;
 use crate::full::FullCal;
 use crate::gyro::GyroCal;
-use crate::Error;
+use crate::vec3::to_f64 as v64;
+use crate::{Error, Vec3};
+use nalgebra::Vector3;
 
 /// What a result must meet to be stored or printed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,4 +76,95 @@ pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
         }
     }
     Ok(())
+}
+
+/// The paper's constant-rate rotation: which part of it is averaged (the servo speeds up after
+/// the start and slows before the end), how long that part must be, and the least rate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SteadyRate {
+    /// Skipped after the rotation starts (s).
+    pub skip_start_s: f32,
+    /// Skipped before it ends (s).
+    pub skip_end_s: f32,
+    /// Shortest averaged part a log's steady run needs (s).
+    pub min_s: f32,
+    /// Smallest shaft rate that counts as a rotation (°/s).
+    pub min_dps: f32,
+}
+
+impl SteadyRate {
+    /// One second skipped at the start, half a second at the end; ≥ 3 s at ≥ 2 °/s.
+    pub const DEFAULT: SteadyRate = SteadyRate { skip_start_s: 1.0, skip_end_s: 0.5, min_s: 3.0, min_dps: 2.0 };
+
+    /// A sample `elapsed_s` after the start of a rotation that lasts `duration_s` is averaged.
+    pub fn averaged(&self, elapsed_s: f64, duration_s: f64) -> bool {
+        elapsed_s > self.skip_start_s as f64 && elapsed_s < duration_s - self.skip_end_s as f64
+    }
+}
+
+/// Where the paper's estimator takes the shaft rate `ω_n` from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RateSource {
+    /// The rate the servo was commanded at (a positional servo; a log's servo column).
+    Commanded,
+    /// The rate gravity turned about the axis, seen by the calibrated accelerometer (a
+    /// continuous servo's speed is unknown).
+    Gravity,
+}
+
+impl RateSource {
+    /// Its name in reports and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            RateSource::Commanded => "servo column",
+            RateSource::Gravity => "accelerometer",
+        }
+    }
+}
+
+/// The angle gravity turns about a fixed axis over a rotation, summed sample to sample, and the
+/// time it took: the shaft's rate without knowing the servo's speed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GravityTurn {
+    axis: Option<Vector3<f64>>,
+    prev: Option<Vec3>,
+    turn_deg: f64,
+    t_first: Option<f64>,
+    t_last: f64,
+}
+
+impl GravityTurn {
+    /// About `axis` (unit, calibrated accelerometer frame); `None`: no axis, no rate.
+    pub fn new(axis: Option<Vector3<f64>>) -> Self {
+        Self { axis, prev: None, turn_deg: 0.0, t_first: None, t_last: 0.0 }
+    }
+
+    /// A calibrated accelerometer sample (g) at `t_s`.
+    pub fn add(&mut self, t_s: f64, accel_g: Vec3) {
+        if let (Some(u), Some(p)) = (self.axis, self.prev) {
+            self.turn_deg += turn_deg(&u, &v64(p), &v64(accel_g));
+        }
+        self.prev = Some(accel_g);
+        self.t_first.get_or_insert(t_s);
+        self.t_last = t_s;
+    }
+
+    /// Mean rate of the turn (°/s, ≥ 0; 0 before two samples).
+    pub fn rate_dps(&self) -> f32 {
+        match self.t_first {
+            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0)) as f32,
+            _ => 0.0,
+        }
+    }
+}
+
+/// The shaft rate for the paper's estimator (°/s) and its source: the commanded rate when the
+/// servo turned at a known one, else the rate gravity turned.
+pub fn rotation_rate(commanded_dps: Option<f32>, gravity: &GravityTurn) -> (f32, RateSource) {
+    match commanded_dps {
+        Some(w) => (w, RateSource::Commanded),
+        None => (gravity.rate_dps(), RateSource::Gravity),
+    }
 }

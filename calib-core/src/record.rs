@@ -11,7 +11,8 @@
 //! accel offset, then the 1σ of the diagonal of `K` only (3), the six quality fields, the CRC.
 
 use crate::accel::{AccelCal, AccelModel};
-use crate::gyro::Method;
+use crate::full::FullCal;
+use crate::gyro::{GyroCal, Method};
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
@@ -107,6 +108,83 @@ pub struct Record {
     pub residual_rms: f32,
     /// Angle (°) of the full `K`'s axes from coplanar (0 for one axis; 0 in version-1 records).
     pub non_coplanar_deg: f32,
+}
+
+/// What a record holds beside the gyro result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Context {
+    /// Sequence number of the record (the stored one's + 1; 0 for a record never stored).
+    pub seq: u32,
+    /// Mean sensor temperature during the calibration (°C).
+    pub temp_c: f32,
+    /// Gyro bias (°/s).
+    pub gyro_bias_dps: Vec3,
+    /// The accelerometer calibration the gyro result was made in.
+    pub accel: AccelCal,
+}
+
+impl Context {
+    /// The record with no gyro result yet: `K = 0`, every gyro quality field 0.
+    fn base(&self) -> Record {
+        Record {
+            seq: self.seq,
+            temp_c: self.temp_c,
+            gyro_k: [[0.0; 3]; 3],
+            gyro_bias_dps: self.gyro_bias_dps,
+            method: Method::Sweep,
+            accel_m: self.accel.m,
+            accel_offset_g: self.accel.offset_g,
+            accel_model: self.accel.model,
+            poses: 0,
+            rows: 0,
+            sigma_k: [[0.0; 3]; 3],
+            invariant_before_rel: 0.0,
+            invariant_after_rel: 0.0,
+            condition: 0.0,
+            tilt_deg: 0.0,
+            span_deg: 0.0,
+            accel_rms_g: self.accel.rms_after_g,
+            residual_rms: 0.0,
+            non_coplanar_deg: 0.0,
+        }
+    }
+
+    /// The record of a one-axis estimator's (diagonal) result.
+    pub fn one_axis(&self, cal: &GyroCal) -> Record {
+        let (q, s) = (&cal.quality, cal.quality.sigma_k);
+        Record {
+            gyro_k: cal.k,
+            method: cal.method,
+            sigma_k: [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]],
+            poses: q.poses,
+            rows: q.rows,
+            invariant_before_rel: q.invariant_before.relative_std(),
+            invariant_after_rel: q.invariant_after.relative_std(),
+            condition: q.condition,
+            tilt_deg: q.tilt_deg,
+            span_deg: q.span_deg,
+            residual_rms: q.residual_rms,
+            ..self.base()
+        }
+    }
+
+    /// The record of a full `K`, made from `poses` distinct static poses; its tilt is the smallest
+    /// of the axes it used (0 if none turned).
+    pub fn full(&self, full: &FullCal, poses: u8) -> Record {
+        let tilt_deg = full.axes.iter().filter(|a| a.moves > 0).map(|a| a.tilt_deg).reduce(f32::min).unwrap_or(0.0);
+        Record {
+            gyro_k: full.k,
+            method: Method::Full,
+            sigma_k: full.sigma_k,
+            poses,
+            rows: full.rows,
+            condition: full.condition,
+            tilt_deg,
+            residual_rms: full.residual_rms_deg,
+            non_coplanar_deg: full.non_coplanar_deg,
+            ..self.base()
+        }
+    }
 }
 
 impl Record {

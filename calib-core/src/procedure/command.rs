@@ -63,7 +63,7 @@ impl ErrorClass {
             | Error::RotationAxesCoplanar { .. } => ErrorClass::Geometry,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
             Error::Storage(_) => ErrorClass::Storage,
-            Error::NoTemperature => ErrorClass::Sensor,
+            Error::NoTemperature | Error::SamplesLost { .. } | Error::SensorFault => ErrorClass::Sensor,
             Error::TooFewRows { .. }
             | Error::Singular
             | Error::IllConditioned { .. }

@@ -4,7 +4,7 @@
 use crate::axis::GeometryLimits;
 use crate::bias::BiasLimits;
 use crate::full::FullLimits;
-use crate::pipeline::Acceptance;
+use crate::pipeline::{Acceptance, SteadyRate};
 use crate::rest::RestConfig;
 use crate::rotation::RotationLimits;
 
@@ -64,6 +64,8 @@ pub struct Config {
     pub move_rate_dps: f32,
     /// Commanded rate of the paper's constant-rate rotation (°/s); 0 skips it.
     pub rotation_rate_dps: f32,
+    /// The part of that rotation averaged, and what a log's steady run must meet.
+    pub steady: SteadyRate,
     /// Duration of the rotation with a continuous servo (s).
     pub rotation_s: f32,
     /// Still time averaged per pose (s).
@@ -129,6 +131,7 @@ impl Config {
         round_trips: 1,
         move_rate_dps: 30.0,
         rotation_rate_dps: 20.0,
+        steady: SteadyRate::DEFAULT,
         rotation_s: 10.0,
         pose_average_s: 1.0,
         bias_s: 2.0,

@@ -16,8 +16,10 @@
 //! beside it → validate → store → report → apply. No user action after the press.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
-//! (one call queues at most 10 commands; the queue holds 16; a full queue fails the calibration
-//! with [`Error::CommandQueueFull`]). A [`Command::Store`] is answered with
+//! (one call queues at most 10 commands; the queue holds 16). A full queue fails the
+//! calibration with [`Error::CommandQueueFull`] at the end of the call that overflowed it, after
+//! every other state change of that call: the queue is emptied (a pending store with it) and
+//! holds only the failure's commands, so no store follows a failure. A [`Command::Store`] is answered with
 //! [`Procedure::handle_stored`]; only then are the result reported, applied and shown as done.
 //! [`Procedure::drive`] does both for a [`Shell`].
 
@@ -28,11 +30,12 @@ pub use command::{Command, ErrorClass, Led, Report, Shell};
 pub use config::{Config, ServoKind, TILT_SETTINGS};
 
 use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
-use crate::axis::{turn_deg, Poses};
+use crate::axis::Poses;
 use crate::bias::{Bias, BiasEstimator};
 use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::{GyroCal, Method};
-use crate::record::{Record, StoreError};
+use crate::pipeline::GravityTurn;
+use crate::record::{self, Record, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::rotation::{Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;
@@ -40,7 +43,6 @@ use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
 use crate::{paper, pipeline, sweep, Error, Vec3};
 use heapless::Deque;
-use nalgebra::Vector3;
 
 /// One IMU sample as the shell delivers it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -194,40 +196,12 @@ enum Step {
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Rotation {
     ramp: Ramp,
-    axis: Option<Vector3<f64>>,
     rate: Welford3,
-    turn_deg: f64,
-    prev_accel: Option<Vec3>,
-    t_first: Option<f64>,
-    t_last: f64,
-}
-
-impl Rotation {
-    fn add(&mut self, t_s: f64, g: Vec3, accel: Vec3) {
-        self.rate.add(g);
-        if let (Some(u), Some(p)) = (self.axis, self.prev_accel) {
-            self.turn_deg += turn_deg(&u, &v64(p), &v64(accel));
-        }
-        self.prev_accel = Some(accel);
-        self.t_first.get_or_insert(t_s);
-        self.t_last = t_s;
-    }
-
-    /// Mean shaft rate from the accelerometer (°/s).
-    fn accel_rate_dps(&self) -> f32 {
-        match self.t_first {
-            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0)) as f32,
-            _ => 0.0,
-        }
-    }
+    gravity: GravityTurn,
 }
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
-
-/// Head room of the rotation's averaging window: skipped after the start and before the end (s).
-const ROTATION_SKIP_START_S: f64 = 1.0;
-const ROTATION_SKIP_END_S: f64 = 0.5;
 
 /// The calibration procedure.
 pub struct Procedure {
@@ -254,6 +228,8 @@ pub struct Procedure {
     integ: Integrator,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
+    /// A command did not fit in the queue during this call ([`Self::settle`]).
+    overflow: bool,
 }
 
 impl Procedure {
@@ -284,6 +260,7 @@ impl Procedure {
             integ: Integrator::new(),
             gbar: None,
             temp: Welford3::new(),
+            overflow: false,
         }
     }
 
@@ -344,10 +321,44 @@ impl Procedure {
             }
             _ => {}
         }
+        self.settle();
+    }
+
+    /// Samples were lost (`count`, at least 1: a FIFO overrun, or a read that failed): every
+    /// gyro integral of a running calibration now has a gap, so it fails with
+    /// [`Error::SamplesLost`] (nothing is stored).
+    pub fn handle_samples_lost(&mut self, count: u16) {
+        if self.running() && !matches!(self.step, Step::Storing { .. }) {
+            self.fail(Error::SamplesLost { count });
+        }
+        self.settle();
+    }
+
+    /// The sensor stopped answering (an I2C error): a running calibration fails with
+    /// [`Error::SensorFault`].
+    pub fn handle_sensor_fault(&mut self) {
+        if self.running() && !matches!(self.step, Step::Storing { .. }) {
+            self.fail(Error::SensorFault);
+        }
+        self.settle();
+    }
+
+    /// Ends every `handle_*` call: a queue that overflowed during it is emptied and the
+    /// calibration failed, as the call's last state change.
+    fn settle(&mut self) {
+        if core::mem::take(&mut self.overflow) {
+            self.queue.clear();
+            self.fail(Error::CommandQueueFull);
+        }
     }
 
     /// Timer tick without a sample: detects a sensor that stopped and phase timeouts.
     pub fn handle_tick(&mut self, t_s: f64) {
+        self.tick(t_s);
+        self.settle();
+    }
+
+    fn tick(&mut self, t_s: f64) {
         if !self.running() {
             return;
         }
@@ -365,6 +376,11 @@ impl Procedure {
     /// emulated MCU.)
     #[inline(never)]
     pub fn handle_sample(&mut self, s: &Sample) {
+        self.sample(s);
+        self.settle();
+    }
+
+    fn sample(&mut self, s: &Sample) {
         if !self.running() {
             return;
         }
@@ -459,8 +475,9 @@ impl Procedure {
                 let elapsed = s.t_s - rot.ramp.t0;
                 let duration = rot.ramp.duration_s;
                 self.set_angle(rot.ramp.at(s.t_s).0);
-                if elapsed > ROTATION_SKIP_START_S && elapsed < duration - ROTATION_SKIP_END_S {
-                    rot.add(s.t_s, g, self.accel_cal.apply(s.accel_g));
+                if self.cfg.steady.averaged(elapsed, duration) {
+                    rot.rate.add(g);
+                    rot.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
                 }
                 if elapsed >= duration {
                     self.finish_rotation(&rot, s.t_s);
@@ -477,11 +494,10 @@ impl Procedure {
     }
 
     fn push(&mut self, c: Command) {
-        // Bounded by the contract (≤ 8 per call, drained after each). A shell that breaks it
-        // fails the calibration: the queue is emptied for the failure's own commands.
+        // Bounded by the contract (≤ 10 per call, drained after each). A shell that breaks it
+        // fails the calibration when the call ends ([`Self::settle`]).
         if self.queue.push_back(c).is_err() {
-            self.queue.clear();
-            self.fail(Error::CommandQueueFull);
+            self.overflow = true;
         }
     }
 
@@ -763,15 +779,8 @@ impl Procedure {
             self.solve_full(s.t_s);
         } else if self.cfg.rotation_rate_dps > 0.0 {
             let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
-            let rot = Rotation {
-                ramp,
-                axis: self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u),
-                rate: Welford3::new(),
-                turn_deg: 0.0,
-                prev_accel: None,
-                t_first: None,
-                t_last: s.t_s,
-            };
+            let axis = self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u);
+            let rot = Rotation { ramp, rate: Welford3::new(), gravity: GravityTurn::new(axis) };
             self.enter(Step::Rotation { rot }, s.t_s);
         } else {
             self.solve(s.t_s);
@@ -829,19 +838,8 @@ impl Procedure {
         if let Err(e) = pipeline::validate_full(&full, &self.cfg.acceptance) {
             return self.fail(e);
         }
-        let tilt_deg = full.axes.iter().filter(|a| a.moves > 0).map(|a| a.tilt_deg).fold(f32::INFINITY, f32::min);
-        let record = self.record().map(|r| Record {
-            gyro_k: full.k,
-            method: Method::Full,
-            sigma_k: full.sigma_k,
-            poses: self.axes.poses().len() as u8,
-            rows: full.rows,
-            condition: full.condition,
-            tilt_deg,
-            residual_rms: full.residual_rms_deg,
-            non_coplanar_deg: full.non_coplanar_deg,
-            ..r
-        });
+        let poses = self.axes.poses().len() as u8;
+        let record = self.context().map(|c| c.full(&full, poses));
         self.store(record, t_s);
     }
 
@@ -876,11 +874,9 @@ impl Procedure {
         self.push(Command::ServoOff { channel: 0 });
         self.servo_deg = None;
         self.last_pulse = None;
-        let omega = match self.cfg.servo {
-            ServoKind::Positional => self.cfg.rotation_rate_dps,
-            // A continuous servo's speed is unknown: the rate at which gravity turns about the axis.
-            ServoKind::Continuous { .. } => rot.accel_rate_dps(),
-        };
+        // A continuous servo's speed is unknown: the rate at which gravity turns about the axis.
+        let commanded = matches!(self.cfg.servo, ServoKind::Positional).then_some(self.cfg.rotation_rate_dps);
+        let (omega, _) = pipeline::rotation_rate(commanded, &rot.gravity);
         if rot.rate.count() > 0 {
             self.gbar = Some((rot.rate.mean().map(|v| v as f32), omega));
         }
@@ -912,21 +908,7 @@ impl Procedure {
             Ok(c) => c,
             Err(e) => return self.fail(e),
         };
-        let q = &chosen.quality;
-        let record = self.record().map(|r| Record {
-            gyro_k: chosen.k,
-            method: chosen.method,
-            sigma_k: [[q.sigma_k[0], 0.0, 0.0], [0.0, q.sigma_k[1], 0.0], [0.0, 0.0, q.sigma_k[2]]],
-            poses: q.poses,
-            rows: q.rows,
-            invariant_before_rel: q.invariant_before.relative_std(),
-            invariant_after_rel: q.invariant_after.relative_std(),
-            condition: q.condition,
-            tilt_deg: q.tilt_deg,
-            span_deg: q.span_deg,
-            residual_rms: q.residual_rms,
-            ..r
-        });
+        let record = self.context().map(|c| c.one_axis(&chosen));
         self.store(record, t_s);
     }
 
@@ -959,6 +941,11 @@ impl Procedure {
     /// applies it, shows it as done and moves the sequence number on; a failed one fails the
     /// calibration with [`Error::Storage`] (the previous record stays in use).
     pub fn handle_stored(&mut self, t_s: f64, result: Result<(), StoreError>) {
+        self.stored_answer(t_s, result);
+        self.settle();
+    }
+
+    fn stored_answer(&mut self, t_s: f64, result: Result<(), StoreError>) {
         let Step::Storing { record } = self.step else { return };
         match result {
             Ok(()) => {
@@ -991,32 +978,16 @@ impl Procedure {
         }
     }
 
-    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer);
-    /// the gyro fields are filled by the estimator's caller.
-    fn record(&self) -> Result<Record, Error> {
+    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer).
+    fn context(&self) -> Result<record::Context, Error> {
         if self.temp.count() == 0 {
             return Err(Error::NoTemperature);
         }
-        Ok(Record {
+        Ok(record::Context {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
             temp_c: self.temp.mean()[0] as f32,
-            gyro_k: [[0.0; 3]; 3],
             gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
-            method: Method::Sweep,
-            accel_m: self.accel_cal.m,
-            accel_offset_g: self.accel_cal.offset_g,
-            accel_model: self.accel_cal.model,
-            poses: 0,
-            rows: 0,
-            sigma_k: [[0.0; 3]; 3],
-            invariant_before_rel: 0.0,
-            invariant_after_rel: 0.0,
-            condition: 0.0,
-            tilt_deg: 0.0,
-            span_deg: 0.0,
-            accel_rms_g: self.accel_cal.rms_after_g,
-            residual_rms: 0.0,
-            non_coplanar_deg: 0.0,
+            accel: self.accel_cal,
         })
     }
 }

@@ -8,14 +8,15 @@
 
 use crate::csvlog::Row;
 use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
-use calib_core::axis::{turn_deg, GeometryLimits, Poses, MAX_POSES};
+use calib_core::axis::{Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
 use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
+use calib_core::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
-use calib_core::record::Record;
+use calib_core::record::{self, Record};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
-use calib_core::rotation::{RotationLimits, Rotations};
+use calib_core::rotation::Rotations;
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
@@ -77,7 +78,8 @@ pub enum OfflineError {
     NoRest,
     /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.
     NoRotation,
-    /// The sample rate is not one the LSM9DS1 can have; `hint` names the likely mistake.
+    /// The time column is not regular sampling at an IMU's rate (or, in a run of the firmware,
+    /// not an LSM9DS1 ODR); `hint` names the likely mistake.
     TimeBase {
         /// Median sample rate of the log (Hz).
         rate_hz: f64,
@@ -106,7 +108,7 @@ impl std::fmt::Display for OfflineError {
             OfflineError::Calib { stage, error } => write!(f, "{stage}: {error}"),
             OfflineError::NoRest => f.write_str("no still period in the log: cannot measure the gyro bias"),
             OfflineError::NoRotation => f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run"),
-            OfflineError::TimeBase { rate_hz, hint } => write!(f, "sample rate {rate_hz:.4} Hz is not an LSM9DS1 output data rate: {hint}"),
+            OfflineError::TimeBase { rate_hz, hint } => write!(f, "median sample rate {rate_hz:.4} Hz: {hint}"),
             OfflineError::AccelUnits { norm, hint } => write!(f, "the accelerometer reads {norm:.3} at rest, not 1 g: {hint}"),
             OfflineError::GyroUnits { k, hint } => write!(f, "gyro scale factor {k:.3}: {hint}"),
         }
@@ -128,10 +130,6 @@ pub struct Phases {
 
 /// Shortest still segment used as a pose (s).
 const MIN_SEGMENT_S: f64 = 0.5;
-/// Shortest steady-rate run used as the paper's rotation (s).
-const MIN_ROTATION_S: f64 = 3.0;
-/// Smallest mean rate of a steady-rate run (°/s).
-const MIN_ROTATION_DPS: f64 = 2.0;
 
 fn window_len(rows: &[Row], window_s: f64) -> Vec<(usize, usize)> {
     let mut out = vec![];
@@ -167,7 +165,7 @@ fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
 
 /// Finds still segments and the steady-rate rotation.
 pub fn phases(rows: &[Row]) -> Phases {
-    let defaults = RestConfig::default();
+    let defaults = CONFIG.rest;
     // Noise floor: the 10th percentile of the per-window standard deviations.
     let windows = window_len(rows, defaults.window_s as f64);
     let (mut sa, mut sg) = (vec![], vec![]);
@@ -242,31 +240,37 @@ fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) 
 }
 
 /// The longest run of windows whose mean bias-free gyro vector stays within 3 % of the run's
-/// first, above `MIN_ROTATION_DPS`, lasting `MIN_ROTATION_S`; its first and last windows are dropped.
-pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3]) -> Option<SteadyRotation> {
-    let windows = window_len(rows, RestConfig::default().window_s as f64);
+/// first, above `steady.min_dps`, averaged over `steady.min_s` at least once `steady`'s start and
+/// end are skipped, as the firmware averages its rotation.
+pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &SteadyRate) -> Option<SteadyRotation> {
+    let windows = window_len(rows, window_s as f64);
     let b = v64(bias_dps);
     let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
+    // The averaged rows of windows i..=j.
+    let averaged = |i: usize, j: usize| {
+        let (t0, t1) = (rows[windows[i].0].t_s, rows[windows[j].1].t_s);
+        let first = (windows[i].0..=windows[j].1).find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
+        let last = (windows[i].0..=windows[j].1).rev().find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
+        (rows[last].t_s - rows[first].t_s >= steady.min_s as f64).then_some((first, last))
+    };
     let mut best: Option<(usize, usize)> = None;
     let mut i = 0;
     while i < means.len() {
         let m0 = means[i];
         let mut j = i;
-        if m0.norm() > MIN_ROTATION_DPS {
+        if m0.norm() > steady.min_dps as f64 {
             while j + 1 < means.len() && (means[j + 1] - m0).norm() <= 0.03 * m0.norm() {
                 j += 1;
             }
         }
-        let dur = rows[windows[j].1].t_s - rows[windows[i].0].t_s;
-        if j >= i + 3 && dur >= MIN_ROTATION_S && best.is_none_or(|(a, b)| j - i > b - a) {
-            best = Some((i, j));
+        if let Some(r) = averaged(i, j).filter(|_| j > i) {
+            if best.is_none_or(|(a, b)| r.1 - r.0 > b - a) {
+                best = Some(r);
+            }
         }
         i = j + 1;
     }
-    best.map(|(i, j)| {
-        let rows_range = (windows[i + 1].0, windows[j - 1].1);
-        SteadyRotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 }
-    })
+    best.map(|rows_range| SteadyRotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 })
 }
 
 /// Everything the offline calibration found.
@@ -297,6 +301,11 @@ pub struct Calibration {
     /// The log was a run of the firmware's procedure, replayed through it under this
     /// configuration ([`crate::replay`]): the results are the firmware's.
     pub replayed: Option<&'static str>,
+    /// The record the firmware's procedure built on the replay (none if it failed or the log
+    /// took the data-driven path).
+    pub replayed_record: Option<Record>,
+    /// The log's sample rate.
+    pub time_base: TimeBase,
 }
 
 /// The LSM9DS1's output data rates (Hz): gyro 14.9, 59.5, 119, 238, 476, 952; accelerometer
@@ -304,28 +313,51 @@ pub struct Calibration {
 const ODRS_HZ: [f64; 8] = [10.0, 14.9, 50.0, 59.5, 119.0, 238.0, 476.0, 952.0];
 /// How far a real ODR may be from nominal (the datasheet gives none; boards show several %).
 const ODR_TOLERANCE: f64 = 0.1;
+/// Sample rates a MEMS IMU logs at (Hz): a time column in ms or µs falls far below.
+const IMU_RATE_HZ: (f64, f64) = (5.0, 10_000.0);
+/// Share of the sample intervals that must lie within ±50 % of the median (regular sampling;
+/// the rest are gaps or jitter).
+const REGULAR_SHARE: f64 = 0.9;
 
 fn is_odr(rate_hz: f64) -> bool {
     ODRS_HZ.iter().any(|o| (rate_hz / o - 1.0).abs() <= ODR_TOLERANCE)
 }
 
-/// Checks the time column: the median sample rate must be an LSM9DS1 ODR (within 10 %).
-pub fn check_time_base(rows: &[Row]) -> Result<f64, OfflineError> {
+fn is_imu_rate(rate_hz: f64) -> bool {
+    (IMU_RATE_HZ.0..=IMU_RATE_HZ.1).contains(&rate_hz)
+}
+
+/// The log's time base.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TimeBase {
+    /// Median sample rate (Hz).
+    pub rate_hz: f64,
+    /// It is an LSM9DS1 output data rate (within 10 %): false for another sensor's log.
+    pub lsm9ds1_odr: bool,
+}
+
+/// Checks the time column: regular sampling at a rate an IMU logs at (a time column in ms or µs
+/// is named). Another sensor's rate is accepted and said in [`TimeBase::lsm9ds1_odr`].
+pub fn check_time_base(rows: &[Row]) -> Result<TimeBase, OfflineError> {
     let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
     if dt.is_empty() {
-        return Ok(0.0);
+        return Ok(TimeBase { rate_hz: 0.0, lsm9ds1_odr: false });
     }
     dt.sort_by(f64::total_cmp);
-    let rate_hz = 1.0 / dt[dt.len() / 2];
-    if is_odr(rate_hz) {
-        return Ok(rate_hz);
+    let median = dt[dt.len() / 2];
+    let rate_hz = 1.0 / median;
+    let regular = dt.iter().filter(|d| (*d / median - 1.0).abs() <= 0.5).count() as f64 / dt.len() as f64;
+    if is_imu_rate(rate_hz) && regular >= REGULAR_SHARE {
+        return Ok(TimeBase { rate_hz, lsm9ds1_odr: is_odr(rate_hz) });
     }
-    let hint = if is_odr(rate_hz * 1e3) {
+    let hint = if is_imu_rate(rate_hz * 1e3) {
         "the time column looks like milliseconds: t_s must be in seconds (divide by 1000, or --columns t_s=NAME/1000)"
-    } else if is_odr(rate_hz * 1e6) {
+    } else if is_imu_rate(rate_hz * 1e6) {
         "the time column looks like microseconds: t_s must be in seconds (divide by 1e6, or --columns t_s=NAME/1e6)"
+    } else if is_imu_rate(rate_hz) {
+        "the sampling is irregular: more than a tenth of the intervals are off the median by over 50 % (samples missing or duplicated)"
     } else {
-        "samples missing, duplicated, or not from an LSM9DS1 at a standard rate"
+        "not a rate an IMU logs at: is t_s in seconds?"
     };
     Err(OfflineError::TimeBase { rate_hz, hint })
 }
@@ -384,6 +416,10 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     calibrate_with(rows, method, true)
 }
 
+/// The one configuration of the data-driven path: the firmware's defaults (acceptance, limits,
+/// the paper's rotation window).
+const CONFIG: Config = Config::DEFAULT;
+
 /// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
 /// (`calib --no-rotations`: to see what they add).
 pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
@@ -397,7 +433,7 @@ pub fn calibrate_stored(rows: &[Row], stored: Option<&Record>) -> Result<Calibra
 }
 
 fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
-    check_time_base(rows)?;
+    let time_base = check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
         return Err(OfflineError::NoRest);
@@ -407,6 +443,10 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows, stored) {
+            if !time_base.lsm9ds1_odr {
+                let hint = "a run of the firmware samples at an LSM9DS1 output data rate: samples missing or duplicated";
+                return Err(OfflineError::TimeBase { rate_hz: time_base.rate_hz, hint });
+            }
             let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
                 (Some(e), _) => Err(e),
                 (None, Ok(c)) => Ok(c),
@@ -428,6 +468,8 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
                 moves: q.map_or(0, |q| q.rows as usize),
                 handheld_poses: r.accel.poses as usize,
                 replayed: Some(r.config),
+                replayed_record: r.record,
+                time_base,
                 phases: ph,
             });
         }
@@ -437,8 +479,8 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     for s in &ph.segments {
         b.add_window(&s.gyro, &s.accel);
     }
-    let limits =
-        BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..BiasLimits::default() };
+    let cfg = &CONFIG;
+    let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
     let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
 
     // Rig poses by tilt setting: each setting turns about its own pan axis.
@@ -460,7 +502,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
             break;
         }
     }
-    let acceptance = Config::DEFAULT.acceptance;
+    let acceptance = cfg.acceptance;
     let accel = match acc.len() {
         n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
         _ => AccelCal::IDENTITY,
@@ -498,7 +540,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
 
     // Rotation constraints: every move between two consecutive hand-held poses (calibrated
     // gravity directions at both ends, the gyro integrated between them in chunks).
-    let rot_limits = RotationLimits::DEFAULT;
+    let rot_limits = cfg.rotation;
     let mut rotations = Rotations::new();
     let mut prev: Option<(u8, usize)> = None;
     for s in &ph.segments {
@@ -555,30 +597,25 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
             }
             prev = Some((s, idx));
         }
-        axes.solve_with(&full::FullLimits::DEFAULT, with_rotations).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+        axes.solve_with(&cfg.full, with_rotations).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
     });
-    let lim = GeometryLimits::default();
+    let lim = cfg.geometry;
     let sweep = sweep::solve(&poses, &moves, &lim);
 
     // The paper's estimator on the steady rotation, at the commanded rate when the servo column
     // ramps linearly, else at the rate gravity turns about the axis.
     let (mut paper, mut rotation_rate) = (None, None);
-    if let Some(rot) = steady_rotation(rows, bias.bias_dps) {
+    if let Some(rot) = steady_rotation(rows, bias.bias_dps, cfg.rest.window_s, &cfg.steady) {
         let span = &rows[rot.rows.0..=rot.rows.1];
-        let rate = servo_rate(span).map(|w| (w, "servo column")).or_else(|| {
-            let u = poses.geometry(&lim, false).ok()?.u;
-            let mut turn = 0.0;
-            for w in span.windows(2) {
-                let (a, b) = (accel.apply(w[0].accel_g), accel.apply(w[1].accel_g));
-                turn += turn_deg(&u, &v64(a), &v64(b));
-            }
-            let dt = span.last()?.t_s - span.first()?.t_s;
-            Some(((turn.abs() / dt) as f32, "accelerometer"))
-        });
-        if let Some((w, source)) = rate {
+        let mut gravity = GravityTurn::new(poses.geometry(&lim, false).ok().map(|g| g.u));
+        for r in span {
+            gravity.add(r.t_s, accel.apply(r.accel_g));
+        }
+        let (w, source) = pipeline::rotation_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
+        if w > 0.0 {
             let gbar = sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps);
             paper = Some(paper::solve(&poses, gbar, w, &lim));
-            rotation_rate = Some((w, source));
+            rotation_rate = Some((w, source.name()));
         }
     }
     let chosen = match method {
@@ -611,6 +648,8 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         moves: moves.len(),
         handheld_poses: acc.len(),
         replayed: None,
+        replayed_record: None,
+        time_base,
         phases: ph,
     })
 }
@@ -621,8 +660,9 @@ fn clipped(v: f32) -> bool {
     [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3)
 }
 
-/// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS).
-fn servo_rate(rows: &[Row]) -> Option<f32> {
+/// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS)
+/// faster than `min_dps`.
+fn servo_rate(rows: &[Row], min_dps: f32) -> Option<f32> {
     let pts: Vec<(f64, f64)> = rows.iter().map(|r| r.servo_deg.map(|s| (r.t_s, s as f64))).collect::<Option<_>>()?;
     let n = pts.len() as f64;
     if n < 3.0 {
@@ -632,7 +672,7 @@ fn servo_rate(rows: &[Row]) -> Option<f32> {
     let stt: f64 = pts.iter().map(|p| (p.0 - mt).powi(2)).sum();
     let slope = pts.iter().map(|p| (p.0 - mt) * (p.1 - ms)).sum::<f64>() / stt;
     let rms = (pts.iter().map(|p| (p.1 - ms - slope * (p.0 - mt)).powi(2)).sum::<f64>() / n).sqrt();
-    (rms < 0.5 && slope.abs() > MIN_ROTATION_DPS).then_some(slope.abs() as f32)
+    (rms < 0.5 && slope.abs() > min_dps as f64).then_some(slope.abs() as f32)
 }
 
 /// The tool's JSON output: the calibration to apply, then everything about its quality.
@@ -744,6 +784,8 @@ pub struct QualityOut<'a> {
     pub rotation_rate_dps: Option<f32>,
     /// Where it came from (`servo column` or `accelerometer`).
     pub rotation_rate_source: Option<&'static str>,
+    /// The log's sample rate, and whether it is an LSM9DS1 ODR (false: another sensor's log).
+    pub sample_rate: TimeBase,
     /// Phases found.
     pub segments: Segments,
     /// The rest thresholds used (raised to the log's noise floor).
@@ -755,7 +797,7 @@ pub struct QualityOut<'a> {
     pub replayed: Option<&'static str>,
 }
 
-const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: MIN_ROTATION_DPS as f32 });
+const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
 
 impl Calibration {
     /// The parts the log did not support, each with the reason (empty: a full calibration).
@@ -801,6 +843,7 @@ impl Calibration {
                 },
                 rotation_rate_dps: self.rotation_rate.map(|r| r.0),
                 rotation_rate_source: self.rotation_rate.map(|r| r.1),
+                sample_rate: self.time_base,
                 segments: Segments {
                     still: self.phases.segments.len(),
                     handheld_poses: self.handheld_poses,
@@ -823,57 +866,17 @@ impl Calibration {
     /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
     /// NaN (a log has none). `None` without a gyro result.
     pub fn record(&self) -> Option<Record> {
-        let base = Record {
-            seq: 0,
-            temp_c: f32::NAN,
-            gyro_k: [[0.0; 3]; 3],
-            gyro_bias_dps: self.bias.bias_dps,
-            method: Method::Full,
-            accel_m: self.accel.m,
-            accel_offset_g: self.accel.offset_g,
-            accel_model: self.accel.model,
-            poses: 0,
-            rows: 0,
-            sigma_k: [[0.0; 3]; 3],
-            invariant_before_rel: 0.0,
-            invariant_after_rel: 0.0,
-            condition: 0.0,
-            tilt_deg: 0.0,
-            span_deg: 0.0,
-            accel_rms_g: self.accel.rms_after_g,
-            residual_rms: 0.0,
-            non_coplanar_deg: 0.0,
-        };
-        if let Some(Ok(f)) = &self.full {
-            let axes = &f.axes[..(f.n_axes as usize).min(f.axes.len())];
-            return Some(Record {
-                gyro_k: f.k,
-                sigma_k: f.sigma_k,
-                poses: axes.iter().fold(0u8, |n, a| n.saturating_add(a.poses)),
-                rows: f.rows,
-                condition: f.condition,
-                tilt_deg: axes.iter().filter(|a| a.moves > 0).map(|a| a.tilt_deg).fold(f32::INFINITY, f32::min),
-                residual_rms: f.residual_rms_deg,
-                non_coplanar_deg: f.non_coplanar_deg,
-                ..base
-            });
+        if let Some(r) = self.replayed_record {
+            return Some(Record { seq: 0, temp_c: f32::NAN, ..r });
         }
-        let g = self.gyro.as_ref().ok()?;
-        let (q, s) = (&g.quality, g.quality.sigma_k);
-        Some(Record {
-            gyro_k: g.k,
-            method: g.method,
-            sigma_k: [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]],
-            poses: q.poses,
-            rows: q.rows,
-            invariant_before_rel: q.invariant_before.relative_std(),
-            invariant_after_rel: q.invariant_after.relative_std(),
-            condition: q.condition,
-            tilt_deg: q.tilt_deg,
-            span_deg: q.span_deg,
-            residual_rms: q.residual_rms,
-            ..base
-        })
+        let ctx = record::Context { seq: 0, temp_c: f32::NAN, gyro_bias_dps: self.bias.bias_dps, accel: self.accel };
+        // The full K's poses: every rig pose (each one went into its axes).
+        let rig_poses = self.phases.segments.iter().filter(|s| s.is_rig_pose()).count().min(u8::MAX as usize) as u8;
+        match (&self.full, &self.gyro) {
+            (Some(Ok(f)), _) => Some(ctx.full(f, rig_poses)),
+            (_, Ok(g)) => Some(ctx.one_axis(g)),
+            _ => None,
+        }
     }
 
     /// The output as one line of JSON.

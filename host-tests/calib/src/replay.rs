@@ -41,6 +41,8 @@ pub struct Replay {
     /// On a pan/tilt run, or a run with hand-held moves: the full `K` the firmware would store,
     /// or why it would not.
     pub full: Option<Result<FullCal, Error>>,
+    /// The record the firmware would store (none if it failed).
+    pub record: Option<Record>,
 }
 
 /// The procedure's reports, collected; stores always succeed (nothing is written).
@@ -157,6 +159,6 @@ pub fn replay(rows: &[Row], stored: Option<&Record>) -> Option<Replay> {
             (None, None) => return None,
         };
         let accel = c.accel.unwrap_or(AccelCal::IDENTITY);
-        Some(Replay { config: name, bias: c.bias?, accel, sweep: c.sweep, paper: c.paper, result, full })
+        Some(Replay { config: name, bias: c.bias?, accel, sweep: c.sweep, paper: c.paper, result, full, record: c.done })
     })
 }

@@ -335,3 +335,41 @@ fn pan_tilt_rigs_that_cannot_give_the_full_k_are_named() {
     assert!(matches!(e, calib_core::Error::AxisUndetermined { .. } | calib_core::Error::TooFewAxes { .. }), "{e:?}");
     assert!(missing.contains("full K: axis") && missing.contains("at least 3 poses"), "{missing}");
 }
+
+#[test]
+fn another_sensor_s_rate_is_accepted_and_said_but_a_firmware_run_must_be_at_an_odr() {
+    use rig_sim::pan_tilt;
+    // A hand-held log of "another IMU" at 100 Hz: time stretched by 119/100 and the gyro
+    // scaled by 100/119, so that every turn stays what it was.
+    let mut rig = Rig::new(pan_tilt::rig_config(41, 0), 41);
+    let log = pan_tilt::handheld_only(&pan_tilt::log_at(&mut rig, true, &[]));
+    let s = 119.0 / 100.0;
+    let other = rewrite(&log, |r| {
+        r.t_s *= s;
+        r.gyro_dps = r.gyro_dps.map(|g| (g as f64 / s) as f32);
+        true
+    });
+    let rows = csvlog::parse(&other).unwrap().rows;
+    let c = offline::calibrate(&rows, None).unwrap();
+    // (the simulated ODR is off nominal by a few %, as on real boards)
+    assert!(!c.time_base.lsm9ds1_odr && (85.0..115.0).contains(&c.time_base.rate_hz), "{:?}", c.time_base);
+    assert!(c.full.as_ref().is_some_and(|f| f.is_ok()), "calibrated: {:?}", c.missing());
+    let json: serde_json::Value = serde_json::from_str(&c.json(0)).unwrap();
+    assert_eq!(json["quality"]["sample_rate"]["lsm9ds1_odr"], serde_json::Value::Bool(false));
+    // The same in ms is named.
+    let ms = rewrite(&other, |r| {
+        r.t_s *= 1000.0;
+        true
+    });
+    let err = offline::calibrate(&csvlog::parse(&ms).unwrap().rows, None).unwrap_err().to_string();
+    assert!(err.contains("milliseconds"), "{err}");
+    // A run of the firmware's own procedure with every third row lost: named, not calibrated.
+    let (fw, _) = simulated_log(Variant::Hobby.config(42, 0));
+    let n = std::cell::Cell::new(0);
+    let lossy = rewrite(&fw, |_| {
+        n.set(n.get() + 1);
+        n.get() % 3 != 0
+    });
+    let err = offline::calibrate(&csvlog::parse(&lossy).unwrap().rows, None).unwrap_err();
+    assert!(matches!(err, OfflineError::TimeBase { .. }), "{err}");
+}

@@ -31,6 +31,11 @@ pub struct Faults {
     /// Every n-th sample has no temperature reading (1 = none has one); the others after such
     /// a gap read NaN once (a garbled transfer) before reading right again.
     pub temp_missing_every: Option<usize>,
+    /// The shell reports lost samples (a FIFO overrun) once the procedure is in this phase.
+    pub samples_lost_in: Option<Phase>,
+    /// The shell stops draining the command queue for this many samples once the procedure is
+    /// in this phase (it drains again after them).
+    pub no_drain_in: Option<(Phase, usize)>,
 }
 
 /// What a run produced.
@@ -191,6 +196,7 @@ fn run_posed(
     let mut last_bump = f64::NEG_INFINITY;
     let mut started = false;
     let mut samples = 0;
+    let (mut lost_reported, mut undrained) = (false, 0usize);
     let mut b = SimBoard { rig, out: &mut out, faults, attitudes, next_pose: 0, handheld: false, press_at: Some(1.0), t: 0.0 };
     b.rig.stall_tilt(faults.tilt_stalled);
     while b.t < max_s {
@@ -212,6 +218,16 @@ fn run_posed(
             }
             proc.handle_sample(&input);
             samples += 1;
+        }
+        if !lost_reported && faults.samples_lost_in == Some(proc.phase()) {
+            lost_reported = true;
+            proc.handle_samples_lost(1);
+        }
+        if let Some((phase, n)) = faults.no_drain_in {
+            if undrained < n && (undrained > 0 || proc.phase() == phase) {
+                undrained += 1;
+                continue;
+            }
         }
         proc.drive(b.t, &mut b);
         if b.press_at.is_some_and(|tp| b.t >= tp) {
