@@ -304,11 +304,11 @@ impl Bench {
         Ok((outcome, result))
     }
 
-    /// The newest valid record in the emulated flash (the firmware's A/B slots).
+    /// The newest valid record in the emulated flash, as the firmware's storage driver reads it
+    /// (its slots, its sequence order with the wrap).
     pub fn stored(&self) -> Option<Record> {
-        let p = self.mcu.periph.borrow();
-        let bytes = p.flash.bytes();
-        [0usize, 4096].iter().filter_map(|&o| Record::decode(&bytes[o..o + calib_core::record::LEN]).ok()).max_by_key(|r| r.seq)
+        let flash = self.mcu.periph.borrow().flash.clone();
+        gyrocal_fw::storage::Storage::new(flash).ok()?.load().ok().flatten().map(|(_, r)| r)
     }
 
     /// Largest scale error of a record against the simulator's truth (%): of a full `K` the

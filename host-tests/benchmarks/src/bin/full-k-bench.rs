@@ -10,7 +10,7 @@
 //! (`Q = polar(M̂ C_a)`): RMS over the 9 elements and the largest; beside each the diagonal `K`
 //! from one axis (sweep) of the same run. `--json`: the last line is a JSON summary.
 
-use bench::moments::Moments;
+use benchmarks::moments::Moments;
 use calib::{csvlog, offline};
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure, Report};

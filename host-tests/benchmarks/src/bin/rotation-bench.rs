@@ -7,7 +7,7 @@
 //! rigs. Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the
 //! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
 
-use bench::moments::Moments;
+use benchmarks::moments::Moments;
 use calib::{csvlog, offline};
 use calib_core::procedure::{Config, Procedure};
 use clap::Parser;

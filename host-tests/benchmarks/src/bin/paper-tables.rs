@@ -5,9 +5,9 @@
 //! `cargo paper-tables [--json] [--runs N] [--noise-runs N] [--rig-runs N] [--seed S]`
 //! With `--json` the last stdout line is a JSON summary of everything printed.
 
-use bench::hobby_servo;
-use bench::moments::Moments;
-use bench::paper_model::{run, PaperCase, PaperProtocol};
+use benchmarks::hobby_servo;
+use benchmarks::moments::Moments;
+use benchmarks::paper_model::{run, PaperCase, PaperProtocol};
 use calib_core::Error;
 use clap::Parser;
 use rand::{Rng, SeedableRng};

@@ -38,7 +38,7 @@ fn bin_dir() -> Result<PathBuf, String> {
 fn build() -> Result<(), String> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let status = Command::new(cargo)
-        .args(["build", "--profile", "host", "--target", "host-tuple", "-p", "bench", "-p", "vboard", "--bins"])
+        .args(["build", "--profile", "host", "--target", "host-tuple", "-p", "benchmarks", "-p", "vboard", "--bins"])
         .current_dir(root())
         .status()
         .map_err(|e| format!("cannot run cargo: {e}"))?;

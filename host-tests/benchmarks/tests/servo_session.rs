@@ -1,7 +1,7 @@
 //! The firmware's procedure on a hobby-servo rig: the sweep estimator is
 //! immune to the servo's angle-scale error, the paper's estimator inherits it one to one.
 
-use bench::hobby_servo::trial;
+use benchmarks::hobby_servo::trial;
 use rig_sim::sim::ServoModel;
 use rig_sim::variant::Variant;
 

@@ -5,7 +5,7 @@
 //!
 //! `cargo run --release -p host-tests --target host-tuple --bin calib-bench [--json] [--logs N]`
 
-use bench::moments::Moments;
+use benchmarks::moments::Moments;
 use calib::csvlog;
 use calib::offline;
 use calib_core::procedure::{Config, Procedure, ServoKind};

@@ -1,0 +1,85 @@
+//! The gyro bias and the hand-held accelerometer poses.
+
+use super::*;
+
+impl Procedure {
+    pub(super) fn finish_bias(&mut self, capture: &Capture, t_s: f64) {
+        let mut est = BiasEstimator::new();
+        est.add_window(&capture.gyro, &capture.accel);
+        match est.finish(&self.cfg.bias) {
+            Ok(b) => {
+                self.bias = Some(b);
+                self.push(Command::Report(Report::Bias(b)));
+                // The pan/tilt plan fits the accelerometer to its own rig poses.
+                if self.cfg.pan_tilt {
+                    self.begin_rig(t_s);
+                } else if self.accel_cal.model == AccelModel::None {
+                    self.servo_deg = None;
+                    self.last_pulse = None;
+                    self.push(Command::ServoOff { channel: 0 });
+                    self.enter(Step::HandHeld { capture: Capture::default() }, t_s);
+                } else {
+                    self.begin_rig(t_s);
+                }
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    pub(super) fn finish_accel_pose(&mut self, capture: &Capture, t_s: f64) {
+        let a = capture.accel_mean();
+        let min_sep = self.cfg.accel_min_separation_deg as f64;
+        let new = v64(a);
+        let distinct = (0..self.accel_poses.len()).all(|i| {
+            let old = self.accel_poses.pose(i);
+            libm::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
+        });
+        self.step = Step::HandHeld { capture: Capture::default() };
+        if !distinct {
+            return;
+        }
+        if let Err(e) = self.accel_poses.add_pose(a) {
+            return self.fail(e);
+        }
+        let index = (self.accel_poses.len() - 1) as u8;
+        self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
+        // The move from the previous pose to this one: a rotation constraint on the full K.
+        let sigma = capture.accel.max_std_of_mean() as f32;
+        let gyro = capture.gyro.mean().map(|v| v as f32);
+        let gyro = self.bias.map_or(gyro, |b| sub(gyro, b.bias_dps));
+        match self.rotations.push_pose(a, sigma, gyro) {
+            Ok(to) if to > 0 => {
+                let kept = self.rotations.end(to, &self.cfg.rotation).is_ok();
+                let turn_deg = self.rotations.moves().last().filter(|_| kept).map_or(0.0, |m| m.turn_deg);
+                let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
+                self.push(Command::Report(Report::HandMove { from: to - 1, to, kept, turn_deg, spread, need }));
+                self.rotations.begin(to);
+            }
+            Ok(to) => self.rotations.begin(to),
+            Err(e) => return self.fail(e),
+        }
+        if self.accel_poses.len() < self.cfg.accel_poses.max(6) as usize {
+            return;
+        }
+        // The hand-held moves must turn about three dimensions to give the full K.
+        let spread = self.rotations.axis_spread();
+        if self.rotations.moves().len() >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
+            return self.fail(Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread });
+        }
+        match self.fit_accel() {
+            Ok(()) => {
+                self.rotations.calibrate_poses(&self.accel_cal);
+                self.enter(Step::Reattach, t_s)
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.
+    pub(super) fn fit_accel(&mut self) -> Result<(), Error> {
+        let fit = pipeline::fit_accel(&self.accel_poses, &self.cfg.acceptance)?;
+        self.accel_cal = fit;
+        self.push(Command::Report(Report::Accel(fit)));
+        Ok(())
+    }
+}

@@ -1,0 +1,178 @@
+//! The estimators at the end of the rig, the record built from their result, and the store.
+
+use super::*;
+
+impl Procedure {
+    /// The end of the pan/tilt plan: the accelerometer from the rig poses, the poses calibrated
+    /// with it, the full `K`, and beside it the one-axis sweep estimator of the tilt setting whose
+    /// pan axis is the most oblique to the sensor axes.
+    pub(super) fn solve_full(&mut self, t_s: f64) {
+        if let Err(e) = self.fit_accel() {
+            // Poses too little spread for the accelerometer: the rig's geometry, seen on the raw
+            // poses, says what to change (an upright bracket's pan axis is vertical; coplanar
+            // axes); else the fit's own error.
+            let vertical = |g| match g {
+                Err(e @ Error::AxisNearVertical { .. }) => Err(e),
+                _ => Ok(()),
+            };
+            let geometry = self
+                .load_setting(0)
+                .and_then(|_| vertical(self.poses.geometry(&self.cfg.geometry, false)))
+                .and_then(|_| self.axes.solve(&self.cfg.full).map(|_| ()));
+            return self.fail(geometry.err().unwrap_or(e));
+        }
+        self.axes.calibrate_poses(&self.accel_cal);
+        let full = self.axes.solve(&self.cfg.full);
+        let oblique = |a: &FullAxis| a.u.iter().fold(f32::INFINITY, |m, c| m.min(c.abs()));
+        let setting = match &full {
+            Ok(f) => (0..TILT_SETTINGS).max_by(|&a, &b| oblique(&f.axes[a]).total_cmp(&oblique(&f.axes[b]))).unwrap_or(0),
+            Err(_) => 0,
+        };
+        if let Err(e) = self.one_axis_beside(setting) {
+            return self.fail(e);
+        }
+        self.store_full(full, t_s);
+    }
+
+    /// Reports a full `K` (or fails with why there is none), validates it and hands its record
+    /// to the shell.
+    pub(super) fn store_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+        let full = match full {
+            Ok(f) => f,
+            Err(e) => return self.fail(e),
+        };
+        self.full = Some(full);
+        self.push(Command::Report(Report::FullK {
+            k: full.k,
+            sigma_k: full.sigma_k,
+            condition: full.condition,
+            non_coplanar_deg: full.non_coplanar_deg,
+            residual_rms_deg: full.residual_rms_deg,
+            axes: full.n_axes,
+            moves: full.moves,
+        }));
+        if let Err(e) = pipeline::validate_full(&full, &self.cfg.acceptance) {
+            return self.fail(e);
+        }
+        let poses = self.axes.poses().len() as u8;
+        let record = self.context().map(|c| c.full(&full, poses));
+        self.store(record, t_s);
+    }
+
+    /// The poses and pan moves of one tilt setting as a one-axis rig (`poses`, `moves`).
+    pub(super) fn load_setting(&mut self, setting: usize) -> Result<(), Error> {
+        self.poses.clear();
+        self.moves.clear();
+        let per = self.cfg.rig_steps() as usize;
+        for p in setting * per..((setting + 1) * per).min(self.axes.poses().len()) {
+            let v = self.axes.poses().get(p);
+            self.poses.push([v[0] as f32, v[1] as f32, v[2] as f32])?;
+        }
+        let first = (setting * per) as u8;
+        for m in self.axes.moves().iter().filter(|m| m.axis as usize == setting) {
+            self.moves.push(m.from - first, m.to - first, m.gamma_deg)?;
+        }
+        Ok(())
+    }
+
+    /// The sweep estimator on the (calibrated) poses and pan moves of one tilt setting, reported
+    /// for comparison with the full `K`.
+    pub(super) fn one_axis_beside(&mut self, setting: usize) -> Result<(), Error> {
+        self.load_setting(setting)?;
+        match sweep::solve(&self.poses, &self.moves, &self.cfg.geometry) {
+            Ok(cal) => self.push(Command::Report(Report::Gyro(cal))),
+            Err(error) => self.push(Command::Report(Report::EstimatorFailed { method: Method::Sweep, error })),
+        }
+        Ok(())
+    }
+
+    pub(super) fn solve(&mut self, t_s: f64) {
+        let lim = self.cfg.geometry;
+        let sweep = sweep::solve(&self.poses, &self.moves, &lim);
+        let paper = self.gbar.map(|(g, w)| paper::solve(&self.poses, g, w, &lim));
+        for (method, r) in [(Method::Sweep, Some(sweep)), (Method::Paper, paper)] {
+            match r {
+                Some(Ok(cal)) => self.push(Command::Report(Report::Gyro(cal))),
+                Some(Err(error)) => self.push(Command::Report(Report::EstimatorFailed { method, error })),
+                None => {}
+            }
+        }
+        // With hand-held moves: the rig's axis and their rotation constraints give the full K.
+        if !self.rotations.moves().is_empty() {
+            let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
+            let full = self.full_from_rotations(start);
+            // Each move's misfit at the solution (none without one).
+            let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k));
+            let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
+            self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
+            return self.store_full(full, t_s);
+        }
+        let chosen = match pipeline::choose(sweep, paper).and_then(|c| pipeline::validate(&c, &self.cfg.acceptance).map(|_| c)) {
+            Ok(c) => c,
+            Err(e) => return self.fail(e),
+        };
+        let record = self.context().map(|c| c.one_axis(&chosen));
+        self.store(record, t_s);
+    }
+
+    /// The full `K` from the rig's poses and moves (one axis) and the hand-held rotations,
+    /// Gauss–Newton started at the diagonal `K` of the one-axis estimator when there is one.
+    pub(super) fn full_from_rotations(&mut self, start: Option<&GyroCal>) -> Result<FullCal, Error> {
+        self.axes.clear();
+        for p in self.poses.iter() {
+            self.axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
+        }
+        for m in self.moves.as_slice() {
+            self.axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
+        }
+        let start = start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64));
+        self.axes.solve_from(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)), start)
+    }
+
+    /// Hands a built record to the shell to store (or fails with why it could not be built).
+    pub(super) fn store(&mut self, record: Result<Record, Error>, t_s: f64) {
+        match record {
+            Ok(record) => {
+                self.enter(Step::Storing { record }, t_s);
+                self.push(Command::Store(record));
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    /// The shell's answer to [`Command::Store`]: only a verified store reports the result,
+    /// applies it, shows it as done and moves the sequence number on; a failed one fails the
+    /// calibration with [`Error::Storage`] (the previous record stays in use).
+    pub fn handle_stored(&mut self, t_s: f64, result: Result<(), StoreError>) {
+        self.stored_answer(t_s, result);
+        self.settle();
+    }
+
+    pub(super) fn stored_answer(&mut self, t_s: f64, result: Result<(), StoreError>) {
+        let Step::Storing { record } = self.step else { return };
+        match result {
+            Ok(()) => {
+                self.stored = Some(record);
+                self.phase_t0 = t_s;
+                self.step = Step::Finished(Phase::Done);
+                self.push(Command::Report(Report::Done(record)));
+                self.push(Command::Apply(record));
+                self.push(Command::Led(Led::Done));
+            }
+            Err(e) => self.fail(Error::Storage(e)),
+        }
+    }
+
+    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer).
+    pub(super) fn context(&self) -> Result<record::Context, Error> {
+        if self.temp.count() == 0 {
+            return Err(Error::NoTemperature);
+        }
+        Ok(record::Context {
+            seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
+            temp_c: self.temp.mean()[0] as f32,
+            gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
+            accel: self.accel_cal,
+        })
+    }
+}
