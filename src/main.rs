@@ -12,24 +12,25 @@
 #![no_std]
 #![no_main]
 
-use calib_core::export::Format;
+mod board;
+mod console;
+
+use board::{flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait, TWIM_FREQUENCY_390K};
+use console::{Console, LINE};
+
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::record::Record;
+use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
-use core::fmt::{self, Write};
 use cortex_m::peripheral::NVIC;
-use embedded_hal::delay::DelayNs;
-use embedded_hal::digital::{InputPin, OutputPin};
-use embedded_hal::i2c::{ErrorType, I2c, Operation};
-use gyrocal_fw::bootloader::FlashMap;
+use embedded_hal::digital::InputPin;
 use gyrocal_fw::button::{Button, Press};
-use gyrocal_fw::led::{render, Lights};
-use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::led::render;
+use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
-use gyrocal_fw::usb::{Error as UsbError, Usb};
-use hal::gpio::{DriveConfig, Level, Output, Pin, PushPull};
+use hal::gpio::{DriveConfig, Level};
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
 use hal::{twim, wdt, Timer, Twim};
@@ -47,15 +48,6 @@ const FIFO_POLL_S: f64 = 0.010;
 const WATCHDOG_S: u32 = 2;
 /// Servo PWM: 1 µs ticks, 20 ms period.
 const PWM_TOP: u16 = 20_000;
-/// Polls of EVENTS_HFCLKSTARTED before giving up on the crystal (≥ 10 ms at 64 MHz; the
-/// crystal starts in ≈ 0.36 ms).
-const HFXO_POLLS: u32 = 200_000;
-/// Polls of UARTE0's EVENTS_RXTO after STOPRX (≥ 1 ms at 64 MHz; one character at 115 200 Bd
-/// is 87 µs).
-const UARTE_STOP_POLLS: u32 = 20_000;
-/// TWIM0 FREQUENCY: nRF52840 erratum 219 (at the 400 kHz setting the SCL low time is below the
-/// I2C minimum); Nordic's fix is this 390 kHz value.
-const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
 
 /// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
 const SENSOR: SensorConfig =
@@ -79,98 +71,6 @@ fn procedure(stored: Option<Record>) -> &'static mut Procedure {
     }
 }
 
-/// The four LEDs (RGB active low).
-struct Leds {
-    d13: Pin<Output<PushPull>>,
-    red: Pin<Output<PushPull>>,
-    green: Pin<Output<PushPull>>,
-    blue: Pin<Output<PushPull>>,
-}
-
-impl Leds {
-    fn show(&mut self, l: Lights) {
-        let set = |p: &mut Pin<Output<PushPull>>, on: bool| {
-            let _ = if on { p.set_high() } else { p.set_low() };
-        };
-        set(&mut self.d13, l.d13);
-        set(&mut self.red, !l.red);
-        set(&mut self.green, !l.green);
-        set(&mut self.blue, !l.blue);
-    }
-}
-
-/// Microseconds since boot from TIMER1, free-running at 1 MHz in 32-bit mode with no shortcut,
-/// so that it wraps at exactly 2³² µs (71.6 min); extended to 64 bits (read more often than
-/// that: the loop runs every 2 ms).
-struct Clock {
-    timer: pac::TIMER1,
-    last: u32,
-    high: u64,
-}
-
-impl Clock {
-    fn start(timer: pac::TIMER1) -> Self {
-        // SAFETY (all writes): TIMER1 is ours; values from the PS (PRESCALER 4: 16 MHz / 2⁴).
-        timer.tasks_stop.write(|w| unsafe { w.bits(1) });
-        timer.shorts.reset();
-        timer.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
-        timer.mode.write(|w| w.mode().timer());
-        timer.bitmode.write(|w| w.bitmode()._32bit());
-        timer.prescaler.write(|w| unsafe { w.prescaler().bits(4) });
-        timer.tasks_clear.write(|w| unsafe { w.bits(1) });
-        timer.tasks_start.write(|w| unsafe { w.bits(1) });
-        Self { timer, last: 0, high: 0 }
-    }
-
-    fn now_us(&mut self) -> u64 {
-        // SAFETY: CAPTURE[0] copies the counter into CC[0].
-        self.timer.tasks_capture[0].write(|w| unsafe { w.bits(1) });
-        let v = self.timer.cc[0].read().bits();
-        if v < self.last {
-            self.high += 1 << 32;
-        }
-        self.last = v;
-        self.high + v as u64
-    }
-
-    fn now_s(&mut self) -> f64 {
-        self.now_us() as f64 * 1e-6
-    }
-}
-
-/// Busy waits on [`Clock`] (the sensor's reset; at most tens of ms, below the watchdog's 2 s).
-struct Wait<'a>(&'a mut Clock);
-
-impl DelayNs for Wait<'_> {
-    fn delay_ns(&mut self, ns: u32) {
-        let end = self.0.now_us() + (ns as u64).div_ceil(1000);
-        while self.0.now_us() < end {}
-    }
-}
-
-/// TWIM0 as the sensor's bus. After a failed transfer (e.g. an address NACK) the TWIM is
-/// disabled and enabled again before the next one: a TWIM that received a STOP task while idle
-/// fails the transfers that follow (embassy-rs/embassy #6722), which would spoil the Rev2 probe
-/// at 0x68 that follows a NACK at 0x6B.
-struct Bus(Twim<pac::TWIM0>);
-
-impl ErrorType for Bus {
-    type Error = twim::Error;
-}
-
-impl I2c for Bus {
-    fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), Self::Error> {
-        let r = self.0.transaction(address, operations);
-        if r.is_err() {
-            self.0.disable();
-            // Let the bus go idle: 30 µs at 64 MHz, more than one byte time at 390 kHz (23 µs).
-            cortex_m::asm::delay(64 * 30);
-            self.0.enable();
-        }
-        r
-    }
-}
-
 #[interrupt]
 fn TIMER2() {
     // Only wakes the loop: clear the compare event, and read it back so that the write has
@@ -179,253 +79,6 @@ fn TIMER2() {
     let t = unsafe { &*pac::TIMER2::ptr() };
     t.events_compare[0].write(|w| unsafe { w.bits(0) });
     let _ = t.events_compare[0].read().bits();
-}
-
-/// Puts what the stock Arduino bootloader leaves running into a known state: it jumps here
-/// with the MPU on (flash read/execute only: a store to the record pages would fault), UARTE0
-/// receiving, PWM0 driving P0.13, RTC1 running with its interrupt enabled, and interrupts
-/// enabled in the NVIC whose handlers this firmware does not have. Nothing here relies on a
-/// reset value.
-fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
-    // SAFETY (whole function): writes to peripherals this firmware owns, values from the PS and
-    // the ARMv7-M ARM; no other code runs yet.
-    unsafe {
-        core.MPU.ctrl.write(0);
-        core.SYST.csr.write(0);
-        for i in 0..2 {
-            core.NVIC.icer[i].write(u32::MAX);
-            core.NVIC.icpr[i].write(u32::MAX);
-        }
-        // ICSR.PENDSTCLR: no stale SysTick.
-        core.SCB.icsr.write(1 << 25);
-    }
-    cortex_m::asm::dsb();
-    cortex_m::asm::isb();
-
-    let u = &p.UARTE0;
-    if u.enable.read().bits() != 0 {
-        u.events_rxto.write(|w| unsafe { w.bits(0) });
-        u.tasks_stoprx.write(|w| unsafe { w.bits(1) });
-        u.tasks_stoptx.write(|w| unsafe { w.bits(1) });
-        for _ in 0..UARTE_STOP_POLLS {
-            if u.events_rxto.read().bits() != 0 {
-                break;
-            }
-        }
-    }
-    u.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
-    u.enable.write(|w| w.enable().disabled());
-    // Pins disconnected (PSEL.CONNECT = 1).
-    u.psel.txd.write(|w| unsafe { w.bits(u32::MAX) });
-    u.psel.rxd.write(|w| unsafe { w.bits(u32::MAX) });
-    u.psel.rts.write(|w| unsafe { w.bits(u32::MAX) });
-    u.psel.cts.write(|w| unsafe { w.bits(u32::MAX) });
-
-    let r = &p.RTC1;
-    r.tasks_stop.write(|w| unsafe { w.bits(1) });
-    r.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
-    r.evtenclr.write(|w| unsafe { w.bits(u32::MAX) });
-
-    let pwm = &p.PWM0;
-    pwm.tasks_stop.write(|w| unsafe { w.bits(1) });
-    pwm.enable.write(|w| w.enable().disabled());
-    for out in pwm.psel.out.iter() {
-        out.write(|w| unsafe { w.bits(u32::MAX) });
-    }
-
-    // P1.00 (the I2C pull-ups' enable) is also TRACEDATA0: no trace on the pins.
-    p.CLOCK.traceconfig.write(|w| unsafe { w.bits(0) });
-}
-
-/// What the UICR and the start of the flash say about the bootloader.
-fn flash_map(uicr: &pac::UICR) -> FlashMap {
-    let nrffw0 = uicr.nrffw[0].read().bits();
-    // SAFETY: aligned reads of mapped flash (0x4: the vector table at 0x0; a bootloader's
-    // vector table only where UICR says one starts, inside the 1 MiB flash).
-    let word = |a: u32| unsafe { core::ptr::read_volatile(a as *const u32) };
-    let bootloader_entry = (nrffw0 < 0x10_0000 && nrffw0.is_multiple_of(4)).then(|| word(nrffw0 + 4));
-    FlashMap { nrffw0, nrffw1: uicr.nrffw[1].read().bits(), reset_vector_0: word(4), bootloader_entry }
-}
-
-/// Starts the 32 MHz crystal, the time base of every gyro integral, clearing a stale
-/// HFCLKSTARTED first (the bootloader may have started it already). Bounded.
-fn start_hfxo(clock: &pac::CLOCK) -> bool {
-    // SAFETY: CLOCK is ours; event and task registers take 0 / 1.
-    clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
-    clock.tasks_hfclkstart.write(|w| unsafe { w.bits(1) });
-    for _ in 0..HFXO_POLLS {
-        if clock.events_hfclkstarted.read().bits() != 0 {
-            clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
-            let stat = clock.hfclkstat.read();
-            return stat.src().is_xtal() && stat.state().is_running();
-        }
-    }
-    false
-}
-
-/// Longest log line (B): the full `K` line is ~330 B; a longer one is cut.
-const LINE: usize = 640;
-/// Longest export text (B): the C snippet is ~1.3 KiB.
-const EXPORT: usize = 2048;
-
-/// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
-/// over USB serial, with the same text (`calib_core::text`).
-struct Console {
-    usb: Option<&'static mut Usb>,
-    /// The USBD until USB starts (VBUS present and the USBD ready).
-    usbd: Option<pac::USBD>,
-    next_usb_try: f64,
-    usb_dropped_reported: u32,
-}
-
-// The methods are `#[inline(never)]`: inlined at each call site they cost 1.5 KiB of flash.
-impl Console {
-    /// Formats and sends a line.
-    #[inline(never)]
-    fn say(&mut self, level: Log, args: fmt::Arguments) {
-        let mut line = heapless::String::<LINE>::new();
-        // A line longer than LINE is sent cut.
-        let _ = line.write_fmt(args);
-        self.send(level, &line);
-    }
-
-    /// Sends a line.
-    #[inline(never)]
-    fn send(&mut self, level: Log, line: &str) {
-        match level {
-            Log::Info => defmt::info!("{=str}", line),
-            Log::Warn => defmt::warn!("{=str}", line),
-            Log::Error => defmt::error!("{=str}", line),
-        }
-        if let Some(u) = self.usb.as_mut() {
-            u.line(line);
-        }
-    }
-
-    /// Sends a line of the raw log (a CSV row, its header or its end marker): printed without
-    /// a level, so that the message text alone is a log `calib` reads.
-    #[inline(never)]
-    fn raw(&mut self, line: &str) {
-        defmt::println!("{=str}", line);
-        if let Some(u) = self.usb.as_mut() {
-            u.line(line);
-        }
-    }
-
-    /// Sends a multi-line text (export snippets) line by line.
-    #[inline(never)]
-    fn lines(&mut self, text: &str) {
-        text.lines().for_each(|l| self.send(Log::Info, l));
-    }
-
-    #[inline(never)]
-    fn report(&mut self, r: &Report) {
-        let mut line = heapless::String::<LINE>::new();
-        let _ = calib_core::text::report(&mut line, r);
-        self.send(calib_core::text::level(r), &line);
-        if let Report::Done(rec) = r {
-            self.export(rec, Format::Json);
-        }
-    }
-
-    /// Sends a record in an export format.
-    #[inline(never)]
-    fn export(&mut self, rec: &Record, format: Format) {
-        let mut text = heapless::String::<EXPORT>::new();
-        match calib_core::export::write(&mut text, rec, format) {
-            Ok(()) => self.lines(&text),
-            Err(_) => self.send(Log::Error, "export did not fit its buffer"),
-        }
-    }
-
-    /// The stored calibration (`s`): its line, the JSON line, the C snippet.
-    #[inline(never)]
-    fn stored(&mut self, rec: Option<&Record>) {
-        let Some(rec) = rec else {
-            return self.send(Log::Info, "no calibration stored");
-        };
-        let mut line = heapless::String::<LINE>::new();
-        let _ = calib_core::text::record(&mut line, "stored", rec);
-        self.send(Log::Info, &line);
-        self.export(rec, Format::Json);
-        self.export(rec, Format::C);
-    }
-
-    /// Starts USB once VBUS is present (retried every second), serves it every tick, and says
-    /// once a second how many bytes a terminal that stopped reading missed.
-    #[inline(never)]
-    fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, COMMANDS_PER_TICK>) {
-        if self.usb.is_none() && now >= self.next_usb_try {
-            if let Some(usbd) = self.usbd.take() {
-                match Usb::start(usbd, power) {
-                    Ok(u) => {
-                        self.usb = Some(u);
-                        self.say(Log::Info, format_args!("USB: started (CDC-ACM serial; type h for help)"));
-                    }
-                    Err((e, usbd)) => {
-                        if e == UsbError::NotReady {
-                            defmt::warn!("USB: VBUS present but the USBD did not become ready; retrying");
-                        }
-                        self.usbd = Some(usbd);
-                        self.next_usb_try = now + 1.0;
-                    }
-                }
-            }
-        }
-        if let Some(u) = self.usb.as_mut() {
-            let mut refused = 0u32;
-            u.poll(power, now, |c| {
-                if commands.push(c).is_err() {
-                    refused += 1;
-                }
-            });
-            if refused > 0 {
-                self.say(Log::Warn, format_args!("USB: {refused} command(s) ignored: more than {} in one tick", COMMANDS_PER_TICK));
-            }
-            let Some(u) = self.usb.as_mut() else { return };
-            let dropped = u.out.dropped();
-            if dropped != self.usb_dropped_reported && u.out.is_empty() && u.listening() {
-                self.usb_dropped_reported = dropped;
-                self.say(Log::Warn, format_args!("USB: {dropped} bytes dropped since boot (the host was not reading)"));
-            }
-        }
-    }
-}
-
-impl Console {
-    #[inline(never)]
-    fn sensor_error(&mut self, e: &SensorError) {
-        match e {
-            SensorError::Rev2Bmi270 => self.say(
-                Log::Error,
-                format_args!("{e}: BMI270 found at 0x68: this is a Nano 33 BLE Rev2, which has no LSM9DS1; not supported"),
-            ),
-            SensorError::Missing => self.say(
-                Log::Error,
-                format_args!("{e}: no LSM9DS1 at 0x6B: check sensor power (P0.22), I2C pull-ups (P1.00) and the board revision"),
-            ),
-            other => self.say(Log::Error, format_args!("LSM9DS1 error: {other}")),
-        }
-    }
-
-    /// Raw-log mode (a long press or `r` toggles it): every sample as a row of
-    /// `calib_core::log` after its header line; the end marker when it is switched off. The
-    /// other log lines in between are not rows (`calib` skips and counts them), so the message
-    /// text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends) is a log
-    /// `calib` reads.
-    #[inline(never)]
-    fn set_raw_log(&mut self, on: bool) {
-        self.raw(if on { calib_core::log::HEADER } else { calib_core::log::END });
-    }
-
-    #[inline(never)]
-    fn raw_row(&mut self, s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-        let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
-        let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
-        if calib_core::log::write_row(&mut line, &row).is_ok() {
-            self.raw(&line);
-        }
-    }
 }
 
 /// The outputs the procedure drives: servo PWM, LEDs, the record storage, the applied
@@ -472,6 +125,172 @@ impl Shell for Io {
 
     fn apply(&mut self, rec: &Record) {
         self.applied = Some(*rec);
+    }
+}
+
+/// The sensor: initialised until it answers (retried every 2 s), then its FIFO drained every
+/// 10 ms into the procedure, timestamped by the MCU clock; in raw-log mode every sample also
+/// goes out as a CSV row.
+struct Sensing {
+    bus: Option<Bus>,
+    sensor: Option<Lsm9ds1<Bus>>,
+    stamper: Stamper,
+    next_try_s: f64,
+    last_poll_s: f64,
+    /// Raw-log mode.
+    raw: bool,
+    /// The calibrated rate (°/s) since the last rate line.
+    rate: Welford3,
+}
+
+impl Sensing {
+    fn new(bus: Option<Bus>) -> Self {
+        Self {
+            bus,
+            sensor: None,
+            stamper: Stamper::new(SENSOR.odr.hz()),
+            next_try_s: 0.0,
+            last_poll_s: 0.0,
+            raw: false,
+            rate: Welford3::new(),
+        }
+    }
+
+    /// One loop tick at `now` (s): (re)initialise, or drain the FIFO. A lost sample or a failed
+    /// read enters the procedure.
+    fn service(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
+        if self.sensor.is_none() && now >= self.next_try_s {
+            if let Some(i2c) = self.bus.take() {
+                match Lsm9ds1::init(i2c, SENSOR, &mut Wait(clock)) {
+                    Ok(s) => {
+                        let c = SENSOR;
+                        io.console.say(
+                            Log::Info,
+                            format_args!(
+                                "LSM9DS1 ready: {} Hz, +-{} dps, +-{} g",
+                                c.odr.hz() as u32,
+                                c.gyro.range_dps() as u32,
+                                c.accel.range_g() as u32
+                            ),
+                        );
+                        self.stamper.restart();
+                        self.sensor = Some(s);
+                    }
+                    Err((e, i2c)) => {
+                        io.console.sensor_error(&e);
+                        io.led = Led::Error(ErrorClass::Sensor);
+                        self.bus = Some(i2c);
+                        self.next_try_s = now + 2.0;
+                    }
+                }
+            }
+        }
+        if now - self.last_poll_s < FIFO_POLL_S {
+            return;
+        }
+        self.last_poll_s = now;
+        let Some(s) = self.sensor.as_mut() else { return };
+        let (stamper, raw, rate) = (&mut self.stamper, self.raw, &mut self.rate);
+        let result = s.fifo_status().and_then(|st| {
+            if st.overrun {
+                io.console.send(Log::Warn, "FIFO overrun: samples lost");
+                stamper.restart();
+                // At least one sample overwritten: a running calibration fails (named).
+                procedure.handle_samples_lost(1);
+                procedure.drive(now, io);
+            }
+            let n = st.level.min(FIFO_DEPTH) as usize;
+            let batch = stamper.batch(clock.now_s(), n);
+            // One reading per batch; a failed one leaves the samples without it.
+            let temp_c = s.temperature_c().ok();
+            for i in 0..n {
+                let raw_slot = s.read_slot()?;
+                let (accel_g, gyro_dps) = s.convert(&raw_slot);
+                let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                if raw {
+                    io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
+                }
+                if let Some(rec) = io.applied {
+                    rate.add(rec.apply_gyro(gyro_dps));
+                }
+                procedure.handle_sample(&sample);
+                procedure.drive(sample.t_s, io);
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
+            procedure.handle_sensor_fault();
+            procedure.drive(now, io);
+            self.bus = self.sensor.take().map(|s| s.release());
+            self.next_try_s = now + 0.5;
+        }
+    }
+}
+
+/// This tick's commands, the button's first (a full tick of USB commands never hides a press),
+/// into the procedure and the console.
+fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure: &mut Procedure, io: &mut Io, sensing: &mut Sensing) {
+    let mut commands = heapless::Vec::<Command, COMMANDS_PER_TICK>::new();
+    io.console.poll_usb(power, now, &mut commands);
+    let pressed = match pressed {
+        Some(Press::Short) => Some(Command::Calibrate),
+        Some(Press::Long) => Some(Command::RawLog),
+        None => None,
+    };
+    if let Some(c) = pressed {
+        if commands.insert(0, c).is_err() {
+            commands.pop();
+            let _ = commands.insert(0, c);
+            io.console.send(Log::Warn, "USB: a command ignored: the button press came in the same tick");
+        }
+    }
+    for c in commands {
+        match c {
+            Command::Calibrate => {
+                if matches!(procedure.phase(), Phase::Idle | Phase::Done | Phase::Failed) {
+                    let (rig, hand) = procedure.plan();
+                    let mut line = heapless::String::<LINE>::new();
+                    let _ = calib_core::text::plan(&mut line, rig as usize, hand as usize);
+                    io.console.send(Log::Info, &line);
+                }
+                procedure.handle_button(now);
+            }
+            Command::RawLog => {
+                sensing.raw = !sensing.raw;
+                io.console.set_raw_log(sensing.raw);
+            }
+            Command::Stored => io.console.stored(io.applied.as_ref()),
+            Command::Help => serial::HELP.iter().for_each(|l| io.console.send(Log::Info, l)),
+        }
+    }
+}
+
+/// The periodic status lines: the calibrated rate once a second, and the RTT bytes dropped while
+/// no host read (said once one reads again).
+#[derive(Default)]
+struct Status {
+    last_rate_line_s: f64,
+    last_drop_check_s: f64,
+    dropped_reported: u32,
+}
+
+impl Status {
+    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, rate: &mut Welford3) {
+        if show_rate && now - self.last_rate_line_s >= 1.0 && rate.count() > 0 {
+            let m = rate.mean();
+            console.say(Log::Info, format_args!("rate {} dps (calibrated, 1 s mean)", V3(m.map(|v| v as f32), 3)));
+            *rate = Welford3::new();
+            self.last_rate_line_s = now;
+        }
+        if now - self.last_drop_check_s >= 1.0 {
+            self.last_drop_check_s = now;
+            let dropped = gyrocal_fw::rtt::dropped_bytes();
+            if dropped != self.dropped_reported {
+                console.say(Log::Warn, format_args!("RTT: {dropped} log bytes dropped since boot (no host was reading)"));
+                self.dropped_reported = dropped;
+            }
+        }
     }
 }
 
@@ -536,8 +355,6 @@ fn main() -> ! {
     let mut bus = Some(Bus(Twim::new(p.TWIM0, pins, twim::Frequency::K400)));
     // SAFETY: a plain register write to the TWIM we own, before any transfer.
     unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(TWIM_FREQUENCY_390K)) };
-    let sensor_cfg = SENSOR;
-    let mut sensor: Option<Lsm9ds1<Bus>> = None;
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
     let pwm = Pwm::new(p.PWM0);
@@ -574,7 +391,7 @@ fn main() -> ! {
             None
         }
     };
-    let mut console = Console { usb: None, usbd: Some(p.USBD), next_usb_try: 0.0, usb_dropped_reported: 0 };
+    let mut console = Console::new(p.USBD);
     let mut applied: Option<Record> = None;
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {
@@ -591,138 +408,21 @@ fn main() -> ! {
     let procedure = procedure(applied);
     let mut io = Io { pwm, storage, led: Led::Idle, applied, console };
     let mut button = Button::new();
-    let mut stamper = Stamper::new(sensor_cfg.odr.hz());
-    let (mut raw_mode, mut last_poll, mut last_rate_line, mut next_sensor_try) = (false, 0.0f64, 0.0f64, 0.0f64);
-    let (mut last_drop_check, mut dropped_reported) = (0.0f64, 0u32);
-    let mut rate = calib_core::stats::Welford3::new();
+    let mut sensing = Sensing::new(bus.take());
+    let mut status = Status::default();
 
     loop {
         wd.pet();
         let now = clock.now_s();
 
-        // Sensor: (re)initialise until it answers, then drain its FIFO every 10 ms.
-        if sensor.is_none() && now >= next_sensor_try {
-            if let Some(i2c) = bus.take() {
-                match Lsm9ds1::init(i2c, sensor_cfg, &mut Wait(&mut clock)) {
-                    Ok(s) => {
-                        let c = sensor_cfg;
-                        io.console.say(
-                            Log::Info,
-                            format_args!(
-                                "LSM9DS1 ready: {} Hz, +-{} dps, +-{} g",
-                                c.odr.hz() as u32,
-                                c.gyro.range_dps() as u32,
-                                c.accel.range_g() as u32
-                            ),
-                        );
-                        stamper.restart();
-                        sensor = Some(s);
-                    }
-                    Err((e, i2c)) => {
-                        io.console.sensor_error(&e);
-                        io.led = Led::Error(ErrorClass::Sensor);
-                        bus = Some(i2c);
-                        next_sensor_try = now + 2.0;
-                    }
-                }
-            }
-        }
-        if now - last_poll >= FIFO_POLL_S {
-            last_poll = now;
-            if let Some(s) = sensor.as_mut() {
-                let result = s.fifo_status().and_then(|st| {
-                    if st.overrun {
-                        io.console.send(Log::Warn, "FIFO overrun: samples lost");
-                        stamper.restart();
-                        // At least one sample overwritten: a running calibration fails (named).
-                        procedure.handle_samples_lost(1);
-                        procedure.drive(now, &mut io);
-                    }
-                    let n = st.level.min(FIFO_DEPTH) as usize;
-                    let batch = stamper.batch(clock.now_s(), n);
-                    // One reading per batch; a failed one leaves the samples without it.
-                    let temp_c = s.temperature_c().ok();
-                    for i in 0..n {
-                        let raw = s.read_slot()?;
-                        let (accel_g, gyro_dps) = s.convert(&raw);
-                        let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                        if raw_mode {
-                            io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
-                        }
-                        if let Some(rec) = io.applied {
-                            rate.add(rec.apply_gyro(gyro_dps));
-                        }
-                        procedure.handle_sample(&sample);
-                        procedure.drive(sample.t_s, &mut io);
-                    }
-                    Ok(())
-                });
-                if let Err(e) = result {
-                    io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
-                    procedure.handle_sensor_fault();
-                    procedure.drive(now, &mut io);
-                    bus = sensor.take().map(|s| s.release());
-                    next_sensor_try = now + 0.5;
-                }
-            }
-        }
-
-        let mut commands = heapless::Vec::<Command, COMMANDS_PER_TICK>::new();
-        io.console.poll_usb(&p.POWER, now, &mut commands);
-        let pressed = match button.update(now, button_pin.is_low().unwrap_or(false)) {
-            Some(Press::Short) => Some(Command::Calibrate),
-            Some(Press::Long) => Some(Command::RawLog),
-            None => None,
-        };
-        // The button goes first: a full tick of USB commands never hides a press.
-        if let Some(c) = pressed {
-            if commands.insert(0, c).is_err() {
-                commands.pop();
-                let _ = commands.insert(0, c);
-                io.console.send(Log::Warn, "USB: a command ignored: the button press came in the same tick");
-            }
-        }
-        for c in commands {
-            match c {
-                Command::Calibrate => {
-                    if matches!(procedure.phase(), Phase::Idle | Phase::Done | Phase::Failed) {
-                        let (rig, hand) = procedure.plan();
-                        let mut line = heapless::String::<LINE>::new();
-                        let _ = calib_core::text::plan(&mut line, rig as usize, hand as usize);
-                        io.console.send(Log::Info, &line);
-                    }
-                    procedure.handle_button(now);
-                }
-                Command::RawLog => {
-                    raw_mode = !raw_mode;
-                    io.console.set_raw_log(raw_mode);
-                }
-                Command::Stored => io.console.stored(io.applied.as_ref()),
-                Command::Help => serial::HELP.iter().for_each(|l| io.console.send(Log::Info, l)),
-            }
-        }
+        sensing.service(now, &mut clock, procedure, &mut io);
+        let pressed = button.update(now, button_pin.is_low().unwrap_or(false));
+        take_commands(now, pressed, &p.POWER, procedure, &mut io, &mut sensing);
         procedure.drive(now, &mut io);
         procedure.handle_tick(now);
         procedure.drive(now, &mut io);
 
-        // After calibration: the calibrated rate, averaged, once a second.
-        if io.applied.is_some() && now - last_rate_line >= 1.0 && rate.count() > 0 && !raw_mode {
-            let m = rate.mean();
-            io.console.say(Log::Info, format_args!("rate {} dps (calibrated, 1 s mean)", V3(m.map(|v| v as f32), 3)));
-            rate = calib_core::stats::Welford3::new();
-            last_rate_line = now;
-        }
-
-        // Log bytes lost while no host read RTT: said once the host reads again.
-        if now - last_drop_check >= 1.0 {
-            last_drop_check = now;
-            let dropped = gyrocal_fw::rtt::dropped_bytes();
-            if dropped != dropped_reported {
-                io.console.say(Log::Warn, format_args!("RTT: {dropped} log bytes dropped since boot (no host was reading)"));
-                dropped_reported = dropped;
-            }
-        }
-
+        status.lines(now, &mut io.console, io.applied.is_some() && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));
         cortex_m::asm::wfi();
     }

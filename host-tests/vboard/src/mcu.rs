@@ -642,7 +642,11 @@ impl Mcu {
                     }
                     continue;
                 }
-                return Stop::Fault(format!("emulation error {e:?} at PC 0x{pc:08X}"));
+                let reg = |r| self.uc.reg_read(r).unwrap_or(0);
+                let (lr, sp, block) = (reg(RegisterARM::LR), reg(RegisterARM::SP), self.periph.borrow().pc.get());
+                return Stop::Fault(format!(
+                    "emulation error {e:?} at PC 0x{pc:08X} (LR 0x{lr:08X}, SP 0x{sp:08X}, last block at 0x{block:08X})"
+                ));
             }
             let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
             if pc >= 0xFFFF_FF00 {

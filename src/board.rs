@@ -1,0 +1,197 @@
+//! The board around the procedure (part of the firmware binary, not of the library): the LEDs,
+//! the microsecond clock, the sensor's I2C bus, and the boot-time clean-up of what the Arduino
+//! bootloader leaves running.
+
+use embedded_hal::delay::DelayNs;
+use embedded_hal::digital::OutputPin;
+use embedded_hal::i2c::{ErrorType, I2c, Operation};
+use gyrocal_fw::bootloader::FlashMap;
+use gyrocal_fw::led::Lights;
+use hal::gpio::{Output, Pin, PushPull};
+use hal::pac;
+use hal::{twim, Twim};
+use nrf52840_hal as hal;
+
+/// Polls of EVENTS_HFCLKSTARTED before giving up on the crystal (≥ 10 ms at 64 MHz; the
+/// crystal starts in ≈ 0.36 ms).
+pub(crate) const HFXO_POLLS: u32 = 200_000;
+/// Polls of UARTE0's EVENTS_RXTO after STOPRX (≥ 1 ms at 64 MHz; one character at 115 200 Bd
+/// is 87 µs).
+pub(crate) const UARTE_STOP_POLLS: u32 = 20_000;
+/// TWIM0 FREQUENCY: nRF52840 erratum 219 (at the 400 kHz setting the SCL low time is below the
+/// I2C minimum); Nordic's fix is this 390 kHz value.
+pub(crate) const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
+
+/// The four LEDs (RGB active low).
+pub(crate) struct Leds {
+    pub(crate) d13: Pin<Output<PushPull>>,
+    pub(crate) red: Pin<Output<PushPull>>,
+    pub(crate) green: Pin<Output<PushPull>>,
+    pub(crate) blue: Pin<Output<PushPull>>,
+}
+
+impl Leds {
+    pub(crate) fn show(&mut self, l: Lights) {
+        let set = |p: &mut Pin<Output<PushPull>>, on: bool| {
+            let _ = if on { p.set_high() } else { p.set_low() };
+        };
+        set(&mut self.d13, l.d13);
+        set(&mut self.red, !l.red);
+        set(&mut self.green, !l.green);
+        set(&mut self.blue, !l.blue);
+    }
+}
+
+/// Microseconds since boot from TIMER1, free-running at 1 MHz in 32-bit mode with no shortcut,
+/// so that it wraps at exactly 2³² µs (71.6 min); extended to 64 bits (read more often than
+/// that: the loop runs every 2 ms).
+pub(crate) struct Clock {
+    timer: pac::TIMER1,
+    last: u32,
+    high: u64,
+}
+
+impl Clock {
+    pub(crate) fn start(timer: pac::TIMER1) -> Self {
+        // SAFETY (all writes): TIMER1 is ours; values from the PS (PRESCALER 4: 16 MHz / 2⁴).
+        timer.tasks_stop.write(|w| unsafe { w.bits(1) });
+        timer.shorts.reset();
+        timer.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+        timer.mode.write(|w| w.mode().timer());
+        timer.bitmode.write(|w| w.bitmode()._32bit());
+        timer.prescaler.write(|w| unsafe { w.prescaler().bits(4) });
+        timer.tasks_clear.write(|w| unsafe { w.bits(1) });
+        timer.tasks_start.write(|w| unsafe { w.bits(1) });
+        Self { timer, last: 0, high: 0 }
+    }
+
+    pub(crate) fn now_us(&mut self) -> u64 {
+        // SAFETY: CAPTURE[0] copies the counter into CC[0].
+        self.timer.tasks_capture[0].write(|w| unsafe { w.bits(1) });
+        let v = self.timer.cc[0].read().bits();
+        if v < self.last {
+            self.high += 1 << 32;
+        }
+        self.last = v;
+        self.high + v as u64
+    }
+
+    pub(crate) fn now_s(&mut self) -> f64 {
+        self.now_us() as f64 * 1e-6
+    }
+}
+
+/// Busy waits on [`Clock`] (the sensor's reset; at most tens of ms, below the watchdog's 2 s).
+pub(crate) struct Wait<'a>(pub(crate) &'a mut Clock);
+
+impl DelayNs for Wait<'_> {
+    fn delay_ns(&mut self, ns: u32) {
+        let end = self.0.now_us() + (ns as u64).div_ceil(1000);
+        while self.0.now_us() < end {}
+    }
+}
+
+/// TWIM0 as the sensor's bus. After a failed transfer (e.g. an address NACK) the TWIM is
+/// disabled and enabled again before the next one: a TWIM that received a STOP task while idle
+/// fails the transfers that follow (embassy-rs/embassy #6722), which would spoil the Rev2 probe
+/// at 0x68 that follows a NACK at 0x6B.
+pub(crate) struct Bus(pub(crate) Twim<pac::TWIM0>);
+
+impl ErrorType for Bus {
+    type Error = twim::Error;
+}
+
+impl I2c for Bus {
+    fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), Self::Error> {
+        let r = self.0.transaction(address, operations);
+        if r.is_err() {
+            self.0.disable();
+            // Let the bus go idle: 30 µs at 64 MHz, more than one byte time at 390 kHz (23 µs).
+            cortex_m::asm::delay(64 * 30);
+            self.0.enable();
+        }
+        r
+    }
+}
+
+/// Puts what the stock Arduino bootloader leaves running into a known state: it jumps here
+/// with the MPU on (flash read/execute only: a store to the record pages would fault), UARTE0
+/// receiving, PWM0 driving P0.13, RTC1 running with its interrupt enabled, and interrupts
+/// enabled in the NVIC whose handlers this firmware does not have. Nothing here relies on a
+/// reset value.
+pub(crate) fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
+    // SAFETY (whole function): writes to peripherals this firmware owns, values from the PS and
+    // the ARMv7-M ARM; no other code runs yet.
+    unsafe {
+        core.MPU.ctrl.write(0);
+        core.SYST.csr.write(0);
+        for i in 0..2 {
+            core.NVIC.icer[i].write(u32::MAX);
+            core.NVIC.icpr[i].write(u32::MAX);
+        }
+        // ICSR.PENDSTCLR: no stale SysTick.
+        core.SCB.icsr.write(1 << 25);
+    }
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+
+    let u = &p.UARTE0;
+    if u.enable.read().bits() != 0 {
+        u.events_rxto.write(|w| unsafe { w.bits(0) });
+        u.tasks_stoprx.write(|w| unsafe { w.bits(1) });
+        u.tasks_stoptx.write(|w| unsafe { w.bits(1) });
+        for _ in 0..UARTE_STOP_POLLS {
+            if u.events_rxto.read().bits() != 0 {
+                break;
+            }
+        }
+    }
+    u.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+    u.enable.write(|w| w.enable().disabled());
+    // Pins disconnected (PSEL.CONNECT = 1).
+    u.psel.txd.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.rxd.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.rts.write(|w| unsafe { w.bits(u32::MAX) });
+    u.psel.cts.write(|w| unsafe { w.bits(u32::MAX) });
+
+    let r = &p.RTC1;
+    r.tasks_stop.write(|w| unsafe { w.bits(1) });
+    r.intenclr.write(|w| unsafe { w.bits(u32::MAX) });
+    r.evtenclr.write(|w| unsafe { w.bits(u32::MAX) });
+
+    let pwm = &p.PWM0;
+    pwm.tasks_stop.write(|w| unsafe { w.bits(1) });
+    pwm.enable.write(|w| w.enable().disabled());
+    for out in pwm.psel.out.iter() {
+        out.write(|w| unsafe { w.bits(u32::MAX) });
+    }
+
+    // P1.00 (the I2C pull-ups' enable) is also TRACEDATA0: no trace on the pins.
+    p.CLOCK.traceconfig.write(|w| unsafe { w.bits(0) });
+}
+
+/// What the UICR and the start of the flash say about the bootloader.
+pub(crate) fn flash_map(uicr: &pac::UICR) -> FlashMap {
+    let nrffw0 = uicr.nrffw[0].read().bits();
+    // SAFETY: aligned reads of mapped flash (0x4: the vector table at 0x0; a bootloader's
+    // vector table only where UICR says one starts, inside the 1 MiB flash).
+    let word = |a: u32| unsafe { core::ptr::read_volatile(a as *const u32) };
+    let bootloader_entry = (nrffw0 < 0x10_0000 && nrffw0.is_multiple_of(4)).then(|| word(nrffw0 + 4));
+    FlashMap { nrffw0, nrffw1: uicr.nrffw[1].read().bits(), reset_vector_0: word(4), bootloader_entry }
+}
+
+/// Starts the 32 MHz crystal, the time base of every gyro integral, clearing a stale
+/// HFCLKSTARTED first (the bootloader may have started it already). Bounded.
+pub(crate) fn start_hfxo(clock: &pac::CLOCK) -> bool {
+    // SAFETY: CLOCK is ours; event and task registers take 0 / 1.
+    clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
+    clock.tasks_hfclkstart.write(|w| unsafe { w.bits(1) });
+    for _ in 0..HFXO_POLLS {
+        if clock.events_hfclkstarted.read().bits() != 0 {
+            clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
+            let stat = clock.hfclkstat.read();
+            return stat.src().is_xtal() && stat.state().is_running();
+        }
+    }
+    false
+}
