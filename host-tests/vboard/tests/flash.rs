@@ -1,5 +1,8 @@
-//! Power cut at every step of the firmware's flash write, on the emulated board: the previous
-//! record survives and a torn one is never applied. And no sample lost at 952 Hz.
+//! The store's faults on the emulated board, each branched from one snapshot taken just before
+//! the store of a second calibration: a worn cell (the store fails, nothing is applied, the
+//! sequence does not move on), a power cut at every step of the flash write (the previous record
+//! survives, a torn one is never applied), and the reload after a reset. And no sample lost at
+//! 952 Hz.
 
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
@@ -8,7 +11,7 @@ use vboard::bench::{build_firmware, Bench, Outcome};
 use vboard::mcu::Stop;
 
 #[test]
-fn power_cut_at_every_flash_step_keeps_the_previous_record() {
+fn a_failed_store_and_a_power_cut_at_every_flash_step_keep_the_previous_record() {
     let elf = build_firmware(&[]).unwrap();
     let mut b = Bench::new(elf, Variant::Hobby.config(8, 0), 8, Board::Rev1, NorSim::new(8, 8), false).unwrap();
     b.run_for(2.0);
@@ -43,6 +46,21 @@ fn power_cut_at_every_flash_step_keeps_the_previous_record() {
     }
     assert_eq!(b.mcu.periph.borrow().flash.steps(), steps0);
     let snap = b.mcu.snapshot().unwrap();
+
+    // A worn bit in the second record's slot (B: record 1 is in A): the write reads back wrong
+    // (StoreError::Verify): the storage error class, record 1 kept and still applied, never
+    // "done"; once the cell works the next calibration is record 2: the sequence did not move on.
+    b.mcu.periph.borrow_mut().flash.stuck_bit = Some(4096 + 10);
+    let t_end = b.mcu.now() + 60.0;
+    while b.mcu.now() < t_end && !(b.leds().red && !b.leds().green) {
+        assert_eq!(b.run_for(0.05), Stop::Time);
+    }
+    assert_eq!(b.flashes(), Ok(7), "the storage error class");
+    assert!(b.leds().red && !b.leds().green, "not applied: the LEDs stay on the error");
+    assert_eq!(b.stored(), Some(first), "record 1 kept");
+    b.mcu.periph.borrow_mut().flash.stuck_bit = None;
+    assert_eq!(b.calibrate(300.0), Outcome::Done);
+    assert_eq!(b.stored().map(|r| r.seq), Some(2));
 
     for cut in 0..steps {
         b.mcu.restore(&snap).unwrap();
