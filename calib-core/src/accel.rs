@@ -93,18 +93,11 @@ impl AccelCal {
 }
 
 /// Static accelerometer poses (mean readings, g), with the linear fits accumulated as they come.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct AccelCalibrator {
-    poses: [[f64; 3]; MAX_ACCEL_POSES],
-    n: usize,
+    poses: heapless::Vec<[f64; 3], MAX_ACCEL_POSES>,
     lin6: NormalEquations<6>,
     lin9: NormalEquations<9>,
-}
-
-impl Default for AccelCalibrator {
-    fn default() -> Self {
-        Self::new()
-    }
 }
 
 /// Parameters of a Gauss-Newton iteration: offsets then the gain entries it fits.
@@ -113,43 +106,43 @@ type Params = [f64; 9];
 impl AccelCalibrator {
     /// No poses.
     pub const fn new() -> Self {
-        Self { poses: [[0.0; 3]; MAX_ACCEL_POSES], n: 0, lin6: NormalEquations::new(), lin9: NormalEquations::new() }
+        Self { poses: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
     }
 
     /// Number of poses.
     pub fn len(&self) -> usize {
-        self.n
+        self.poses.len()
     }
 
     /// True when no pose was added.
     pub fn is_empty(&self) -> bool {
-        self.n == 0
+        self.poses.is_empty()
     }
 
     /// Forgets every pose.
     pub fn clear(&mut self) {
-        self.n = 0;
+        self.poses.clear();
         self.lin6 = NormalEquations::new();
         self.lin9 = NormalEquations::new();
     }
 
     /// Pose `i` (raw g); the last pose for an out-of-range index, zero when empty.
     pub fn pose(&self, i: usize) -> nalgebra::Vector3<f64> {
-        let a = if self.n == 0 { [0.0; 3] } else { self.poses[i.min(self.n - 1)] };
+        let a = self.poses.get(i).or(self.poses.last()).copied().unwrap_or_default();
         nalgebra::Vector3::new(a[0], a[1], a[2])
     }
 
     /// Adds the mean raw reading (g) of one static pose.
     pub fn add_pose(&mut self, a: Vec3) -> Result<(), Error> {
-        if self.n == MAX_ACCEL_POSES {
-            return Err(Error::CapacityExceeded { max: MAX_ACCEL_POSES as u8 });
+        // Checked before the rows go in: a rejected pose leaves the fits as they were.
+        let full = Error::CapacityExceeded { max: MAX_ACCEL_POSES as u8 };
+        if self.poses.is_full() {
+            return Err(full);
         }
         let [x, y, z] = [a[0] as f64, a[1] as f64, a[2] as f64];
         self.lin6.add_row(&[x * x, y * y, z * z, x, y, z], 1.0, 1.0)?;
         self.lin9.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
-        self.poses[self.n] = [x, y, z];
-        self.n += 1;
-        Ok(())
+        self.poses.push([x, y, z]).map_err(|_| full)
     }
 
     /// Fits the 6-parameter model (needs ≥ 6 well-spread poses).
@@ -194,8 +187,8 @@ impl AccelCalibrator {
     }
 
     fn need(&self, n: usize) -> Result<(), Error> {
-        if self.n < n {
-            return Err(Error::TooFewPoses { have: self.n as u8, need: n as u8 });
+        if self.poses.len() < n {
+            return Err(Error::TooFewPoses { have: self.poses.len() as u8, need: n as u8 });
         }
         Ok(())
     }
@@ -205,7 +198,7 @@ impl AccelCalibrator {
         let mut last = None;
         for _ in 0..GAUSS_NEWTON_STEPS {
             let mut ne = NormalEquations::<P>::new();
-            for a in &self.poses[..self.n] {
+            for a in &self.poses {
                 let (r, jac) = residual(&p, a, P == 6);
                 ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
             }
@@ -242,7 +235,7 @@ impl AccelCalibrator {
             return Err(Error::AccelFitFailed);
         }
         let rms =
-            |f: &dyn Fn(&[f64; 3]) -> f64| libm::sqrt(self.poses[..self.n].iter().map(|a| f(a) * f(a)).sum::<f64>() / self.n as f64) as f32;
+            |f: &dyn Fn(&[f64; 3]) -> f64| libm::sqrt(self.poses.iter().map(|a| f(a) * f(a)).sum::<f64>() / self.poses.len() as f64) as f32;
         Ok(AccelCal {
             m: m.map(|row| row.map(|v| v as f32)),
             offset_g: [p[0] as f32, p[1] as f32, p[2] as f32],
@@ -252,7 +245,7 @@ impl AccelCalibrator {
             sigma_offset_g,
             sigma_gain,
             condition: condition as f32,
-            poses: self.n as u8,
+            poses: self.poses.len() as u8,
         })
     }
 }

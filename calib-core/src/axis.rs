@@ -62,38 +62,31 @@ pub struct Geometry {
     pub plane_rms_g: f64,
 }
 
-/// Mean calibrated accelerometer readings (g, B) of the static rig poses.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Mean calibrated accelerometer readings (g, B) of the static rig poses (bounded, no heap).
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Poses {
-    a: [[f64; 3]; MAX_POSES],
-    n: usize,
-}
-
-impl Default for Poses {
-    fn default() -> Self {
-        Self::new()
-    }
+    a: heapless::Vec<[f64; 3], MAX_POSES>,
 }
 
 impl Poses {
     /// No poses.
     pub const fn new() -> Self {
-        Self { a: [[0.0; 3]; MAX_POSES], n: 0 }
+        Self { a: heapless::Vec::new() }
     }
 
     /// Number of poses.
     pub fn len(&self) -> usize {
-        self.n
+        self.a.len()
     }
 
     /// True when empty.
     pub fn is_empty(&self) -> bool {
-        self.n == 0
+        self.a.is_empty()
     }
 
     /// Forgets every pose.
     pub fn clear(&mut self) {
-        self.n = 0;
+        self.a.clear();
     }
 
     /// Adds a pose (calibrated specific force, g); returns its index.
@@ -101,23 +94,19 @@ impl Poses {
         if !a.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
-        if self.n == MAX_POSES {
-            return Err(Error::CapacityExceeded { max: MAX_POSES as u8 });
-        }
-        self.a[self.n] = [a[0] as f64, a[1] as f64, a[2] as f64];
-        self.n += 1;
-        Ok((self.n - 1) as u8)
+        self.a.push([a[0] as f64, a[1] as f64, a[2] as f64]).map_err(|_| Error::CapacityExceeded { max: MAX_POSES as u8 })?;
+        Ok((self.a.len() - 1) as u8)
     }
 
-    /// Pose `i` as a vector (g). Panics never: out-of-range indices give the last pose.
+    /// Pose `i` as a vector (g). Panics never: out-of-range indices give the last pose, zero when empty.
     pub fn get(&self, i: usize) -> Vector3<f64> {
-        let a = self.a[i.min(self.n.saturating_sub(1))];
+        let a = self.a.get(i).or(self.a.last()).copied().unwrap_or_default();
         Vector3::new(a[0], a[1], a[2])
     }
 
     /// Replaces every pose `a` by `f(a)` (e.g. raw readings by calibrated ones).
     pub fn map(&mut self, f: impl Fn(Vector3<f64>) -> Vector3<f64>) {
-        for a in &mut self.a[..self.n] {
+        for a in &mut self.a {
             let v = f(Vector3::from(*a));
             *a = [v[0], v[1], v[2]];
         }
@@ -125,12 +114,12 @@ impl Poses {
 
     /// Iterator over the poses.
     pub fn iter(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
-        self.a[..self.n].iter().map(|a| Vector3::new(a[0], a[1], a[2]))
+        self.a.iter().map(|a| Vector3::new(a[0], a[1], a[2]))
     }
 
     /// Plane fit of the poses whose bit is set in `mask` (bit `p`: pose `p`).
     pub(crate) fn plane(&self, mask: u64) -> Plane {
-        let tips = || (0..self.n).filter(move |&p| mask >> p & 1 != 0).map(|p| self.get(p));
+        let tips = || self.iter().enumerate().filter(move |&(p, _)| mask >> p & 1 != 0).map(|(_, t)| t);
         let n = tips().count();
         let nf = n as f64;
         let mean = tips().sum::<Vector3<f64>>() / nf;
@@ -159,8 +148,8 @@ impl Poses {
     /// Measures and checks the geometry. `paper` adds the paper estimator's own requirement
     /// (axis not near horizontal, where `A·u → 0`).
     pub fn geometry(&self, limits: &GeometryLimits, paper: bool) -> Result<Geometry, Error> {
-        if self.n < (limits.min_poses as usize).max(3) {
-            return Err(Error::TooFewPoses { have: self.n as u8, need: limits.min_poses.max(3) });
+        if self.len() < (limits.min_poses as usize).max(3) {
+            return Err(Error::TooFewPoses { have: self.len() as u8, need: limits.min_poses.max(3) });
         }
         let Plane { mean, vals, u, tilt_deg, .. } = self.plane(u64::MAX);
         // Gravity that barely changes between poses means a vertical axis whatever the fit says
@@ -173,7 +162,7 @@ impl Poses {
         }
         // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).
         let (mut at, mut lo, mut hi) = (0.0f64, 0.0f64, 0.0f64);
-        for i in 1..self.n {
+        for i in 1..self.len() {
             at += turn_deg(&u, &self.get(i - 1), &self.get(i));
             lo = lo.min(at);
             hi = hi.max(at);

@@ -35,15 +35,20 @@
 //! commanded turn is given (all 0) `u` points along the mean specific force (`f·u ≥ 0`). The
 //! equations themselves do not depend on the sign (`Δθ` flips with `u`).
 
+mod fit;
+mod gauss_newton;
+mod rows;
+
 use crate::accel::AccelCal;
-use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Plane, Poses};
+use crate::axis::{GeometryLimits, Poses};
 use crate::gyro::SCALE_RANGE;
-use crate::lsq::NormalEquations;
+use crate::lsq::{NormalEquations, Solution};
 use crate::rotation::{RotationLimits, Rotations};
 use crate::sweep::MAX_MOVES;
-use crate::vec3::{tangent_basis, to_f64 as v64};
+use crate::vec3::to_f64 as v64;
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
+use rows::{Rig, RigEquations};
 
 /// Largest number of rotation axes (e.g. 7 tilt settings and the hinge).
 pub const MAX_AXES: usize = 8;
@@ -133,20 +138,13 @@ pub struct AxisMove {
     pub gamma_deg: [f64; 3],
 }
 
-/// The static poses and the moves about several axes: the estimator's whole input (bounded).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The static poses and the moves about several axes: the estimator's whole input (bounded, no heap).
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Axes {
     poses: Poses,
-    moves: [AxisMove; MAX_MOVES],
-    n: usize,
+    moves: heapless::Vec<AxisMove, MAX_MOVES>,
     /// Bit `p` of `members[a]`: pose `p` lies on axis `a`'s plane.
     members: [u64; MAX_AXES],
-}
-
-impl Default for Axes {
-    fn default() -> Self {
-        Self::new()
-    }
 }
 
 /// One axis as measured, in the result.
@@ -209,40 +207,10 @@ pub struct FullCal {
     pub iterations: u8,
 }
 
-/// Plane fit of one axis' pose tips.
-#[derive(Clone, Copy)]
-struct Fit {
-    u: Vector3<f64>,
-    e: [Vector3<f64>; 2],
-    /// `1 / √(n λ_k)` (1/g): axis tilt towards `e_k` per unit pose noise.
-    tilt_per_g: [f64; 2],
-    /// Least 1σ of the direction (rad): the axis' own tilt when it is taken along gravity.
-    floor_rad: f64,
-    direction_only: bool,
-    tilt_deg: f64,
-    plane_rms_g: f64,
-    /// Sum of squared distances from the plane (g²) and its degrees of freedom.
-    ss: f64,
-    dof: u32,
-    poses: u8,
-}
-
-impl Fit {
-    /// 1σ (rad) of the axis direction towards `e_k` for a pose noise `sigma_a` (g).
-    fn dir_sigma(&self, k: usize, sigma_a: f64) -> f64 {
-        (sigma_a * self.tilt_per_g[k]).max(self.floor_rad)
-    }
-}
-
 impl Axes {
     /// No poses, no moves.
     pub const fn new() -> Self {
-        Self {
-            poses: Poses::new(),
-            moves: [AxisMove { axis: 0, from: 0, to: 0, commanded_deg: 0.0, gamma_deg: [0.0; 3] }; MAX_MOVES],
-            n: 0,
-            members: [0; MAX_AXES],
-        }
+        Self { poses: Poses::new(), moves: heapless::Vec::new(), members: [0; MAX_AXES] }
     }
 
     /// Forgets everything.
@@ -268,14 +236,14 @@ impl Axes {
         if !(gamma_deg.iter().all(|v| v.is_finite()) && commanded_deg.is_finite()) {
             return Err(Error::NonFinite);
         }
-        if self.n == MAX_MOVES {
-            return Err(Error::CapacityExceeded { max: MAX_MOVES as u8 });
+        // Checked before the poses join the axis: a rejected move changes nothing.
+        let full = Error::CapacityExceeded { max: MAX_MOVES as u8 };
+        if self.moves.is_full() {
+            return Err(full);
         }
         self.add_pose_to_axis(axis, from)?;
         self.add_pose_to_axis(axis, to)?;
-        self.moves[self.n] = AxisMove { axis, from, to, commanded_deg, gamma_deg };
-        self.n += 1;
-        Ok(())
+        self.moves.push(AxisMove { axis, from, to, commanded_deg, gamma_deg }).map_err(|_| full)
     }
 
     /// Puts pose `pose` on axis `axis`' plane without a move (e.g. an extra pose at that setting).
@@ -297,77 +265,7 @@ impl Axes {
 
     /// The moves.
     pub fn moves(&self) -> &[AxisMove] {
-        &self.moves[..self.n]
-    }
-
-    /// Plane fit of axis `a`, signed by its moves, and for a near-vertical axis the fallback along
-    /// gravity. `σ_a` is not known yet: the caller chooses and checks the axis' direction 1σ.
-    fn fit(&self, a: usize, limits: &FullLimits) -> Result<(Fit, Option<Fit>), Error> {
-        let Plane { n, mean, vals, u, e, tilt_deg, radial } = self.poses.plane(self.members[a]);
-        let nf = n as f64;
-        let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
-        let min_tilt = (limits.geometry.min_tilt_deg as f64).to_radians();
-        // Every tip nearly at one place: a (near) vertical axis. Its circle, when the noise lets it
-        // be fitted, gives the axis; else the mean gravity direction does (as in `Poses::geometry`).
-        let vertical = spread < 0.3 * min_tilt;
-        let sign = |mut f: Fit| {
-            let s: f64 = self
-                .moves()
-                .iter()
-                .filter(|m| m.axis as usize == a)
-                .map(|m| m.commanded_deg as f64 * Vector3::from(m.gamma_deg).dot(&f.u))
-                .sum();
-            if s < 0.0 {
-                f.u = -f.u;
-            }
-            f
-        };
-        let along_gravity = || {
-            let u = mean.normalize();
-            let r = 1.0 / libm::sqrt(nf);
-            let e = tangent_basis(&u);
-            // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
-            let floor_rad = libm::atan2(spread, mean.norm());
-            let tilt_deg = floor_rad.to_degrees();
-            let f = Fit {
-                u,
-                e,
-                tilt_per_g: [r, r],
-                floor_rad,
-                direction_only: true,
-                tilt_deg,
-                plane_rms_g: 0.0,
-                ss: 0.0,
-                dof: 0,
-                poses: n as u8,
-            };
-            sign(f)
-        };
-        if n < 3 {
-            if vertical {
-                return Ok((along_gravity(), None));
-            }
-            return Err(Error::AxisUndetermined { axis: a as u8, sigma_deg: f32::INFINITY, limit_deg: limits.max_axis_sigma_deg });
-        }
-        let plane_rms_g = libm::sqrt(vals[0].max(0.0));
-        if !(plane_rms_g <= limits.geometry.max_plane_rms_g as f64) {
-            return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.geometry.max_plane_rms_g });
-        }
-        let per = |l: f64| if l > 0.0 { 1.0 / libm::sqrt(nf * l) } else { f64::INFINITY };
-        let plane = sign(Fit {
-            u,
-            e,
-            tilt_per_g: [per(vals[1]), per(vals[2])],
-            floor_rad: limits.accel_systematic_g as f64 / radial.max(1e-3),
-            direction_only: vertical || tilt_deg < limits.geometry.min_tilt_deg as f64,
-            tilt_deg,
-            plane_rms_g,
-            // A near-vertical axis' plane residual is not counted in the pose noise.
-            ss: if vertical { 0.0 } else { nf * vals[0].max(0.0) },
-            dof: if vertical { 0 } else { n as u32 - 3 },
-            poses: n as u8,
-        });
-        Ok((plane, vertical.then(along_gravity)))
+        &self.moves
     }
 
     /// Solves for the full `K` over all moves. Errors (each names what to change): an axis whose
@@ -398,254 +296,78 @@ impl Axes {
         rotations: Option<(&Rotations, &RotationLimits)>,
         start: Option<[f64; 9]>,
     ) -> Result<FullCal, Error> {
-        let mut fits: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
-        let mut fallbacks: [Option<Fit>; MAX_AXES] = [None; MAX_AXES];
-        // Pose noise: the median over axes of each plane's residual noise `√(ss / (n − 3))`.
-        let (mut noise, mut n_noise) = ([0.0f64; MAX_AXES], 0);
-        for a in 0..MAX_AXES {
-            if self.moves().iter().any(|m| m.axis as usize == a) {
-                let (f, fallback) = self.fit(a, limits)?;
-                fallbacks[a] = fallback;
-                if f.dof > 0 {
-                    noise[n_noise] = libm::sqrt(f.ss / f.dof as f64);
-                    n_noise += 1;
-                }
-                fits[a] = Some(f);
-            }
-        }
-        let noise = &mut noise[..n_noise];
-        // Insertion sort (at most MAX_AXES values): the core sort would link 2 KiB into the firmware.
-        for i in 1..n_noise {
-            let mut j = i;
-            while j > 0 && noise[j - 1].total_cmp(&noise[j]).is_gt() {
-                noise.swap(j - 1, j);
-                j -= 1;
-            }
-        }
-        let floor = limits.min_accel_sigma_g as f64;
-        let sigma_a = if n_noise > 0 { noise[(n_noise - 1) / 2].max(floor) } else { floor };
-        // A plane much noisier than the others: the board slipped (or the shaft wobbles) on that axis.
-        for f in fits.iter().flatten().filter(|f| f.dof >= MIN_NOISE_DOF) {
-            let limit_g = limits.max_plane_noise_ratio as f64 * sigma_a;
-            if libm::sqrt(f.ss / f.dof as f64) > limit_g {
-                return Err(Error::AxisNotFixed { plane_rms_g: f.plane_rms_g as f32, limit_g: limit_g as f32 });
-            }
-        }
-        let sigma_deg = |f: &Fit| f.dir_sigma(0, sigma_a).max(f.dir_sigma(1, sigma_a)).to_degrees();
-        for a in 0..MAX_AXES {
-            let Some(f) = fits[a] else { continue };
-            if !(sigma_deg(&f) <= limits.max_axis_sigma_deg as f64) {
-                match fallbacks[a] {
-                    Some(g) => fits[a] = Some(g), // no circle to fit: the axis is along gravity
-                    None => {
-                        return Err(Error::AxisUndetermined {
-                            axis: a as u8,
-                            sigma_deg: sigma_deg(&f) as f32,
-                            limit_deg: limits.max_axis_sigma_deg,
-                        })
-                    }
-                }
-            }
-        }
-
-        // The rows of every usable move; the same closure gives the residuals after the solve.
-        let sq = |x: f64| x * x;
-        let sg2 = sq(limits.gamma_sigma_deg as f64);
-        // Rows as (direction v, target, variance): the two `e_k` rows first, then the `u` row of a full axis;
-        // with `Γ` and the signed turn (the accelerometer's, or `Γ·u` for a direction-only axis).
-        type Rows = ([(Vector3<f64>, f64, f64); 3], usize, Vector3<f64>, f64);
-        let rows_of = |m: &AxisMove| -> Option<Rows> {
-            let f = fits[m.axis as usize]?;
-            let gamma = Vector3::from(m.gamma_deg);
-            let (pa, pb) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
-            let e_row = |k: usize, turn: f64| (f.e[k], 0.0, sg2 + sq(turn.abs() * f.dir_sigma(k, sigma_a)));
-            if f.direction_only {
-                let turn = gamma.norm();
-                (turn >= limits.min_move_deg as f64).then(|| ([e_row(0, turn), e_row(1, turn), (f.u, 0.0, 1.0)], 2, gamma, gamma.dot(&f.u)))
-            } else {
-                let dtheta = unwrap_near(turn_deg(&f.u, &pa, &pb), gamma.dot(&f.u));
-                let r2 = |p: Vector3<f64>| (p - f.u * p.dot(&f.u)).norm_squared();
-                let s2 = sg2 + sq(sigma_a.to_degrees()) * (1.0 / r2(pa) + 1.0 / r2(pb));
-                (dtheta.abs() >= limits.min_move_deg as f64)
-                    .then(|| ([e_row(0, dtheta), e_row(1, dtheta), (f.u, dtheta, s2)], 3, gamma, dtheta))
-            }
-        };
-        let regressor = |v: &Vector3<f64>, gamma: &Vector3<f64>| -> [f64; 9] {
-            core::array::from_fn(|i| gamma[i / 3] * v[i % 3]) // x[3c + r] = Γ_c v_r
-        };
-        let mut ne = NormalEquations::<9>::new();
-        let (mut used, mut skipped) = (0u16, 0u16);
-        let mut per_axis = [0u8; MAX_AXES];
-        for m in self.moves() {
-            match rows_of(m) {
-                Some((rows, n, gamma, _)) => {
-                    for (v, y, s2) in &rows[..n] {
-                        ne.add_row(&regressor(v, &gamma), *y, 1.0 / s2)?;
-                    }
-                    used += 1;
-                    per_axis[m.axis as usize] = per_axis[m.axis as usize].saturating_add(1);
-                }
-                None => skipped += 1,
-            }
-        }
-
-        // Axes used, and how far from coplanar they are.
-        let mut us = [Vector3::zeros(); MAX_AXES];
-        let mut n_axes = 0;
-        for a in 0..MAX_AXES {
-            if let (Some(f), true) = (fits[a], per_axis[a] > 0) {
-                us[n_axes] = f.u;
-                n_axes += 1;
-            }
-        }
+        let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
+        let RigEquations { ne, used, skipped, per_axis } = rig.equations()?;
         let rotations = rotations.filter(|(r, _)| !r.moves().is_empty());
-        match rotations {
-            Some((r, rl)) if n_axes < NEED_AXES as usize => {
-                let spread = r.axis_spread();
-                if !(spread >= rl.min_axis_spread) {
-                    return Err(Error::RotationAxesCoplanar { spread, limit: rl.min_axis_spread });
-                }
-            }
-            None if n_axes < NEED_AXES as usize => return Err(Error::TooFewAxes { have: n_axes as u8, need: NEED_AXES }),
-            _ => {}
-        }
-        let (mut non_coplanar, mut min_pair) = (0.0f64, f64::INFINITY);
-        for i in 0..n_axes {
-            for j in i + 1..n_axes {
-                let c = us[i].cross(&us[j]);
-                min_pair = min_pair.min(libm::atan2(c.norm(), us[i].dot(&us[j]).abs()));
-                if c.norm() > 1e-9 {
-                    for k in (0..n_axes).filter(|&k| k != i && k != j) {
-                        // The angle of u_k from the plane ⟂ c (no asin linked into the firmware).
-                        non_coplanar = non_coplanar.max(libm::atan2(us[k].dot(&c).abs(), us[k].cross(&c).norm()));
-                    }
-                }
-            }
-        }
-        let non_coplanar_deg = non_coplanar.to_degrees();
-        if !(non_coplanar_deg >= limits.min_axis_angle_deg as f64) && n_axes >= NEED_AXES as usize {
-            return Err(Error::AxesCoplanar { angle_deg: non_coplanar_deg as f32, limit_deg: limits.min_axis_angle_deg });
-        }
-
-        // The rotation rows, linearised at each iterate; the rotations are re-composed there.
+        let (us, n_axes) = rig.fits.used(&per_axis);
+        let (non_coplanar_deg, min_pair) = check_axes(&us[..n_axes], rotations, limits)?;
         let (ne, rotation) = match rotations {
             None => (ne, None),
             Some((r, rl)) => {
-                let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
-                // The rig's own K when it determines one, else `K = I`.
-                let mut k = match start {
-                    Some(k) => k,
-                    None if ne.condition() <= limits.max_condition as f64 => ne.solve().map_or(identity, |s| s.x),
-                    None => identity,
-                };
-                let mut iterations = 0u8;
-                let (total, rss) = loop {
-                    let mut total = ne;
-                    r.add_rows(&mut total, &k, rl)?;
-                    iterations += 1;
-                    let x = total.estimate()?;
-                    let step = (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max);
-                    k = x;
-                    if step < GAUSS_NEWTON_STEP || iterations == GAUSS_NEWTON_ITERATIONS {
-                        // The rows at the solution, for its covariance and residual.
-                        let mut at = ne;
-                        let (_, rss) = r.add_rows(&mut at, &k, rl)?;
-                        break (at, rss);
-                    }
-                };
-                let rms_deg = libm::sqrt(rss / (2 * r.moves().len()) as f64).to_degrees();
-                if !(rms_deg <= rl.max_residual_rms_deg as f64) {
-                    return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
-                }
-                (total, Some((r.moves().len() as u16, rms_deg as f32, iterations)))
+                let (ne, fit) = gauss_newton::with_rotations(&ne, r, rl, start, limits)?;
+                (ne, Some(fit))
             }
         };
-
-        // A null direction (e.g. the upright bracket: K → K + d (I − u_h u_hᵀ) K) is named, not solved.
-        let condition = ne.condition();
-        if !(condition <= limits.max_condition as f64) {
-            return Err(Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition });
-        }
-        let sol = ne.solve()?;
-        let kk = |r: usize, c: usize| sol.x[vec_index(r, c)];
-        for i in 0..3 {
-            let v = kk(i, i);
-            if !(v > SCALE_RANGE.0 && v < SCALE_RANGE.1) {
-                return Err(Error::ImplausibleScale { axis: i as u8, value: v as f32 });
-            }
-        }
-
-        // Unweighted residuals (°) of every row used.
-        let (mut rss_deg, mut nrows) = (0.0, 0u32);
-        for (rows, n, gamma, _) in self.moves().iter().filter_map(rows_of) {
-            for (v, y, _) in &rows[..n] {
-                let x = regressor(v, &gamma);
-                let r = (0..9).map(|i| x[i] * sol.x[i]).sum::<f64>() - y;
-                rss_deg += r * r;
-                nrows += 1;
-            }
-        }
-        let residual_rms_deg = libm::sqrt(rss_deg / nrows.max(1) as f64);
-        if nrows > 0 && !(residual_rms_deg <= limits.max_residual_rms_deg as f64) {
-            return Err(Error::MovesInconsistent { residual_rms_deg: residual_rms_deg as f32, limit_deg: limits.max_residual_rms_deg });
-        }
-
-        // 1σ: `s² N⁻¹` treats rows as independent, but an axis' direction error is shared by all its
-        // moves (it is absorbed into K, not seen in the residual): add it once per axis and
-        // direction, `δk = N⁻¹ Σ_m w x (turn_m δu_k)` with `δu_k` of 1σ `σ_a / √(n λ_k)` (rad).
-        let ninv = ne.inverse()?;
-        let mut cov = sol.covariance;
-        for (a, f) in fits.iter().enumerate() {
-            let Some(f) = f else { continue };
-            for k in 0..2 {
-                let mut v = [0.0; 9];
-                for (rows, _, gamma, turn) in self.moves().iter().filter(|m| m.axis as usize == a).filter_map(rows_of) {
-                    let x = regressor(&rows[k].0, &gamma);
-                    for i in 0..9 {
-                        v[i] += turn * x[i] / rows[k].2;
-                    }
-                }
-                let c: [f64; 9] = core::array::from_fn(|i| (0..9).map(|j| ninv[i][j] * v[j]).sum());
-                let s2u = sq(f.dir_sigma(k, sigma_a));
-                for i in 0..9 {
-                    for j in 0..9 {
-                        cov[i][j] += s2u * c[i] * c[j];
-                    }
-                }
-            }
-        }
-
-        let mut axes = [FullAxis::default(); MAX_AXES];
-        for (a, f) in fits.iter().enumerate() {
-            if let Some(f) = f {
-                axes[a] = FullAxis {
-                    u: [f.u[0] as f32, f.u[1] as f32, f.u[2] as f32],
-                    tilt_deg: f.tilt_deg as f32,
-                    plane_rms_g: f.plane_rms_g as f32,
-                    sigma_deg: sigma_deg(f) as f32,
-                    poses: f.poses,
-                    moves: per_axis[a],
-                    direction_only: f.direction_only,
-                };
-            }
-        }
+        let (sol, condition) = solve_k(&ne, limits)?;
+        let residual_rms_deg = rig.residual_rms_deg(&sol.x)?;
         Ok(FullCal {
-            k: core::array::from_fn(|r| core::array::from_fn(|c| kk(r, c) as f32)),
-            sigma_k: core::array::from_fn(|r| core::array::from_fn(|c| libm::sqrt(cov[vec_index(r, c)][vec_index(r, c)].max(0.0)) as f32)),
+            k: core::array::from_fn(|r| core::array::from_fn(|c| sol.x[vec_index(r, c)] as f32)),
+            sigma_k: rig.sigma_k(&ne, &sol)?,
             condition: condition as f32,
             non_coplanar_deg: non_coplanar_deg as f32,
             min_pair_angle_deg: min_pair.to_degrees() as f32,
             residual_rms_deg: residual_rms_deg as f32,
             noise_ratio: libm::sqrt(sol.rss / sol.dof.max(1) as f64) as f32,
-            accel_sigma_g: sigma_a as f32,
+            accel_sigma_g: rig.fits.sigma_a as f32,
             moves: used,
             moves_skipped: skipped,
             rows: ne.rows() as u16,
             n_axes: n_axes as u8,
-            axes,
-            rotation_moves: rotation.map_or(0, |r| r.0),
-            rotation_residual_rms_deg: rotation.map_or(0.0, |r| r.1),
-            iterations: rotation.map_or(0, |r| r.2),
+            axes: rig.fits.reports(&per_axis),
+            rotation_moves: rotation.map_or(0, |r| r.moves),
+            rotation_residual_rms_deg: rotation.map_or(0.0, |r| r.residual_rms_deg),
+            iterations: rotation.map_or(0, |r| r.iterations),
         })
     }
+}
+
+/// Checks that the used rig axes `us` (unit) and the rotations together turn about three
+/// dimensions: ≥ [`NEED_AXES`] axes off one plane by `min_axis_angle_deg`, or rotation axes
+/// spread by `min_axis_spread`. Returns the axes' non-coplanarity (°) and smallest pair angle (rad).
+fn check_axes(us: &[Vector3<f64>], rotations: Option<(&Rotations, &RotationLimits)>, limits: &FullLimits) -> Result<(f64, f64), Error> {
+    let n_axes = us.len();
+    match rotations {
+        Some((r, rl)) if n_axes < NEED_AXES as usize => {
+            let spread = r.axis_spread();
+            if !(spread >= rl.min_axis_spread) {
+                return Err(Error::RotationAxesCoplanar { spread, limit: rl.min_axis_spread });
+            }
+        }
+        None if n_axes < NEED_AXES as usize => return Err(Error::TooFewAxes { have: n_axes as u8, need: NEED_AXES }),
+        _ => {}
+    }
+    let (non_coplanar, min_pair) = fit::spread_rad(us);
+    let non_coplanar_deg = non_coplanar.to_degrees();
+    if !(non_coplanar_deg >= limits.min_axis_angle_deg as f64) && n_axes >= NEED_AXES as usize {
+        return Err(Error::AxesCoplanar { angle_deg: non_coplanar_deg as f32, limit_deg: limits.min_axis_angle_deg });
+    }
+    Ok((non_coplanar_deg, min_pair))
+}
+
+/// Solves the normal equations for vec `K` and checks it: a null direction (e.g. the upright
+/// bracket: `K → K + d (I − u_h u_hᵀ) K`) is named, not solved, and the diagonal must be a
+/// plausible scale. Returns the solution and the condition number.
+fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, f64), Error> {
+    let condition = ne.condition();
+    if !(condition <= limits.max_condition as f64) {
+        return Err(Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition });
+    }
+    let sol = ne.solve()?;
+    for i in 0..3 {
+        let v = sol.x[vec_index(i, i)];
+        if !(v > SCALE_RANGE.0 && v < SCALE_RANGE.1) {
+            return Err(Error::ImplausibleScale { axis: i as u8, value: v as f32 });
+        }
+    }
+    Ok((sol, condition))
 }

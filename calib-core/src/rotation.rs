@@ -129,16 +129,15 @@ struct Open {
     why: Option<Rejected>,
 }
 
-/// The static poses and the chunked moves between them (bounded).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The static poses and the chunked moves between them (bounded, no heap).
+#[derive(Debug, Clone, PartialEq)]
 pub struct Rotations {
     poses: Poses,
+    /// Per pose (same index): the noise of its mean (g) and its bias-free gyro mean (°/s).
     sigma_g: [f32; MAX_POSES],
     gyro_dps: [Vec3; MAX_POSES],
-    chunks: [Chunk; MAX_CHUNKS],
-    nc: usize,
-    moves: [RotationMove; MAX_ROTATION_MOVES],
-    nm: usize,
+    chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
+    moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
     rejected: [u16; 5],
 }
@@ -186,10 +185,8 @@ impl Rotations {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
             gyro_dps: [[0.0; 3]; MAX_POSES],
-            chunks: [Chunk { gamma: [0.0; 3], coning: [0.0; 3] }; MAX_CHUNKS],
-            nc: 0,
-            moves: [RotationMove { from: 0, to: 0, first: 0, n: 0, duration_s: 0.0, turn_deg: 0.0 }; MAX_ROTATION_MOVES],
-            nm: 0,
+            chunks: heapless::Vec::new(),
+            moves: heapless::Vec::new(),
             open: None,
             rejected: [0; 5],
         }
@@ -213,7 +210,7 @@ impl Rotations {
     pub fn begin(&mut self, from: u8) {
         self.open = Some(Open {
             from,
-            first: self.nc,
+            first: self.chunks.len(),
             gamma: [0.0; 3],
             coning: [0.0; 3],
             last: None,
@@ -258,11 +255,9 @@ impl Rotations {
     }
 
     fn flush(&mut self, o: &mut Open) {
-        if self.nc == MAX_CHUNKS {
+        let chunk = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32) };
+        if self.chunks.push(chunk).is_err() {
             o.why.get_or_insert(Rejected::Full);
-        } else {
-            self.chunks[self.nc] = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32) };
-            self.nc += 1;
         }
         o.gamma = [0.0; 3];
         o.coning = [0.0; 3];
@@ -280,18 +275,19 @@ impl Rotations {
             .why
             .or((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast))
             .or((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort))
-            .or(((a - b).amax() > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted))
-            .or((self.nm == MAX_ROTATION_MOVES).then_some(Rejected::Full));
-        if let Some(why) = why {
-            self.nc = o.first;
-            self.rejected[why as usize] = self.rejected[why as usize].saturating_add(1);
-            return Err(why);
-        }
+            .or(((a - b).amax() > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted));
         let duration_s = o.last.map_or(0.0, |(t, _)| (t - o.t0) as f32);
-        self.moves[self.nm] =
-            RotationMove { from: o.from, to, first: o.first as u16, n: (self.nc - o.first) as u16, duration_s, turn_deg: turn as f32 };
-        self.nm += 1;
-        Ok(())
+        let n = (self.chunks.len() - o.first) as u16;
+        let kept = RotationMove { from: o.from, to, first: o.first as u16, n, duration_s, turn_deg: turn as f32 };
+        let result = match why {
+            None => self.moves.push(kept).map_err(|_| Rejected::Full),
+            Some(why) => Err(why),
+        };
+        if let Err(why) = result {
+            self.chunks.truncate(o.first);
+            self.rejected[why as usize] = self.rejected[why as usize].saturating_add(1);
+        }
+        result
     }
 
     /// Moves rejected, by reason (in the order of [`Rejected`]).
@@ -301,7 +297,7 @@ impl Rotations {
 
     /// The kept moves.
     pub fn moves(&self) -> &[RotationMove] {
-        &self.moves[..self.nm]
+        &self.moves
     }
 
     /// The poses.
@@ -320,11 +316,17 @@ impl Rotations {
         }
     }
 
+    /// The chunks of kept move `m`.
+    fn chunks_of(&self, m: &RotationMove) -> &[Chunk] {
+        let first = m.first as usize;
+        self.chunks.get(first..first + m.n as usize).unwrap_or_default()
+    }
+
     /// `R` and `J` (3×9, rad per unit of `vec K`) of move `m` at `K`, composed in `f32`.
     fn compose(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> (Matrix3<f64>, [[f64; 9]; 3]) {
         let (k, cof) = (k.map(|v| v as f32), cof.map(|v| v as f32));
         let (mut r, mut j) = (Matrix3::<f32>::identity(), [[0.0f32; 9]; 3]);
-        for c in &self.chunks[m.first as usize..(m.first + m.n) as usize] {
+        for c in self.chunks_of(m) {
             let gamma = Vector3::from(c.gamma).map(f32::to_radians);
             let coning = Vector3::from(c.coning).map(|v| v.to_radians().to_radians());
             let phi = k * gamma + cof * coning * 0.5;
@@ -390,9 +392,9 @@ impl Rotations {
     /// 1/3 for axes spread evenly in three dimensions, 0 for coplanar ones.
     pub fn axis_spread(&self) -> f32 {
         let mut s = [[0.0; 3]; 3];
-        let n = self.nm.max(1) as f64;
+        let n = self.moves.len().max(1) as f64;
         for m in self.moves() {
-            let total: Vector3<f64> = self.chunks[m.first as usize..(m.first + m.n) as usize].iter().map(|c| v64(c.gamma)).sum();
+            let total: Vector3<f64> = self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum();
             let u = total.normalize();
             for i in 0..3 {
                 for j in 0..3 {

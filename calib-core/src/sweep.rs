@@ -68,37 +68,30 @@ pub struct Move {
 }
 
 /// The moves of a sweep session (bounded, no heap).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Moves {
-    moves: [Move; MAX_MOVES],
-    n: usize,
-}
-
-impl Default for Moves {
-    fn default() -> Self {
-        Self::new()
-    }
+    moves: heapless::Vec<Move, MAX_MOVES>,
 }
 
 impl Moves {
     /// No moves.
     pub const fn new() -> Self {
-        Self { moves: [Move { from: 0, to: 0, gamma_deg: [0.0; 3] }; MAX_MOVES], n: 0 }
+        Self { moves: heapless::Vec::new() }
     }
 
     /// Number of moves.
     pub fn len(&self) -> usize {
-        self.n
+        self.moves.len()
     }
 
     /// True when empty.
     pub fn is_empty(&self) -> bool {
-        self.n == 0
+        self.moves.is_empty()
     }
 
     /// Forgets every move.
     pub fn clear(&mut self) {
-        self.n = 0;
+        self.moves.clear();
     }
 
     /// Records a move from pose `from` to pose `to` with its gyro integral.
@@ -106,17 +99,12 @@ impl Moves {
         if !gamma_deg.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
-        if self.n == MAX_MOVES {
-            return Err(Error::CapacityExceeded { max: MAX_MOVES as u8 });
-        }
-        self.moves[self.n] = Move { from, to, gamma_deg };
-        self.n += 1;
-        Ok(())
+        self.moves.push(Move { from, to, gamma_deg }).map_err(|_| Error::CapacityExceeded { max: MAX_MOVES as u8 })
     }
 
     /// The moves.
     pub fn as_slice(&self) -> &[Move] {
-        &self.moves[..self.n]
+        &self.moves
     }
 }
 

@@ -1,0 +1,56 @@
+//! The rig rows and the rotation constraints ([`crate::rotation`]) in one least squares over vec
+//! `K` (column-major), by Gauss–Newton: the rotation rows are re-linearised at every iterate.
+
+use super::{FullLimits, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
+use crate::lsq::NormalEquations;
+use crate::rotation::{RotationLimits, Rotations};
+use crate::Error;
+
+/// What the rotation constraints gave.
+#[derive(Clone, Copy)]
+pub(super) struct RotationFit {
+    /// Rotation moves used.
+    pub moves: u16,
+    /// RMS residual of the rotation rows at the solution (°).
+    pub residual_rms_deg: f32,
+    /// Gauss–Newton iterations.
+    pub iterations: u8,
+}
+
+/// The rig rows `rig` plus the rotation rows of `r` linearised at the solution, iterated from
+/// `start` (vec `K`), else from the rig's own `K` when it determines one, else from `K = I`.
+/// A rotation residual above `max_residual_rms_deg` is [`Error::MovesInconsistent`].
+pub(super) fn with_rotations(
+    rig: &NormalEquations<9>,
+    r: &Rotations,
+    rl: &RotationLimits,
+    start: Option<[f64; 9]>,
+    limits: &FullLimits,
+) -> Result<(NormalEquations<9>, RotationFit), Error> {
+    let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
+    let mut k = match start {
+        Some(k) => k,
+        None if rig.condition() <= limits.max_condition as f64 => rig.solve().map_or(identity, |s| s.x),
+        None => identity,
+    };
+    let mut iterations = 0u8;
+    let (total, rss) = loop {
+        let mut total = *rig;
+        r.add_rows(&mut total, &k, rl)?;
+        iterations += 1;
+        let x = total.estimate()?;
+        let step = (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max);
+        k = x;
+        if step < GAUSS_NEWTON_STEP || iterations == GAUSS_NEWTON_ITERATIONS {
+            // The rows at the solution, for its covariance and residual.
+            let mut at = *rig;
+            let (_, rss) = r.add_rows(&mut at, &k, rl)?;
+            break (at, rss);
+        }
+    };
+    let rms_deg = libm::sqrt(rss / (2 * r.moves().len()) as f64).to_degrees();
+    if !(rms_deg <= rl.max_residual_rms_deg as f64) {
+        return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
+    }
+    Ok((total, RotationFit { moves: r.moves().len() as u16, residual_rms_deg: rms_deg as f32, iterations }))
+}
