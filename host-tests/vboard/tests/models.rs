@@ -1,58 +1,20 @@
 //! The peripheral and sensor models against the PS / datasheet rules they enforce, driven at the
 //! register level (no firmware): fast, and each one fails if the model loses its strictness.
 
+mod common;
+
+use common::{periph, r, w, wait, Ram};
 use embedded_hal::i2c::{I2c, Operation};
 use rig_sim::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
-use rig_sim::nor::NorSim;
 use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
-use std::cell::Cell;
-use std::collections::HashMap;
-use std::rc::Rc;
 use vboard::periph::clock::Clock;
 use vboard::periph::mpu::{Check, Mpu};
 use vboard::periph::{Dma, Periph, ResetKind};
 
-#[derive(Default)]
-struct Ram(HashMap<u64, u8>);
-
-impl Dma for Ram {
-    fn read(&mut self, addr: u64, buf: &mut [u8]) {
-        for (i, b) in buf.iter_mut().enumerate() {
-            *b = *self.0.get(&(addr + i as u64)).unwrap_or(&0);
-        }
-    }
-    fn write(&mut self, addr: u64, data: &[u8]) {
-        for (i, b) in data.iter().enumerate() {
-            self.0.insert(addr + i as u64, *b);
-        }
-    }
-}
-
-fn periph(board: Board, bootloader: bool) -> Periph {
-    let sensor = Lsm9ds1Model::new(Rig::new(Variant::Hobby.config(1, 0), 1), board);
-    let mut p = Periph::new(sensor, NorSim::new(8, 1), Rc::new(Cell::new(0)));
-    p.bootloader = bootloader;
-    p.reset(ResetKind::PowerOn);
-    p
-}
-
 const P0: u64 = 0x5000_0000;
 const P1: u64 = 0x5000_0300;
 const TWIM: u64 = 0x4000_3000;
-
-fn w(p: &mut Periph, ram: &mut Ram, addr: u64, v: u32) {
-    p.write(addr, v as u64, ram);
-}
-
-fn r(p: &mut Periph, addr: u64) -> u32 {
-    p.read(addr) as u32
-}
-
-fn wait(p: &mut Periph, s: f64) {
-    p.skipped_s += s;
-    p.update();
-}
 
 /// Sensor power as the Nano needs it, TWIM0 as nrf-hal sets it up (pins S0D1 with pull-ups).
 fn power_and_twim(p: &mut Periph, ram: &mut Ram, vdd_drive: u32, frequency: u32) {

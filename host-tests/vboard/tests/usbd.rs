@@ -2,57 +2,19 @@
 //! register-level driver written here (what nrf-usbd + usb-device + usbd-serial do, reduced to
 //! the requests the host sends): no firmware, fast.
 
-use rig_sim::lsm_model::{Board, Lsm9ds1Model};
-use rig_sim::nor::NorSim;
-use rig_sim::sim::Rig;
-use rig_sim::variant::Variant;
-use std::cell::{Cell, RefCell};
-use std::collections::HashMap;
+mod common;
+
+use common::{periph, r, w, wait, Ram};
+use rig_sim::lsm_model::Board;
+use std::cell::RefCell;
 use std::rc::Rc;
 use vboard::periph::usbd::{Handshake, OutBuf, Packet};
 use vboard::periph::{Dma, Periph, ResetKind};
 use vboard::usb_host::UsbHost;
 
-#[derive(Default)]
-struct Ram(HashMap<u64, u8>);
-
-impl Dma for Ram {
-    fn read(&mut self, addr: u64, buf: &mut [u8]) {
-        for (i, b) in buf.iter_mut().enumerate() {
-            *b = *self.0.get(&(addr + i as u64)).unwrap_or(&0);
-        }
-    }
-    fn write(&mut self, addr: u64, data: &[u8]) {
-        for (i, b) in data.iter().enumerate() {
-            self.0.insert(addr + i as u64, *b);
-        }
-    }
-}
-
-fn periph(bootloader: bool) -> Periph {
-    let sensor = Lsm9ds1Model::new(Rig::new(Variant::Hobby.config(1, 0), 1), Board::Rev1);
-    let mut p = Periph::new(sensor, NorSim::new(8, 1), Rc::new(Cell::new(0)));
-    p.bootloader = bootloader;
-    p.reset(ResetKind::PowerOn);
-    p
-}
-
 const USBD: u64 = 0x4002_7000;
 const POWER: u64 = 0x4000_0000;
 const BUF: u32 = 0x2000_0100;
-
-fn w(p: &mut Periph, ram: &mut Ram, addr: u64, v: u32) {
-    p.write(addr, v as u64, ram);
-}
-
-fn r(p: &mut Periph, addr: u64) -> u32 {
-    p.read(addr) as u32
-}
-
-fn wait(p: &mut Periph, s: f64) {
-    p.skipped_s += s;
-    p.update();
-}
 
 fn epin(n: u64) -> u64 {
     USBD + 0x600 + 0x14 * n
@@ -60,6 +22,17 @@ fn epin(n: u64) -> u64 {
 
 fn epout(n: u64) -> u64 {
     USBD + 0x700 + 0x14 * n
+}
+
+/// Takes what OUT endpoint `n` received (SIZE.EPOUT[n] bytes) by EasyDMA to RAM at `at`.
+fn dma_out(p: &mut Periph, ram: &mut Ram, n: u64, at: u32) -> Vec<u8> {
+    let size = r(p, USBD + 0x4A0 + 4 * n);
+    w(p, ram, epout(n), at);
+    w(p, ram, epout(n) + 4, size);
+    w(p, ram, USBD + 0x028 + 4 * n, 1); // TASKS_STARTEPOUT[n]
+    let mut d = vec![0u8; size as usize];
+    ram.read(at as u64, &mut d);
+    d
 }
 
 /// VBUS in, ENABLE, wait READY (clearing it), pull-up on (nrf-usbd's `enable`).
@@ -76,7 +49,7 @@ fn enable(p: &mut Periph, ram: &mut Ram) {
 
 #[test]
 fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
-    let (mut p, mut ram) = (periph(true), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     // No VBUS: READY never comes.
     assert_eq!(r(&mut p, POWER + 0x438), 0, "USBREGSTATUS");
     w(&mut p, &mut ram, USBD + 0x500, 1);
@@ -119,7 +92,7 @@ fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
     assert_eq!((r(&mut p, POWER + 0x438) & 1, r(&mut p, POWER + 0x51C)), (1, 0xB0));
 
     // Cold boot: VBUS but no HFXO: no READY until the crystal runs.
-    let (mut p, mut ram) = (periph(false), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, false), Ram::default());
     let t = p.now();
     p.power.plug(t);
     w(&mut p, &mut ram, USBD + 0x500, 1);
@@ -139,7 +112,7 @@ fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
 
 #[test]
 fn ep0_setup_and_control_transfers_with_easydma() {
-    let (mut p, mut ram) = (periph(true), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     enable(&mut p, &mut ram);
     let phy = p.usb_phy();
     assert!(p.usbd.connected(phy));
@@ -216,7 +189,7 @@ fn ep0_setup_and_control_transfers_with_easydma() {
 
 #[test]
 fn bulk_in_and_out() {
-    let (mut p, mut ram) = (periph(true), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     enable(&mut p, &mut ram);
     let phy = p.usb_phy();
     p.usbd.bus_reset(phy);
@@ -308,13 +281,13 @@ fn the_usbd_rejects_what_the_part_rejects() {
         ("read-only", &|p, ram| w(p, ram, USBD + 0x470, 5)),
     ];
     for (want, case) in cases {
-        let (mut p, mut ram) = (periph(true), Ram::default());
+        let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
         enable(&mut p, &mut ram);
         case(&mut p, &mut ram);
         assert!(p.fault.as_deref().is_some_and(|f| f.contains(want)), "{want}: {:?}", p.fault);
     }
     // A ZLP (MAXCNT 0) with PTR 0, as nrf-usbd writes it, is fine; the errata registers too.
-    let (mut p, mut ram) = (periph(true), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     enable(&mut p, &mut ram);
     w(&mut p, &mut ram, epin(0), 0);
     w(&mut p, &mut ram, epin(0) + 4, 0);
@@ -405,13 +378,7 @@ impl MiniFw {
                     self.ep0_write(p, ram, &rest[..n]);
                 }
             } else {
-                let n = r(p, USBD + 0x4A0);
-                w(p, ram, epout(0), BUF + 0x300);
-                w(p, ram, epout(0) + 4, n);
-                w(p, ram, USBD + 0x028, 1);
-                let mut d = vec![0u8; n as usize];
-                ram.read((BUF + 0x300) as u64, &mut d);
-                self.line = d;
+                self.line = dma_out(p, ram, 0, BUF + 0x300);
                 w(p, ram, USBD + 0x050, 1);
             }
         }
@@ -469,12 +436,7 @@ impl MiniFw {
         }
         if st & (1 << 17) != 0 {
             w(p, ram, USBD + 0x46C, 1 << 17);
-            let n = r(p, USBD + 0x4A4);
-            w(p, ram, epout(1), BUF + 0x400);
-            w(p, ram, epout(1) + 4, n);
-            w(p, ram, USBD + 0x02C, 1);
-            let mut d = vec![0u8; n as usize];
-            ram.read((BUF + 0x400) as u64, &mut d);
+            let d = dma_out(p, ram, 1, BUF + 0x400);
             self.echo.extend(d.iter().map(|b| b.to_ascii_uppercase()));
         }
         if !self.in_busy && !self.echo.is_empty() {
@@ -503,7 +465,7 @@ fn run(p: &Rc<RefCell<Periph>>, ram: &mut Ram, fw: &mut MiniFw, secs: f64) {
 }
 
 fn host_board() -> (Rc<RefCell<Periph>>, UsbHost, Ram, MiniFw) {
-    let (mut p, mut ram) = (periph(true), Ram::default());
+    let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     enable(&mut p, &mut ram);
     let p = Rc::new(RefCell::new(p));
     let host = UsbHost::from_periph(p.clone());
