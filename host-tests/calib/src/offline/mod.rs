@@ -1,0 +1,392 @@
+//! Offline calibration of a recorded log with the same calib-core code as the firmware.
+//!
+//! The phases are found from the data: still windows (calib-core's rest detector, with
+//! thresholds raised to the log's own noise floor) grouped into still segments; a still segment
+//! with an empty servo column is a hand-held accelerometer pose, one with a servo value a rig
+//! pose; the motion between two consecutive rig poses is a move; a long run of windows with a
+//! steady gyro rate is the paper's constant-rate rotation.
+
+use crate::csvlog::Row;
+use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
+use calib_core::axis::{Poses, MAX_POSES};
+use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
+use calib_core::full::FullCal;
+use calib_core::gyro::{GyroCal, GyroQuality, Method};
+use calib_core::pipeline::{GravityTurn, SteadyRate};
+use calib_core::procedure::Config;
+use calib_core::record::{self, Record};
+use calib_core::rest::{RestConfig, RestDetector, RestState};
+use calib_core::rotation::Rotations;
+use calib_core::stats::Welford3;
+use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
+use calib_core::vec3::{sub, to_f64 as v64};
+use calib_core::{full, paper, pipeline, sweep, Error};
+use calib_core::{Mat3, Vec3};
+use nalgebra::Vector3;
+use serde::Serialize;
+
+mod checks;
+mod output;
+mod phases;
+
+use checks::{check_accel_units, gyro_units, implied_scale};
+pub use checks::{check_time_base, TimeBase};
+pub use output::{AccelOut, EstimatorOut, Estimators, FullOut, GyroOut, Output, QualityOut, Segments};
+pub use phases::{phases, steady_rotation, Phases, Segment, SteadyRotation};
+
+/// Why a log could not be calibrated.
+#[derive(Debug, Clone, PartialEq)]
+pub enum OfflineError {
+    /// A calib-core step failed.
+    Calib {
+        /// Which step.
+        stage: &'static str,
+        /// Its error.
+        error: Error,
+    },
+    /// The log has no still period to measure the gyro bias.
+    NoRest,
+    /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.
+    NoRotation,
+    /// The time column is not regular sampling at an IMU's rate (or, in a run of the firmware,
+    /// not an LSM9DS1 ODR); `hint` names the likely mistake.
+    TimeBase {
+        /// Median sample rate of the log (Hz).
+        rate_hz: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
+    /// The accelerometer at rest does not read 1 g; `hint` names the likely mistake.
+    AccelUnits {
+        /// Mean |a| over the still segments.
+        norm: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
+    /// The gyro scale comes out near a unit conversion factor: the column is in other units.
+    GyroUnits {
+        /// The scale factor found (mean of the diagonal).
+        k: f64,
+        /// What is probably wrong.
+        hint: &'static str,
+    },
+}
+
+impl std::fmt::Display for OfflineError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OfflineError::Calib { stage, error } => write!(f, "{stage}: {error}"),
+            OfflineError::NoRest => f.write_str("no still period in the log: cannot measure the gyro bias"),
+            OfflineError::NoRotation => f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run"),
+            OfflineError::TimeBase { rate_hz, hint } => write!(f, "median sample rate {rate_hz:.4} Hz: {hint}"),
+            OfflineError::AccelUnits { norm, hint } => write!(f, "the accelerometer reads {norm:.3} at rest, not 1 g: {hint}"),
+            OfflineError::GyroUnits { k, hint } => write!(f, "gyro scale factor {k:.3}: {hint}"),
+        }
+    }
+}
+
+fn stage(stage: &'static str) -> impl Fn(Error) -> OfflineError {
+    move |error| OfflineError::Calib { stage, error }
+}
+
+/// Everything the offline calibration found.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// The chosen diagonal gyro result, validated as the firmware would; or why there is none.
+    pub gyro: Result<GyroCal, OfflineError>,
+    /// On a pan/tilt log: the full 3×3 `K` (validated), or why it failed; preferred to `gyro`.
+    pub full: Option<Result<FullCal, Error>>,
+    /// Gyro bias.
+    pub bias: Bias,
+    /// Accelerometer calibration (identity when the log has fewer than 6 hand-held poses).
+    pub accel: AccelCal,
+    /// Sweep estimator outcome.
+    pub sweep: Result<GyroCal, Error>,
+    /// Paper estimator outcome (`None` without a steady rotation).
+    pub paper: Option<Result<GyroCal, Error>>,
+    /// The speed the paper estimator used (°/s) and where it came from.
+    pub rotation_rate: Option<(f32, &'static str)>,
+    /// The phases.
+    pub phases: Phases,
+    /// Rig poses and moves used.
+    pub rig_poses: usize,
+    /// Moves used.
+    pub moves: usize,
+    /// Hand-held poses used.
+    pub handheld_poses: usize,
+    /// The log was a run of the firmware's procedure, replayed through it under this
+    /// configuration ([`crate::replay`]): the results are the firmware's.
+    pub replayed: Option<&'static str>,
+    /// The record the firmware's procedure built on the replay (none if it failed or the log
+    /// took the data-driven path).
+    pub replayed_record: Option<Record>,
+    /// The log's sample rate.
+    pub time_base: TimeBase,
+}
+
+/// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
+/// Fails only if nothing at all can be calibrated (no rest, wrong units); a log that supports
+/// only part of the calibration gives what it can, with the gyro's error in
+/// [`Calibration::gyro`].
+pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, OfflineError> {
+    calibrate_with(rows, method, true)
+}
+
+/// The one configuration of the data-driven path: the firmware's defaults (acceptance, limits,
+/// the paper's rotation window).
+const CONFIG: Config = Config::DEFAULT;
+
+/// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
+/// (`calib --no-rotations`: to see what they add).
+pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
+    calibrate_from(rows, method, rotations_on, None)
+}
+
+/// [`calibrate`] of a log of the firmware's run that started with `stored` in its flash (the
+/// board's `s` answer): the replay starts from it, as the board did.
+pub fn calibrate_stored(rows: &[Row], stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+    calibrate_from(rows, None, true, stored)
+}
+
+fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+    let time_base = check_time_base(rows)?;
+    let ph = phases(rows);
+    if ph.segments.is_empty() {
+        return Err(OfflineError::NoRest);
+    }
+    check_accel_units(&ph)?;
+    // A run of the firmware's own procedure: replayed through it, the firmware's results (which
+    // use the rotation constraints: `--no-rotations` takes the data-driven path).
+    if method.is_none() && rotations_on {
+        if let Some(r) = crate::replay::replay(rows, stored) {
+            if !time_base.lsm9ds1_odr {
+                let hint = "a run of the firmware samples at an LSM9DS1 output data rate: samples missing or duplicated";
+                return Err(OfflineError::TimeBase { rate_hz: time_base.rate_hz, hint });
+            }
+            let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
+                (Some(e), _) => Err(e),
+                (None, Ok(c)) => Ok(c),
+                (None, Err(error)) => Err(OfflineError::Calib { stage: "the firmware's procedure", error }),
+            };
+            if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
+                return Err(e);
+            }
+            let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
+            return Ok(Calibration {
+                gyro,
+                full: r.full,
+                bias: r.bias,
+                accel: r.accel,
+                sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
+                paper: r.paper,
+                rotation_rate: None,
+                rig_poses: q.map_or(0, |q| q.poses as usize),
+                moves: q.map_or(0, |q| q.rows as usize),
+                handheld_poses: r.accel.poses as usize,
+                replayed: Some(r.config),
+                replayed_record: r.record,
+                time_base,
+                phases: ph,
+            });
+        }
+    }
+    // Bias: every still segment pooled.
+    let mut b = BiasEstimator::new();
+    for s in &ph.segments {
+        b.add_window(&s.gyro, &s.accel);
+    }
+    let cfg = &CONFIG;
+    let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
+    let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
+
+    // Rig poses by tilt setting: each setting turns about its own pan axis.
+    let rig: Vec<&Segment> = ph.segments.iter().filter(|s| s.is_rig_pose()).collect();
+    let mut settings: Vec<(i32, usize)> = vec![];
+    for s in &rig {
+        match settings.iter_mut().find(|(t, _)| *t == s.tilt_setting()) {
+            Some((_, n)) => *n += 1,
+            None => settings.push((s.tilt_setting(), 1)),
+        }
+    }
+    let pan_tilt = settings.len() >= 2;
+
+    // Accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
+    // (spread over pan × tilt, they are no cone).
+    let mut acc = AccelCalibrator::new();
+    for s in ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
+        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
+            break;
+        }
+    }
+    let acceptance = cfg.acceptance;
+    let accel = match acc.len() {
+        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
+        _ => AccelCal::IDENTITY,
+    };
+    let gamma = |from_end: usize, to: &Segment| {
+        let mut it = Integrator::new();
+        for r in &rows[from_end..=to.last] {
+            it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
+        }
+        it.gamma()
+    };
+
+    // One axis (the most populated tilt setting): rig poses and the moves between consecutive
+    // ones, for the diagonal estimators.
+    let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
+    let mut poses = Poses::new();
+    let mut moves = Moves::new();
+    let mut prev: Option<(u8, usize)> = None;
+    for s in &ph.segments {
+        if !s.is_rig_pose() || Some(s.tilt_setting()) != main_setting {
+            prev = None;
+            continue;
+        }
+        if poses.len() == MAX_POSES {
+            break;
+        }
+        let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
+        if let Some((from, end)) = prev {
+            if moves.len() < MAX_MOVES {
+                moves.push(from, idx, gamma(end, s)).map_err(stage("moves"))?;
+            }
+        }
+        prev = Some((idx, s.last));
+    }
+
+    // Rotation constraints: every move between two consecutive hand-held poses (calibrated
+    // gravity directions at both ends, the gyro integrated between them in chunks).
+    let rot_limits = cfg.rotation;
+    let mut rotations = Rotations::new();
+    let mut prev: Option<(u8, usize)> = None;
+    for s in &ph.segments {
+        if s.is_rig_pose() {
+            prev = None;
+            continue;
+        }
+        let sigma = s.accel.max_std_of_mean();
+        let gyro = sub(s.gyro.mean().map(|v| v as f32), bias.bias_dps);
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, gyro) else { break };
+        if let Some((from, end)) = prev {
+            rotations.begin(from);
+            for r in &rows[end..=s.last] {
+                rotations.add(r.t_s, sub(r.gyro_dps, bias.bias_dps), r.gyro_dps.iter().any(|v| clipped(*v)));
+            }
+            let _ = rotations.end(idx, &rot_limits); // a rejected move is counted, not an error
+        }
+        prev = Some((idx, s.last));
+    }
+    rotations.calibrate_poses(&accel);
+    let with_rotations = (rotations_on && !rotations.moves().is_empty()).then_some((&rotations, &rot_limits));
+
+    // Pan/tilt: the full K from the pan moves of every setting and the tilt moves between them.
+    // A pan axis needs poses at ≥ 3 shaft angles (the plane through their tips). One servo: its
+    // axis and the rotation constraints. No servo: the rotation constraints alone.
+    let pan_angles = |setting: i32| {
+        let mut a: Vec<i32> =
+            rig.iter().filter(|s| s.tilt_setting() == setting).filter_map(|s| s.servo_deg).map(|d| d.round() as i32).collect();
+        a.sort_unstable();
+        a.dedup();
+        a.len()
+    };
+    // `--method paper|sweep` asks for that one-axis estimator alone.
+    let one_axis_only = matches!(method, Some(Method::Paper | Method::Sweep));
+    let full = (!one_axis_only && (pan_tilt || with_rotations.is_some())).then(|| {
+        let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
+        let mut axes = full::Axes::new();
+        let mut prev: Option<(&Segment, u8)> = None;
+        for s in &ph.segments {
+            if !s.is_rig_pose() {
+                prev = None;
+                continue;
+            }
+            let idx = axes.push_pose(accel.apply(s.accel.mean().map(|v| v as f32)))?;
+            if let Some((p, from)) = prev {
+                let (d_pan, d_tilt) =
+                    (s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0), (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0);
+                let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
+                if d_tilt == 0.0 && d_pan.abs() >= 1.0 && (pan_angles(s.tilt_setting()) >= 3 || !pan_tilt) {
+                    axes.push_move(axis, from, idx, d_pan, gamma(p.last, s))?;
+                } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
+                    axes.push_move(hinge, from, idx, d_tilt, gamma(p.last, s))?;
+                }
+            }
+            prev = Some((s, idx));
+        }
+        axes.solve_with(&cfg.full, with_rotations).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+    });
+    let lim = cfg.geometry;
+    let sweep = sweep::solve(&poses, &moves, &lim);
+
+    // The paper's estimator on the steady rotation, at the commanded rate when the servo column
+    // ramps linearly, else at the rate gravity turns about the axis.
+    let (mut paper, mut rotation_rate) = (None, None);
+    if let Some(rot) = steady_rotation(rows, bias.bias_dps, cfg.rest.window_s, &cfg.steady) {
+        let span = &rows[rot.rows.0..=rot.rows.1];
+        let mut gravity = GravityTurn::new(poses.geometry(&lim, false).ok().map(|g| g.u));
+        for r in span {
+            gravity.add(r.t_s, accel.apply(r.accel_g));
+        }
+        let (w, source) = pipeline::rotation_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
+        if w > 0.0 {
+            let gbar = sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps);
+            paper = Some(paper::solve(&poses, gbar, w, &lim));
+            rotation_rate = Some((w, source.name()));
+        }
+    }
+    let chosen = match method {
+        Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
+        Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation).and_then(|p| p.map_err(stage("paper estimator"))),
+        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
+    };
+    // The firmware's acceptance: a result it would not store is not given either; a scale near
+    // a unit factor names the mistake.
+    let scale = implied_scale(chosen.as_ref().map_err(|e| match e {
+        OfflineError::Calib { error, .. } => error,
+        _ => &Error::NoUsableMove,
+    }));
+    let gyro = match scale.and_then(gyro_units) {
+        Some(e) => Err(e),
+        None => chosen.and_then(|c| pipeline::validate(&c, &acceptance).map(|_| c).map_err(stage("validation"))),
+    };
+    if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
+        return Err(e);
+    }
+    Ok(Calibration {
+        gyro,
+        full,
+        bias,
+        accel,
+        sweep,
+        paper,
+        rotation_rate,
+        rig_poses: poses.len(),
+        moves: moves.len(),
+        handheld_poses: acc.len(),
+        replayed: None,
+        replayed_record: None,
+        time_base,
+        phases: ph,
+    })
+}
+
+/// A gyro reading at an LSM9DS1 full scale (±245, ±500 or ±2000 °/s: 32 767 counts of 8.75,
+/// 17.5 or 70 m°/s): the sample is clipped.
+fn clipped(v: f32) -> bool {
+    [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3)
+}
+
+/// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS)
+/// faster than `min_dps`.
+fn servo_rate(rows: &[Row], min_dps: f32) -> Option<f32> {
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| r.servo_deg.map(|s| (r.t_s, s as f64))).collect::<Option<_>>()?;
+    let n = pts.len() as f64;
+    if n < 3.0 {
+        return None;
+    }
+    let (mt, ms) = (pts.iter().map(|p| p.0).sum::<f64>() / n, pts.iter().map(|p| p.1).sum::<f64>() / n);
+    let stt: f64 = pts.iter().map(|p| (p.0 - mt).powi(2)).sum();
+    let slope = pts.iter().map(|p| (p.0 - mt) * (p.1 - ms)).sum::<f64>() / stt;
+    let rms = (pts.iter().map(|p| (p.1 - ms - slope * (p.0 - mt)).powi(2)).sum::<f64>() / n).sqrt();
+    (rms < 0.5 && slope.abs() > min_dps as f64).then_some(slope.abs() as f32)
+}

@@ -1,0 +1,213 @@
+//! The tool's JSON output and the record of a result.
+
+use super::*;
+
+/// The tool's JSON output: the calibration to apply, then everything about its quality.
+#[derive(Debug, Clone, Serialize)]
+pub struct Output<'a> {
+    /// `ω = K (g − b)`; `null` when the log does not support it (see `quality.missing`).
+    pub gyro: Option<GyroOut>,
+    /// `f = M (a − o)`.
+    pub accel: AccelOut,
+    /// Quality of every part.
+    pub quality: QualityOut<'a>,
+}
+
+/// The gyro calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct GyroOut {
+    /// Scale matrix (row-major).
+    #[serde(rename = "K")]
+    pub k: Mat3,
+    /// Bias (raw °/s).
+    pub bias_dps: Vec3,
+    /// The estimator used.
+    pub method: Method,
+}
+
+/// The accelerometer calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccelOut {
+    /// Gain matrix (row-major).
+    #[serde(rename = "M")]
+    pub m: Mat3,
+    /// Offset (raw g).
+    pub offset_g: Vec3,
+}
+
+/// One estimator's outcome: its result, or why it failed.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum EstimatorOut<'a> {
+    /// The result.
+    Ok(&'a GyroCal),
+    /// The failure.
+    Failed {
+        /// What went wrong.
+        error: String,
+    },
+}
+
+impl<'a> EstimatorOut<'a> {
+    fn of(r: &'a Result<GyroCal, Error>) -> Self {
+        match r {
+            Ok(c) => EstimatorOut::Ok(c),
+            Err(e) => EstimatorOut::Failed { error: e.to_string() },
+        }
+    }
+}
+
+/// The full `K`'s outcome.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum FullOut<'a> {
+    /// The result.
+    Ok(&'a FullCal),
+    /// The failure.
+    Failed {
+        /// What went wrong.
+        error: String,
+    },
+}
+
+/// Both estimators.
+#[derive(Debug, Clone, Serialize)]
+pub struct Estimators<'a> {
+    /// The speed-free sweep estimator.
+    pub sweep: EstimatorOut<'a>,
+    /// The paper's estimator.
+    pub paper: EstimatorOut<'a>,
+}
+
+/// What the phase detection found.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Segments {
+    /// Still segments.
+    pub still: usize,
+    /// Accelerometer poses (hand-held or tilt servo).
+    pub handheld_poses: usize,
+    /// Rig poses.
+    pub rig_poses: usize,
+    /// Moves between rig poses.
+    pub moves: usize,
+}
+
+/// Quality of every part of the calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct QualityOut<'a> {
+    /// The parts of the calibration the log did not support, each with the reason.
+    pub missing: Vec<String>,
+    /// The chosen gyro result's quality report.
+    pub gyro: Option<&'a GyroQuality>,
+    /// The bias.
+    pub bias: &'a Bias,
+    /// The accelerometer fit.
+    pub accel: &'a AccelCal,
+    /// Both estimators' outcomes.
+    pub estimators: Estimators<'a>,
+    /// On a pan/tilt log, the full `K`'s quality (or its error).
+    pub full: Option<FullOut<'a>>,
+    /// The rotation rate the paper estimator used (°/s).
+    pub rotation_rate_dps: Option<f32>,
+    /// Where it came from (`servo column` or `accelerometer`).
+    pub rotation_rate_source: Option<&'static str>,
+    /// The log's sample rate, and whether it is an LSM9DS1 ODR (false: another sensor's log).
+    pub sample_rate: TimeBase,
+    /// Phases found.
+    pub segments: Segments,
+    /// The rest thresholds used (raised to the log's noise floor).
+    pub rest_thresholds: &'a RestConfig,
+    /// Log messages between the rows that were skipped.
+    pub log_messages: usize,
+    /// The log was a run of the firmware's procedure, replayed through it under this
+    /// configuration (`null`: phases found from the data).
+    pub replayed: Option<&'static str>,
+}
+
+const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
+
+impl Calibration {
+    /// The parts the log did not support, each with the reason (empty: a full calibration).
+    pub fn missing(&self) -> Vec<String> {
+        let mut m = vec![];
+        match (&self.gyro, &self.full) {
+            (_, Some(Ok(_))) => {}
+            (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
+            (Err(e), None) => m.push(format!("gyro: {e}")),
+            (Ok(_), Some(Err(f))) => m.push(format!("full K (the diagonal K of one axis is given): {f}")),
+            (Ok(_), None) => {}
+        }
+
+        if self.accel.model == AccelModel::None {
+            m.push(format!(
+                "accelerometer: {} accelerometer poses, need {} (hand-held or tilt-servo poses; the identity is used)",
+                self.handheld_poses,
+                pipeline::SIX_PARAM_POSES
+            ));
+        }
+        m
+    }
+
+    /// The tool's output; `log_messages` lines of the log were skipped as messages.
+    pub fn output(&self, log_messages: usize) -> Output<'_> {
+        let gyro = self.gyro.as_ref().ok();
+        let full = self.full.as_ref().and_then(|f| f.as_ref().ok());
+        let chosen = match (full, gyro) {
+            (Some(f), _) => Some(GyroOut { k: f.k, bias_dps: self.bias.bias_dps, method: Method::Full }),
+            (None, g) => g.map(|g| GyroOut { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
+        };
+        Output {
+            gyro: chosen,
+            accel: AccelOut { m: self.accel.m, offset_g: self.accel.offset_g },
+            quality: QualityOut {
+                missing: self.missing(),
+                gyro: gyro.map(|g| &g.quality),
+                bias: &self.bias,
+                accel: &self.accel,
+                estimators: Estimators {
+                    sweep: EstimatorOut::of(&self.sweep),
+                    paper: EstimatorOut::of(self.paper.as_ref().unwrap_or(&NO_ROTATION)),
+                },
+                rotation_rate_dps: self.rotation_rate.map(|r| r.0),
+                rotation_rate_source: self.rotation_rate.map(|r| r.1),
+                sample_rate: self.time_base,
+                segments: Segments {
+                    still: self.phases.segments.len(),
+                    handheld_poses: self.handheld_poses,
+                    rig_poses: self.rig_poses,
+                    moves: self.moves,
+                },
+                full: self.full.as_ref().map(|f| match f {
+                    Ok(f) => FullOut::Ok(f),
+                    Err(e) => FullOut::Failed { error: e.to_string() },
+                }),
+                rest_thresholds: &self.phases.rest,
+                log_messages,
+                replayed: self.replayed,
+            },
+        }
+    }
+
+    /// The result as a flash record, for `calib_core::export`: the gyro `K` of
+    /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
+    /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
+    /// NaN (a log has none). `None` without a gyro result.
+    pub fn record(&self) -> Option<Record> {
+        if let Some(r) = self.replayed_record {
+            return Some(Record { seq: 0, temp_c: f32::NAN, ..r });
+        }
+        let ctx = record::Context { seq: 0, temp_c: f32::NAN, gyro_bias_dps: self.bias.bias_dps, accel: self.accel };
+        // The full K's poses: every rig pose (each one went into its axes).
+        let rig_poses = self.phases.segments.iter().filter(|s| s.is_rig_pose()).count().min(u8::MAX as usize) as u8;
+        match (&self.full, &self.gyro) {
+            (Some(Ok(f)), _) => Some(ctx.full(f, rig_poses)),
+            (_, Ok(g)) => Some(ctx.one_axis(g)),
+            _ => None,
+        }
+    }
+
+    /// The output as one line of JSON.
+    pub fn json(&self, log_messages: usize) -> String {
+        serde_json::to_string(&self.output(log_messages)).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
+    }
+}

@@ -1,0 +1,197 @@
+//! The phases of a log, found from the data: still windows grouped into still segments (poses),
+//! and the longest steady-rate run (the paper's rotation).
+
+use super::*;
+
+/// A still segment: consecutive still windows.
+#[derive(Debug, Clone, Copy)]
+pub struct Segment {
+    /// First row index.
+    pub first: usize,
+    /// Last row index (inclusive).
+    pub last: usize,
+    /// Accelerometer statistics (raw g).
+    pub accel: Welford3,
+    /// Gyro statistics (raw °/s).
+    pub gyro: Welford3,
+    /// Commanded servo angle (°), `None` for a hand-held pose.
+    pub servo_deg: Option<f32>,
+    /// Commanded tilt angle (°), when the log has the column.
+    pub tilt_deg: Option<f32>,
+}
+
+impl Segment {
+    /// A rig pose: the servo commanded (at any tilt). A segment with no servo commanded is a
+    /// hand-held accelerometer pose.
+    pub fn is_rig_pose(&self) -> bool {
+        self.servo_deg.is_some()
+    }
+
+    /// The tilt setting of a rig pose (°, 0 without a tilt column), to 0.5°.
+    pub(super) fn tilt_setting(&self) -> i32 {
+        (self.tilt_deg.unwrap_or(0.0) * 2.0).round() as i32
+    }
+}
+
+/// A steady-rate run: the paper's rotation.
+#[derive(Debug, Clone, Copy)]
+pub struct SteadyRotation {
+    /// First and last row index (inclusive) of the averaged part.
+    pub rows: (usize, usize),
+    /// Mean raw gyro over it (°/s).
+    pub gyro: Welford3,
+}
+
+/// The phases found in a log.
+#[derive(Debug, Clone)]
+pub struct Phases {
+    /// Thresholds used (raised to the log's noise floor).
+    pub rest: RestConfig,
+    /// Still segments in time order.
+    pub segments: Vec<Segment>,
+}
+
+/// Shortest still segment used as a pose (s).
+const MIN_SEGMENT_S: f64 = 0.5;
+
+fn window_len(rows: &[Row], window_s: f64) -> Vec<(usize, usize)> {
+    let mut out = vec![];
+    let mut start = 0;
+    for i in 0..rows.len() {
+        if rows[i].t_s - rows[start].t_s >= window_s {
+            out.push((start, i));
+            start = i + 1;
+            if start >= rows.len() {
+                break;
+            }
+        }
+    }
+    out
+}
+
+fn stats(rows: &[Row]) -> (Welford3, Welford3) {
+    let (mut a, mut g) = (Welford3::new(), Welford3::new());
+    for r in rows {
+        a.add(r.accel_g);
+        g.add(r.gyro_dps);
+    }
+    (a, g)
+}
+
+fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p) as usize]
+}
+
+/// Finds still segments and the steady-rate rotation.
+pub fn phases(rows: &[Row]) -> Phases {
+    let defaults = CONFIG.rest;
+    // Noise floor: the 10th percentile of the per-window standard deviations.
+    let windows = window_len(rows, defaults.window_s as f64);
+    let (mut sa, mut sg) = (vec![], vec![]);
+    for &(a, b) in &windows {
+        let (wa, wg) = stats(&rows[a..=b]);
+        sa.push(wa.max_std());
+        sg.push(wg.max_std());
+    }
+    let (fa, fg) = (percentile(sa, 0.1), percentile(sg, 0.1));
+    let accel_std_max_g = defaults.accel_std_max_g.max((3.0 * fa) as f32);
+    let rest = RestConfig {
+        accel_std_max_g,
+        gyro_std_max_dps: defaults.gyro_std_max_dps.max((3.0 * fg) as f32),
+        accel_drift_max_g: defaults.accel_drift_max_g.max(0.7 * accel_std_max_g),
+        ..defaults
+    };
+
+    let mut det = RestDetector::new(rest);
+    let mut segments: Vec<Segment> = vec![];
+    let mut open: Option<Segment> = None;
+    let mut start = 0;
+    for (i, r) in rows.iter().enumerate() {
+        let Some(w) = det.update(r.t_s, r.accel_g, r.gyro_dps) else { continue };
+        let span = &rows[start..=i];
+        start = i + 1;
+        let (servo, tilt) = (column_of(span, |r| r.servo_deg), column_of(span, |r| r.tilt_deg));
+        let still = w.still && w.state == RestState::Still && servo.is_some() && tilt.is_some();
+        let (servo, tilt) = (servo.flatten(), tilt.flatten());
+        let same = |a: Option<f32>, b: Option<f32>| match (a, b) {
+            (None, None) => true,
+            (Some(a), Some(b)) => (a - b).abs() < 0.5,
+            _ => false,
+        };
+        match (&mut open, still) {
+            (Some(seg), true) if same(seg.servo_deg, servo) && same(seg.tilt_deg, tilt) => {
+                seg.accel.merge(&w.accel);
+                seg.gyro.merge(&w.gyro);
+                seg.last = i;
+            }
+            (_, true) => {
+                close(&mut open, &mut segments, rows);
+                let first = i + 1 - span.len();
+                open = Some(Segment { first, last: i, accel: w.accel, gyro: w.gyro, servo_deg: servo, tilt_deg: tilt });
+            }
+            (_, false) => close(&mut open, &mut segments, rows),
+        }
+    }
+    close(&mut open, &mut segments, rows);
+    Phases { rest, segments }
+}
+
+/// A command column over a window: `Some(None)` all empty, `Some(Some(mean))` all set and
+/// within 0.5°, `None` mixed or moving.
+fn column_of(rows: &[Row], col: impl Fn(&Row) -> Option<f32>) -> Option<Option<f32>> {
+    let set: Vec<f32> = rows.iter().filter_map(col).collect();
+    if set.is_empty() {
+        return Some(None);
+    }
+    if set.len() != rows.len() {
+        return None;
+    }
+    let (lo, hi) = set.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), v| (l.min(*v), h.max(*v)));
+    (hi - lo < 0.5).then(|| Some(set.iter().sum::<f32>() / set.len() as f32))
+}
+
+fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) {
+    if let Some(seg) = open.take() {
+        if rows[seg.last].t_s - rows[seg.first].t_s >= MIN_SEGMENT_S {
+            segments.push(seg);
+        }
+    }
+}
+
+/// The longest run of windows whose mean bias-free gyro vector stays within 3 % of the run's
+/// first, above `steady.min_dps`, averaged over `steady.min_s` at least once `steady`'s start and
+/// end are skipped, as the firmware averages its rotation.
+pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &SteadyRate) -> Option<SteadyRotation> {
+    let windows = window_len(rows, window_s as f64);
+    let b = v64(bias_dps);
+    let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
+    // The averaged rows of windows i..=j.
+    let averaged = |i: usize, j: usize| {
+        let (t0, t1) = (rows[windows[i].0].t_s, rows[windows[j].1].t_s);
+        let first = (windows[i].0..=windows[j].1).find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
+        let last = (windows[i].0..=windows[j].1).rev().find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
+        (rows[last].t_s - rows[first].t_s >= steady.min_s as f64).then_some((first, last))
+    };
+    let mut best: Option<(usize, usize)> = None;
+    let mut i = 0;
+    while i < means.len() {
+        let m0 = means[i];
+        let mut j = i;
+        if m0.norm() > steady.min_dps as f64 {
+            while j + 1 < means.len() && (means[j + 1] - m0).norm() <= 0.03 * m0.norm() {
+                j += 1;
+            }
+        }
+        if let Some(r) = averaged(i, j).filter(|_| j > i) {
+            if best.is_none_or(|(a, b)| r.1 - r.0 > b - a) {
+                best = Some(r);
+            }
+        }
+        i = j + 1;
+    }
+    best.map(|rows_range| SteadyRotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 })
+}
