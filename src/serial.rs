@@ -1,5 +1,6 @@
 //! The USB serial console's logic, independent of the USB stack (host-tested): the outbox of
-//! text lines that never blocks, the one-letter commands, and the 1200-baud touch.
+//! text lines that never blocks, the one-letter commands ([`Command`], the protocol's), and the
+//! 1200-baud touch.
 //!
 //! The USB part itself (`usb`, target only) moves the outbox into the CDC bulk IN endpoint
 //! packet by packet when the host takes them, and the bytes of the bulk OUT endpoint into
@@ -79,39 +80,9 @@ impl<const N: usize> Default for Outbox<N> {
     }
 }
 
-/// A command typed in a serial terminal.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Command {
-    /// `c`: calibrate (as a short press of the button).
-    Calibrate,
-    /// `r`: raw-log mode on/off.
-    RawLog,
-    /// `s`: the stored calibration.
-    Stored,
-    /// `h`, `?` or anything unknown: the help.
-    Help,
-}
-
-impl Command {
-    /// The command of one received byte; `None` for line endings and spaces (terminals send
-    /// them after every command).
-    pub fn decode(b: u8) -> Option<Self> {
-        Some(match b.to_ascii_lowercase() {
-            b'\r' | b'\n' | b' ' | b'\t' | 0 => return None,
-            b'c' => Command::Calibrate,
-            b'r' => Command::RawLog,
-            b's' => Command::Stored,
-            _ => Command::Help,
-        })
-    }
-}
-
-/// The help.
-pub const HELP: [&str; 2] = [
-    "commands: c calibrate, or continue after re-clamping (= the button); r raw log (CSV rows) on/off; s stored calibration (JSON, C); h help",
-    "1200-baud touch (open the port at 1200 Bd, then close it): resets into the Arduino bootloader for bossac",
-];
+/// The commands a terminal or `calib --port` sends, one byte each, and the help: the board↔PC
+/// protocol's, defined once in `calib_core::protocol`.
+pub use calib_core::protocol::{Command, HELP};
 
 /// Line coding rate (Bd) that asks for the bootloader (Arduino's "1200-baud touch").
 pub const TOUCH_BAUD: u32 = 1200;

@@ -10,7 +10,10 @@
 //! has none in `K`, `b`, `M`, `o`.
 //!
 //! JSON's `quality.source` is `board`, or `calib` for a record of sequence 0 (never stored: the
-//! offline tool's result).
+//! offline tool's result). An unknown temperature is `null`. With the `serde` feature,
+//! [`RecordJson`] is the same JSON as a serde type (the PC writes and reads it with serde; the
+//! firmware, without serde, writes it here by hand: `host-tests/calib/tests/export.rs` checks that
+//! the two agree).
 //!
 //! The C and Rust formats are several lines separated by `\n` (no line ending after the last),
 //! each at most [`MAX_LINE`] bytes.
@@ -40,6 +43,52 @@ const D_MATRIX: u32 = 7;
 const D_BIAS: u32 = 5;
 /// Decimals of the accelerometer offset (g).
 const D_OFFSET: u32 = 6;
+/// Decimals of the temperature (°C).
+const D_TEMP: u32 = 2;
+/// Decimals of the 1σ of `K`.
+const D_SIGMA: u32 = 9;
+/// Decimals of the condition number and the angle from coplanar (°).
+const D_CONDITION: u32 = 3;
+/// Decimals of the gyro fit's residual.
+const D_RESIDUAL: u32 = 6;
+/// Decimals of the accelerometer residual (g).
+const D_ACCEL_RMS: u32 = 7;
+
+/// The first bytes of the JSON line (its first key), by which [`crate::protocol::parse`] knows it.
+pub(crate) const JSON_START: &str = "{\"gyro\":";
+
+/// Where a record comes from: JSON's `quality.source`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// Stored by a board (sequence ≥ 1).
+    Board,
+    /// The offline tool's result, never stored (sequence 0).
+    Calib,
+}
+
+impl Source {
+    /// Of a record: by its sequence number.
+    pub fn of(rec: &Record) -> Source {
+        if rec.seq == 0 {
+            Source::Calib
+        } else {
+            Source::Board
+        }
+    }
+
+    /// Its name in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Source::Board => "board",
+            Source::Calib => "calib",
+        }
+    }
+}
+
+/// The record's temperature (°C), NaN if it is unknown (written `null`).
+fn temp_c(rec: &Record) -> f32 {
+    rec.temp_c
+}
 
 /// Writes `rec` in `format`.
 pub fn write(w: &mut impl Write, rec: &Record, format: Format) -> fmt::Result {
@@ -90,6 +139,7 @@ fn json_mat(w: &mut impl Write, m: &Mat3, decimals: u32) -> fmt::Result {
 }
 
 fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
+    // Starts with JSON_START.
     w.write_str("{\"gyro\":{\"K\":")?;
     json_mat(w, &r.gyro_k, D_MATRIX)?;
     w.write_str(",\"bias_dps\":")?;
@@ -98,20 +148,18 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     json_mat(w, &r.accel_m, D_MATRIX)?;
     w.write_str(",\"offset_g\":")?;
     json_vec(w, &r.accel_offset_g, D_OFFSET)?;
-    // A stored record's seq starts at 1; 0 is a result never stored (calib's, from a log).
-    let source = if r.seq == 0 { "calib" } else { "board" };
-    write!(w, "}},\"quality\":{{\"source\":\"{source}\",\"seq\":{},\"temp_c\":", r.seq)?;
-    json_num(w, r.temp_c, 2)?;
+    write!(w, "}},\"quality\":{{\"source\":\"{}\",\"seq\":{},\"temp_c\":", Source::of(r).name(), r.seq)?;
+    json_num(w, temp_c(r), D_TEMP)?;
     w.write_str(",\"sigma_K\":")?;
-    json_mat(w, &r.sigma_k, 9)?;
+    json_mat(w, &r.sigma_k, D_SIGMA)?;
     write!(w, ",\"poses\":{},\"rows\":{},\"condition\":", r.poses, r.rows)?;
-    json_num(w, r.condition, 3)?;
+    json_num(w, r.condition, D_CONDITION)?;
     w.write_str(",\"residual_rms\":")?;
-    json_num(w, r.residual_rms, 6)?;
+    json_num(w, r.residual_rms, D_RESIDUAL)?;
     w.write_str(",\"non_coplanar_deg\":")?;
-    json_num(w, r.non_coplanar_deg, 3)?;
+    json_num(w, r.non_coplanar_deg, D_CONDITION)?;
     write!(w, ",\"accel_model\":\"{}\",\"accel_rms_g\":", r.accel_model.name())?;
-    json_num(w, r.accel_rms_g, 7)?;
+    json_num(w, r.accel_rms_g, D_ACCEL_RMS)?;
     w.write_str("}}")
 }
 
@@ -149,7 +197,7 @@ fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
 /// models with their units.
 fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
     write!(w, "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor ", r.seq, r.method.name(), r.accel_model.name())?;
-    num(w, r.temp_c, 1, "temperature unknown", " degC")?;
+    num(w, temp_c(r), 1, "temperature unknown", " degC")?;
     writeln!(w, "{close}")?;
     writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
     writeln!(w, "{open}Accel: f = M (a - o): a raw accel (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
@@ -190,6 +238,206 @@ fn rust(w: &mut impl Write, r: &Record) -> fmt::Result {
     w.write_str("/// Accelerometer offset o (g).\npub const ACCEL_OFFSET_G: [f32; 3] = ")?;
     array(w, s, &r.accel_offset_g, D_OFFSET)?;
     w.write_str(";")
+}
+
+#[cfg(feature = "serde")]
+pub use schema::{AccelJson, GyroJson, NotFinite, QualityJson, RecordJson};
+
+/// [`Format::Json`] as serde types (feature `serde`).
+#[cfg(feature = "serde")]
+mod schema {
+    use super::*;
+    use crate::accel::AccelModel;
+    use crate::gyro::Method;
+    use serde::{Deserialize, Serialize};
+
+    /// The JSON line of a record, field for field what [`Format::Json`] writes: the calibration
+    /// to apply (`gyro`, `accel`), then its quality. `null` is a value that is unknown or could
+    /// not be written.
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct RecordJson {
+        /// `ω = K (g − b)`.
+        pub gyro: GyroJson,
+        /// `f = M (a − o)`.
+        pub accel: AccelJson,
+        /// Where the record comes from and how good it is.
+        pub quality: QualityJson,
+    }
+
+    /// The gyro calibration (also the `gyro` of the offline tool's output).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct GyroJson {
+        /// Scale matrix (row-major).
+        #[serde(rename = "K")]
+        pub k: Mat3,
+        /// Bias (raw °/s).
+        pub bias_dps: Vec3,
+        /// The estimator that made `K`.
+        #[serde(with = "by_name")]
+        pub method: Method,
+    }
+
+    /// The accelerometer calibration (also the `accel` of the offline tool's output).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct AccelJson {
+        /// Gain matrix (row-major).
+        #[serde(rename = "M")]
+        pub m: Mat3,
+        /// Offset (raw g).
+        pub offset_g: Vec3,
+    }
+
+    /// A record's quality fields (those of [`Record`] that JSON carries).
+    #[allow(missing_docs)] // named as the record's fields
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct QualityJson {
+        #[serde(with = "by_name")]
+        pub source: Source,
+        pub seq: u32,
+        /// °C; `null`: unknown.
+        pub temp_c: Option<f32>,
+        #[serde(rename = "sigma_K")]
+        pub sigma_k: [[Option<f32>; 3]; 3],
+        pub poses: u8,
+        pub rows: u16,
+        pub condition: Option<f32>,
+        pub residual_rms: Option<f32>,
+        pub non_coplanar_deg: Option<f32>,
+        #[serde(with = "by_name")]
+        pub accel_model: AccelModel,
+        pub accel_rms_g: Option<f32>,
+    }
+
+    /// `v` where [`Format::Json`] writes a number, `None` where it writes `null`.
+    fn written(v: f32, decimals: u32) -> Option<f32> {
+        digits(v, decimals).map(|_| v)
+    }
+
+    impl From<&Record> for RecordJson {
+        fn from(r: &Record) -> Self {
+            RecordJson {
+                gyro: GyroJson { k: r.gyro_k, bias_dps: r.gyro_bias_dps, method: r.method },
+                accel: AccelJson { m: r.accel_m, offset_g: r.accel_offset_g },
+                quality: QualityJson {
+                    source: Source::of(r),
+                    seq: r.seq,
+                    temp_c: written(temp_c(r), D_TEMP),
+                    sigma_k: r.sigma_k.map(|row| row.map(|v| written(v, D_SIGMA))),
+                    poses: r.poses,
+                    rows: r.rows,
+                    condition: written(r.condition, D_CONDITION),
+                    residual_rms: written(r.residual_rms, D_RESIDUAL),
+                    non_coplanar_deg: written(r.non_coplanar_deg, D_CONDITION),
+                    accel_model: r.accel_model,
+                    accel_rms_g: written(r.accel_rms_g, D_ACCEL_RMS),
+                },
+            }
+        }
+    }
+
+    /// A JSON record whose `K`, `b`, `M` or `o` is not all finite numbers.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub struct NotFinite;
+
+    impl fmt::Display for NotFinite {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("gyro K, bias_dps, accel M and offset_g must all be numbers")
+        }
+    }
+
+    impl RecordJson {
+        /// The record it was written from: `null` is NaN (an unknown temperature too); the fields
+        /// JSON does not carry (invariant spreads, tilt, span) are 0.
+        pub fn record(&self) -> Result<Record, NotFinite> {
+            let (g, a, q) = (&self.gyro, &self.accel, &self.quality);
+            let cal = [g.k.as_flattened(), &g.bias_dps, a.m.as_flattened(), &a.offset_g];
+            if cal.iter().any(|s| s.iter().any(|x| !x.is_finite())) {
+                return Err(NotFinite);
+            }
+            let v = |x: Option<f32>| x.unwrap_or(f32::NAN);
+            Ok(Record {
+                seq: q.seq,
+                temp_c: v(q.temp_c),
+                gyro_k: g.k,
+                gyro_bias_dps: g.bias_dps,
+                method: g.method,
+                accel_m: a.m,
+                accel_offset_g: a.offset_g,
+                accel_model: q.accel_model,
+                poses: q.poses,
+                rows: q.rows,
+                sigma_k: q.sigma_k.map(|row| row.map(v)),
+                invariant_before_rel: 0.0,
+                invariant_after_rel: 0.0,
+                condition: v(q.condition),
+                tilt_deg: 0.0,
+                span_deg: 0.0,
+                accel_rms_g: v(q.accel_rms_g),
+                residual_rms: v(q.residual_rms),
+                non_coplanar_deg: v(q.non_coplanar_deg),
+            })
+        }
+    }
+
+    /// A field written as its `name()` (as the firmware writes it), read back by that name.
+    mod by_name {
+        use crate::accel::AccelModel;
+        use crate::export::Source;
+        use crate::gyro::Method;
+        use core::fmt;
+        use core::marker::PhantomData;
+        use serde::de::{self, Unexpected, Visitor};
+        use serde::{Deserializer, Serializer};
+
+        pub(super) trait Named: Copy + 'static {
+            /// What the names name (for an error).
+            const WHAT: &'static str;
+            const ALL: &'static [Self];
+            fn name(self) -> &'static str;
+        }
+
+        impl Named for Method {
+            const WHAT: &'static str = "a gyro method";
+            const ALL: &'static [Self] = &crate::protocol::METHODS;
+            fn name(self) -> &'static str {
+                Method::name(self)
+            }
+        }
+
+        impl Named for AccelModel {
+            const WHAT: &'static str = "an accelerometer model";
+            const ALL: &'static [Self] = &crate::protocol::ACCEL_MODELS;
+            fn name(self) -> &'static str {
+                AccelModel::name(self)
+            }
+        }
+
+        impl Named for Source {
+            const WHAT: &'static str = "a source (board or calib)";
+            const ALL: &'static [Self] = &[Source::Board, Source::Calib];
+            fn name(self) -> &'static str {
+                Source::name(self)
+            }
+        }
+
+        pub(super) fn serialize<T: Named, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+            s.serialize_str(v.name())
+        }
+
+        pub(super) fn deserialize<'de, T: Named, D: Deserializer<'de>>(d: D) -> Result<T, D::Error> {
+            struct Name<T>(PhantomData<T>);
+            impl<T: Named> Visitor<'_> for Name<T> {
+                type Value = T;
+                fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                    write!(f, "the name of {}", T::WHAT)
+                }
+                fn visit_str<E: de::Error>(self, s: &str) -> Result<T, E> {
+                    T::ALL.iter().copied().find(|v| v.name() == s).ok_or_else(|| E::invalid_value(Unexpected::Str(s), &self))
+                }
+            }
+            d.deserialize_str(Name(PhantomData))
+        }
+    }
 }
 
 #[cfg(test)]

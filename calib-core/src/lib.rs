@@ -61,6 +61,7 @@ pub mod lsq;
 pub mod paper;
 pub mod pipeline;
 pub mod procedure;
+pub mod protocol;
 pub mod record;
 pub mod rest;
 pub mod rotation;

@@ -1,11 +1,14 @@
 //! The procedure's reports as text lines: the one wording of every line the firmware logs, over
-//! RTT (as a defmt string) and over USB serial alike, and of [`crate::Error`]'s messages.
+//! RTT (as a defmt string) and over USB serial alike, and of [`crate::Error`]'s messages. The
+//! lines the PC reacts to are [`crate::protocol`]'s, each beside its parser: [`report`] writes
+//! those through it.
 //!
 //! Numbers are written digit by digit ([`Fixed`]): `core::fmt`'s float code is ~6 KiB
 //! of flash the firmware does not have.
 
 use crate::log::fixed;
 use crate::procedure::{Phase, Report};
+use crate::protocol::{self, RecordLine};
 use crate::record::Record;
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Display, Write};
@@ -67,14 +70,11 @@ pub fn level(r: &Report) -> Level {
 /// Writes a report as one line (no line ending).
 pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
     match r {
-        Report::Phase(p) => match p.instruction() {
-            Some(i) => write!(w, "phase: {}: {i}", p.name()),
-            None => write!(w, "phase: {}", p.name()),
-        },
+        Report::Phase(p) => protocol::phase(w, *p),
         Report::Bias(b) => {
             write!(w, "gyro bias {} dps, 1 sigma {}, {} samples", V3(b.bias_dps, 4), V3(b.sigma_dps, 5), b.samples)
         }
-        Report::AccelPose { index, accel_g } => write!(w, "hand-held pose {index}: a = {} g", V3(*accel_g, 4)),
+        Report::AccelPose { index, accel_g } => protocol::hand_held_pose(w, *index, accel_g),
         Report::Accel(c) => write!(
             w,
             "accelerometer {}: | |a| - 1 | rms {} g -> {} g over {} poses; offset {} g",
@@ -84,9 +84,7 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             c.poses,
             V3(c.offset_g, 4)
         ),
-        Report::RigPose { index, servo_deg, accel_g } => {
-            write!(w, "rig pose {index} at {} deg: A = {} g", Fixed(*servo_deg as f64, 1), V3(*accel_g, 4))
-        }
+        Report::RigPose { index, servo_deg, accel_g } => protocol::rig_pose(w, *index, *servo_deg, accel_g),
         Report::Retake { index, retries } => write!(w, "pose {index} disturbed: retake {retries}"),
         Report::Move { from, to, gyro_turn_deg } => {
             write!(w, "move {from} -> {to}: gyro turned {} deg", Fixed(*gyro_turn_deg as f64, 2))
@@ -133,20 +131,18 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             write!(w, "] deg; rejected: {} saturated, {} too fast, {} too short, {} bias drifted, {} no room", r[0], r[1], r[2], r[3], r[4])
         }
         Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
-        Report::Done(rec) => record(w, "calibration done: stored", rec),
-        Report::Failed(e) => write!(w, "calibration failed, nothing stored: {e}"),
+        Report::Done(rec) => protocol::record(w, RecordLine::CalibrationDone, rec),
+        Report::Failed(e) => protocol::failed(w, e),
     }
 }
 
-/// Writes a record's gyro calibration as one line: `K` in full (row-major) and the bias.
+/// Writes a record's gyro calibration as one line after `what`: `K` in full (row-major) and the
+/// bias. The lines the PC reads are [`protocol::record`]'s (`what` one of [`RecordLine`]'s).
 pub fn record(w: &mut impl Write, what: &str, rec: &Record) -> fmt::Result {
-    write!(w, "{what} record {} ({} K): K = {}, b = {} dps", rec.seq, rec.method.name(), M3(rec.gyro_k, 6), V3(rec.gyro_bias_dps, 4))
+    protocol::record_as(w, what, rec)
 }
 
-/// Writes the plan announced when a calibration starts.
-pub fn plan(w: &mut impl Write, rig_poses: usize, handheld_poses: usize) -> fmt::Result {
-    write!(w, "plan: {rig_poses} rig poses, {handheld_poses} hand-held poses")
-}
+pub use crate::protocol::plan;
 
 impl Phase {
     /// What the user must do in this phase, if anything.
@@ -182,8 +178,12 @@ mod tests {
     fn a_record_line_has_k_in_full() {
         let rec = Record { seq: 7, gyro_k: [[1.01, 0.002, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]], ..crate::record::tests::sample() };
         let mut s = String::new();
-        record(&mut s, "loaded", &rec).unwrap();
-        assert!(s.starts_with("loaded record 7 ("), "{s}");
+        protocol::record(&mut s, RecordLine::Loaded, &rec).unwrap();
+        let event = protocol::Event::Record { line: RecordLine::Loaded, seq: 7, method: rec.method };
+        assert_eq!(protocol::parse(&s), Some(event), "{s}");
         assert!(s.contains("K = [1.010000 0.002000 0.000000; 0.000000 0.990000"), "{s}");
+        let mut t = String::new();
+        record(&mut t, "loaded", &rec).unwrap();
+        assert_eq!(s, t);
     }
 }

@@ -1,13 +1,17 @@
-//! `calib_core::export` on the host: the JSON parses and round-trips, its `gyro` and `accel`
-//! are calib's own keys; the C snippet and the Rust constants compile; `calib LOG --export`.
+//! `calib_core::export` on the host: the firmware's hand-written JSON is the serde schema
+//! (`RecordJson`) field for field, parses and round-trips, its `gyro` and `accel` are calib's own
+//! keys; the C snippet and the Rust constants compile; `calib LOG --export`.
 
 use calib::csvlog;
 use calib::offline;
 use calib::port::record_from_json;
-use calib_core::export::{self, Format};
+use calib_core::accel::AccelModel;
+use calib_core::export::{self, Format, NotFinite, RecordJson, Source};
+use calib_core::gyro::Method;
 use calib_core::record::Record;
 use common::{calib, simulated_log};
 use rig_sim::variant::Variant;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -47,6 +51,82 @@ fn keys(v: &serde_json::Value) -> Vec<String> {
     k
 }
 
+/// Every leaf of a JSON value with its path (`quality.sigma_K[2][1]`) and its value (a number as
+/// the f64 it reads as, whatever its digits).
+fn leaves(v: &serde_json::Value) -> BTreeMap<String, String> {
+    fn walk(v: &serde_json::Value, at: String, out: &mut BTreeMap<String, String>) {
+        let leaf = match v {
+            serde_json::Value::Object(m) => return m.iter().for_each(|(k, v)| walk(v, format!("{at}.{k}"), out)),
+            serde_json::Value::Array(a) => return a.iter().enumerate().for_each(|(i, v)| walk(v, format!("{at}[{i}]"), out)),
+            serde_json::Value::Number(n) => format!("number {:?}", n.as_f64().unwrap()),
+            serde_json::Value::String(s) => format!("string {s}"),
+            other => other.to_string(),
+        };
+        out.insert(at, leaf);
+    }
+    let mut out = BTreeMap::new();
+    walk(v, String::new(), &mut out);
+    out
+}
+
+/// The paths of [`leaves`], with the kind of value there.
+fn paths(v: &serde_json::Value) -> BTreeSet<String> {
+    leaves(v).into_iter().map(|(at, v)| format!("{at}: {}", v.split(' ').next().unwrap_or_default())).collect()
+}
+
+/// A record whose every value is written exactly at its decimals (binary fractions), with the
+/// fields JSON does not carry at 0.
+fn exact_record() -> Record {
+    Record {
+        seq: 5,
+        temp_c: 24.25,
+        gyro_k: [[1.0078125, -0.0078125, 0.0], [0.0078125, 0.9921875, 0.0], [0.0, 0.5, 1.015625]],
+        gyro_bias_dps: [0.5, -1.25, 2.03125],
+        method: Method::Full,
+        accel_m: [[1.0, 0.0, 0.0], [0.0, 0.9921875, 0.0], [0.0, 0.0, 1.0078125]],
+        accel_offset_g: [0.015625, -0.03125, 0.0],
+        accel_model: AccelModel::NineParam,
+        poses: 25,
+        rows: 38,
+        sigma_k: [[0.001953125, 0.005859375, 0.0], [0.0, 0.00390625, 0.0], [0.0, 0.0, 0.0078125]],
+        invariant_before_rel: 0.0,
+        invariant_after_rel: 0.0,
+        condition: 3.125,
+        tilt_deg: 0.0,
+        span_deg: 0.0,
+        accel_rms_g: 0.0078125,
+        residual_rms: 0.015625,
+        non_coplanar_deg: 54.125,
+    }
+}
+
+#[test]
+fn the_boards_hand_written_line_is_the_serde_schema() {
+    // The firmware's line (written without serde) read with the serde type: the same record, and
+    // the serde type writes the same JSON (every field where the board writes it, null where it
+    // writes null; value for value, every value here being exact at its decimals).
+    let unknown = Record { temp_c: f32::NAN, condition: 3e30, ..exact_record() };
+    for (what, rec, back) in [
+        ("a stored record", exact_record(), exact_record()),
+        ("an unknown temperature, an unwritable condition", unknown, Record { condition: f32::NAN, ..unknown }),
+        ("calib's own result", Record { seq: 0, ..exact_record() }, Record { seq: 0, ..exact_record() }),
+    ] {
+        let line = text(&rec, Format::Json);
+        let read: RecordJson = serde_json::from_str(&line).unwrap_or_else(|e| panic!("{what}: {e}: {line}"));
+        assert_eq!(read, RecordJson::from(&rec), "{what}");
+        // (Bit for bit: NaN is no value of its own.)
+        assert_eq!(read.record().unwrap().encode(), back.encode(), "{what}: {:?}", read.record());
+        let hand: serde_json::Value = serde_json::from_str(&line).unwrap();
+        let serde = serde_json::to_value(RecordJson::from(&rec)).unwrap();
+        assert_eq!(paths(&serde), paths(&hand), "{what}: the same fields");
+        assert_eq!(leaves(&serde), leaves(&hand), "{what}: the same values");
+        // Serialised to text, in the same order.
+        let serde_line = serde_json::to_string(&RecordJson::from(&rec)).unwrap();
+        let order = |s: &str| s.split('"').skip(1).step_by(2).map(String::from).collect::<Vec<_>>();
+        assert_eq!(order(&serde_line), order(&line), "{what}");
+    }
+}
+
 #[test]
 fn json_parses_with_calibs_keys_and_round_trips_to_1e7() {
     let rec = record();
@@ -58,8 +138,8 @@ fn json_parses_with_calibs_keys_and_round_trips_to_1e7() {
         assert_eq!(keys(&v[part]), keys(&calib_out[part]), "{part}");
     }
     assert_eq!(v["gyro"]["method"], calib_out["gyro"]["method"]);
-    let q = &v["quality"];
-    assert_eq!((q["source"].as_str(), q["seq"].as_u64(), q["poses"].as_u64()), (Some("board"), Some(3), Some(rec.poses as u64)));
+    let q: RecordJson = serde_json::from_str(&line).unwrap();
+    assert_eq!((q.quality.source, q.quality.seq, q.quality.poses), (Source::Board, 3, rec.poses));
     for (i, j) in (0..3).flat_map(|i| (0..3).map(move |j| (i, j))) {
         let (k, ck) = (v["gyro"]["K"][i][j].as_f64().unwrap(), calib_out["gyro"]["K"][i][j].as_f64().unwrap());
         assert!((k - ck).abs() <= 5e-8 + 1e-9, "K[{i}][{j}] {k} vs {ck}");
@@ -73,16 +153,30 @@ fn json_parses_with_calibs_keys_and_round_trips_to_1e7() {
     assert!(close(back.sigma_k.as_flattened(), rec.sigma_k.as_flattened(), 1e-9));
     assert_eq!((back.seq, back.method, back.accel_model, back.poses, back.rows), (3, rec.method, rec.accel_model, rec.poses, rec.rows));
     assert!((back.temp_c - 24.25).abs() < 1e-6 && (back.accel_rms_g - rec.accel_rms_g).abs() <= 5e-8);
-    // calib's own record (never stored) says so; an unknown temperature is null.
-    let own = text(&calibrated().1.record().unwrap(), Format::Json);
-    assert!(own.contains("\"source\":\"calib\",\"seq\":0,\"temp_c\":null,"), "{own}");
-    assert!(record_from_json(&own).unwrap().temp_c.is_nan());
+    // The serde type's fields are the hand-written line's.
+    assert_eq!(paths(&serde_json::to_value(RecordJson::from(&rec)).unwrap()), paths(&v));
+    // calib's own record (never stored) says so; an unknown temperature is null, in both.
+    let own = calibrated().1.record().unwrap();
+    for json in [text(&own, Format::Json), serde_json::to_string(&RecordJson::from(&own)).unwrap()] {
+        let j: RecordJson = serde_json::from_str(&json).unwrap();
+        assert_eq!((j.quality.source, j.quality.seq, j.quality.temp_c), (Source::Calib, 0, None), "{json}");
+        assert!(json.contains("\"temp_c\":null") && !json.to_lowercase().contains("nan"), "{json}");
+        assert!(record_from_json(&json).unwrap().temp_c.is_nan());
+    }
     // Bad result lines are named.
     assert!(record_from_json("{\"gyro\":").unwrap_err().starts_with("not the expected JSON"));
     let at = line.find("\"K\":[[").unwrap() + 6;
     let end = at + line[at..].find(',').unwrap();
-    let no_k = format!("{}null{}", &line[..at], &line[end..]);
-    assert!(record_from_json(&no_k).unwrap_err().starts_with("gyro K, bias_dps, accel M and offset_g must all be numbers"));
+    let with_k = |k: &str| format!("{}{k}{}", &line[..at], &line[end..]);
+    assert!(record_from_json(&with_k("null")).unwrap_err().starts_with("not the expected JSON"));
+    assert_eq!(serde_json::from_str::<RecordJson>(&with_k("1e39")).unwrap().record(), Err(NotFinite));
+    assert!(record_from_json(&with_k("1e39")).unwrap_err().starts_with(&NotFinite.to_string()));
+    let unknown = line.replace("\"method\":\"full\"", "\"method\":\"fast\"");
+    assert!(
+        record_from_json(&unknown).unwrap_err().contains("expected the name of a gyro method"),
+        "{}",
+        record_from_json(&unknown).unwrap_err()
+    );
 }
 
 /// Runs a tool if it exists: `None` (with a note) if not.
@@ -150,8 +244,11 @@ fn calib_exports_an_offline_result() {
     assert!(out.contains("\"quality\":{\"missing\":[]"), "calib's own JSON stays on stdout: {out}");
     let exported = std::fs::read_to_string(&file).unwrap();
     assert_eq!(exported.lines().count(), 1);
-    let (got, want) = (record_from_json(exported.trim()).unwrap().gyro_k, calibrated().1.record().unwrap().gyro_k);
-    assert!(got.as_flattened().iter().zip(want.as_flattened()).all(|(a, b)| (a - b).abs() <= 1e-7), "{got:?} {want:?}");
+    // Through serde: every number exact.
+    let want = calibrated().1.record().unwrap();
+    let got: RecordJson = serde_json::from_str(exported.trim()).unwrap();
+    assert_eq!(got, RecordJson::from(&want));
+    assert_eq!(record_from_json(exported.trim()).unwrap().gyro_k, want.gyro_k);
     let (code, _, err) = calib(&["--out", "x.h", log]);
     assert_eq!(code, 2, "--out needs --export: {err}");
 }

@@ -1,15 +1,18 @@
 //! `calib --port` without hardware: a fake board on the master side of a pseudo-terminal plays a
-//! simulated log through the firmware's procedure (button presses on `c`, the procedure's report
-//! lines in calib-core's wording, its record as calib-core's JSON), the session on the slave.
+//! simulated log through the firmware's procedure (button presses on [`Command::Calibrate`], the
+//! procedure's report lines and the other lines through `calib_core::protocol`'s writers, its
+//! record as calib-core's JSON), the session on the slave.
 #![cfg(unix)]
 
 use calib::csvlog;
-use calib::port::{self, Options, SessionError, K_TOLERANCE, NO_RECORD};
+use calib::port::{self, Awaiting, Options, SessionError, K_TOLERANCE};
 use calib_core::export::{self, Format};
-use calib_core::log::{self, END, HEADER};
+use calib_core::log;
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::protocol::{self, Command, Event, RecordLine};
 use calib_core::record::{Record, StoreError};
 use calib_core::text;
+use calib_core::Error;
 use common::calib;
 use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::Rig;
@@ -66,7 +69,7 @@ struct Quirks {
     stored: Option<Record>,
 }
 
-/// The board's report lines, in the firmware's wording; its JSON after `calibration done`.
+/// The board's report lines, in the firmware's wording; its JSON after the calibration-done line.
 struct Lines {
     out: Vec<String>,
     k_offset: f32,
@@ -94,17 +97,27 @@ impl Shell for Lines {
     fn apply(&mut self, _: &Record) {}
 }
 
-/// Waits (≤ 60 s) for the command byte `want`, ignoring others; false if it never came.
-fn wait_for(m: &mut TTYPort, want: u8) -> bool {
+/// Waits (≤ 60 s) for the command `want`, ignoring others; false if it never came.
+fn wait_for(m: &mut TTYPort, want: Command) -> bool {
     let t0 = Instant::now();
     let mut b = [0u8; 1];
     while t0.elapsed() < Duration::from_secs(60) {
-        if m.read(&mut b).is_ok_and(|n| n == 1) && b[0] == want {
+        if m.read(&mut b).is_ok_and(|n| n == 1) && Command::decode(b[0]) == Some(want) {
             return true;
         }
     }
     false
 }
+
+/// The line a protocol writer writes.
+fn line(f: impl FnOnce(&mut String) -> std::fmt::Result) -> String {
+    let mut s = String::new();
+    f(&mut s).unwrap();
+    s
+}
+
+/// The error the failing fake board reports.
+const FAILURE: Error = Error::ServoNotTurning { channel: 0, commanded_deg: 30.0, measured_deg: 0.2 };
 
 fn send(m: &mut TTYPort, lines: &mut Vec<String>) -> std::io::Result<()> {
     let mut bytes = Vec::new();
@@ -124,50 +137,45 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
         std::thread::sleep(Duration::from_secs(3));
         return Ok(());
     }
-    if !wait_for(&mut m, b's') {
+    if !wait_for(&mut m, Command::Stored) {
         return Ok(());
     }
     let mut sh = Lines { out: vec![], k_offset: f.k_offset };
     match &f.stored {
         Some(rec) => {
-            let (mut l, mut j, mut c) = (String::new(), String::new(), String::new());
-            text::record(&mut l, "stored", rec).unwrap();
-            export::write(&mut j, rec, Format::Json).unwrap();
-            export::write(&mut c, rec, Format::C).unwrap();
-            sh.out.extend([l, j]);
-            sh.out.extend(c.lines().map(String::from));
+            sh.out.push(line(|s| protocol::record(s, RecordLine::Stored, rec)));
+            sh.out.push(line(|s| export::write(s, rec, Format::Json)));
+            sh.out.extend(line(|s| export::write(s, rec, Format::C)).lines().map(String::from));
         }
-        None => sh.out.push(NO_RECORD.into()),
+        None => sh.out.push(protocol::NO_RECORD.into()),
     }
     send(&mut m, &mut sh.out)?;
-    if f.raw_on && wait_for(&mut m, b'r') {
-        send(&mut m, &mut vec!["0.500000,0.000000,0.000000,1.000000,0.00000,0.00000,0.00000,,".into(), END.into()])?;
+    if f.raw_on && wait_for(&mut m, Command::RawLog) {
+        send(&mut m, &mut vec!["0.500000,0.000000,0.000000,1.000000,0.00000,0.00000,0.00000,,".into(), protocol::raw_log(false).into()])?;
     }
-    if !wait_for(&mut m, b'r') {
+    if !wait_for(&mut m, Command::RawLog) {
         return Ok(());
     }
     let rows = csvlog::parse(log_text).unwrap().rows;
     let mut p = Procedure::new(Config::DEFAULT, f.stored);
-    sh.out.push(HEADER.to_string());
+    sh.out.push(protocol::raw_log(true).into());
     let mut prev_t = rows[0].t_s;
     let mut started = false;
     for (i, r) in rows.iter().enumerate() {
         let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
         if commanded && (!started || p.phase() == Phase::Reattach) {
             send(&mut m, &mut sh.out)?;
-            if !wait_for(&mut m, b'c') {
+            if !wait_for(&mut m, Command::Calibrate) {
                 return Ok(());
             }
             if !started {
                 let (rig, hand) = p.plan();
-                let mut l = String::new();
-                text::plan(&mut l, rig as usize, hand as usize).unwrap();
-                sh.out.push(l);
+                sh.out.push(line(|s| protocol::plan(s, rig as usize, hand as usize)));
             }
             if f.fails {
-                sh.out.push("calibration failed, nothing stored: the servo did not turn".into());
+                sh.out.push(line(|s| protocol::failed(s, &FAILURE)));
                 send(&mut m, &mut sh.out)?;
-                wait_for(&mut m, b'r');
+                wait_for(&mut m, Command::RawLog);
                 return Ok(());
             }
             p.handle_button(prev_t);
@@ -190,8 +198,8 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
         prev_t = r.t_s;
     }
     send(&mut m, &mut sh.out)?;
-    if wait_for(&mut m, b'r') {
-        sh.out.push(END.to_string());
+    if wait_for(&mut m, Command::RawLog) {
+        sh.out.push(protocol::raw_log(false).into());
         send(&mut m, &mut sh.out)?;
     }
     // Keep the master open until the session has read everything.
@@ -234,18 +242,18 @@ fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
     assert!(got.rows.len() + 1 >= want.rows.len(), "{} of {} rows", got.rows.len(), want.rows.len());
     assert_eq!(got.rows[..], want.rows[..got.rows.len()]);
     assert!(got.messages > 20, "{} messages", got.messages);
-    assert!(saved.lines().any(|l| l == END) && saved.lines().filter(|l| l.starts_with("{\"gyro\":")).count() == 1);
+    let events: Vec<_> = saved.lines().filter_map(protocol::parse).collect();
+    assert!(events.contains(&Event::RawLogEnd));
+    assert_eq!(events.iter().filter(|e| matches!(e, Event::ResultJson(_))).count(), 1);
     assert_eq!(o.lines, saved.lines().count());
     // The board's result, parsed, and the cross-check.
-    assert!(o.json.starts_with("{\"gyro\":{\"K\":[["), "{}", o.json);
-    let v: serde_json::Value = serde_json::from_str(&o.json).unwrap();
-    assert_eq!(v["gyro"]["method"], "full");
+    assert_eq!(protocol::parse(&o.json), Some(Event::ResultJson(&o.json)));
+    let v: calib_core::export::RecordJson = serde_json::from_str(&o.json).unwrap();
+    assert_eq!(v.gyro.method, calib_core::gyro::Method::Full);
     assert_eq!(o.check.replayed, Some("default"));
     assert!(o.check.max_diff <= K_TOLERANCE, "{}", o.check.max_diff);
     assert_eq!(o.check.lost_rows, 0);
-    for i in 0..3 {
-        assert!((o.record.gyro_k[i][i] - v["gyro"]["K"][i][i].as_f64().unwrap() as f32).abs() < 1e-7);
-    }
+    assert_eq!(o.record.gyro_k, v.gyro.k);
     // What the user saw: the phases with their instructions, the prompt, the progress bar.
     for needle in [
         "phase hand-held: ",
@@ -264,8 +272,10 @@ fn a_board_k_that_disagrees_fails_the_cross_check() {
     let (r, _, _) = session("bad-k.csv", sim_log(), Quirks { k_offset: 1e-3, ..Quirks::default() }, Duration::from_secs(20));
     let e = r.unwrap_err();
     assert_eq!(e.exit_code(), 5);
-    let msg = e.to_string();
-    assert!(msg.starts_with("cross-check failed: the board's K[0][1] = ") && msg.contains("every row arrived"), "{msg}");
+    // Where it differs, and not for a lost row or a log that does not replay.
+    let SessionError::Mismatch { check, .. } = &e else { panic!("{e}") };
+    assert_eq!((check.at, check.lost_rows, check.replayed), ((0, 1), 0, Some("default")), "{e}");
+    assert!((check.max_diff - 1e-3).abs() < 1e-5, "{e}");
 }
 
 #[test]
@@ -278,7 +288,8 @@ fn rows_lost_on_usb_are_counted_in_the_cross_check_failure() {
         session("lost.csv", sim_log(), Quirks { drop_rows: Some((moving, moving + 3)), ..Quirks::default() }, Duration::from_secs(20));
     let e = r.unwrap_err();
     assert_eq!(e.exit_code(), 5);
-    assert!(e.to_string().contains(&format!("3 of {} rows were lost on USB", rows_until_done(&path) + 3)), "{e}");
+    let SessionError::Mismatch { check, .. } = &e else { panic!("{e}") };
+    assert_eq!((check.lost_rows, check.rows), (3, rows_until_done(&path)), "{e}");
 }
 
 /// Rows in a saved log.
@@ -290,9 +301,8 @@ fn rows_until_done(path: &PathBuf) -> usize {
 fn a_silent_board_is_a_timeout_error() {
     let (r, _, _) = session("silent.csv", sim_log(), Quirks { silent: true, ..Quirks::default() }, Duration::from_secs(1));
     let e = r.unwrap_err();
-    assert!(matches!(e, SessionError::Silent { secs: 1, .. }), "{e}");
+    assert!(matches!(e, SessionError::Silent { secs: 1, waiting_for: Awaiting::StoredRecord }), "{e}");
     assert_eq!(e.exit_code(), 6);
-    assert!(e.to_string().contains("(its answer to s)"), "{e}");
 }
 
 #[test]
@@ -309,9 +319,11 @@ fn a_board_in_raw_log_mode_is_switched_back_on_and_a_failed_calibration_is_named
     let (r, _, path) = session("failed.csv", sim_log(), Quirks { raw_on: true, fails: true, ..Quirks::default() }, Duration::from_secs(20));
     let e = r.unwrap_err();
     assert_eq!(e.exit_code(), 1);
-    assert_eq!(e.to_string(), "calibration failed, nothing stored: the servo did not turn");
+    assert!(matches!(&e, SessionError::CalibrationFailed(reason) if *reason == FAILURE.to_string()), "{e}");
+    // The first raw log ended, the session's own started.
     let saved = std::fs::read_to_string(path).unwrap();
-    assert!(saved.contains(&format!("{END}\n{HEADER}\n")), "{saved}");
+    let events: Vec<_> = saved.lines().map(protocol::parse).collect();
+    assert!(events.windows(2).any(|w| w == [Some(Event::RawLogEnd), Some(Event::RawLogStart)]), "{saved}");
 }
 
 #[test]

@@ -199,8 +199,7 @@ fn an_upright_bracket_is_named_not_solved() {
     cfg.shaft_tilt_deg = 0.0;
     // Its pan moves leave gravity where it is: no accelerometer fit, and no scale across the hinge.
     let e = pan_tilt_failure(cfg, Config::PAN_TILT, Faults::default());
-    assert!(matches!(e, Error::AxisNearVertical { .. }), "{e:?}: {e}");
-    assert!(e.to_string().contains("tilt the servo"), "{e}");
+    assert!(matches!(e, Error::AxisNearVertical { tilt_deg, limit_deg } if tilt_deg < limit_deg), "{e:?}: {e}");
     assert_eq!(ErrorClass::of(&e), ErrorClass::Geometry);
 }
 
@@ -208,8 +207,7 @@ fn an_upright_bracket_is_named_not_solved() {
 fn a_stalled_tilt_servo_is_named_with_its_channel() {
     let faults = Faults { tilt_stalled: true, ..Faults::default() };
     let e = pan_tilt_failure(pan_tilt::rig_config(33, 0), Config::PAN_TILT, faults);
-    assert!(matches!(e, Error::ServoNotTurning { channel: 1, .. }), "{e:?}");
-    assert!(e.to_string().contains("tilt (D10)"), "{e}");
+    assert!(matches!(e, Error::ServoNotTurning { channel: 1, .. }), "{e:?}: {e}");
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! The USB console's logic (`gyrocal_fw::serial`): whole lines or none, dropped bytes counted,
 //! the commands, the 1200-baud touch.
 
-use gyrocal_fw::serial::{Command, Outbox, Touch, TOUCH_BAUD};
+use gyrocal_fw::serial::{Command, Outbox, Touch, HELP, TOUCH_BAUD};
 
 /// Drains the outbox as the USB endpoint does, `packet` bytes at a time.
 fn drain<const N: usize>(o: &mut Outbox<N>, packet: usize) -> String {
@@ -39,16 +39,14 @@ fn lines_go_in_whole_or_are_dropped_and_counted() {
 }
 
 #[test]
-fn every_byte_is_a_command_or_ignored() {
-    assert_eq!(Command::decode(b'c'), Some(Command::Calibrate));
-    assert_eq!(Command::decode(b'R'), Some(Command::RawLog));
-    assert_eq!(Command::decode(b's'), Some(Command::Stored));
-    for b in [b'h', b'?', b'x', 0xFF, 0x1B] {
-        assert_eq!(Command::decode(b), Some(Command::Help), "{b:#x}");
+fn the_console_takes_the_protocols_command_bytes() {
+    // The console's commands and help are `calib_core::protocol`'s (every byte is tested there).
+    let _: calib_core::protocol::Command = Command::Help;
+    assert_eq!(HELP, calib_core::protocol::HELP);
+    for c in Command::ALL {
+        assert_eq!(Command::decode(c.byte()), Some(c));
     }
-    for b in [b'\r', b'\n', b' ', b'\t', 0] {
-        assert_eq!(Command::decode(b), None);
-    }
+    assert_eq!(Command::decode(b'\n'), None);
 }
 
 #[test]

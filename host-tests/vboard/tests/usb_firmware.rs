@@ -1,11 +1,31 @@
 //! The real firmware on the virtual USB port: enumeration by the virtual host, a command, the
 //! 1200-baud touch (a smoke test of the USBD model against nrf-usbd + usb-device + usbd-serial).
+//! What the board says is read as `calib_core::protocol` events, never as sentences.
 
+use calib_core::export::{self, Format};
+use calib_core::gyro::Method;
+use calib_core::procedure::Phase;
+use calib_core::protocol::{self, Command, Event, RecordLine};
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
-use vboard::bench::{build_firmware, Bench};
+use vboard::bench::{build_firmware, message, Bench};
 use vboard::usb_host::UsbHost;
+
+/// What each line of `text` is (`None`: a line for people).
+fn events(text: &str) -> Vec<Option<Event<'_>>> {
+    text.lines().map(protocol::parse).collect()
+}
+
+/// The help's lines, in order.
+fn help() -> Vec<Option<Event<'static>>> {
+    (0..protocol::HELP.len() as u8).map(|line| Some(Event::Help { line })).collect()
+}
+
+/// Whether a line of the board's RTT log (level word and all) is `want`.
+fn logged(b: &Bench, want: impl Fn(&Event) -> bool) -> bool {
+    b.mcu.log.iter().any(|l| protocol::parse(message(l)).is_some_and(|e| want(&e)))
+}
 
 fn usb_bench() -> (Bench, UsbHost) {
     let elf = build_firmware(&[]).unwrap();
@@ -23,11 +43,11 @@ fn the_firmware_enumerates_answers_help_and_does_the_1200_baud_touch() {
     }
     println!("enumerated at {:.3} s: {:?} {:?}", b.mcu.now(), host.product(), host.device_descriptor());
     assert!(host.with(|h| h.bos.is_some()), "usb-device says bcdUSB 2.1: Linux reads its BOS descriptor");
-    host.write(b"h");
+    host.write(&[Command::Help.byte()]);
     let out = host.run_and_read(&mut b.mcu, 0.5).unwrap();
     let text = String::from_utf8_lossy(&out);
     println!("{text}");
-    assert!(text.contains("1200"), "help text: {text:?}\nhost: {:#?}\nboard: {:#?}", host.log(), b.mcu.log);
+    assert!(events(&text).ends_with(&help()), "help text: {text:?}\nhost: {:#?}\nboard: {:#?}", host.log(), b.mcu.log);
     assert!(host.errors().is_empty(), "{:?}", host.errors());
     // The touch: 1200 Bd, then DTR dropped: GPREGRET = 0xB0 and a soft reset.
     host.set_line_coding(1200);
@@ -59,12 +79,12 @@ fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_resets_the_board()
     };
     let fd = open(libc::B115200);
     bridge.run_for(&mut b.mcu, 0.1, 1e-3, false).unwrap();
-    assert_eq!(unsafe { libc::write(fd, b"h".as_ptr().cast(), 1) }, 1);
+    assert_eq!(unsafe { libc::write(fd, [Command::Help.byte()].as_ptr().cast(), 1) }, 1);
     bridge.run_for(&mut b.mcu, 0.3, 1e-3, false).unwrap();
     let mut buf = vec![0u8; 4096];
     let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
     let text = String::from_utf8_lossy(&buf[..n.max(0) as usize]).to_string();
-    assert!(text.contains("1200-baud touch"), "{text:?}");
+    assert!(events(&text).ends_with(&help()), "{text:?}");
     unsafe { libc::close(fd) };
     // The touch as bossac/arduino-cli do it: open at 1200 Bd, close.
     let fd = open(libc::B1200);
@@ -85,22 +105,24 @@ fn commands_over_usb_start_a_calibration_and_raw_log_rows_feed_calib() {
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
     b.run_for(1.0);
     host.write(b"x\r\n");
-    let help = read_for(&mut b, &host, 0.3);
-    assert!(help.starts_with("commands: c calibrate"), "unknown input gets the help: {help:?}");
-    host.write(b"s");
-    assert_eq!(read_for(&mut b, &host, 0.3), "no calibration stored\r\n");
-    // Raw-log mode: the header, then rows calib reads.
-    host.write(b"R");
+    let text = read_for(&mut b, &host, 0.3);
+    assert!(events(&text).starts_with(&help()), "unknown input gets the help: {text:?}");
+    host.write(&[Command::Stored.byte()]);
+    let text = read_for(&mut b, &host, 0.3);
+    assert_eq!(events(&text), [Some(Event::NoRecord)], "{text:?}");
+    // Raw-log mode (the command in upper case too): the header, then rows calib reads.
+    host.write(&[Command::RawLog.byte().to_ascii_uppercase()]);
     let text = read_for(&mut b, &host, 3.0);
-    assert!(text.starts_with(calib_core::log::HEADER), "{:?}", &text[..text.len().min(200)]);
-    host.write(b"c");
+    assert_eq!(events(&text).first(), Some(&Some(Event::RawLogStart)), "{:?}", &text[..text.len().min(200)]);
+    host.write(&[Command::Calibrate.byte()]);
     let text = text + &read_for(&mut b, &host, 3.0);
-    assert!(text.contains("\r\nplan: 13 rig poses, 12 hand-held poses\r\n"), "{text:?}");
-    assert!(text.contains("\r\nphase: wait-rest: keep the rig still\r\n"));
-    host.write(b"r");
+    let wait_rest = Event::Phase { phase: Phase::WaitRest, instruction: Phase::WaitRest.instruction() };
+    assert!(events(&text).contains(&Some(Event::Plan { rig_poses: 13, handheld_poses: 12 })), "{text:?}");
+    assert!(events(&text).contains(&Some(wait_rest)), "{text:?}");
+    host.write(&[Command::RawLog.byte()]);
     let text = text + &read_for(&mut b, &host, 0.5);
     // The end marker (report lines may follow it: the bias phase ends about now).
-    assert!(text.contains(&format!("\r\n{}\r\n", calib_core::log::END)), "{:?}", &text[text.len().saturating_sub(400)..]);
+    assert!(events(&text).contains(&Some(Event::RawLogEnd)), "{:?}", &text[text.len().saturating_sub(400)..]);
     let log = calib::csvlog::parse(&text.replace("\r\n", "\n")).unwrap();
     // 6 s at 119 Hz (the sensor's ODR error: ±10 %), none lost.
     assert!((600..=800).contains(&log.rows.len()), "{} rows", log.rows.len());
@@ -112,7 +134,7 @@ fn commands_over_usb_start_a_calibration_and_raw_log_rows_feed_calib() {
 fn a_host_that_stops_reading_never_stalls_the_board_and_is_told_what_it_missed() {
     let (mut b, host) = usb_bench();
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
-    host.write(b"r");
+    host.write(&[Command::RawLog.byte()]);
     read_for(&mut b, &host, 0.5);
     // The terminal hangs: no IN tokens for 10 s of raw rows (80 KB), more than the outbox holds.
     host.set_reading(false);
@@ -122,12 +144,15 @@ fn a_host_that_stops_reading_never_stalls_the_board_and_is_told_what_it_missed()
     assert!(b.mcu.instructions() - loops > 10_000_000, "the firmware kept running");
     host.set_reading(true);
     let text = read_for(&mut b, &host, 2.0);
-    let line = text.lines().find(|l| l.starts_with("USB: ")).unwrap_or_else(|| panic!("no drop report: {text:?}"));
-    let n: u32 = line.split(' ').nth(1).and_then(|n| n.parse().ok()).unwrap();
-    assert!(n > 50_000, "{line}");
-    assert!(line.ends_with("bytes dropped since boot (the host was not reading)"), "{line}");
-    // Whole lines were dropped: every row that arrived parses.
-    let rows = text.lines().filter(|l| l.matches(',').count() == 8).count();
+    let events = events(&text);
+    let n = events.iter().find_map(|e| match e {
+        Some(Event::UsbDropped { bytes }) => Some(*bytes),
+        _ => None,
+    });
+    let n = n.unwrap_or_else(|| panic!("no drop report: {text:?}"));
+    assert!(n > 50_000, "{n} bytes");
+    // Whole lines were dropped: the rows that arrived parse.
+    let rows = events.iter().filter(|e| matches!(e, Some(Event::Row(_)))).count();
     assert!(rows > 100, "{rows}");
 }
 
@@ -138,21 +163,23 @@ fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
     let mut b = Bench::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
     b.run_for(3.0);
     assert_eq!(b.mcu.periph.borrow().usbd.enable, 0, "USBD enabled without VBUS");
-    assert!(b.mcu.log.iter().any(|l| l.contains("LSM9DS1 ready")), "{:#?}", b.mcu.log);
-    assert!(!b.mcu.log.iter().any(|l| l.contains("USB")), "{:#?}", b.mcu.log);
+    let ready = |e: &Event| *e == Event::SensorReady { odr_hz: 119, gyro_dps: 500, accel_g: 2 };
+    assert!(logged(&b, ready), "{:#?}", b.mcu.log);
+    assert!(!logged(&b, |e| *e == Event::UsbStarted), "{:#?}", b.mcu.log);
     // Plugged in later: USB starts then.
     let host = UsbHost::new(&b.mcu);
     host.attach();
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
     b.run_for(0.1);
-    assert!(b.mcu.log.iter().any(|l| l.contains("USB: started")), "{:#?}", b.mcu.log);
+    assert!(logged(&b, |e| *e == Event::UsbStarted), "{:#?}", b.mcu.log);
     // Unplugged and plugged back (the board on another supply): the port comes back.
     host.detach();
     b.run_for(1.0);
     host.attach();
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
-    host.write(b"s");
-    assert_eq!(read_for(&mut b, &host, 0.3), "no calibration stored\r\n");
+    host.write(&[Command::Stored.byte()]);
+    let text = read_for(&mut b, &host, 0.3);
+    assert_eq!(events(&text), [Some(Event::NoRecord)], "{text:?}");
 }
 
 #[test]
@@ -164,7 +191,7 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     let (outcome, session) = b.calibrate_over_usb(&log, Box::new(std::io::sink())).unwrap();
     assert_eq!(outcome, vboard::bench::Outcome::Done);
     let out = session.unwrap_or_else(|e| panic!("calib --port: {e}"));
-    assert!(out.json.starts_with("{\"gyro\":{\"K\":"), "{}", out.json);
+    assert_eq!(protocol::parse(&out.json), Some(Event::ResultJson(&out.json)));
     let stored = b.stored().expect("a record in flash");
     assert_eq!(out.record.seq, stored.seq);
     for i in 0..9 {
@@ -180,10 +207,14 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     host.set_dtr(true);
     b.run_for(0.1);
     host.read();
-    host.write(b"s");
+    host.write(&[Command::Stored.byte()]);
     let text = read_for(&mut b, &host, 0.5);
-    let lines: Vec<&str> = text.lines().filter(|l| !l.starts_with("rate ")).collect();
-    assert!(lines[0].starts_with(&format!("stored record {} (full K): K = [", stored.seq)), "{text}");
-    assert_eq!(lines[1], out.json, "the same JSON line as after the calibration");
-    assert!(text.contains("static const float GYRO_K[3][3] = {") && text.contains("gyrocal_apply"), "{text}");
+    // The answer's lines come together (the calibrated rate, said once a second, before or after).
+    let summary = Event::Record { line: RecordLine::Stored, seq: stored.seq, method: Method::Full };
+    let at = events(&text).iter().position(|e| *e == Some(summary)).unwrap_or_else(|| panic!("no record line: {text}"));
+    let lines: Vec<&str> = text.lines().skip(at + 1).collect();
+    assert_eq!(lines[0], out.json, "the same JSON line as after the calibration");
+    let mut c = String::new();
+    export::write(&mut c, &stored, Format::C).unwrap();
+    assert_eq!(lines[1..].iter().take(c.lines().count()).copied().collect::<Vec<_>>(), c.lines().collect::<Vec<_>>(), "{text}");
 }

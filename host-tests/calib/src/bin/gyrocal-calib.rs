@@ -11,7 +11,7 @@
 use calib::port::{self, Options};
 use calib::{csvlog, offline};
 use calib_core::accel::AccelModel;
-use calib_core::export::{self, Format};
+use calib_core::export::{self, Format, RecordJson};
 use calib_core::gyro::Method;
 use calib_core::record::Record;
 use clap::{Parser, ValueEnum};
@@ -96,14 +96,25 @@ impl From<ExportArg> for Format {
     }
 }
 
+/// The export of `rec`: JSON through its serde schema ([`RecordJson`], the one the board writes
+/// by hand), C and Rust by `calib_core::export`.
+fn export_text(rec: &Record, format: ExportArg) -> Result<String, String> {
+    let failed = |e: &dyn std::fmt::Display| format!("--export: the record could not be written: {e}");
+    if let ExportArg::Json = format {
+        return serde_json::to_string(&RecordJson::from(rec)).map_err(|e| failed(&e));
+    }
+    let mut text = String::new();
+    export::write(&mut text, rec, format.into()).map_err(|e| failed(&e))?;
+    Ok(text)
+}
+
 /// Prints `usual` on stdout unless the export goes there instead; writes the export.
 fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>) -> Result<(), String> {
     let Some((rec, format)) = export else {
         println!("{usual}");
         return Ok(());
     };
-    let mut text = String::new();
-    export::write(&mut text, rec, format.into()).map_err(|_| "--export: the record could not be written".to_string())?;
+    let text = export_text(rec, format)?;
     match out {
         Some(path) => {
             println!("{usual}");
