@@ -4,6 +4,7 @@
 use super::COMMANDS_PER_TICK;
 use calib_core::export::Format;
 use calib_core::procedure::{Report, Sample};
+use calib_core::protocol::{self, RecordLine};
 use calib_core::record::Record;
 use calib_core::text::Level as Log;
 use core::fmt::{self, Write};
@@ -99,10 +100,10 @@ impl Console {
     #[inline(never)]
     pub(crate) fn stored(&mut self, rec: Option<&Record>) {
         let Some(rec) = rec else {
-            return self.send(Log::Info, "no calibration stored");
+            return self.send(Log::Info, protocol::NO_RECORD);
         };
         let mut line = heapless::String::<LINE>::new();
-        let _ = calib_core::text::record(&mut line, "stored", rec);
+        let _ = protocol::record(&mut line, RecordLine::Stored, rec);
         self.send(Log::Info, &line);
         self.export(rec, Format::Json);
         self.export(rec, Format::C);
@@ -117,7 +118,7 @@ impl Console {
                 match Usb::start(usbd, power) {
                     Ok(u) => {
                         self.usb = Some(u);
-                        self.say(Log::Info, format_args!("USB: started (CDC-ACM serial; type h for help)"));
+                        self.send(Log::Info, protocol::USB_STARTED);
                     }
                     Err((e, usbd)) => {
                         if e == UsbError::NotReady {
@@ -143,7 +144,9 @@ impl Console {
             let dropped = u.out.dropped();
             if dropped != self.usb_dropped_reported && u.out.is_empty() && u.listening() {
                 self.usb_dropped_reported = dropped;
-                self.say(Log::Warn, format_args!("USB: {dropped} bytes dropped since boot (the host was not reading)"));
+                let mut line = heapless::String::<LINE>::new();
+                let _ = protocol::usb_dropped(&mut line, dropped);
+                self.send(Log::Warn, &line);
             }
         }
     }
@@ -172,7 +175,7 @@ impl Console {
     /// `calib` reads.
     #[inline(never)]
     pub(crate) fn set_raw_log(&mut self, on: bool) {
-        self.raw(if on { calib_core::log::HEADER } else { calib_core::log::END });
+        self.raw(protocol::raw_log(on));
     }
 
     #[inline(never)]

@@ -19,6 +19,7 @@ use board::{flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait, TWIM_FREQUEN
 use console::{Console, LINE};
 
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::protocol::{self, RecordLine};
 use calib_core::record::Record;
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
@@ -163,16 +164,9 @@ impl Sensing {
             if let Some(i2c) = self.bus.take() {
                 match Lsm9ds1::init(i2c, SENSOR, &mut Wait(clock)) {
                     Ok(s) => {
-                        let c = SENSOR;
-                        io.console.say(
-                            Log::Info,
-                            format_args!(
-                                "LSM9DS1 ready: {} Hz, +-{} dps, +-{} g",
-                                c.odr.hz() as u32,
-                                c.gyro.range_dps() as u32,
-                                c.accel.range_g() as u32
-                            ),
-                        );
+                        let (c, mut line) = (SENSOR, heapless::String::<LINE>::new());
+                        let _ = protocol::sensor_ready(&mut line, c.odr.hz() as u32, c.gyro.range_dps() as u32, c.accel.range_g() as u32);
+                        io.console.send(Log::Info, &line);
                         self.stamper.restart();
                         self.sensor = Some(s);
                     }
@@ -251,7 +245,7 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
                 if matches!(procedure.phase(), Phase::Idle | Phase::Done | Phase::Failed) {
                     let (rig, hand) = procedure.plan();
                     let mut line = heapless::String::<LINE>::new();
-                    let _ = calib_core::text::plan(&mut line, rig as usize, hand as usize);
+                    let _ = protocol::plan(&mut line, rig as usize, hand as usize);
                     io.console.send(Log::Info, &line);
                 }
                 procedure.handle_button(now);
@@ -396,7 +390,7 @@ fn main() -> ! {
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {
             let mut line = heapless::String::<LINE>::new();
-            let _ = calib_core::text::record(&mut line, "loaded", &rec);
+            let _ = protocol::record(&mut line, RecordLine::Loaded, &rec);
             console.send(Log::Info, &line);
             console.say(Log::Info, format_args!("record read from slot {slot}; applied"));
             applied = Some(rec);

@@ -90,9 +90,11 @@ impl<F: NorFlash> Storage<F> {
             Some((slot, _)) => 1 - slot,
             None => 0,
         };
+        // Refused before anything is erased.
+        let bytes = rec.encode().map_err(|_| StoreError::NotFinite)?;
         let at = Self::offset(target);
         self.flash.erase(at, at + F::ERASE_SIZE as u32).map_err(|_| StoreError::Flash)?;
-        self.flash.write(at, &rec.encode()).map_err(|_| StoreError::Flash)?;
+        self.flash.write(at, &bytes).map_err(|_| StoreError::Flash)?;
         match self.slot(target)? {
             Slot::Valid(r) if r == *rec => Ok(target),
             _ => Err(StoreError::Verify),

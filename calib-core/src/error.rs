@@ -68,8 +68,8 @@ pub enum Error {
     SamplesLost { count: u16 },
     /// The sensor stopped answering during the calibration (I2C error).
     SensorFault,
-    /// Not one temperature reading during the whole calibration.
-    NoTemperature,
+    /// The result holds a NaN or an infinite number: never stored.
+    ResultNotFinite,
     /// Full `K`: moves about too few rotation axes (each tilt setting's pan axis, the hinge).
     TooFewAxes { have: u8, need: u8 },
     /// Full `K`: the rotation axes lie (nearly) in one plane; `angle_deg` is the largest angle of
@@ -153,7 +153,7 @@ impl fmt::Display for Error {
                 "{count} sample(s) lost (FIFO overrun or a failed read): the gyro integral has a gap; keep the host reading and rerun"
             ),
             Error::SensorFault => f.write_str("the sensor stopped answering during the calibration (I2C error): check the board, rerun"),
-            Error::NoTemperature => f.write_str("no temperature reading during the calibration: sensor or I2C bus failing"),
+            Error::ResultNotFinite => f.write_str("the result holds a NaN or an infinite number: not stored"),
             Error::TooFewAxes { have, need } => write!(
                 f,
                 "moves about {have} rotation axes, the full K needs {need} non-coplanar: use at least 2 tilt settings with tilt moves between them"

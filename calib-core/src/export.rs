@@ -87,7 +87,7 @@ impl Source {
 
 /// The record's temperature (°C), NaN if it is unknown (written `null`).
 fn temp_c(rec: &Record) -> f32 {
-    rec.temp_c
+    rec.temp_c.unwrap_or(f32::NAN)
 }
 
 /// Writes `rec` in `format`.
@@ -240,8 +240,9 @@ fn rust(w: &mut impl Write, r: &Record) -> fmt::Result {
     w.write_str(";")
 }
 
+pub use crate::record::NotFinite;
 #[cfg(feature = "serde")]
-pub use schema::{AccelJson, GyroJson, NotFinite, QualityJson, RecordJson};
+pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson};
 
 /// [`Format::Json`] as serde types (feature `serde`).
 #[cfg(feature = "serde")]
@@ -249,6 +250,7 @@ mod schema {
     use super::*;
     use crate::accel::AccelModel;
     use crate::gyro::Method;
+    use crate::record::NotFinite;
     use serde::{Deserialize, Serialize};
 
     /// The JSON line of a record, field for field what [`Format::Json`] writes: the calibration
@@ -335,29 +337,20 @@ mod schema {
         }
     }
 
-    /// A JSON record whose `K`, `b`, `M` or `o` is not all finite numbers.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub struct NotFinite;
-
-    impl fmt::Display for NotFinite {
-        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-            f.write_str("gyro K, bias_dps, accel M and offset_g must all be numbers")
-        }
-    }
-
     impl RecordJson {
-        /// The record it was written from: `null` is NaN (an unknown temperature too); the fields
-        /// JSON does not carry (invariant spreads, tilt, span) are 0.
+        /// The record it was written from. `K`, `b`, `M` and `o` must be numbers; a `null`
+        /// temperature is unknown; a quality field written `null` (too large to print) reads 0, as
+        /// the fields JSON does not carry (invariant spreads, tilt, span) do. Never a NaN.
         pub fn record(&self) -> Result<Record, NotFinite> {
             let (g, a, q) = (&self.gyro, &self.accel, &self.quality);
             let cal = [g.k.as_flattened(), &g.bias_dps, a.m.as_flattened(), &a.offset_g];
             if cal.iter().any(|s| s.iter().any(|x| !x.is_finite())) {
                 return Err(NotFinite);
             }
-            let v = |x: Option<f32>| x.unwrap_or(f32::NAN);
-            Ok(Record {
+            let v = |x: Option<f32>| x.filter(|x| x.is_finite()).unwrap_or(0.0);
+            let rec = Record {
                 seq: q.seq,
-                temp_c: v(q.temp_c),
+                temp_c: q.temp_c,
                 gyro_k: g.k,
                 gyro_bias_dps: g.bias_dps,
                 method: g.method,
@@ -375,7 +368,8 @@ mod schema {
                 accel_rms_g: v(q.accel_rms_g),
                 residual_rms: v(q.residual_rms),
                 non_coplanar_deg: v(q.non_coplanar_deg),
-            })
+            };
+            rec.check_finite().map(|_| rec)
         }
     }
 
@@ -467,7 +461,7 @@ mod tests {
 
     #[test]
     fn non_finite_and_huge_values_are_null_nan() {
-        let rec = Record { temp_c: f32::NAN, condition: 3e30, gyro_k: [[f32::INFINITY, 0.0, 0.0], [0.0; 3], [0.0; 3]], ..sample() };
+        let rec = Record { temp_c: None, condition: 3e30, gyro_k: [[f32::INFINITY, 0.0, 0.0], [0.0; 3], [0.0; 3]], ..sample() };
         let s = text(&rec, Format::Json);
         assert!(s.contains("\"K\":[[null,0.0000000,") && s.contains("\"temp_c\":null,") && s.contains("\"condition\":null,"), "{s}");
         assert!(!s.contains("nan"), "{s}");

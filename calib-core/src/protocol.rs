@@ -200,11 +200,7 @@ fn parse_sensor_ready(l: &str) -> Option<Event<'_>> {
 /// Writes a record's line: what it is, the sequence number, the estimator, `K` in full
 /// (row-major) and the bias.
 pub fn record(w: &mut impl Write, line: RecordLine, rec: &Record) -> fmt::Result {
-    record_as(w, line.prefix(), rec)
-}
-
-/// [`record`] after any `what` (the shared wording of [`crate::text::record`]).
-pub(crate) fn record_as(w: &mut impl Write, what: &str, rec: &Record) -> fmt::Result {
+    let what = line.prefix();
     write!(w, "{what} record {} ({} K): K = {}, b = {} dps", rec.seq, rec.method.name(), M3(rec.gyro_k, 6), V3(rec.gyro_bias_dps, 4))
 }
 

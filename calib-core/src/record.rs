@@ -1,11 +1,13 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
 //! Layout v2 (`LEN` = 188 bytes): magic `GYRC`, version, gyro method, accel model, poses,
-//! sequence (u32), rows (u16), reserved (u16), temperature (°C), gyro `K` (9, row-major),
+//! sequence (u32), rows (u16), flags (u16: bit 0 the temperature is unknown, the others 0),
+//! temperature (°C, 0 when unknown), gyro `K` (9, row-major),
 //! gyro bias (3, °/s), accel `M` (9), accel offset (3, g), 1σ of every element of `K` (9,
 //! row-major), invariant relative spread before and after, condition number, axis tilt (°),
 //! pose span (°), accel residual (g), residual RMS of the gyro fit, angle of the axes from
-//! coplanar (°) — all `f32` — then CRC-32 (IEEE) of the preceding bytes.
+//! coplanar (°) — all `f32` — then CRC-32 (IEEE) of the preceding bytes. No field is ever NaN or
+//! infinite: [`Record::encode`] refuses such a record, [`Record::decode`] rejects one.
 //!
 //! Layout v1 (`LEN_V1` = 156 bytes, written before the full `K`) still loads: the same up to the
 //! accel offset, then the 1σ of the diagonal of `K` only (3), the six quality fields, the CRC.
@@ -52,7 +54,23 @@ pub enum StoreError {
     RegionTooSmall,
     /// No storage to write to (the region may belong to the bootloader, or it failed at boot).
     Unavailable,
+    /// The record holds a NaN or an infinite number ([`NotFinite`]): not written.
+    NotFinite,
 }
+
+/// A record holding a NaN or an infinite number: never encoded, stored, applied or exported.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct NotFinite;
+
+impl core::fmt::Display for NotFinite {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("a field of the record is NaN or infinite")
+    }
+}
+
+/// Flags bit: the temperature is unknown.
+const TEMP_UNKNOWN: u16 = 1;
 
 impl core::fmt::Display for StoreError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -61,6 +79,7 @@ impl core::fmt::Display for StoreError {
             StoreError::Verify => "the record read back differs from the one written",
             StoreError::RegionTooSmall => "the storage region is smaller than two pages",
             StoreError::Unavailable => "no storage available",
+            StoreError::NotFinite => "the record holds a NaN or an infinite number",
         })
     }
 }
@@ -71,8 +90,8 @@ impl core::fmt::Display for StoreError {
 pub struct Record {
     /// Increases by one with every stored calibration.
     pub seq: u32,
-    /// Sensor temperature during the calibration (°C).
-    pub temp_c: f32,
+    /// Mean sensor temperature during the calibration (°C); `None`: no reading (a log has none).
+    pub temp_c: Option<f32>,
     /// Gyro scale matrix `K` (`ω = K (g − b)`).
     pub gyro_k: Mat3,
     /// Gyro bias `b` (°/s).
@@ -115,8 +134,8 @@ pub struct Record {
 pub struct Context {
     /// Sequence number of the record (the stored one's + 1; 0 for a record never stored).
     pub seq: u32,
-    /// Mean sensor temperature during the calibration (°C).
-    pub temp_c: f32,
+    /// Mean sensor temperature during the calibration (°C), if any was read.
+    pub temp_c: Option<f32>,
     /// Gyro bias (°/s).
     pub gyro_bias_dps: Vec3,
     /// The accelerometer calibration the gyro result was made in.
@@ -205,8 +224,37 @@ impl Record {
         core::array::from_fn(|i| self.gyro_k[i][0] * d[0] + self.gyro_k[i][1] * d[1] + self.gyro_k[i][2] * d[2])
     }
 
-    /// Encodes to the version-2 layout.
-    pub fn encode(&self) -> [u8; LEN] {
+    /// Every `f32` field (the temperature if known) is finite.
+    pub fn check_finite(&self) -> Result<(), NotFinite> {
+        let scalars = [
+            self.temp_c.unwrap_or(0.0),
+            self.invariant_before_rel,
+            self.invariant_after_rel,
+            self.condition,
+            self.tilt_deg,
+            self.span_deg,
+            self.accel_rms_g,
+            self.residual_rms,
+            self.non_coplanar_deg,
+        ];
+        let all = [
+            self.gyro_k.as_flattened(),
+            &self.gyro_bias_dps,
+            self.accel_m.as_flattened(),
+            &self.accel_offset_g,
+            self.sigma_k.as_flattened(),
+            &scalars,
+        ];
+        if all.iter().all(|s| s.iter().all(|v| v.is_finite())) {
+            Ok(())
+        } else {
+            Err(NotFinite)
+        }
+    }
+
+    /// Encodes to the version-2 layout; a record with a NaN or infinite field is refused.
+    pub fn encode(&self) -> Result<[u8; LEN], NotFinite> {
+        self.check_finite()?;
         let mut w = Writer { buf: [0; LEN], at: 0 };
         w.bytes(&MAGIC);
         w.bytes(&[
@@ -225,8 +273,9 @@ impl Record {
         ]);
         w.bytes(&self.seq.to_le_bytes());
         w.bytes(&self.rows.to_le_bytes());
-        w.bytes(&[0, 0]);
-        w.f32s(&[self.temp_c]);
+        let flags = if self.temp_c.is_none() { TEMP_UNKNOWN } else { 0 };
+        w.bytes(&flags.to_le_bytes());
+        w.f32s(&[self.temp_c.unwrap_or(0.0)]);
         w.f32s(self.gyro_k.as_flattened());
         w.f32s(&self.gyro_bias_dps);
         w.f32s(self.accel_m.as_flattened());
@@ -236,7 +285,7 @@ impl Record {
         w.f32s(&[self.residual_rms, self.non_coplanar_deg]);
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
-        w.buf
+        Ok(w.buf)
     }
 
     /// Decodes and validates bytes of a version-2 or version-1 record (extra bytes after the
@@ -275,8 +324,12 @@ impl Record {
             2 => AccelModel::NineParam,
             _ => return Err(DecodeError::InvalidField),
         };
+        let flags = u16::from_le_bytes([b[14], b[15]]);
+        if flags & !TEMP_UNKNOWN != 0 {
+            return Err(DecodeError::InvalidField);
+        }
         let mut r = Reader { buf: b, at: 16, all_finite: true };
-        let temp_c = r.f32();
+        let temp_c = Some(r.f32()).filter(|_| flags & TEMP_UNKNOWN == 0);
         let gyro_k = r.mat3();
         let gyro_bias_dps = r.vec3();
         let accel_m = r.mat3();
@@ -380,7 +433,7 @@ pub(crate) mod tests {
     pub(crate) fn sample() -> Record {
         Record {
             seq: 7,
-            temp_c: 24.5,
+            temp_c: Some(24.5),
             gyro_k: [[1.01, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.02]],
             gyro_bias_dps: [0.5, -1.25, 2.0],
             method: Method::Sweep,
@@ -409,7 +462,7 @@ pub(crate) mod tests {
     #[test]
     fn round_trip_and_distinct_errors() {
         let r = sample();
-        let bytes = r.encode();
+        let bytes = r.encode().unwrap();
         assert_eq!(Record::decode(&bytes), Ok(r));
         assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 188 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
@@ -439,10 +492,38 @@ pub(crate) mod tests {
         assert!(matches!(Record::decode(&torn), Err(DecodeError::BadCrc { .. })));
     }
 
+    /// `bytes` with its CRC made good again.
+    fn re_crc(mut bytes: [u8; LEN]) -> [u8; LEN] {
+        let crc = crc32(&bytes[..LEN - 4]);
+        bytes[LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+        bytes
+    }
+
     #[test]
-    fn non_finite_fields_are_invalid_even_with_a_good_crc() {
-        let mut r = sample();
-        r.gyro_k[1][1] = f32::NAN;
-        assert_eq!(Record::decode(&r.encode()), Err(DecodeError::InvalidField));
+    fn a_non_finite_field_is_never_encoded_and_never_decoded_even_with_a_good_crc() {
+        for poke in [
+            |r: &mut Record| r.gyro_k[1][1] = f32::NAN,
+            |r: &mut Record| r.tilt_deg = f32::INFINITY,
+            |r: &mut Record| r.temp_c = Some(f32::NAN),
+        ] {
+            let mut r = sample();
+            poke(&mut r);
+            assert_eq!(r.encode(), Err(NotFinite), "{r:?}");
+        }
+        // K[1][1] (offset 20 + 4·4) written as NaN by something else, CRC good.
+        let mut bytes = sample().encode().unwrap();
+        bytes[36..40].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(Record::decode(&re_crc(bytes)), Err(DecodeError::InvalidField));
+    }
+
+    #[test]
+    fn an_unknown_temperature_is_encoded_as_unknown_and_unknown_flags_are_invalid() {
+        let r = Record { temp_c: None, ..sample() };
+        let bytes = r.encode().unwrap();
+        assert_eq!((bytes[14], &bytes[16..20]), (1, &[0u8; 4][..]), "flag set, temperature 0");
+        assert_eq!(Record::decode(&bytes), Ok(r));
+        let mut other = bytes;
+        other[14] = 0b10;
+        assert_eq!(Record::decode(&re_crc(other)), Err(DecodeError::InvalidField));
     }
 }

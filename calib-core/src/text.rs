@@ -9,7 +9,6 @@
 use crate::log::fixed;
 use crate::procedure::{Phase, Report};
 use crate::protocol::{self, RecordLine};
-use crate::record::Record;
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Display, Write};
 
@@ -136,14 +135,6 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
     }
 }
 
-/// Writes a record's gyro calibration as one line after `what`: `K` in full (row-major) and the
-/// bias. The lines the PC reads are [`protocol::record`]'s (`what` one of [`RecordLine`]'s).
-pub fn record(w: &mut impl Write, what: &str, rec: &Record) -> fmt::Result {
-    protocol::record_as(w, what, rec)
-}
-
-pub use crate::protocol::plan;
-
 impl Phase {
     /// What the user must do in this phase, if anything.
     pub fn instruction(self) -> Option<&'static str> {
@@ -176,14 +167,15 @@ mod tests {
 
     #[test]
     fn a_record_line_has_k_in_full() {
-        let rec = Record { seq: 7, gyro_k: [[1.01, 0.002, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]], ..crate::record::tests::sample() };
+        let rec = crate::record::Record {
+            seq: 7,
+            gyro_k: [[1.01, 0.002, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]],
+            ..crate::record::tests::sample()
+        };
         let mut s = String::new();
         protocol::record(&mut s, RecordLine::Loaded, &rec).unwrap();
         let event = protocol::Event::Record { line: RecordLine::Loaded, seq: 7, method: rec.method };
         assert_eq!(protocol::parse(&s), Some(event), "{s}");
         assert!(s.contains("K = [1.010000 0.002000 0.000000; 0.000000 0.990000"), "{s}");
-        let mut t = String::new();
-        record(&mut t, "loaded", &rec).unwrap();
-        assert_eq!(s, t);
     }
 }

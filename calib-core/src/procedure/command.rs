@@ -63,7 +63,7 @@ impl ErrorClass {
             | Error::RotationAxesCoplanar { .. } => ErrorClass::Geometry,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
             Error::Storage(_) => ErrorClass::Storage,
-            Error::NoTemperature | Error::SamplesLost { .. } | Error::SensorFault => ErrorClass::Sensor,
+            Error::SamplesLost { .. } | Error::SensorFault => ErrorClass::Sensor,
             Error::TooFewRows { .. }
             | Error::Singular
             | Error::IllConditioned { .. }
@@ -73,6 +73,7 @@ impl ErrorClass {
             | Error::AccelFitFailed
             | Error::ResultRejected { .. }
             | Error::CommandQueueFull
+            | Error::ResultNotFinite
             | Error::MovesInconsistent { .. } => ErrorClass::Result,
         }
     }

@@ -55,7 +55,7 @@ impl Procedure {
             return self.fail(e);
         }
         let poses = self.axes.poses().len() as u8;
-        let record = self.context().map(|c| c.full(&full, poses));
+        let record = self.context().full(&full, poses);
         self.store(record, t_s);
     }
 
@@ -111,7 +111,7 @@ impl Procedure {
             Ok(c) => c,
             Err(e) => return self.fail(e),
         };
-        let record = self.context().map(|c| c.one_axis(&chosen));
+        let record = self.context().one_axis(&chosen);
         self.store(record, t_s);
     }
 
@@ -129,9 +129,9 @@ impl Procedure {
         self.axes.solve_from(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)), start)
     }
 
-    /// Hands a built record to the shell to store (or fails with why it could not be built).
-    pub(super) fn store(&mut self, record: Result<Record, Error>, t_s: f64) {
-        match record {
+    /// Hands a built record to the shell to store (or fails: a NaN or an infinite number).
+    pub(super) fn store(&mut self, record: Record, t_s: f64) {
+        match record.check_finite().map(|_| record).map_err(|_| Error::ResultNotFinite) {
             Ok(record) => {
                 self.enter(Step::Storing { record }, t_s);
                 self.push(Command::Store(record));
@@ -164,15 +164,12 @@ impl Procedure {
     }
 
     /// The record's calibration-independent part (sequence, temperature, bias, accelerometer).
-    pub(super) fn context(&self) -> Result<record::Context, Error> {
-        if self.temp.count() == 0 {
-            return Err(Error::NoTemperature);
-        }
-        Ok(record::Context {
+    pub(super) fn context(&self) -> record::Context {
+        record::Context {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
-            temp_c: self.temp.mean()[0] as f32,
+            temp_c: (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32),
             gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
             accel: self.accel_cal,
-        })
+        }
     }
 }

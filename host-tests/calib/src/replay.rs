@@ -126,7 +126,7 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
             return None;
         }
         // The log has no temperature; it only annotates the record, never the estimates.
-        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: Some(25.0) });
+        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: None });
         p.drive(r.t_s, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
             return Some((out, p.full().copied()));

@@ -11,7 +11,7 @@ use rig_sim::nor::{NorError, NorSim};
 fn record(seq: u32) -> Record {
     Record {
         seq,
-        temp_c: 24.0,
+        temp_c: Some(24.0),
         gyro_k: [[1.0 + seq as f32 * 1e-3, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.01]],
         gyro_bias_dps: [0.1, -0.2, 0.3],
         method: Method::Sweep,
@@ -94,7 +94,7 @@ fn a_version_1_record_in_flash_loads_and_the_next_store_is_version_2() {
     // A record of the release before the full K (format version 1, 156 bytes), as it sits in
     // flash, laid out field by field: the v2 header, then the diagonal 1σ, six quality fields, CRC.
     use embedded_storage::nor_flash::NorFlash;
-    let mut v1 = record(4).encode()[..calib_core::record::LEN_V1].to_vec();
+    let mut v1 = record(4).encode().unwrap()[..calib_core::record::LEN_V1].to_vec();
     v1[4] = 1;
     let sigma = [1e-4f32; 3];
     let quality = [0.01f32, 0.001, 2.0, 40.0, 180.0, 1e-4];
@@ -142,4 +142,20 @@ fn flash_errors_are_values() {
     assert_eq!(s.load(), Err(StoreError::Flash));
     assert!(Storage::new(NorSim::new(1, 0)).is_err());
     let _ = NorError::Off;
+}
+
+#[test]
+fn a_record_with_a_nan_is_refused_before_anything_is_erased() {
+    let mut s = Storage::new(NorSim::new(2, 1)).unwrap();
+    s.store(&record(1)).unwrap();
+    s.store(&record(2)).unwrap();
+    let steps = s.release().steps();
+    let mut s = Storage::new(NorSim::new(2, 1)).unwrap();
+    s.store(&record(1)).unwrap();
+    s.store(&record(2)).unwrap();
+    let bad = Record { tilt_deg: f32::INFINITY, ..record(3) };
+    assert_eq!(s.store(&bad), Err(StoreError::NotFinite));
+    // Both records kept; the flash was not touched.
+    assert!(matches!(s.slots().unwrap(), [Slot::Valid(a), Slot::Valid(b)] if a.seq == 1 && b.seq == 2));
+    assert_eq!(s.release().steps(), steps);
 }

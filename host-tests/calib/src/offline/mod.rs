@@ -21,7 +21,6 @@ use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
 use calib_core::{full, paper, pipeline, sweep, Error};
-use calib_core::{Mat3, Vec3};
 use nalgebra::Vector3;
 use serde::Serialize;
 
@@ -31,7 +30,7 @@ mod phases;
 
 use checks::{check_accel_units, gyro_units, implied_scale};
 pub use checks::{check_time_base, TimeBase};
-pub use output::{AccelOut, EstimatorOut, Estimators, FullOut, GyroOut, Output, QualityOut, Segments};
+pub use output::{EstimatorOut, Estimators, FullOut, Output, QualityOut, Segments};
 pub use phases::{phases, steady_rotation, Phases, Segment, SteadyRotation};
 
 /// Why a log could not be calibrated.

@@ -1,38 +1,18 @@
 //! The tool's JSON output and the record of a result.
 
 use super::*;
+use calib_core::export::{AccelJson, GyroJson};
 
-/// The tool's JSON output: the calibration to apply, then everything about its quality.
+/// The tool's JSON output: the calibration to apply (`gyro` and `accel` in the one schema of
+/// `calib_core::export`), then everything about its quality.
 #[derive(Debug, Clone, Serialize)]
 pub struct Output<'a> {
     /// `ω = K (g − b)`; `null` when the log does not support it (see `quality.missing`).
-    pub gyro: Option<GyroOut>,
+    pub gyro: Option<GyroJson>,
     /// `f = M (a − o)`.
-    pub accel: AccelOut,
+    pub accel: AccelJson,
     /// Quality of every part.
     pub quality: QualityOut<'a>,
-}
-
-/// The gyro calibration.
-#[derive(Debug, Clone, Serialize)]
-pub struct GyroOut {
-    /// Scale matrix (row-major).
-    #[serde(rename = "K")]
-    pub k: Mat3,
-    /// Bias (raw °/s).
-    pub bias_dps: Vec3,
-    /// The estimator used.
-    pub method: Method,
-}
-
-/// The accelerometer calibration.
-#[derive(Debug, Clone, Serialize)]
-pub struct AccelOut {
-    /// Gain matrix (row-major).
-    #[serde(rename = "M")]
-    pub m: Mat3,
-    /// Offset (raw g).
-    pub offset_g: Vec3,
 }
 
 /// One estimator's outcome: its result, or why it failed.
@@ -153,12 +133,12 @@ impl Calibration {
         let gyro = self.gyro.as_ref().ok();
         let full = self.full.as_ref().and_then(|f| f.as_ref().ok());
         let chosen = match (full, gyro) {
-            (Some(f), _) => Some(GyroOut { k: f.k, bias_dps: self.bias.bias_dps, method: Method::Full }),
-            (None, g) => g.map(|g| GyroOut { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
+            (Some(f), _) => Some(GyroJson { k: f.k, bias_dps: self.bias.bias_dps, method: Method::Full }),
+            (None, g) => g.map(|g| GyroJson { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
         };
         Output {
             gyro: chosen,
-            accel: AccelOut { m: self.accel.m, offset_g: self.accel.offset_g },
+            accel: AccelJson { m: self.accel.m, offset_g: self.accel.offset_g },
             quality: QualityOut {
                 missing: self.missing(),
                 gyro: gyro.map(|g| &g.quality),
@@ -191,12 +171,12 @@ impl Calibration {
     /// The result as a flash record, for `calib_core::export`: the gyro `K` of
     /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
     /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
-    /// NaN (a log has none). `None` without a gyro result.
+    /// unknown (a log has none). `None` without a gyro result.
     pub fn record(&self) -> Option<Record> {
         if let Some(r) = self.replayed_record {
-            return Some(Record { seq: 0, temp_c: f32::NAN, ..r });
+            return Some(Record { seq: 0, ..r });
         }
-        let ctx = record::Context { seq: 0, temp_c: f32::NAN, gyro_bias_dps: self.bias.bias_dps, accel: self.accel };
+        let ctx = record::Context { seq: 0, temp_c: None, gyro_bias_dps: self.bias.bias_dps, accel: self.accel };
         // The full K's poses: every rig pose (each one went into its axes).
         let rig_poses = self.phases.segments.iter().filter(|s| s.is_rig_pose()).count().min(u8::MAX as usize) as u8;
         match (&self.full, &self.gyro) {
