@@ -9,7 +9,7 @@
 //! | error of class n | n flashes every 2 s | red on |
 //!
 //! Phase numbers: wait-rest 1, bias 2, accelerometer poses (hand-held or tilt servo) 3,
-//! reattach 4, rig-poses 5, rotation 6, storing the record 7.
+//! reattach 4, rig-poses 5, spin 6, storing the record 7.
 //! Error classes: sensor 1, motion 2, servo 3, geometry 4, result 5, timeout 6, storage 7.
 
 use calib_core::procedure::{ErrorClass, Led, Phase};
@@ -35,7 +35,7 @@ fn phase_number(p: Phase) -> u8 {
         Phase::HandHeld => 3,
         Phase::Reattach => 4,
         Phase::RigPoses => 5,
-        Phase::Rotation => 6,
+        Phase::Spin => 6,
         Phase::Store => 7,
         Phase::Idle | Phase::Done | Phase::Failed => 0,
     }

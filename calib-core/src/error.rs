@@ -32,8 +32,8 @@ pub enum Error {
     AngleSpanTooSmall { span_deg: f32, min_deg: f32 },
     /// The pose accelerations do not lie on one plane: the axis moved (loose clamp, hand-held).
     AxisNotFixed { plane_rms_g: f32, limit_g: f32 },
-    /// The mean rotation rate is too small to scale the gyro (paper estimator).
-    NoRotation { rate_dps: f32, min_dps: f32 },
+    /// The mean spin rate is too small to scale the gyro (paper estimator).
+    NoSpin { rate_dps: f32, min_dps: f32 },
     /// The scale solution has mixed signs or a gain outside the plausible range.
     ImplausibleScale { axis: u8, value: f32 },
     /// No move between two poses turned the shaft by a usable angle.
@@ -115,8 +115,8 @@ impl fmt::Display for Error {
             Error::AxisNotFixed { plane_rms_g, limit_g } => write!(
                 f,
                 "pose accelerations off their plane by {plane_rms_g} g rms > {limit_g} g: the axis moved", plane_rms_g = Fixed(plane_rms_g as f64, 4), limit_g = Fixed(limit_g as f64, 4)),
-            Error::NoRotation { rate_dps, min_dps } => {
-                write!(f, "rotation rate {rate_dps} deg/s below {min_dps} deg/s", rate_dps = Fixed(rate_dps as f64, 2), min_dps = Fixed(min_dps as f64, 2))
+            Error::NoSpin { rate_dps, min_dps } => {
+                write!(f, "spin rate {rate_dps} deg/s below {min_dps} deg/s", rate_dps = Fixed(rate_dps as f64, 2), min_dps = Fixed(min_dps as f64, 2))
             }
             Error::ImplausibleScale { axis, value } => write!(
                 f,

@@ -9,7 +9,7 @@ use crate::{Mat3, Vec3};
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
 #[cfg_attr(feature = "serde", serde(rename_all = "lowercase"))]
 pub enum Method {
-    /// The paper's estimator: constant-rate rotation at a known servo speed (DESIGN §4.1).
+    /// The paper's estimator: constant-rate spin at a known servo speed (DESIGN §4.1).
     Paper,
     /// Speed-free sweeps: turn angles from the accelerometer (DESIGN §4.2).
     Sweep,

@@ -1,5 +1,5 @@
 //! The paper's estimator (Li et al.; DESIGN §4.1): static poses `A_i` and the mean bias-free
-//! gyro reading `ḡ` during a constant-rate rotation at the known servo speed `ω_n`.
+//! gyro reading `ḡ` during a constant-rate spin at the known servo speed `ω_n`.
 //!
 //! Rows `x_i = A_i ∘ ḡ`, `X β̂ ≈ 1`, `K = L diag(β̂)`, `|L| = ω_n / ‖β̂ ∘ ḡ‖`, the sign of `L`
 //! chosen so that `K` has a positive diagonal (β̂ alone cannot tell it).
@@ -17,7 +17,7 @@ pub const MIN_RATE_DPS: f32 = 1.0;
 /// Solves the paper's estimator.
 ///
 /// `poses`: calibrated static accelerations (g); `gbar_dps`: mean bias-free gyro (°/s, B) over
-/// the constant-rate rotation; `omega_n_dps`: the servo speed believed to produce it (°/s).
+/// the constant-rate spin; `omega_n_dps`: the servo speed believed to produce it (°/s).
 pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryLimits) -> Result<GyroCal, Error> {
     if !(gbar_dps.iter().all(|v| v.is_finite()) && omega_n_dps.is_finite()) {
         return Err(Error::NonFinite);
@@ -26,7 +26,7 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
     let g = Vector3::new(gbar_dps[0] as f64, gbar_dps[1] as f64, gbar_dps[2] as f64);
     let omega = (omega_n_dps as f64).abs();
     if g.norm() < MIN_RATE_DPS as f64 || omega < MIN_RATE_DPS as f64 {
-        return Err(Error::NoRotation { rate_dps: g.norm().min(omega) as f32, min_dps: MIN_RATE_DPS });
+        return Err(Error::NoSpin { rate_dps: g.norm().min(omega) as f32, min_dps: MIN_RATE_DPS });
     }
     // Σ A Aᵀ is accumulated from the poses, then scaled by ḡ: the rows A_i ∘ ḡ.
     let mut ne = NormalEquations::<3>::new();

@@ -78,18 +78,18 @@ pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
     Ok(())
 }
 
-/// The paper's constant-rate rotation: which part of it is averaged (the servo speeds up after
+/// The paper's constant-rate spin: which part of it is averaged (the servo speeds up after
 /// the start and slows before the end), how long that part must be, and the least rate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SteadyRate {
-    /// Skipped after the rotation starts (s).
+    /// Skipped after the spin starts (s).
     pub skip_start_s: f32,
     /// Skipped before it ends (s).
     pub skip_end_s: f32,
     /// Shortest averaged part a log's steady run needs (s).
     pub min_s: f32,
-    /// Smallest shaft rate that counts as a rotation (°/s).
+    /// Smallest shaft rate that counts as a spin (°/s).
     pub min_dps: f32,
 }
 
@@ -97,7 +97,7 @@ impl SteadyRate {
     /// One second skipped at the start, half a second at the end; ≥ 3 s at ≥ 2 °/s.
     pub const DEFAULT: SteadyRate = SteadyRate { skip_start_s: 1.0, skip_end_s: 0.5, min_s: 3.0, min_dps: 2.0 };
 
-    /// A sample `elapsed_s` after the start of a rotation that lasts `duration_s` is averaged.
+    /// A sample `elapsed_s` after the start of a spin that lasts `duration_s` is averaged.
     pub fn averaged(&self, elapsed_s: f64, duration_s: f64) -> bool {
         elapsed_s > self.skip_start_s as f64 && elapsed_s < duration_s - self.skip_end_s as f64
     }
@@ -124,7 +124,7 @@ impl RateSource {
     }
 }
 
-/// The angle gravity turns about a fixed axis over a rotation, summed sample to sample, and the
+/// The angle gravity turns about a fixed axis over a spin, summed sample to sample, and the
 /// time it took: the shaft's rate without knowing the servo's speed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GravityTurn {
@@ -162,7 +162,7 @@ impl GravityTurn {
 
 /// The shaft rate for the paper's estimator (°/s) and its source: the commanded rate when the
 /// servo turned at a known one, else the rate gravity turned.
-pub fn rotation_rate(commanded_dps: Option<f32>, gravity: &GravityTurn) -> (f32, RateSource) {
+pub fn spin_rate(commanded_dps: Option<f32>, gravity: &GravityTurn) -> (f32, RateSource) {
     match commanded_dps {
         Some(w) => (w, RateSource::Commanded),
         None => (gravity.rate_dps(), RateSource::Gravity),

@@ -278,7 +278,7 @@ const PHASES: [Phase; 10] = [
     Phase::HandHeld,
     Phase::Reattach,
     Phase::RigPoses,
-    Phase::Rotation,
+    Phase::Spin,
     Phase::Store,
     Phase::Done,
     Phase::Failed,
@@ -453,7 +453,7 @@ mod tests {
                 | Phase::HandHeld
                 | Phase::Reattach
                 | Phase::RigPoses
-                | Phase::Rotation
+                | Phase::Spin
                 | Phase::Store
                 | Phase::Done
                 | Phase::Failed => {}

@@ -144,7 +144,7 @@ impl Phase {
                 "unclamp the board; hold it still in a new orientation each time the LED blinks yellow, about 3 s each, turning it about varied axes in between"
             }
             Phase::Reattach => "clamp the board back on the servo shaft, then press the button (or send c)",
-            Phase::RigPoses | Phase::Rotation => "hands off: the servos move the board",
+            Phase::RigPoses | Phase::Spin => "hands off: the servos move the board",
             _ => return None,
         })
     }

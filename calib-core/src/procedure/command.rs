@@ -50,7 +50,7 @@ impl ErrorClass {
         match e {
             Error::SensorTimeout { .. } | Error::Saturated | Error::BiasOutOfRange { .. } | Error::NonFinite => ErrorClass::Sensor,
             Error::NotStill { .. } | Error::PoseDisturbed { .. } | Error::AxisNotFixed { .. } => ErrorClass::Motion,
-            Error::ServoNotTurning { .. } | Error::NoRotation { .. } | Error::NoUsableMove => ErrorClass::Servo,
+            Error::ServoNotTurning { .. } | Error::NoSpin { .. } | Error::NoUsableMove => ErrorClass::Servo,
             Error::AxisNearVertical { .. }
             | Error::AxisNearHorizontal { .. }
             | Error::WeakSensorAxis { .. }

@@ -23,7 +23,7 @@ pub enum ServoKind {
         neutral_us: u16,
         /// Pulse offset of full speed (µs).
         span_us: u16,
-        /// Speed used for moves and the rotation, as a fraction of full speed.
+        /// Speed used for moves and the spin, as a fraction of full speed.
         speed: f32,
         /// Nominal shaft rate at `speed` (°/s), only for the stall check.
         nominal_rate_dps: f32,
@@ -62,12 +62,12 @@ pub struct Config {
     pub round_trips: u8,
     /// Commanded rate of the moves between poses (°/s, positional).
     pub move_rate_dps: f32,
-    /// Commanded rate of the paper's constant-rate rotation (°/s); 0 skips it.
-    pub rotation_rate_dps: f32,
+    /// Commanded rate of the paper's constant-rate spin (°/s); 0 skips it.
+    pub spin_rate_dps: f32,
     /// The part of that rotation averaged, and what a log's steady run must meet.
     pub steady: SteadyRate,
-    /// Duration of the rotation with a continuous servo (s).
-    pub rotation_s: f32,
+    /// Duration of the spin with a continuous servo (s).
+    pub spin_s: f32,
     /// Still time averaged per pose (s).
     pub pose_average_s: f32,
     /// Still time averaged for the bias (s).
@@ -130,9 +130,9 @@ impl Config {
         pose_last_deg: 180.0,
         round_trips: 1,
         move_rate_dps: 30.0,
-        rotation_rate_dps: 20.0,
+        spin_rate_dps: 20.0,
         steady: SteadyRate::DEFAULT,
-        rotation_s: 10.0,
+        spin_s: 10.0,
         pose_average_s: 1.0,
         bias_s: 2.0,
         accel_poses: 12,
@@ -159,9 +159,9 @@ impl Config {
 impl Config {
     /// The pan/tilt plan (firmware feature `tilt-servo`): at each of the four tilt settings, rig
     /// poses at 0–180° every 45° there and back, tilt moves at pan 0 up through the settings and
-    /// back down (moves at 60 °/s), no paper rotation; the full `K` from the 32 pan and 6 tilt
+    /// back down (moves at 60 °/s), no paper spin; the full `K` from the 32 pan and 6 tilt
     /// moves, the accelerometer from the 20 distinct poses.
-    pub const PAN_TILT: Config = Config { pan_tilt: true, pose_count: 5, move_rate_dps: 60.0, rotation_rate_dps: 0.0, ..Config::DEFAULT };
+    pub const PAN_TILT: Config = Config { pan_tilt: true, pose_count: 5, move_rate_dps: 60.0, spin_rate_dps: 0.0, ..Config::DEFAULT };
 }
 
 impl Default for Config {

@@ -5,7 +5,7 @@
 //! Phases: wait for rest → gyro bias → accelerometer (hand-held poses, skipped when a valid
 //! stored calibration exists; every move between two of them is kept as a rotation constraint,
 //! [`crate::rotation`]) → re-clamp and press → static rig poses and the moves between them,
-//! there and back → the paper's constant-rate rotation → both one-axis estimators, and with
+//! there and back → the paper's constant-rate spin → both one-axis estimators, and with
 //! hand-held moves the full 3×3 `K` from the rig's axis and the rotations → validate → store →
 //! (verified) report → apply.
 //!
@@ -77,8 +77,8 @@ pub enum Phase {
     Reattach,
     /// Static rig poses and the moves between them.
     RigPoses,
-    /// The paper's constant-rate rotation.
-    Rotation,
+    /// The paper's constant-rate spin.
+    Spin,
     /// Waiting for the shell to store the record.
     Store,
     /// Calibration stored and applied.
@@ -97,7 +97,7 @@ impl Phase {
             Phase::HandHeld => "hand-held",
             Phase::Reattach => "reattach",
             Phase::RigPoses => "rig-poses",
-            Phase::Rotation => "rotation",
+            Phase::Spin => "spin",
             Phase::Store => "store",
             Phase::Done => "done",
             Phase::Failed => "failed",
@@ -183,9 +183,9 @@ enum Step {
         capture: Capture,
         since: f64,
     },
-    /// The paper's constant-rate rotation.
-    Rotation {
-        rot: Rotation,
+    /// The paper's constant-rate spin.
+    Spin {
+        spin: Spin,
     },
     /// `record` was handed to the shell to store; waiting for [`Procedure::handle_stored`].
     Storing {
@@ -194,10 +194,10 @@ enum Step {
     Finished(Phase),
 }
 
-/// The paper's rotation: mean bias-free rate over its middle and, for a continuous servo whose
+/// The paper's spin: mean bias-free rate over its middle and, for a continuous servo whose
 /// speed is unknown, the angle gravity turned about the axis over the same samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Rotation {
+struct Spin {
     ramp: Ramp,
     rate: Welford3,
     gravity: GravityTurn,
@@ -284,7 +284,7 @@ impl Procedure {
             Step::HandHeld { .. } => Phase::HandHeld,
             Step::Reattach => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
-            Step::Rotation { .. } => Phase::Rotation,
+            Step::Spin { .. } => Phase::Spin,
             Step::Storing { .. } => Phase::Store,
             Step::Finished(p) => p,
         }
@@ -471,21 +471,21 @@ impl Procedure {
                     }
                 }
             }
-            Step::Rotation { mut rot } => {
+            Step::Spin { mut spin } => {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
-                let elapsed = s.t_s - rot.ramp.t0;
-                let duration = rot.ramp.duration_s;
-                self.set_angle(rot.ramp.at(s.t_s).0);
+                let elapsed = s.t_s - spin.ramp.t0;
+                let duration = spin.ramp.duration_s;
+                self.set_angle(spin.ramp.at(s.t_s).0);
                 if self.cfg.steady.averaged(elapsed, duration) {
-                    rot.rate.add(g);
-                    rot.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
+                    spin.rate.add(g);
+                    spin.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
                 }
                 if elapsed >= duration {
-                    self.finish_rotation(&rot, s.t_s);
+                    self.finish_spin(&spin, s.t_s);
                 } else {
-                    self.step = Step::Rotation { rot };
+                    self.step = Step::Spin { spin };
                 }
             }
         }
@@ -572,7 +572,7 @@ impl Procedure {
             Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
-            Step::Rotation { rot } => (rot.ramp.t0, rot.ramp.duration_s as f32 + c.rest_timeout_s),
+            Step::Spin { spin } => (spin.ramp.t0, spin.ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Storing { .. } => (self.phase_t0, STORE_TIMEOUT_S),
             Step::Idle | Step::Finished(_) => return,
         };

@@ -1,5 +1,5 @@
 //! The rig: the servo(s) driven through the static poses, the moves between them and the paper's
-//! constant-rate rotation.
+//! constant-rate spin.
 
 use super::*;
 
@@ -122,25 +122,25 @@ impl Procedure {
             self.step = Step::Move { k: next, ramp };
         } else if pan_tilt {
             self.solve_full(s.t_s);
-        } else if self.cfg.rotation_rate_dps > 0.0 {
-            let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.rotation_rate_dps, 1.0, self.cfg.rotation_s);
+        } else if self.cfg.spin_rate_dps > 0.0 {
+            let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.spin_rate_dps, 1.0, self.cfg.spin_s);
             let axis = self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u);
-            let rot = Rotation { ramp, rate: Welford3::new(), gravity: GravityTurn::new(axis) };
-            self.enter(Step::Rotation { rot }, s.t_s);
+            let spin = Spin { ramp, rate: Welford3::new(), gravity: GravityTurn::new(axis) };
+            self.enter(Step::Spin { spin }, s.t_s);
         } else {
             self.solve(s.t_s);
         }
     }
 
-    pub(super) fn finish_rotation(&mut self, rot: &Rotation, t_s: f64) {
+    pub(super) fn finish_spin(&mut self, spin: &Spin, t_s: f64) {
         self.push(Command::ServoOff { channel: 0 });
         self.servo_deg = None;
         self.last_pulse = None;
         // A continuous servo's speed is unknown: the rate at which gravity turns about the axis.
-        let commanded = matches!(self.cfg.servo, ServoKind::Positional).then_some(self.cfg.rotation_rate_dps);
-        let (omega, _) = pipeline::rotation_rate(commanded, &rot.gravity);
-        if rot.rate.count() > 0 {
-            self.gbar = Some((rot.rate.mean().map(|v| v as f32), omega));
+        let commanded = matches!(self.cfg.servo, ServoKind::Positional).then_some(self.cfg.spin_rate_dps);
+        let (omega, _) = pipeline::spin_rate(commanded, &spin.gravity);
+        if spin.rate.count() > 0 {
+            self.gbar = Some((spin.rate.mean().map(|v| v as f32), omega));
         }
         self.solve(t_s);
     }

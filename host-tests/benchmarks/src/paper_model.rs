@@ -22,7 +22,7 @@ pub struct PaperProtocol {
     pub poses: usize,
     /// Samples averaged per static pose.
     pub pose_samples: usize,
-    /// Samples of the constant-rate rotation.
+    /// Samples of the constant-rate spin.
     pub rotation_samples: usize,
     /// Samples of the rest period used for the bias.
     pub rest_samples: usize,

@@ -40,13 +40,13 @@ fn default_method_is_speed_free_and_accurate_despite_servo_scale_error() {
 #[test]
 fn logs_without_the_paper_rotation_still_calibrate_and_paper_is_refused() {
     let (log, truth) = simulated_log(Variant::Hobby.config(22, 0));
-    // Cut the log before the paper's rotation (the last servo ramp): keep up to the last rig pose.
+    // Cut the log before the paper's spin (the last servo ramp): keep up to the last rig pose.
     let rows = csvlog::parse(&log).unwrap().rows;
     let cut = rows.len() - rows.iter().rev().position(|r| r.servo_deg.is_some_and(|s| s > 1.0 && s < 179.0)).unwrap();
     let rows: Vec<Row> = rows[..cut.saturating_sub(1500)].to_vec();
     let c = offline::calibrate(&rows, None).unwrap();
     assert!(errors(c.gyro.as_ref().unwrap().k, truth).iter().all(|x| x.abs() < 0.003));
-    assert_eq!(offline::calibrate(&rows, Some(Method::Paper)).unwrap().gyro.unwrap_err(), OfflineError::NoRotation);
+    assert_eq!(offline::calibrate(&rows, Some(Method::Paper)).unwrap().gyro.unwrap_err(), OfflineError::NoSpin);
 }
 
 #[test]

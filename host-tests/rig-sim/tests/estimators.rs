@@ -148,7 +148,7 @@ fn paper_degenerate_inputs_are_named_errors() {
     // The sweep estimator has no such limit: a horizontal axis is its best case.
     assert!(sweep::solve(&flat.poses, &flat.moves, &lim).is_ok());
     let good = rig(&good_axis(), 0.7, &k, 6, 30.0);
-    assert!(matches!(paper::solve(&good.poses, [0.0; 3], 20.0, &lim), Err(Error::NoRotation { .. })));
+    assert!(matches!(paper::solve(&good.poses, [0.0; 3], 20.0, &lim), Err(Error::NoSpin { .. })));
     assert_eq!(paper::solve(&good.poses, [f32::NAN, 0.0, 0.0], 20.0, &lim), Err(Error::NonFinite));
 }
 

@@ -6,9 +6,9 @@
 
 #![deny(missing_docs)]
 
-pub mod bench;
 pub mod elf;
 pub mod mcu;
 pub mod periph;
 pub mod pty;
+pub mod testbed;
 pub mod usb_host;

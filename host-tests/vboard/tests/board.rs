@@ -5,17 +5,17 @@ use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::sim::RigConfig;
 use rig_sim::variant::Variant;
-use vboard::bench::{build_firmware, Bench, Event, Outcome};
 use vboard::mcu::Stop;
+use vboard::testbed::{build_firmware, Event, Outcome, Testbed};
 
-fn bench(board: Board, rig: RigConfig, seed: u64) -> Bench {
+fn testbed(board: Board, rig: RigConfig, seed: u64) -> Testbed {
     let elf = build_firmware(&[]).unwrap();
-    Bench::new(elf, rig, seed, board, NorSim::new(8, seed), false).unwrap()
+    Testbed::new(elf, rig, seed, board, NorSim::new(8, seed), false).unwrap()
 }
 
 #[test]
 fn calibrates_stores_and_reloads_after_reset() {
-    let mut b = bench(Board::Rev1, Variant::Hobby.config(3, 0), 3);
+    let mut b = testbed(Board::Rev1, Variant::Hobby.config(3, 0), 3);
     b.mcu.paint_stack();
     assert_eq!(b.run_for(2.0), Stop::Time);
     let boot_stack = b.mcu.peak_stack();
@@ -53,7 +53,7 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
         (Board::Rev2, SensorError::Rev2Bmi270),
     ] {
         let token = error.to_string();
-        let mut b = bench(board, Variant::Hobby.config(4, 0), 4);
+        let mut b = testbed(board, Variant::Hobby.config(4, 0), 4);
         assert_eq!(b.run_for(5.0), Stop::Time);
         // Retried every 2 s, and the firmware keeps running (the watchdog is fed).
         assert!(b.mcu.log.iter().filter(|l| l.contains(&token)).count() >= 2, "{board:?}: {:?}", b.mcu.log);
@@ -66,7 +66,7 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
 
 #[test]
 fn i2c_nack_mid_run_fails_and_stores_nothing() {
-    let mut b = bench(Board::Rev1, Variant::Hobby.config(5, 0), 5);
+    let mut b = testbed(Board::Rev1, Variant::Hobby.config(5, 0), 5);
     b.run_for(2.0);
     let out = b.calibrate_with(600.0, |e, p| {
         if e == Event::HandHeldPose(2) {
@@ -79,7 +79,7 @@ fn i2c_nack_mid_run_fails_and_stores_nothing() {
 
 #[test]
 fn disconnected_servo_fails_and_stores_nothing() {
-    let mut b = bench(Board::Rev1, Variant::Hobby.config(6, 0), 6);
+    let mut b = testbed(Board::Rev1, Variant::Hobby.config(6, 0), 6);
     b.run_for(2.0);
     // The servo stalls (unplugged) when the board is back on the shaft.
     let out = b.calibrate_with(600.0, |e, p| {
@@ -93,7 +93,7 @@ fn disconnected_servo_fails_and_stores_nothing() {
 
 #[test]
 fn a_hung_bus_ends_in_a_watchdog_reset() {
-    let mut b = bench(Board::Rev1, Variant::Hobby.config(7, 0), 7);
+    let mut b = testbed(Board::Rev1, Variant::Hobby.config(7, 0), 7);
     b.run_for(2.0);
     b.mcu.periph.borrow_mut().twim.hang = true;
     b.run_for(3.0);
@@ -104,27 +104,10 @@ fn a_hung_bus_ends_in_a_watchdog_reset() {
 }
 
 #[test]
-fn a_failed_store_shows_the_storage_error_applies_nothing_and_keeps_the_sequence() {
-    let mut b = bench(Board::Rev1, Variant::Hobby.config(10, 0), 10);
-    b.run_for(2.0);
-    // A worn bit in the first record slot: the write reads back wrong (StoreError::Verify).
-    b.mcu.periph.borrow_mut().flash.stuck_bit = Some(10);
-    assert_eq!(b.calibrate(600.0), Outcome::Failed(7), "the storage error class, not done");
-    assert!(b.stored().is_none());
-    // Not applied: the LEDs stay on the error, never "done".
-    b.run_for(2.0);
-    assert!(b.leds().red && !b.leds().green);
-    // The cell works again: the next calibration is record 1, the sequence did not move on.
-    b.mcu.periph.borrow_mut().flash.stuck_bit = None;
-    assert_eq!(b.calibrate(600.0), Outcome::Done);
-    assert_eq!(b.stored().map(|r| r.seq), Some(1));
-}
-
-#[test]
 fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
     let elf = build_firmware(&["tilt-servo"]).unwrap();
     let rig = rig_sim::pan_tilt::rig_config(36, 0);
-    let mut b = Bench::new(elf.clone(), rig, 36, Board::Rev1, NorSim::new(8, 36), false).unwrap();
+    let mut b = Testbed::new(elf.clone(), rig, 36, Board::Rev1, NorSim::new(8, 36), false).unwrap();
     b.run_for(2.0);
     // Nobody touches the board after the press: no "your turn" on the LEDs, the result stored.
     let mut asked = false;
@@ -142,7 +125,7 @@ fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
     assert!(!b.leds().red, "no error after the reboot");
 
     // A stalled tilt servo: the servo error class (3) on the LEDs, nothing stored.
-    let mut b = Bench::new(elf, rig_sim::pan_tilt::rig_config(37, 0), 37, Board::Rev1, NorSim::new(8, 37), false).unwrap();
+    let mut b = Testbed::new(elf, rig_sim::pan_tilt::rig_config(37, 0), 37, Board::Rev1, NorSim::new(8, 37), false).unwrap();
     b.mcu.periph.borrow_mut().sensor.rig_mut().stall_tilt(true);
     b.run_for(2.0);
     assert_eq!(b.calibrate(300.0), Outcome::Failed(3));

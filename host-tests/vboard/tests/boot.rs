@@ -5,12 +5,12 @@
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
-use vboard::bench::{build_firmware, Bench};
 use vboard::mcu::Stop;
+use vboard::testbed::{build_firmware, Testbed};
 
-fn bench(seed: u64, bootloader: bool) -> Bench {
+fn testbed(seed: u64, bootloader: bool) -> Testbed {
     let elf = build_firmware(&[]).unwrap();
-    let mut b = Bench::new(elf, Variant::Hobby.config(seed, 0), seed, Board::Rev1, NorSim::new(8, seed), false).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(seed, 0), seed, Board::Rev1, NorSim::new(8, seed), false).unwrap();
     if !bootloader {
         b.mcu.periph.borrow_mut().bootloader = false;
         b.mcu.reset().unwrap();
@@ -21,7 +21,7 @@ fn bench(seed: u64, bootloader: bool) -> Bench {
 #[test]
 fn boots_from_the_bootloader_state_and_from_cold() {
     for bootloader in [true, false] {
-        let mut b = bench(11, bootloader);
+        let mut b = testbed(11, bootloader);
         assert_eq!(b.run_for(3.0), Stop::Time, "{:?}", b.mcu.log);
         let p = b.mcu.periph.borrow();
         let what = if bootloader { "bootloader" } else { "cold" };
@@ -51,7 +51,7 @@ fn boots_from_the_bootloader_state_and_from_cold() {
 
 #[test]
 fn a_soft_reset_with_the_watchdog_running_recovers_it() {
-    let mut b = bench(12, true);
+    let mut b = testbed(12, true);
     b.run_for(1.0);
     assert!(b.mcu.periph.borrow().wdt.running);
     // AIRCR.SYSRESETREQ: the WDT keeps running (PS: a soft reset does not reset it); the
@@ -68,7 +68,7 @@ fn a_soft_reset_with_the_watchdog_running_recovers_it() {
 
 #[test]
 fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
-    let mut b = bench(13, true);
+    let mut b = testbed(13, true);
     // probe-rs run: attaches at boot (BLOCK_IF_FULL) and reads.
     b.mcu.rtt_attach();
     b.run_for(1.0);
@@ -99,7 +99,7 @@ fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
 #[test]
 fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     let elf = build_firmware(&["odr952"]).unwrap();
-    let mut b = Bench::new(elf, Variant::Hobby.config(14, 0), 14, Board::Rev1, NorSim::new(8, 14), false).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(14, 0), 14, Board::Rev1, NorSim::new(8, 14), false).unwrap();
     // probe-rs run, reading all along (the vboard drains the buffer every millisecond).
     b.mcu.rtt_attach();
     b.run_for(1.0);
@@ -109,7 +109,7 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     b.run_for(5.0);
     let bytes_per_s = (b.mcu.rtt_written() - w0) as f64 / (b.mcu.now() - t0);
     // The lines as `probe-rs run --log-format "{s}"` prints them: the message text.
-    let text: String = b.mcu.log[before..].iter().map(|l| format!("{}\n", vboard::bench::message(l))).collect();
+    let text: String = b.mcu.log[before..].iter().map(|l| format!("{}\n", vboard::testbed::message(l))).collect();
     let log = calib::csvlog::parse(&text).expect("the raw log parses");
     let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t_s - log.rows[0].t_s);
     let buffer_s = gyrocal_fw::rtt::BUF_SIZE as f64 / bytes_per_s;
@@ -123,7 +123,7 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
 
 #[test]
 fn the_microsecond_clock_wraps_at_2_pow_32_without_a_gap() {
-    let mut b = bench(15, true);
+    let mut b = testbed(15, true);
     b.run_for(2.0);
     // TIMER1 (the 1 MHz clock) 0.5 s before its 32-bit wrap.
     {

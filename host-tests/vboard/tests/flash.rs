@@ -1,5 +1,6 @@
-//! The store's faults on the emulated board, each branched from one snapshot taken just before
-//! the store of a second calibration: a worn cell (the store fails, nothing is applied, the
+//! The store's faults on the emulated board: a worn cell at the first store (nothing stored,
+//! nothing applied); then, each branched from one snapshot taken just before the store of a
+//! second calibration: a worn cell (the store fails, the previous record stays applied, the
 //! sequence does not move on), a power cut at every step of the flash write (the previous record
 //! survives, a torn one is never applied), and the reload after a reset. And no sample lost at
 //! 952 Hz.
@@ -7,21 +8,30 @@
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
-use vboard::bench::{build_firmware, Bench, Outcome};
 use vboard::mcu::Stop;
+use vboard::testbed::{build_firmware, Outcome, Testbed};
 
 #[test]
 fn a_failed_store_and_a_power_cut_at_every_flash_step_keep_the_previous_record() {
     let elf = build_firmware(&[]).unwrap();
-    let mut b = Bench::new(elf, Variant::Hobby.config(8, 0), 8, Board::Rev1, NorSim::new(8, 8), false).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(8, 0), 8, Board::Rev1, NorSim::new(8, 8), false).unwrap();
     b.run_for(2.0);
+    // The first store on a worn bit in slot A (nothing stored before): the write reads back
+    // wrong (StoreError::Verify): the storage error class, nothing stored or applied (the LEDs
+    // stay on the error, never "done"); once the cell works the next calibration is record 1.
+    b.mcu.periph.borrow_mut().flash.stuck_bit = Some(10);
+    assert_eq!(b.calibrate(600.0), Outcome::Failed(7), "the storage error class, not done");
+    assert!(b.stored().is_none());
+    b.run_for(2.0);
+    assert!(b.leds().red && !b.leds().green);
+    b.mcu.periph.borrow_mut().flash.stuck_bit = None;
     assert_eq!(b.calibrate(600.0), Outcome::Done);
     let first = b.stored().unwrap();
     assert_eq!(first.seq, 1);
     // Second calibration (the stored accelerometer calibration is reused); snapshot when the
     // last phase starts, before anything is written.
     b.press(0.2);
-    // Phase 6 on the LEDs: the paper's rotation, the last phase before the store.
+    // Phase 6 on the LEDs: the paper's spin, the last phase before the store.
     assert!(b.run_until_phase(6, 300.0), "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
     let first_snap = b.mcu.snapshot().unwrap();
     let steps0 = b.mcu.periph.borrow().flash.steps();
@@ -53,7 +63,7 @@ fn a_failed_store_and_a_power_cut_at_every_flash_step_keep_the_previous_record()
     b.mcu.periph.borrow_mut().flash.stuck_bit = Some(4096 + 10);
     let t_end = b.mcu.now() + 60.0;
     // Red alone is an error (red with green is "your turn").
-    let error_shown = |b: &Bench| b.leds().red && !b.leds().green;
+    let error_shown = |b: &Testbed| b.leds().red && !b.leds().green;
     while b.mcu.now() < t_end && !error_shown(&b) {
         assert_eq!(b.run_for(0.05), Stop::Time);
     }
@@ -102,7 +112,7 @@ fn no_sample_dropped_at_952_hz() {
     let elf = build_firmware(&["odr952"]).unwrap();
     // The rig is built for 119 Hz: the sensor model follows the firmware's CTRL_REG1_G.
     let rig = Variant::Hobby.config(9, 0);
-    let mut b = Bench::new(elf, rig, 9, Board::Rev1, NorSim::new(8, 9), false).unwrap();
+    let mut b = Testbed::new(elf, rig, 9, Board::Rev1, NorSim::new(8, 9), false).unwrap();
     b.run_for(1.0);
     b.press(0.2);
     b.run_for(20.0);

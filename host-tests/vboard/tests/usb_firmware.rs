@@ -9,7 +9,7 @@ use calib_core::protocol::{self, Command, Event, RecordLine};
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
-use vboard::bench::{build_firmware, message, Bench};
+use vboard::testbed::{build_firmware, message, Testbed};
 use vboard::usb_host::UsbHost;
 
 /// What each line of `text` is (`None`: a line for people).
@@ -23,13 +23,13 @@ fn help() -> Vec<Option<Event<'static>>> {
 }
 
 /// Whether a line of the board's RTT log (level word and all) is `want`.
-fn logged(b: &Bench, want: impl Fn(&Event) -> bool) -> bool {
+fn logged(b: &Testbed, want: impl Fn(&Event) -> bool) -> bool {
     b.mcu.log.iter().any(|l| protocol::parse(message(l)).is_some_and(|e| want(&e)))
 }
 
-fn usb_bench() -> (Bench, UsbHost) {
+fn usb_bench() -> (Testbed, UsbHost) {
     let elf = build_firmware(&[]).unwrap();
-    let b = Bench::new(elf, Variant::Hobby.config(3, 0), 3, Board::Rev1, NorSim::new(8, 3), false).unwrap();
+    let b = Testbed::new(elf, Variant::Hobby.config(3, 0), 3, Board::Rev1, NorSim::new(8, 3), false).unwrap();
     let host = UsbHost::new(&b.mcu);
     host.attach();
     (b, host)
@@ -95,7 +95,7 @@ fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_resets_the_board()
 }
 
 /// The text the host received in `secs` of board time.
-fn read_for(b: &mut Bench, host: &UsbHost, secs: f64) -> String {
+fn read_for(b: &mut Testbed, host: &UsbHost, secs: f64) -> String {
     String::from_utf8_lossy(&host.run_and_read(&mut b.mcu, secs).unwrap()).into_owned()
 }
 
@@ -160,7 +160,7 @@ fn a_host_that_stops_reading_never_stalls_the_board_and_is_told_what_it_missed()
 fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
     // (Every other vboard test runs without VBUS too: the calibrations in board.rs among them.)
     let elf = build_firmware(&[]).unwrap();
-    let mut b = Bench::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
     b.run_for(3.0);
     assert_eq!(b.mcu.periph.borrow().usbd.enable, 0, "USBD enabled without VBUS");
     let ready = |e: &Event| *e == Event::SensorReady { odr_hz: 119, gyro_dps: 500, accel_g: 2 };
@@ -185,11 +185,11 @@ fn without_vbus_the_usbd_stays_off_and_the_board_runs() {
 #[test]
 fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     let elf = build_firmware(&[]).unwrap();
-    let mut b = Bench::new(elf, Variant::Hobby.config(6, 0), 6, Board::Rev1, NorSim::new(8, 6), false).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(6, 0), 6, Board::Rev1, NorSim::new(8, 6), false).unwrap();
     b.mcu.rtt_detach();
     let log = std::env::temp_dir().join(format!("gyrocal-usb-test-{}.csv", std::process::id()));
     let (outcome, session) = b.calibrate_over_usb(&log, Box::new(std::io::sink())).unwrap();
-    assert_eq!(outcome, vboard::bench::Outcome::Done);
+    assert_eq!(outcome, vboard::testbed::Outcome::Done);
     let out = session.unwrap_or_else(|e| panic!("calib --port: {e}"));
     assert_eq!(protocol::parse(&out.json), Some(Event::ResultJson(&out.json)));
     let stored = b.stored().expect("a record in flash");

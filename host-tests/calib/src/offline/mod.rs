@@ -4,7 +4,7 @@
 //! thresholds raised to the log's own noise floor) grouped into still segments; a still segment
 //! with an empty servo column is a hand-held accelerometer pose, one with a servo value a rig
 //! pose; the motion between two consecutive rig poses is a move; a long run of windows with a
-//! steady gyro rate is the paper's constant-rate rotation.
+//! steady gyro rate is the paper's constant-rate spin.
 
 use crate::csvlog::Row;
 use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
@@ -31,7 +31,7 @@ mod phases;
 use checks::{check_accel_units, gyro_units, implied_scale};
 pub use checks::{check_time_base, TimeBase};
 pub use output::{EstimatorOut, Estimators, FullOut, Output, QualityOut, Segments};
-pub use phases::{phases, steady_rotation, Phases, Segment, SteadyRotation};
+pub use phases::{phases, steady_spin, Phases, Segment, SteadySpin};
 
 /// Why a log could not be calibrated.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,8 +45,8 @@ pub enum OfflineError {
     },
     /// The log has no still period to measure the gyro bias.
     NoRest,
-    /// The paper method was asked for but the log has no constant-rate rotation of ≥ 3 s.
-    NoRotation,
+    /// The paper method was asked for but the log has no constant-rate spin of ≥ 3 s.
+    NoSpin,
     /// The time column is not regular sampling at an IMU's rate (or, in a run of the firmware,
     /// not an LSM9DS1 ODR); `hint` names the likely mistake.
     TimeBase {
@@ -76,7 +76,7 @@ impl std::fmt::Display for OfflineError {
         match self {
             OfflineError::Calib { stage, error } => write!(f, "{stage}: {error}"),
             OfflineError::NoRest => f.write_str("no still period in the log: cannot measure the gyro bias"),
-            OfflineError::NoRotation => f.write_str("no constant-rate rotation of at least 3 s in the log: the paper method cannot run"),
+            OfflineError::NoSpin => f.write_str("no constant-rate spin of at least 3 s in the log: the paper method cannot run"),
             OfflineError::TimeBase { rate_hz, hint } => write!(f, "median sample rate {rate_hz:.4} Hz: {hint}"),
             OfflineError::AccelUnits { norm, hint } => write!(f, "the accelerometer reads {norm:.3} at rest, not 1 g: {hint}"),
             OfflineError::GyroUnits { k, hint } => write!(f, "gyro scale factor {k:.3}: {hint}"),
@@ -101,10 +101,10 @@ pub struct Calibration {
     pub accel: AccelCal,
     /// Sweep estimator outcome.
     pub sweep: Result<GyroCal, Error>,
-    /// Paper estimator outcome (`None` without a steady rotation).
+    /// Paper estimator outcome (`None` without a steady spin).
     pub paper: Option<Result<GyroCal, Error>>,
     /// The speed the paper estimator used (°/s) and where it came from.
-    pub rotation_rate: Option<(f32, &'static str)>,
+    pub spin_rate: Option<(f32, &'static str)>,
     /// The phases.
     pub phases: Phases,
     /// Rig poses and moves used.
@@ -132,7 +132,7 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
 }
 
 /// The one configuration of the data-driven path: the firmware's defaults (acceptance, limits,
-/// the paper's rotation window).
+/// the paper's spin window).
 const CONFIG: Config = Config::DEFAULT;
 
 /// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
@@ -178,7 +178,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
                 accel: r.accel,
                 sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
                 paper: r.paper,
-                rotation_rate: None,
+                spin_rate: None,
                 rig_poses: q.map_or(0, |q| q.poses as usize),
                 moves: q.map_or(0, |q| q.rows as usize),
                 handheld_poses: r.accel.poses as usize,
@@ -317,25 +317,25 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     let lim = cfg.geometry;
     let sweep = sweep::solve(&poses, &moves, &lim);
 
-    // The paper's estimator on the steady rotation, at the commanded rate when the servo column
+    // The paper's estimator on the steady spin, at the commanded rate when the servo column
     // ramps linearly, else at the rate gravity turns about the axis.
-    let (mut paper, mut rotation_rate) = (None, None);
-    if let Some(rot) = steady_rotation(rows, bias.bias_dps, cfg.rest.window_s, &cfg.steady) {
+    let (mut paper, mut spin_rate) = (None, None);
+    if let Some(rot) = steady_spin(rows, bias.bias_dps, cfg.rest.window_s, &cfg.steady) {
         let span = &rows[rot.rows.0..=rot.rows.1];
         let mut gravity = GravityTurn::new(poses.geometry(&lim, false).ok().map(|g| g.u));
         for r in span {
             gravity.add(r.t_s, accel.apply(r.accel_g));
         }
-        let (w, source) = pipeline::rotation_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
+        let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
         if w > 0.0 {
             let gbar = sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps);
             paper = Some(paper::solve(&poses, gbar, w, &lim));
-            rotation_rate = Some((w, source.name()));
+            spin_rate = Some((w, source.name()));
         }
     }
     let chosen = match method {
         Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
-        Some(Method::Paper) => paper.ok_or(OfflineError::NoRotation).and_then(|p| p.map_err(stage("paper estimator"))),
+        Some(Method::Paper) => paper.ok_or(OfflineError::NoSpin).and_then(|p| p.map_err(stage("paper estimator"))),
         None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
     };
     // The firmware's acceptance: a result it would not store is not given either; a scale near
@@ -358,7 +358,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         accel,
         sweep,
         paper,
-        rotation_rate,
+        spin_rate,
         rig_poses: poses.len(),
         moves: moves.len(),
         handheld_poses: acc.len(),

@@ -87,10 +87,10 @@ pub struct QualityOut<'a> {
     pub estimators: Estimators<'a>,
     /// On a pan/tilt log, the full `K`'s quality (or its error).
     pub full: Option<FullOut<'a>>,
-    /// The rotation rate the paper estimator used (°/s).
-    pub rotation_rate_dps: Option<f32>,
+    /// The spin rate the paper estimator used (°/s).
+    pub spin_rate_dps: Option<f32>,
     /// Where it came from (`servo column` or `accelerometer`).
-    pub rotation_rate_source: Option<&'static str>,
+    pub spin_rate_source: Option<&'static str>,
     /// The log's sample rate, and whether it is an LSM9DS1 ODR (false: another sensor's log).
     pub sample_rate: TimeBase,
     /// Phases found.
@@ -104,7 +104,7 @@ pub struct QualityOut<'a> {
     pub replayed: Option<&'static str>,
 }
 
-const NO_ROTATION: Result<GyroCal, Error> = Err(Error::NoRotation { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
+const NO_SPIN: Result<GyroCal, Error> = Err(Error::NoSpin { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
 
 impl Calibration {
     /// The parts the log did not support, each with the reason (empty: a full calibration).
@@ -146,10 +146,10 @@ impl Calibration {
                 accel: &self.accel,
                 estimators: Estimators {
                     sweep: EstimatorOut::of(&self.sweep),
-                    paper: EstimatorOut::of(self.paper.as_ref().unwrap_or(&NO_ROTATION)),
+                    paper: EstimatorOut::of(self.paper.as_ref().unwrap_or(&NO_SPIN)),
                 },
-                rotation_rate_dps: self.rotation_rate.map(|r| r.0),
-                rotation_rate_source: self.rotation_rate.map(|r| r.1),
+                spin_rate_dps: self.spin_rate.map(|r| r.0),
+                spin_rate_source: self.spin_rate.map(|r| r.1),
                 sample_rate: self.time_base,
                 segments: Segments {
                     still: self.phases.segments.len(),

@@ -1,5 +1,5 @@
 //! The phases of a log, found from the data: still windows grouped into still segments (poses),
-//! and the longest steady-rate run (the paper's rotation).
+//! and the longest steady-rate run (the paper's spin).
 
 use super::*;
 
@@ -33,9 +33,9 @@ impl Segment {
     }
 }
 
-/// A steady-rate run: the paper's rotation.
+/// A steady-rate run: the paper's spin.
 #[derive(Debug, Clone, Copy)]
-pub struct SteadyRotation {
+pub struct SteadySpin {
     /// First and last row index (inclusive) of the averaged part.
     pub rows: (usize, usize),
     /// Mean raw gyro over it (°/s).
@@ -86,7 +86,7 @@ fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
     v[((v.len() - 1) as f64 * p) as usize]
 }
 
-/// Finds still segments and the steady-rate rotation.
+/// Finds still segments and the steady-rate spin.
 pub fn phases(rows: &[Row]) -> Phases {
     let defaults = CONFIG.rest;
     // Noise floor: the 10th percentile of the per-window standard deviations.
@@ -165,7 +165,7 @@ fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) 
 /// The longest run of windows whose mean bias-free gyro vector stays within 3 % of the run's
 /// first, above `steady.min_dps`, averaged over `steady.min_s` at least once `steady`'s start and
 /// end are skipped, as the firmware averages its rotation.
-pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &SteadyRate) -> Option<SteadyRotation> {
+pub fn steady_spin(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &SteadyRate) -> Option<SteadySpin> {
     let windows = window_len(rows, window_s as f64);
     let b = v64(bias_dps);
     let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
@@ -193,5 +193,5 @@ pub fn steady_rotation(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: 
         }
         i = j + 1;
     }
-    best.map(|rows_range| SteadyRotation { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 })
+    best.map(|rows_range| SteadySpin { rows: rows_range, gyro: stats(&rows[rows_range.0..=rows_range.1]).1 })
 }

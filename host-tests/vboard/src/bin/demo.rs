@@ -18,7 +18,7 @@
 //! stored).
 //!
 //! `--no-probe`: nobody reads RTT until the end (no probe attached). The operator then cannot
-//! read the log and goes by the LEDs (as always: `Bench::calibrate`);
+//! read the log and goes by the LEDs (as always: `Testbed::calibrate`);
 //! the result comes from the emulated flash and from what the RTT buffer holds at the end. The
 //! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
@@ -37,7 +37,7 @@ use rig_sim::nor::NorSim;
 use rig_sim::pan_tilt;
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
-use vboard::bench::{build_firmware, message, Bench, Outcome};
+use vboard::testbed::{build_firmware, message, Outcome, Testbed};
 
 /// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
 #[derive(Parser, Debug)]
@@ -85,7 +85,7 @@ fn main() -> ExitCode {
         }
     };
     let rig = if tilt { pan_tilt::rig_config(seed, 0) } else { Variant::Hobby.config(seed, 0) };
-    let mut bench = match Bench::new(elf, rig, seed, Board::Rev1, NorSim::new(8, seed), !quiet) {
+    let mut testbed = match Testbed::new(elf, rig, seed, Board::Rev1, NorSim::new(8, seed), !quiet) {
         Ok(b) => b,
         Err(e) => {
             eprintln!("[demo] {e}");
@@ -93,33 +93,33 @@ fn main() -> ExitCode {
         }
     };
     if no_probe || usb {
-        bench.mcu.rtt_detach();
+        testbed.mcu.rtt_detach();
     }
     let wall = std::time::Instant::now();
-    bench.mcu.paint_stack();
+    testbed.mcu.paint_stack();
     if usb {
-        return demo_usb(&mut bench, &out.join("demo-usb.csv"), quiet, wall);
+        return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, wall);
     }
     println!(
         "[demo] power on (seed {seed}); the button is pressed at 2 s{}",
         if no_probe { "; no probe: the operator watches the LEDs" } else { "" }
     );
-    bench.run_for(2.0);
+    testbed.run_for(2.0);
     let mut raw_text = None;
     let raw_from = raw_log.as_ref().map(|_| {
         println!("[demo] the button held 2.3 s: raw-log mode");
-        let at = bench.mcu.log.len();
-        bench.press(2.3);
-        bench.run_for(1.0);
+        let at = testbed.mcu.log.len();
+        testbed.press(2.3);
+        testbed.run_for(1.0);
         at
     });
-    let pressed_at = bench.mcu.now();
-    let outcome = bench.calibrate(600.0);
-    let rig_time_s = bench.mcu.now() - pressed_at;
+    let pressed_at = testbed.mcu.now();
+    let outcome = testbed.calibrate(600.0);
+    let rig_time_s = testbed.mcu.now() - pressed_at;
     if let (Some(path), Some(from)) = (&raw_log, raw_from) {
-        bench.press(2.3);
-        bench.run_for(0.5);
-        let text: String = bench.mcu.log[from..].iter().map(|l| format!("{}\n", message(l))).collect();
+        testbed.press(2.3);
+        testbed.run_for(0.5);
+        let text: String = testbed.mcu.log[from..].iter().map(|l| format!("{}\n", message(l))).collect();
         let Some(start) = text.find(calib_core::log::HEADER) else {
             eprintln!("[demo] raw-log mode printed no header");
             return ExitCode::from(1);
@@ -131,30 +131,30 @@ fn main() -> ExitCode {
         println!("[demo] raw log written to {path} ({} lines)", text[start..].lines().count());
         raw_text = Some(text[start..].to_string());
     }
-    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
+    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", testbed.mcu.now(), wall.elapsed().as_secs_f64());
     println!("[demo] rig time: {rig_time_s:.1} s from the press to the LEDs showing the result");
-    bench.run_for(2.0);
+    testbed.run_for(2.0);
     println!("[demo] reset: the firmware must load and apply the stored record");
-    if let Err(e) = bench.reset() {
+    if let Err(e) = testbed.reset() {
         eprintln!("[demo] reset failed: {e}");
     }
-    bench.run_for(3.0);
+    testbed.run_for(3.0);
     let (calls, instr) = {
-        let (i, n) = bench.mcu.handle_sample.get();
+        let (i, n) = testbed.mcu.handle_sample.get();
         (n, i)
     };
     println!(
         "[demo] {} instructions in {:.1} s virtual; Procedure::handle_sample: {} calls, {:.0} instructions per sample",
-        bench.mcu.instructions(),
-        bench.mcu.now(),
+        testbed.mcu.instructions(),
+        testbed.mcu.now(),
         calls,
         if calls > 0 { instr as f64 / calls as f64 } else { 0.0 }
     );
-    println!("[demo] peak stack: {} bytes (from power-on)", bench.mcu.peak_stack().unwrap_or(0));
-    let longest = bench.mcu.handle_sample_max.get();
+    println!("[demo] peak stack: {} bytes (from power-on)", testbed.mcu.peak_stack().unwrap_or(0));
+    let longest = testbed.mcu.handle_sample_max.get();
     println!("[demo] the longest handle_sample call (the solve): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
-    let stored = bench.stored();
-    let truth = bench.mcu.periph.borrow().sensor.rig().truth().gyro_k;
+    let stored = testbed.stored();
+    let truth = testbed.mcu.periph.borrow().sensor.rig().truth().gyro_k;
     println!("[demo] true K diagonal   {:.6} {:.6} {:.6}", truth[(0, 0)], truth[(1, 1)], truth[(2, 2)]);
     let err = match &stored {
         Some(r) => {
@@ -162,12 +162,12 @@ fn main() -> ExitCode {
                 "[demo] stored record {}: K diagonal {:.6} {:.6} {:.6} ({:?})",
                 r.seq, r.gyro_k[0][0], r.gyro_k[1][1], r.gyro_k[2][2], r.method
             );
-            bench.max_scale_error_pct(r)
+            testbed.max_scale_error_pct(r)
         }
         None => f64::NAN,
     };
     // The full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
-    let full_err = stored.as_ref().filter(|_| tilt).map(|r| bench.k_errors_pct(r));
+    let full_err = stored.as_ref().filter(|_| tilt).map(|r| testbed.k_errors_pct(r));
     let ok = stored.is_some() && outcome == Outcome::Done;
     // The raw log through the offline path of `calib` (the same code): the same K as the
     // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
@@ -189,7 +189,8 @@ fn main() -> ExitCode {
                     .map(|i| ((k[at(i).0][at(i).1] - rec.gyro_k[at(i).0][at(i).1]) / rec.gyro_k[at(i).0][at(i).0]).abs() as f64 * 100.0)
                     .fold(0.0, f64::max);
                 let vs_truth = if full {
-                    pan_tilt::k_error_matrix(k, m, bench.mcu.periph.borrow().sensor.rig()).map_or(f64::NAN, |e| e.diagonal().amax() * 100.0)
+                    pan_tilt::k_error_matrix(k, m, testbed.mcu.periph.borrow().sensor.rig())
+                        .map_or(f64::NAN, |e| e.diagonal().amax() * 100.0)
                 } else {
                     (0..3).map(|i| (k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max)
                 };
@@ -204,16 +205,16 @@ fn main() -> ExitCode {
             }
         }
     }
-    print_speed(&bench, wall);
+    print_speed(&testbed, wall);
     if no_probe {
-        let tail = bench.mcu.rtt_tail();
-        println!("[demo] RTT buffer at the end ({} bytes written in all, {} lines held):", bench.mcu.rtt_written(), tail.len());
+        let tail = testbed.mcu.rtt_tail();
+        println!("[demo] RTT buffer at the end ({} bytes written in all, {} lines held):", testbed.mcu.rtt_written(), tail.len());
         for l in tail.iter().rev().take(12).rev() {
             println!("[demo]   {l}");
         }
-        println!("[demo] watchdog resets: {}", bench.mcu.watchdog_resets);
+        println!("[demo] watchdog resets: {}", testbed.mcu.watchdog_resets);
         println!("RESULT max_scale_error_pct={err:.4} stored={ok} probe=none");
-        if bench.mcu.watchdog_resets > 0 {
+        if testbed.mcu.watchdog_resets > 0 {
             return ExitCode::from(1);
         }
     } else if let Some((scale, cross)) = full_err {
@@ -228,16 +229,16 @@ fn main() -> ExitCode {
 
 /// `SPEED board_s=<virtual s> wall_s=<s> x=<board s per wall s>`: how fast the virtual board ran
 /// (from power-on; the firmware build not counted).
-fn print_speed(bench: &Bench, wall: std::time::Instant) {
-    let (board, wall) = (bench.mcu.now(), wall.elapsed().as_secs_f64());
+fn print_speed(testbed: &Testbed, wall: std::time::Instant) {
+    let (board, wall) = (testbed.mcu.now(), wall.elapsed().as_secs_f64());
     println!("SPEED board_s={board:.1} wall_s={wall:.1} x={:.1}", board / wall.max(1e-9));
 }
 
 /// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
-fn demo_usb(bench: &mut Bench, log: &std::path::Path, quiet: bool, wall: std::time::Instant) -> ExitCode {
+fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, wall: std::time::Instant) -> ExitCode {
     println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {})", log.display());
     let ui: Box<dyn std::io::Write + Send> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
-    let (outcome, session) = match bench.calibrate_over_usb(log, ui) {
+    let (outcome, session) = match testbed.calibrate_over_usb(log, ui) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("[demo] {e}");
@@ -245,7 +246,7 @@ fn demo_usb(bench: &mut Bench, log: &std::path::Path, quiet: bool, wall: std::ti
             return ExitCode::from(1);
         }
     };
-    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", bench.mcu.now(), wall.elapsed().as_secs_f64());
+    println!("[demo] calibration: {outcome:?} at {:.1} s virtual, {:.1} s wall", testbed.mcu.now(), wall.elapsed().as_secs_f64());
     let out = match session {
         Ok(o) => o,
         Err(e) => {
@@ -259,13 +260,13 @@ fn demo_usb(bench: &mut Bench, log: &std::path::Path, quiet: bool, wall: std::ti
         "[demo] cross-check: calib on the saved log ({} lines, {} rows) agrees with the board to {:.2e} in K",
         out.lines, out.check.rows, out.check.max_diff
     );
-    let same = bench.stored().is_some_and(|r| {
+    let same = testbed.stored().is_some_and(|r| {
         r.seq == out.record.seq && (0..9).all(|i| (r.gyro_k[i / 3][i % 3] - out.record.gyro_k[i / 3][i % 3]).abs() < 1e-6)
     });
     let ok = same && outcome == Outcome::Done;
     println!("[demo] the record in flash is the one reported over USB: {same}");
-    print_speed(bench, wall);
-    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", bench.max_scale_error_pct(&out.record));
+    print_speed(testbed, wall);
+    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", testbed.max_scale_error_pct(&out.record));
     if ok {
         ExitCode::SUCCESS
     } else {

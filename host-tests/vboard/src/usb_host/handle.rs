@@ -1,4 +1,4 @@
-//! The host handle: [`UsbHost`], what tests, the bench and the pty bridge hold (the cable, the
+//! The host handle: [`UsbHost`], what tests, the testbed and the pty bridge hold (the cable, the
 //! host's findings, the serial data, runs of the board until enumerated or idle), and
 //! [`usb_board`].
 

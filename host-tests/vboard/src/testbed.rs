@@ -1,4 +1,4 @@
-//! A bench around the emulated board: the simulated rig, an operator who presses the button and
+//! A testbed around the emulated board: the simulated rig, an operator who presses the button and
 //! does what the firmware's log asks (hand-held poses, re-clamping), and readers of the result.
 
 use crate::elf::Firmware;
@@ -55,7 +55,7 @@ pub enum Event {
 }
 
 /// The emulated board on the simulated rig, with an operator.
-pub struct Bench {
+pub struct Testbed {
     /// The board.
     pub mcu: Mcu,
     printed: usize,
@@ -79,7 +79,7 @@ pub enum Go {
 /// Virtual time between two pumps of the USB pty (s): 5 ms, 2.5 main-loop ticks.
 const USB_PUMP_S: f64 = 0.005;
 
-impl Bench {
+impl Testbed {
     /// Powers up `elf` on a rig, with `board`'s sensor and this flash.
     pub fn new(elf: Vec<u8>, rig: RigConfig, seed: u64, board: Board, flash: NorSim, echo: bool) -> Result<Self, String> {
         let fw = Firmware::load(elf)?;
