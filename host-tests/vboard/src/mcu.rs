@@ -18,6 +18,9 @@ const EXCP_EXCEPTION_EXIT: u32 = 8;
 /// Unicorn interrupt number of a prefetch abort.
 const EXCP_PREFETCH_ABORT: u32 = 3;
 
+/// xPSR's IT/ICI bits (EPSR[26:25] and [15:10]).
+const XPSR_IT: u32 = 0x0600_FC00;
+
 /// Why a run stopped.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Stop {
@@ -543,7 +546,9 @@ impl Mcu {
         self.exception = Some(Exception { fp, irq: irq as u32 });
         self.uc.reg_write(RegisterARM::SP, new_sp).map_err(err("sp"))?;
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFF9).map_err(err("lr"))?;
-        self.uc.reg_write(RegisterARM::IPSR, 16 + irq).map_err(err("ipsr"))?;
+        // Exception entry clears EPSR.IT (ARMv7-M ARM B1.5.6): a handler that interrupts an IT
+        // block does not run its first instructions under that block's condition.
+        self.uc.reg_write(RegisterARM::XPSR, u64::from((xpsr & !XPSR_IT & !0x1FF) | (16 + irq as u32))).map_err(err("xpsr"))?;
         self.uc.reg_write(RegisterARM::PC, handler & !1).map_err(err("pc"))?;
         Ok(())
     }
