@@ -10,7 +10,7 @@ use calib_core::text::Level as Log;
 use core::fmt::{self, Write};
 use gyrocal_fw::lsm9ds1::SensorError;
 use gyrocal_fw::serial::Command;
-use gyrocal_fw::usb::{Error as UsbError, Usb};
+use gyrocal_fw::usb::{self, Link, Step, Usb};
 use hal::pac;
 use nrf52840_hal as hal;
 
@@ -22,18 +22,33 @@ pub(crate) const EXPORT: usize = 2048;
 /// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
 /// over USB serial, with the same text (`calib_core::text`).
 pub(crate) struct Console {
+    /// The port, built at the first start.
     usb: Option<&'static mut Usb>,
-    /// The USBD until USB starts (VBUS present and the USBD ready).
+    /// The USBD until the first start.
     usbd: Option<pac::USBD>,
-    next_usb_try: f64,
+    /// Where the USBD is in its start and stop.
+    link: Link,
+    /// The USB serial number (from FICR).
+    serial: &'static str,
     usb_dropped_reported: u32,
+    /// When the dropped bytes were last reported (s).
+    usb_dropped_at: f64,
 }
 
 // The methods are `#[inline(never)]`: inlined at each call site they cost 1.5 KiB of flash.
 impl Console {
-    /// No USB yet: it starts once VBUS is present and the USBD is ready.
-    pub(crate) fn new(usbd: pac::USBD) -> Self {
-        Self { usb: None, usbd: Some(usbd), next_usb_try: 0.0, usb_dropped_reported: 0 }
+    /// No USB yet: it starts once VBUS is present.
+    pub(crate) fn new(usbd: pac::USBD, ficr: &pac::FICR) -> Self {
+        let serial = usb::serial_number(ficr);
+        Self { usb: None, usbd: Some(usbd), link: Link::new(), serial, usb_dropped_reported: 0, usb_dropped_at: f64::NEG_INFINITY }
+    }
+
+    /// The port while its link is up.
+    fn port(&mut self) -> Option<&mut Usb> {
+        match self.link {
+            Link::Up => self.usb.as_deref_mut(),
+            _ => None,
+        }
     }
 }
 
@@ -55,7 +70,7 @@ impl Console {
             Log::Warn => defmt::warn!("{=str}", line),
             Log::Error => defmt::error!("{=str}", line),
         }
-        if let Some(u) = self.usb.as_mut() {
+        if let Some(u) = self.port() {
             u.line(line);
         }
     }
@@ -65,7 +80,7 @@ impl Console {
     #[inline(never)]
     pub(crate) fn raw(&mut self, line: &str) {
         defmt::println!("{=str}", line);
-        if let Some(u) = self.usb.as_mut() {
+        if let Some(u) = self.port() {
             u.line(line);
         }
     }
@@ -109,45 +124,51 @@ impl Console {
         self.export(rec, Format::C);
     }
 
-    /// Starts USB once VBUS is present (retried every second), serves it every tick, and says
-    /// once a second how many bytes a terminal that stopped reading missed.
+    /// Starts and stops USB with VBUS ([`Link`]), serves it every tick, enters the bootloader
+    /// on the 1200-baud touch, and says (at most once a second) how many bytes a terminal that
+    /// stopped reading missed.
     #[inline(never)]
     pub(crate) fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, COMMANDS_PER_TICK>) {
-        if self.usb.is_none() && now >= self.next_usb_try {
-            if let Some(usbd) = self.usbd.take() {
-                match Usb::start(usbd, power) {
-                    Ok(u) => {
-                        self.usb = Some(u);
-                        self.send(Log::Info, protocol::USB_STARTED);
-                    }
-                    Err((e, usbd)) => {
-                        if e == UsbError::NotReady {
-                            defmt::warn!("USB: VBUS present but the USBD did not become ready; retrying");
-                        }
-                        self.usbd = Some(usbd);
-                        self.next_usb_try = now + 1.0;
-                    }
+        match self.link.handle_tick(now, power) {
+            Step::Ready => {
+                match (self.usb.as_mut(), self.usbd.take()) {
+                    (Some(u), _) => u.reconnect(),
+                    (None, Some(usbd)) => self.usb = Some(Usb::build(usbd, self.serial)),
+                    (None, None) => {}
                 }
+                self.send(Log::Info, protocol::USB_STARTED);
             }
+            Step::Failed(e) => self.say(Log::Error, format_args!("{e}")),
+            Step::Stopped => {
+                if let Some(u) = self.usb.as_mut() {
+                    u.stopped();
+                }
+                self.send(Log::Warn, "USB: VBUS gone: the USB port is off until VBUS returns");
+            }
+            Step::Idle => {}
         }
-        if let Some(u) = self.usb.as_mut() {
-            let mut refused = 0u32;
-            u.poll(power, now, |c| {
-                if commands.push(c).is_err() {
-                    refused += 1;
-                }
-            });
-            if refused > 0 {
-                self.say(Log::Warn, format_args!("USB: {refused} command(s) ignored: more than {} in one tick", COMMANDS_PER_TICK));
+        let Some(u) = self.port() else { return };
+        let mut refused = 0u32;
+        let touch = u.poll(now, |c| {
+            if commands.push(c).is_err() {
+                refused += 1;
             }
-            let Some(u) = self.usb.as_mut() else { return };
-            let dropped = u.out.dropped();
-            if dropped != self.usb_dropped_reported && u.out.is_empty() && u.listening() {
-                self.usb_dropped_reported = dropped;
-                let mut line = heapless::String::<LINE>::new();
-                let _ = protocol::usb_dropped(&mut line, dropped);
-                self.send(Log::Warn, &line);
-            }
+        });
+        if touch {
+            defmt::info!("USB: 1200-baud touch: entering the bootloader (System OFF, wake at once)");
+            usb::enter_bootloader(power);
+        }
+        if refused > 0 {
+            self.say(Log::Warn, format_args!("USB: {refused} command(s) ignored: more than {} in one tick", COMMANDS_PER_TICK));
+        }
+        let Some(u) = self.port() else { return };
+        let (dropped, idle) = (u.out.dropped(), u.out.is_empty() && u.listening());
+        if dropped != self.usb_dropped_reported && idle && now - self.usb_dropped_at >= 1.0 {
+            self.usb_dropped_reported = dropped;
+            self.usb_dropped_at = now;
+            let mut line = heapless::String::<LINE>::new();
+            let _ = protocol::usb_dropped(&mut line, dropped);
+            self.send(Log::Warn, &line);
         }
     }
 }

@@ -385,7 +385,7 @@ fn main() -> ! {
             None
         }
     };
-    let mut console = Console::new(p.USBD);
+    let mut console = Console::new(p.USBD, &p.FICR);
     let mut applied: Option<Record> = None;
     match storage.as_mut().map(|s| s.load()) {
         Some(Ok(Some((slot, rec)))) => {

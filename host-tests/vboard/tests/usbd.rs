@@ -35,20 +35,37 @@ fn dma_out(p: &mut Periph, ram: &mut Ram, n: u64, at: u32) -> Vec<u8> {
     d
 }
 
-/// VBUS in, ENABLE, wait READY (clearing it), pull-up on (nrf-usbd's `enable`).
+/// Writes an errata register as nrfx does: 0x4006EC00 reads 0 while locked; the key toggles.
+fn errata(p: &mut Periph, ram: &mut Ram, reg: u64, v: u32) {
+    if r(p, 0x4006_EC00) == 0 {
+        w(p, ram, 0x4006_EC00, 0x9375);
+        w(p, ram, reg, v);
+        w(p, ram, 0x4006_EC00, 0x9375);
+    } else {
+        w(p, ram, reg, v);
+    }
+}
+
+/// VBUS in, then nrfx's enable: errata 187 and 171 begun, ENABLE, READY and OUTPUTRDY waited
+/// for, READY cleared, the errata ended, the pull-up connected.
 fn enable(p: &mut Periph, ram: &mut Ram) {
     let t = p.now();
     p.power.plug(t);
     wait(p, 2e-3);
+    errata(p, ram, 0x4006_ED14, 3);
+    errata(p, ram, 0x4006_EC14, 0xC0);
     w(p, ram, USBD + 0x500, 1);
-    wait(p, 1e-4);
+    wait(p, 1.1e-3);
     assert_ne!(r(p, USBD + 0x400) & (1 << 11), 0, "READY");
+    assert_eq!(r(p, POWER + 0x438), 3, "VBUSDETECT and OUTPUTRDY");
     w(p, ram, USBD + 0x400, 1 << 11);
+    errata(p, ram, 0x4006_EC14, 0);
+    errata(p, ram, 0x4006_ED14, 0);
     w(p, ram, USBD + 0x504, 1);
 }
 
 #[test]
-fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
+fn the_usb_regulator_needs_vbus_and_enable_and_ready_needs_erratum_187() {
     let (mut p, mut ram) = (periph(Board::Rev1, true), Ram::default());
     // No VBUS: READY never comes.
     assert_eq!(r(&mut p, POWER + 0x438), 0, "USBREGSTATUS");
@@ -58,15 +75,35 @@ fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
     // The pull-up before READY is rejected.
     w(&mut p, &mut ram, USBD + 0x504, 1);
     assert!(p.fault.take().is_some_and(|f| f.contains("READY")));
-    // VBUS: USBDETECTED and VBUSDETECT at once, OUTPUTRDY/USBPWRRDY 1 ms later.
+    w(&mut p, &mut ram, USBD + 0x500, 0);
+    // VBUS with the USBD disabled: USBDETECTED and VBUSDETECT at once, but the regulator stays
+    // off (the stock bootloader hands over in this state).
     let t = p.now();
     p.power.plug(t);
+    assert_eq!(r(&mut p, POWER + 0x11C), 1, "USBDETECTED");
+    wait(&mut p, 5e-3);
+    assert_eq!((r(&mut p, POWER + 0x438), r(&mut p, POWER + 0x124)), (1, 0), "no OUTPUTRDY/USBPWRRDY without ENABLE");
+    // ENABLE without erratum 187's workaround: the regulator comes up 1 ms later, READY never.
+    w(&mut p, &mut ram, USBD + 0x500, 1);
+    wait(&mut p, 0.9e-3);
+    assert_eq!(r(&mut p, POWER + 0x438), 1, "not yet");
+    wait(&mut p, 0.2e-3);
+    assert_eq!((r(&mut p, POWER + 0x438), r(&mut p, POWER + 0x124)), (3, 1));
+    wait(&mut p, 5e-3);
+    assert_eq!(r(&mut p, USBD + 0x400) & (1 << 11), 0, "no READY: erratum 187");
+    // ENABLE = 0 switches the regulator off again.
+    w(&mut p, &mut ram, USBD + 0x500, 0);
     assert_eq!(r(&mut p, POWER + 0x438), 1);
-    assert_eq!((r(&mut p, POWER + 0x11C), r(&mut p, POWER + 0x124)), (1, 0), "USBDETECTED, not yet USBPWRRDY");
-    wait(&mut p, 1.1e-3);
-    assert_eq!(r(&mut p, POWER + 0x438), 3);
-    assert_eq!(r(&mut p, POWER + 0x124), 1);
-    assert_ne!(r(&mut p, USBD + 0x400) & (1 << 11), 0, "READY once VBUS is there");
+    // A write to 0x4006ED14 while locked is ignored (0x4006EC00 reads 0: locked).
+    assert_eq!(r(&mut p, 0x4006_EC00), 0);
+    w(&mut p, &mut ram, 0x4006_ED14, 3);
+    assert_eq!((r(&mut p, 0x4006_ED14), p.usbd.locked_writes), (0, 1));
+    // nrfx's sequence: READY 10 µs after ENABLE, EVENTS_USBEVENT with it.
+    errata(&mut p, &mut ram, 0x4006_ED14, 3);
+    assert_eq!((r(&mut p, 0x4006_ED14), r(&mut p, 0x4006_EC00)), (3, 0), "written, locked again");
+    w(&mut p, &mut ram, USBD + 0x500, 1);
+    wait(&mut p, 20e-6);
+    assert_ne!(r(&mut p, USBD + 0x400) & (1 << 11), 0, "READY");
     assert_eq!(r(&mut p, USBD + 0x158), 1, "EVENTS_USBEVENT");
     w(&mut p, &mut ram, USBD + 0x400, 1 << 11);
     assert_eq!(r(&mut p, USBD + 0x400), 0, "EVENTCAUSE is write-1-to-clear");
@@ -77,11 +114,15 @@ fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
     assert_eq!((r(&mut p, POWER + 0x438), r(&mut p, POWER + 0x120), r(&mut p, POWER + 0x11C)), (0, 1, 0));
     w(&mut p, &mut ram, POWER + 0x120, 0);
     assert_eq!(r(&mut p, POWER + 0x120), 0);
+    // Plugged back with ENABLE still 1: the regulator comes up again.
+    let t = p.now();
+    p.power.plug(t);
+    wait(&mut p, 1.1e-3);
+    assert_eq!(r(&mut p, POWER + 0x438), 3);
     // The interrupt: INTENSET.USBREMOVED raises POWER_CLOCK (IRQ 0) on the next unplug.
     w(&mut p, &mut ram, POWER + 0x304, 1 << 8);
     let t = p.now();
-    p.power.plug(t);
-    p.power.unplug(t + 1e-3);
+    p.power.unplug(t);
     p.update();
     assert_ne!(p.scs.nvic_pending & 1, 0);
     // VBUS survives a soft reset (it is physical); GPREGRET too.
@@ -91,16 +132,20 @@ fn ready_needs_vbus_and_the_hfxo_and_vbus_events() {
     p.reset(ResetKind::Soft);
     assert_eq!((r(&mut p, POWER + 0x438) & 1, r(&mut p, POWER + 0x51C)), (1, 0xB0));
 
-    // Cold boot: VBUS but no HFXO: no READY until the crystal runs.
+    // Cold boot: VBUS but no HFXO: READY comes (nrfx enables before Zephyr starts the HFXO),
+    // but the host sees no device until the crystal runs.
     let (mut p, mut ram) = (periph(Board::Rev1, false), Ram::default());
     let t = p.now();
     p.power.plug(t);
+    errata(&mut p, &mut ram, 0x4006_ED14, 3);
     w(&mut p, &mut ram, USBD + 0x500, 1);
-    wait(&mut p, 5e-3);
-    assert_eq!(r(&mut p, USBD + 0x400), 0, "no READY without the HFXO");
+    wait(&mut p, 2e-3);
+    assert_ne!(r(&mut p, USBD + 0x400) & (1 << 11), 0, "READY without the HFXO");
+    w(&mut p, &mut ram, USBD + 0x504, 1);
+    assert!(!p.usbd.connected(p.usb_phy()), "no bus without the HFXO");
     w(&mut p, &mut ram, POWER, 1); // CLOCK TASKS_HFCLKSTART
     wait(&mut p, 1e-3);
-    assert_ne!(r(&mut p, USBD + 0x400) & (1 << 11), 0);
+    assert!(p.usbd.connected(p.usb_phy()));
     // READY with INTEN.USBEVENT raises IRQ 39 (NVIC word 1).
     w(&mut p, &mut ram, USBD + 0x304, 1 << 22);
     p.update();
@@ -292,10 +337,8 @@ fn the_usbd_rejects_what_the_part_rejects() {
     w(&mut p, &mut ram, epin(0), 0);
     w(&mut p, &mut ram, epin(0) + 4, 0);
     w(&mut p, &mut ram, USBD + 0x004, 1);
-    w(&mut p, &mut ram, 0x4006_EC00, 0x9375);
-    w(&mut p, &mut ram, 0x4006_ED14, 3);
-    w(&mut p, &mut ram, 0x4006_EC14, 0xC0);
-    assert_eq!(r(&mut p, 0x4006_EC00), 0x9375);
+    w(&mut p, &mut ram, USBD + 0xC1C, 0x82); // erratum 199
+    assert_eq!(r(&mut p, USBD + 0xC1C), 0x82);
     assert!(p.fault.is_none(), "{:?}", p.fault);
 }
 
@@ -502,7 +545,7 @@ fn the_host_enumerates_like_linux_and_moves_bulk_data() {
     let dd = host.device_descriptor().unwrap();
     assert_eq!((dd.vid, dd.pid, dd.max_packet0), (0x2341, 0x805A, 64));
     assert_eq!(host.product().as_deref(), Some("gyrocal Nano 33 BLE"));
-    assert_eq!(host.manufacturer().as_deref(), Some("Arduino"));
+    assert_eq!(host.manufacturer().as_deref(), Some("Arduino"), "MiniFw's string");
     let cdc = host.cdc().unwrap();
     assert_eq!((cdc.comm_interface, cdc.notify_in, cdc.bulk_in, cdc.bulk_out), (0, Some(0x81), (0x82, 64), (0x01, 64)));
     assert_eq!(fw.line, vec![0x00, 0xC2, 0x01, 0x00, 0, 0, 8]);

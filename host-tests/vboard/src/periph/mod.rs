@@ -510,6 +510,7 @@ impl Periph {
                 self.advance_usb();
                 let phy = self.usb_phy();
                 let v = self.usbd.access(o, a, t, phy, mem);
+                self.power.set_usbd_enabled(self.usbd.enable == 1, t);
                 self.usb_lines();
                 v
             }

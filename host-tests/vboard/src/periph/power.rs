@@ -1,15 +1,20 @@
 //! POWER (nRF52840 PS v1.7 §5.3): RESETREAS (cumulative reset reasons, cleared by writing 1),
 //! DCDCEN/DCDCEN0, POFCON, GPREGRET, RAM power, and the USB supply (§5.3.3 "USB regulator"):
 //! VBUS plugged with [`Power::plug`] sets USBREGSTATUS.VBUSDETECT and EVENTS_USBDETECTED at
-//! once, then USBREGSTATUS.OUTPUTRDY and EVENTS_USBPWRRDY [`USB_OUTPUTRDY_S`] later;
-//! [`Power::unplug`] clears both and sets EVENTS_USBREMOVED. The events are cleared by writing 0;
+//! once. The USB regulator is switched on only "when the USBD peripheral is enabled through the
+//! ENABLE register and VBUS is detected" (PS §5.3.3): USBREGSTATUS.OUTPUTRDY and
+//! EVENTS_USBPWRRDY come [`USB_OUTPUTRDY_S`] after both hold ([`Power::set_usbd_enabled`]), and
+//! go when either goes; the stock bootloader never enables the USBD before it jumps to the
+//! application, so nothing is up at hand-over. [`Power::unplug`] clears VBUSDETECT and
+//! OUTPUTRDY and sets EVENTS_USBREMOVED. The events are cleared by writing 0;
 //! their INTEN bits (USBDETECTED 7, USBREMOVED 8, USBPWRRDY 9) live in the INTEN register shared
 //! with CLOCK (the CLOCK model holds it). VBUS is physical: it survives every reset. The board
 //! starts without VBUS. Shares its address block with CLOCK.
 
 use super::{off, Access};
 
-/// Time from VBUS to USBREGSTATUS.OUTPUTRDY (s): the USB regulator's start-up, ~1 ms.
+/// Time from VBUS with USBD.ENABLE = 1 to USBREGSTATUS.OUTPUTRDY (s): the USB regulator's
+/// start-up. The nRF52840 PS gives no figure; the nRF5340 PS's t_USBPWRRDY is 1 ms.
 pub const USB_OUTPUTRDY_S: f64 = 1e-3;
 /// EVENTS_USBDETECTED's bit in `usb_events` and in INTEN.
 pub const USBDETECTED: u32 = 1 << 7;
@@ -71,6 +76,10 @@ pub struct Power {
     pub vbus_since: Option<f64>,
     /// USBREGSTATUS.OUTPUTRDY.
     output_ready: bool,
+    /// USBD.ENABLE = 1 (the regulator's other condition).
+    usbd_enabled: bool,
+    /// The regulator has been on (VBUS and USBD.ENABLE) since this time (s).
+    regulator_since: Option<f64>,
     /// EVENTS_USBDETECTED/USBREMOVED/USBPWRRDY (bits as in INTEN).
     pub usb_events: u32,
 }
@@ -90,7 +99,25 @@ impl Power {
             ram_power: [0xFFFF; 9],
             vbus_since: None,
             output_ready: false,
+            usbd_enabled: false,
+            regulator_since: None,
             usb_events: 0,
+        }
+    }
+
+    /// USBD.ENABLE changed at time `t` (s): the regulator follows VBUS && ENABLE.
+    pub fn set_usbd_enabled(&mut self, on: bool, t: f64) {
+        self.settle(t);
+        self.usbd_enabled = on;
+        self.update_regulator(t);
+    }
+
+    fn update_regulator(&mut self, t: f64) {
+        if self.usbd_enabled && self.vbus_since.is_some() {
+            self.regulator_since.get_or_insert(t);
+        } else {
+            self.regulator_since = None;
+            self.output_ready = false;
         }
     }
 
@@ -98,8 +125,8 @@ impl Power {
     pub fn plug(&mut self, t: f64) {
         if self.vbus_since.is_none() {
             self.vbus_since = Some(t);
-            self.output_ready = false;
             self.usb_events |= USBDETECTED;
+            self.update_regulator(t);
         }
     }
 
@@ -107,14 +134,14 @@ impl Power {
     pub fn unplug(&mut self, t: f64) {
         self.settle(t);
         if self.vbus_since.take().is_some() {
-            self.output_ready = false;
             self.usb_events |= USBREMOVED;
+            self.update_regulator(t);
         }
     }
 
     /// Raises OUTPUTRDY/USBPWRRDY when the regulator is up.
     pub fn settle(&mut self, t: f64) {
-        if let Some(t0) = self.vbus_since {
+        if let Some(t0) = self.regulator_since {
             if !self.output_ready && t >= t0 + USB_OUTPUTRDY_S {
                 self.output_ready = true;
                 self.usb_events |= USBPWRRDY;
@@ -124,7 +151,7 @@ impl Power {
 
     /// When OUTPUTRDY will come (s), if it is pending.
     pub fn output_ready_time(&self) -> Option<f64> {
-        self.vbus_since.filter(|_| !self.output_ready).map(|t0| t0 + USB_OUTPUTRDY_S)
+        self.regulator_since.filter(|_| !self.output_ready).map(|t0| t0 + USB_OUTPUTRDY_S)
     }
 
     /// VBUS present (USBREGSTATUS.VBUSDETECT).
@@ -138,12 +165,13 @@ impl Power {
     }
 
     /// After a reset of `kind`: RESETREAS accumulates; GPREGRET and DCDCEN survive all but
-    /// power-on (retained registers).
+    /// power-on (retained registers). Every reset resets the USBD, so the regulator goes off.
     pub fn reset(&mut self, kind: ResetKind) {
-        let (vbus, ready) = (self.vbus_since, self.output_ready);
+        let vbus = self.vbus_since;
+        (self.usbd_enabled, self.regulator_since, self.output_ready) = (false, None, false);
         if kind == ResetKind::PowerOn {
             *self = Self::new();
-            (self.vbus_since, self.output_ready) = (vbus, ready);
+            self.vbus_since = vbus;
         } else {
             self.usb_events = 0;
             self.resetreas |= kind.resetreas_bit();

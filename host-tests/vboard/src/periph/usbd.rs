@@ -6,9 +6,22 @@
 //!
 //! What the part does and the model enforces:
 //! - EVENTCAUSE.READY (with EVENTS_USBEVENT) comes [`READY_S`] after ENABLE = 1, and only while
-//!   VBUS is present (POWER.USBREGSTATUS.VBUSDETECT) and the HFXO runs; ENABLE = 0 returns the
-//!   peripheral to its reset state. The pull-up (USBPULLUP) may only be connected once READY was
-//!   seen; the host sees the device only with VBUS, the pull-up and the HFXO running.
+//!   VBUS is present (POWER.USBREGSTATUS.VBUSDETECT); the HFXO is not needed for it (nrfx's
+//!   `nrfx_usbd_enable` waits for READY before Zephyr's driver requests the HFXO). ENABLE = 0
+//!   returns the peripheral to its reset state. ENABLE also switches the USB regulator on (POWER
+//!   model). The pull-up (USBPULLUP) may only be connected once READY was seen; the host sees
+//!   the device only with VBUS, the regulator's output ready (it powers the pull-up), the pull-up
+//!   and the HFXO running.
+//! - Erratum 187 ("USB cannot be enabled", every nRF52840 revision but engineering A): READY
+//!   comes only if 0x4006ED14 held 3 when ENABLE was written. The undocumented registers
+//!   0x4006EC14 and 0x4006ED14 take a write only while unlocked: 0x4006EC00 reads 0 while locked,
+//!   and each write of 0x9375 to it toggles the lock (nrfx's `nrf52_errata_187/171` sequences:
+//!   `if (*0x4006EC00 == 0) *0x4006EC00 = 0x9375; reg = v; *0x4006EC00 = 0x9375;`); a write while
+//!   locked is ignored and counted ([`Usbd::locked_writes`]). 0x40027C1C (erratum 199's
+//!   register, 0x82 during EasyDMA) is stored.
+//! - VBUS removed while enabled: the bus state goes (address, control transfer, endpoint
+//!   buffers, halts, toggles, as a bus reset without its event); the registers stay; POWER raises
+//!   USBREMOVED and drops the regulator.
 //! - Tasks need ENABLE = 1 (else the run stops). STARTEPIN[n]/STARTEPOUT[n] need the endpoint
 //!   enabled (EPINEN/EPOUTEN), MAXCNT ≤ 64 and, when MAXCNT > 0, PTR..PTR+MAXCNT in Data RAM
 //!   (EasyDMA reaches only RAM); a zero-length IN (MAXCNT = 0, any PTR: nrf-usbd writes 0) is a
@@ -40,13 +53,10 @@
 //!   from the host): EVENTS_SOF and FRAMECNTR (11 bits).
 //! - EVENTCAUSE, EPSTATUS, EPDATASTATUS are write-1-to-clear; events are set by the part and
 //!   written 0 (or 1) by software; the interrupt line is (events & INTEN) ≠ 0 (a level).
-//! - The undocumented registers nrf-usbd writes for errata 171/187 (0x4006EC00, 0x4006EC14,
-//!   0x4006ED14) are accepted and read back ([`Usbd::errata_access`]).
 //!
 //! Not modelled: suspend/resume (the host never stops SOFs; EVENTCAUSE.SUSPEND/RESUME stay 0,
 //! LOWPOWER is stored), remote wake-up, DPDMDRIVE/DPDMNODRIVE (accepted, no effect), ISO
-//! endpoints, what happens to the USBD when VBUS goes away while it is enabled (nothing: the host
-//! simply sees a disconnect).
+//! endpoints, errata 171/199/211's symptoms (their registers are accepted).
 
 use super::Access;
 
@@ -131,6 +141,10 @@ const EPOUT0: u32 = 0x700;
 const ISOOUT: u32 = 0x7A0;
 const EP_STRIDE: u32 = 0x14;
 
+/// 0x4006EC00's unlock/lock key.
+const ERRATA_KEY: u32 = 0x9375;
+/// USBD offset of erratum 199's register (0x40027C1C).
+const ERRATA_199: u32 = 0xC1C;
 /// Address block and offsets of the undocumented registers nrf-usbd pokes (errata 171, 187).
 pub const ERRATA_BLOCK: u32 = 0x4006_E000;
 const ERRATA_REGS: [u32; 3] = [0xC00, 0xC14, 0xD14];
@@ -231,6 +245,16 @@ pub struct Usbd {
     /// SET_ADDRESS seen: the address taken at its status stage.
     pending_address: Option<u8>,
     errata: [u32; 3],
+    /// 0x4006EC00's lock is open.
+    errata_unlocked: bool,
+    /// ENABLE was written with erratum 187's workaround in place (0x4006ED14 = 3).
+    errata_187_ok: bool,
+    /// Writes to 0x4006EC14/ED14 ignored because the lock was closed.
+    pub locked_writes: u32,
+    /// 0x40027C1C (erratum 199).
+    errata_199: u32,
+    /// VBUS was present at the last settle.
+    had_vbus: bool,
     /// Incremented by every register write (the host retries NAKed tokens after a change).
     pub generation: u64,
     /// Time of the last register write (s).
@@ -299,6 +323,11 @@ impl Usbd {
             ep0: Ep0::default(),
             pending_address: None,
             errata: [0; 3],
+            errata_unlocked: false,
+            errata_187_ok: false,
+            locked_writes: 0,
+            errata_199: 0,
+            had_vbus: false,
             generation: 0,
             changed_at: 0.0,
             in_overwrites: 0,
@@ -322,40 +351,78 @@ impl Usbd {
         self.inten
     }
 
-    /// The host sees a device: enabled, READY seen, pull-up connected, VBUS, HFXO.
+    /// The host sees a device: enabled, READY seen, pull-up connected, VBUS with the regulator's
+    /// output ready, HFXO.
     pub fn connected(&self, phy: Phy) -> bool {
-        self.enable == 1 && self.ready_done && self.pullup == 1 && phy.vbus && phy.hfxo
+        self.enable == 1 && self.ready_done && self.pullup == 1 && phy.vbus && phy.output_ready && phy.hfxo
     }
 
     /// When READY will be raised (s), if it is pending.
     pub fn ready_time(&self, phy: Phy) -> Option<f64> {
         match self.enabled_at {
-            Some(t) if !self.ready_done && phy.vbus && phy.hfxo => Some(t + READY_S),
+            Some(t) if !self.ready_done && phy.vbus && self.errata_187_ok => Some(t + READY_S),
             _ => None,
         }
     }
 
-    /// Raises READY when its time has come.
+    /// Raises READY when its time has come; drops the bus state when VBUS went.
     pub fn settle(&mut self, t: f64, phy: Phy) {
+        if self.had_vbus && !phy.vbus {
+            self.drop_bus_state();
+        }
+        self.had_vbus = phy.vbus;
         if let Some(r) = self.ready_time(phy) {
             if t >= r {
                 self.ready_done = true;
                 self.eventcause |= CAUSE_READY;
                 self.events |= 1 << EV_USBEVENT;
             }
-        } else if self.enable == 1 && !self.ready_done && !(phy.vbus && phy.hfxo) {
-            // READY waits for VBUS and the HFXO: it comes READY_S after both are there.
+        } else if self.enable == 1 && !self.ready_done && !phy.vbus {
+            // READY waits for VBUS: it comes READY_S after VBUS is there.
             self.enabled_at = Some(t);
         }
+    }
+
+    /// The bus state a bus reset or a VBUS loss clears.
+    fn drop_bus_state(&mut self) {
+        self.usbaddr = 0;
+        self.ep0 = Ep0::default();
+        self.pending_address = None;
+        self.in_buf = Default::default();
+        self.out_buf = std::array::from_fn(|_| OutBuf::Nak);
+        self.toggle_in = [false; 8];
+        self.toggle_out = [false; 8];
+        self.halted_in = 0;
+        self.halted_out = 0;
     }
 
     /// An access to the errata block 0x4006E000 at offset `o`: the three registers nrf-usbd
     /// pokes are stored and read back; anything else is unmodelled.
     pub fn errata_access(&mut self, o: u32, a: Access) -> Result<u32, String> {
-        match ERRATA_REGS.iter().position(|&r| r == o) {
-            Some(i) => Ok(a.rw(&mut self.errata[i])),
-            None => Err(format!("undocumented register 0x{:08X}", ERRATA_BLOCK + o)),
+        match (ERRATA_REGS.iter().position(|&r| r == o), a) {
+            (Some(0), Access::Read) => Ok(u32::from(self.errata_unlocked)),
+            (Some(0), Access::Write(v)) => {
+                if v == ERRATA_KEY {
+                    self.errata_unlocked = !self.errata_unlocked;
+                }
+                Ok(0)
+            }
+            (Some(i), Access::Write(v)) => {
+                if self.errata_unlocked {
+                    self.errata[i] = v;
+                } else {
+                    self.locked_writes += 1;
+                }
+                Ok(0)
+            }
+            (Some(i), Access::Read) => Ok(self.errata[i]),
+            (None, _) => Err(format!("undocumented register 0x{:08X}", ERRATA_BLOCK + o)),
         }
+    }
+
+    /// The value of 0x4006ED14 (erratum 187: 3 while enabling; erratum 211: 3 while enabled).
+    pub fn errata_ed14(&self) -> u32 {
+        self.errata[2]
     }
 
     fn task_check(&self, name: &str) -> Result<(), String> {
@@ -443,12 +510,15 @@ impl Usbd {
             ENABLE => {
                 let was = self.enable;
                 if v & 1 == 0 {
-                    let keep = (self.errata, self.generation, self.changed_at, self.in_overwrites, self.discarded_out, self.toggle_drops);
+                    let keep = (self.errata, self.errata_unlocked, self.locked_writes, self.generation, self.changed_at);
+                    let counts = (self.in_overwrites, self.discarded_out, self.toggle_drops, self.had_vbus);
                     *self = Self::new();
-                    (self.errata, self.generation, self.changed_at, self.in_overwrites, self.discarded_out, self.toggle_drops) = keep;
+                    (self.errata, self.errata_unlocked, self.locked_writes, self.generation, self.changed_at) = keep;
+                    (self.in_overwrites, self.discarded_out, self.toggle_drops, self.had_vbus) = counts;
                 } else if was == 0 {
                     self.enable = 1;
                     self.enabled_at = Some(t);
+                    self.errata_187_ok = self.errata[2] == 3;
                     self.settle(t, phy);
                 }
             }
@@ -481,6 +551,7 @@ impl Usbd {
                 }
             }
             ISOSPLIT => self.isosplit = v,
+            ERRATA_199 => self.errata_199 = v,
             LOWPOWER => self.lowpower = v & 1,
             ISOINCONFIG => self.isoinconfig = v & 1,
             o if (EPIN0..ISOIN).contains(&o) => {
@@ -563,6 +634,7 @@ impl Usbd {
             }
             o if (ISOIN..ISOIN + 12).contains(&o) => self.isoin[((o - ISOIN) / 4) as usize],
             o if (ISOOUT..ISOOUT + 12).contains(&o) => self.isoout[((o - ISOOUT) / 4) as usize],
+            ERRATA_199 => self.errata_199,
             _ => return Err(format!("USBD register 0x{o:03X}")),
         })
     }
@@ -651,15 +723,7 @@ impl Usbd {
             return;
         }
         self.events |= 1 << EV_USBRESET;
-        self.usbaddr = 0;
-        self.ep0 = Ep0::default();
-        self.pending_address = None;
-        self.in_buf = Default::default();
-        self.out_buf = std::array::from_fn(|_| OutBuf::Nak);
-        self.toggle_in = [false; 8];
-        self.toggle_out = [false; 8];
-        self.halted_in = 0;
-        self.halted_out = 0;
+        self.drop_bus_state();
     }
 
     /// Start of frame `frame` (11 bits).
