@@ -254,6 +254,7 @@ impl Usb {
     /// most once (the USBD is owned for good; the port, its 6 KiB outbox included, in static
     /// RAM). The HFXO, which the USBD needs on the bus, runs already.
     #[inline(never)]
+    #[allow(clippy::mut_from_ref)] // the port is a singleton, not borrowed from `serial`
     pub fn build(usbd: pac::USBD, serial: &'static str) -> &'static mut Self {
         let Some(alloc) = cortex_m::singleton!(: UsbBusAllocator<Bus> = UsbBusAllocator::new(nrf_usbd::Usbd::new(Usbd0(usbd)))) else {
             cortex_m::peripheral::SCB::sys_reset();

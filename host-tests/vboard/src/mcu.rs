@@ -3,7 +3,8 @@
 //! 64 MHz, `wfi` skipping to the next event, and the defmt log read from the RTT buffer.
 
 use crate::elf::Firmware;
-use crate::periph::{mpu, Dma, Periph, ResetKind, CPU_HZ, STORAGE};
+use crate::periph::bootloader::{self, Decision, Stage, StockBootloader};
+use crate::periph::{mpu, Dma, Periph, ResetKind, Wake, CPU_HZ, STORAGE};
 use std::cell::{Cell, RefCell};
 use std::collections::HashSet;
 use std::rc::Rc;
@@ -159,7 +160,11 @@ impl Mcu {
                 Some(move |_: &mut Unicorn<()>, off: u64, _size: usize| pr.borrow_mut().read(base + off)),
                 Some(move |uc: &mut Unicorn<()>, off: u64, _size: usize, v: u64| {
                     let mut dma = UcDma(uc);
-                    pw.borrow_mut().write(base + off, v, &mut dma)
+                    pw.borrow_mut().write(base + off, v, &mut dma);
+                    let p = pw.borrow();
+                    if p.power.system_off && !p.debug_interface {
+                        let _ = uc.emu_stop();
+                    }
                 }),
             )
             .map_err(err("map peripherals"))?;
@@ -305,13 +310,36 @@ impl Mcu {
     }
 
     /// A reset of `kind`: peripherals to their reset state (the watchdog survives a soft
-    /// reset), then the CPU from the application's vector table at 0x10000, with what the
-    /// bootloader leaves unless `periph.bootloader` is false.
+    /// reset), then, when `periph.bootloader` is set, the stock bootloader's stand-in
+    /// ([`crate::periph::bootloader`]: its wait, then SAM-BA mode or the jump), else the CPU at
+    /// once from the application's vector table at 0x10000. A wake-up from System OFF loses the
+    /// RAM not retained (all of it at the RAMn.POWER reset values): it reads as noise.
     pub fn reset_with(&mut self, kind: ResetKind) -> Result<(), String> {
-        self.periph.borrow_mut().reset(kind);
+        let bootloader = {
+            let mut p = self.periph.borrow_mut();
+            p.reset(kind);
+            let t = p.now();
+            if p.bootloader {
+                p.stock.reset(t, kind == ResetKind::Pin);
+            }
+            p.bootloader
+        };
         self.exception = None;
         self.rtt_write_seen.set((0, self.rtt_write_seen.get().1));
         self.decoder = self.table.map(|t| t.new_stream_decoder() as Box<dyn defmt_decoder::StreamDecoder>);
+        if let ResetKind::OffWake(_) = kind {
+            let noise: Vec<u8> = (0..RAM.1 - RAM.0).map(|i| (i.wrapping_mul(0x9E37_79B9) >> 13) as u8).collect();
+            self.uc.mem_write(RAM.0, &noise).map_err(err("RAM"))?;
+        }
+        if bootloader {
+            Ok(())
+        } else {
+            self.start_app()
+        }
+    }
+
+    /// The CPU from the application's vector table at 0x10000 (the bootloader's jump).
+    fn start_app(&mut self) -> Result<(), String> {
         let mut v = [0u8; 8];
         self.uc.mem_read(0x1_0000, &mut v).map_err(err("vector table"))?;
         let sp = u32::from_le_bytes([v[0], v[1], v[2], v[3]]) as u64;
@@ -320,9 +348,105 @@ impl Mcu {
         self.uc.reg_write(RegisterARM::SP, sp).map_err(err("sp"))?;
         self.uc.reg_write(RegisterARM::CONTROL, 0).map_err(err("control"))?;
         self.uc.reg_write(RegisterARM::PRIMASK, 0).map_err(err("primask"))?;
+        self.uc.reg_write(RegisterARM::XPSR, 1 << 24).map_err(err("xpsr"))?;
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFFF).map_err(err("lr"))?;
         self.uc.reg_write(RegisterARM::PC, pc & !1).map_err(err("pc"))?;
         Ok(())
+    }
+
+    /// A press of the reset button (a pin reset; twice within the bootloader's wait is the
+    /// double tap).
+    pub fn reset_pin(&mut self) -> Result<(), String> {
+        self.log.push(format!("[vboard] reset pin at {:.3} s", self.now()));
+        self.resets += 1;
+        self.reset_with(ResetKind::Pin)
+    }
+
+    /// The stock bootloader's stand-in.
+    pub fn stock_bootloader(&self) -> StockBootloader {
+        self.periph.borrow().stock.clone()
+    }
+
+    /// The application runs (not the bootloader, not System OFF).
+    pub fn in_app(&self) -> bool {
+        let p = self.periph.borrow();
+        p.stock.stage == Stage::App && p.off.is_none()
+    }
+
+    /// Outside the application (bootloader or System OFF): time passes without the CPU, up to
+    /// `t_end`, the bootloader's next decision or the watchdog. Some(stop) when the run ends.
+    fn idle_step(&mut self, t_end: f64) -> Result<bool, String> {
+        let mut p = self.periph.borrow_mut();
+        let now = p.now();
+        if p.power.system_off && p.off.is_none() {
+            if p.debug_interface {
+                // Emulated System OFF: the CPU runs on.
+                p.power.system_off = false;
+                return Ok(false);
+            }
+            let vbus = p.power.vbus();
+            p.off = Some(vbus);
+            drop(p);
+            self.log.push(format!("[vboard] System OFF at {now:.3} s"));
+            return Ok(true);
+        }
+        if let Some(vbus_at_off) = p.off {
+            let wake = if p.gpio.detect(p.button) {
+                Some(Wake::Detect)
+            } else if p.power.vbus() && !vbus_at_off {
+                Some(Wake::Vbus)
+            } else {
+                None
+            };
+            if let Some(w) = wake {
+                drop(p);
+                self.log.push(format!("[vboard] wake from System OFF ({w:?}) at {now:.3} s"));
+                self.resets += 1;
+                self.reset_with(ResetKind::OffWake(w))?;
+            } else if t_end > now {
+                p.skipped_s += t_end - now;
+            }
+            return Ok(true);
+        }
+        if p.stock.stage == Stage::App {
+            return Ok(false);
+        }
+        let app_present = {
+            let mut v = [0u8; 4];
+            self.uc.mem_read(0x1_0004, &mut v).is_ok() && u32::from_le_bytes(v) != 0xFFFF_FFFF
+        };
+        let mut gpregret = p.power.gpregret;
+        let was_samba = p.stock.in_samba();
+        let decision = p.stock.decide(now, &mut gpregret, app_present);
+        p.power.gpregret = gpregret;
+        match decision {
+            Decision::Jump => {
+                drop(p);
+                self.start_app()?;
+                return Ok(true);
+            }
+            Decision::SamBa => {
+                if !was_samba {
+                    drop(p);
+                    self.log.push(format!("[vboard] stock bootloader: SAM-BA mode at {now:.3} s"));
+                    p = self.periph.borrow_mut();
+                }
+                let (m, pr) = bootloader::STRINGS;
+                p.usb_host.stand_in = p.power.vbus().then_some((bootloader::VID_PID, m, pr));
+            }
+            Decision::Wait => {}
+        }
+        let mut next = t_end;
+        if let Some(u) = p.stock.wait_until() {
+            next = next.min(u);
+        }
+        if let Some(d) = p.wdt.deadline() {
+            next = next.min(d + 1e-6);
+        }
+        if next > now {
+            p.skipped_s += next - now;
+        }
+        Ok(true)
     }
 
     /// Saves the board's state.
@@ -609,6 +733,11 @@ impl Mcu {
             let now = self.now();
             if now >= t_end {
                 return Stop::Time;
+            }
+            match self.idle_step(t_end) {
+                Ok(true) => continue,
+                Ok(false) => {}
+                Err(e) => return Stop::Fault(e),
             }
             if let Err(e) = self.deliver_interrupt() {
                 return Stop::Fault(e);

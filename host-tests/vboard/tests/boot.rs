@@ -143,3 +143,70 @@ fn the_microsecond_clock_wraps_at_2_pow_32_without_a_gap() {
     assert_eq!(b.mcu.watchdog_resets, 0);
     assert_eq!(b.mcu.periph.borrow().sensor.counts().1, 0, "samples lost to a FIFO overrun");
 }
+
+/// The stock bootloader's stand-in as the PS reset table and its disassembly say: a soft reset
+/// keeps the watchdog, which the bootloader never feeds; a wake from System OFF resets it.
+#[test]
+fn the_stock_bootloader_is_cut_off_by_a_watchdog_a_soft_reset_kept_but_not_after_system_off() {
+    use vboard::periph::bootloader::{DFU_MAGIC_SERIAL_ONLY, DOUBLE_TAP_S};
+    const GPREGRET: u64 = 0x4000_051C;
+    // Soft reset with the magic: SAM-BA mode, then the firmware's 2 s watchdog fires; the magic
+    // is gone by then, so the bootloader jumps into the application.
+    let mut b = testbed(12, true);
+    b.run_for(1.0);
+    assert!(b.mcu.in_app() && b.mcu.periph.borrow().wdt.running);
+    {
+        let mut p = b.mcu.periph.borrow_mut();
+        p.power.gpregret = DFU_MAGIC_SERIAL_ONLY;
+        p.scs.reset_request = true;
+    }
+    b.run_for(1.0);
+    assert!(b.mcu.stock_bootloader().in_samba(), "{:#?}", b.mcu.log);
+    b.run_for(3.0);
+    assert_eq!((b.mcu.resets, b.mcu.watchdog_resets), (2, 1), "{:#?}", b.mcu.log);
+    assert!(b.mcu.in_app(), "after the watchdog reset GPREGRET is clear: the application again");
+
+    // GPREGRET = 0xB0, P1.11 sensing high (it reads high: pull-up, button up), SYSTEMOFF: an
+    // immediate wake that resets the watchdog and keeps GPREGRET: SAM-BA mode for good.
+    let mut b = testbed(12, true);
+    b.run_for(1.0);
+    {
+        let mut p = b.mcu.periph.borrow_mut();
+        p.power.gpregret = DFU_MAGIC_SERIAL_ONLY;
+        let mut ram = common_ram();
+        p.write(0x5000_0300 + 0x700 + 4 * 11, (3 << 2) | (2 << 16), &mut ram);
+        p.write(0x4000_0500, 1, &mut ram); // SYSTEMOFF
+    }
+    b.run_for(61.0);
+    let bl = b.mcu.stock_bootloader();
+    assert!(bl.in_samba() && bl.held_s(b.mcu.now()) >= 60.0, "{bl:?} {:#?}", b.mcu.log);
+    assert_eq!((b.mcu.resets, b.mcu.watchdog_resets), (1, 0), "{:#?}", b.mcu.log);
+    assert_eq!(b.mcu.periph.borrow().power.resetreas & (1 << 16), 1 << 16, "RESETREAS.OFF");
+    assert_eq!(b.mcu.periph.borrow_mut().read(GPREGRET), 0, "cleared by the bootloader");
+
+    // System OFF with nothing sensing: off until the button (DETECT) wakes it.
+    let mut b = testbed(13, true);
+    b.run_for(1.0);
+    b.mcu.periph.borrow_mut().write(0x4000_0500, 1, &mut common_ram());
+    b.run_for(5.0);
+    assert!(!b.mcu.in_app() && b.mcu.resets == 0, "{:#?}", b.mcu.log);
+
+    // The double tap: two pin resets within the wait.
+    let mut b = testbed(14, true);
+    b.run_for(1.0);
+    b.mcu.reset_pin().unwrap();
+    b.run_for(DOUBLE_TAP_S / 2.0);
+    b.mcu.reset_pin().unwrap();
+    b.run_for(2.0);
+    assert!(b.mcu.stock_bootloader().in_samba());
+}
+
+/// RAM for a direct peripheral write (no EasyDMA involved).
+fn common_ram() -> impl vboard::periph::Dma {
+    struct NoRam;
+    impl vboard::periph::Dma for NoRam {
+        fn read(&mut self, _: u64, _: &mut [u8]) {}
+        fn write(&mut self, _: u64, _: &[u8]) {}
+    }
+    NoRam
+}

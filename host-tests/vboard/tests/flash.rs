@@ -113,7 +113,8 @@ fn no_sample_dropped_at_952_hz() {
     // The rig is built for 119 Hz: the sensor model follows the firmware's CTRL_REG1_G.
     let rig = Variant::Hobby.config(9, 0);
     let mut b = Testbed::new(elf, rig, 9, Board::Rev1, NorSim::new(8, 9), false).unwrap();
-    b.run_for(1.0);
+    // The stock bootloader's wait, then a second of the application.
+    b.run_for(vboard::periph::bootloader::DOUBLE_TAP_S + 1.0);
     b.press(0.2);
     b.run_for(20.0);
     let (produced, dropped) = b.mcu.periph.borrow().sensor.counts();

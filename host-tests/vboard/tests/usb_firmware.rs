@@ -36,31 +36,55 @@ fn usb_bench() -> (Testbed, UsbHost) {
 }
 
 #[test]
-fn the_firmware_enumerates_answers_help_and_does_the_1200_baud_touch() {
+fn the_firmware_enumerates_answers_help_and_its_touch_hands_the_bootloader_no_watchdog() {
     let (mut b, host) = usb_bench();
     if let Err(e) = host.wait_enumerated(&mut b.mcu, 5.0) {
         panic!("{e}\nhost: {:#?}\nboard: {:#?}", host.log(), b.mcu.log);
     }
     println!("enumerated at {:.3} s: {:?} {:?}", b.mcu.now(), host.product(), host.device_descriptor());
     assert!(host.with(|h| h.bos.is_some()), "usb-device says bcdUSB 2.1: Linux reads its BOS descriptor");
+    // Arduino's VID:PID (its tools find the port), our name, and a serial number from FICR
+    // DEVICEADDR[1], DEVICEADDR[0] as Arduino's core makes it.
+    assert_eq!(host.vid_pid(), Some((0x2341, 0x805A)));
+    assert_eq!(host.manufacturer().as_deref(), Some("gyrocal"));
+    let [a0, a1] = vboard::periph::FICR_DEVICEADDR;
+    let serial = host.with(|h| h.device.as_ref().and_then(|d| h.string(d.strings.2)).map(String::from));
+    assert_eq!(serial, Some(format!("{a1:08X}{a0:08X}")));
+    // Enabled as nrfx does: no errata write while locked, erratum 211's value kept.
+    let p = b.mcu.periph.borrow();
+    assert_eq!((p.usbd.locked_writes, p.usbd.errata_ed14()), (0, 3));
+    drop(p);
     host.write(&[Command::Help.byte()]);
     let out = host.run_and_read(&mut b.mcu, 0.5).unwrap();
     let text = String::from_utf8_lossy(&out);
     println!("{text}");
     assert!(events(&text).ends_with(&help()), "help text: {text:?}\nhost: {:#?}\nboard: {:#?}", host.log(), b.mcu.log);
     assert!(host.errors().is_empty(), "{:?}", host.errors());
-    // The touch: 1200 Bd, then DTR dropped: GPREGRET = 0xB0 and a soft reset.
+    // The touch: 1200 Bd, then DTR dropped: GPREGRET = 0xB0, System OFF, an immediate wake
+    // (a reset that stops the watchdog), the bootloader in SAM-BA mode for as long as an upload
+    // takes. A soft reset instead would leave the 2 s watchdog running: the bootloader never
+    // feeds it, and it would reset the chip mid-upload.
     host.set_line_coding(1200);
     host.set_dtr(false);
     b.run_for(1.0);
+    assert_in_bootloader(&mut b, &host);
+}
+
+/// After the touch: one reset (the wake from System OFF), then SAM-BA mode held for 60 s with
+/// no reset of any kind, enumerating as the bootloader.
+fn assert_in_bootloader(b: &mut Testbed, host: &UsbHost) {
+    assert!(b.mcu.log.iter().any(|l| l.contains("wake from System OFF (Detect)")), "{:#?}", b.mcu.log);
     assert_eq!(b.mcu.resets, 1, "{:#?}", b.mcu.log);
-    assert_eq!(b.mcu.periph.borrow_mut().read(0x4000_051C), 0xB0, "GPREGRET");
-    // After the reset the board comes back on the bus.
-    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    b.run_for(60.0);
+    let bl = b.mcu.stock_bootloader();
+    assert!(bl.in_samba() && bl.held_s(b.mcu.now()) >= 60.0, "{bl:?}\n{:#?}", b.mcu.log);
+    assert_eq!((b.mcu.resets, b.mcu.watchdog_resets), (1, 0), "{:#?}", b.mcu.log);
+    assert_eq!(b.mcu.periph.borrow().power.gpregret, 0, "the bootloader cleared its magic");
+    assert_eq!(host.vid_pid(), Some(vboard::periph::bootloader::VID_PID));
 }
 
 #[test]
-fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_resets_the_board() {
+fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_leaves_the_bootloader_in_samba() {
     use vboard::pty::PtyBridge;
     let (mut b, host) = usb_bench();
     host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
@@ -90,8 +114,7 @@ fn a_program_on_the_pty_gets_the_help_and_its_1200_baud_touch_resets_the_board()
     let fd = open(libc::B1200);
     unsafe { libc::close(fd) };
     bridge.run_for(&mut b.mcu, 1.0, 1e-3, false).unwrap();
-    assert_eq!(b.mcu.resets, 1, "{:#?}\n{:#?}", host.log(), b.mcu.log);
-    assert_eq!(b.mcu.periph.borrow_mut().read(0x4000_051C), 0xB0, "GPREGRET");
+    assert_in_bootloader(&mut b, &host);
 }
 
 /// The text the host received in `secs` of board time.
@@ -128,6 +151,43 @@ fn commands_over_usb_start_a_calibration_and_raw_log_rows_feed_calib() {
     assert!((600..=800).contains(&log.rows.len()), "{} rows", log.rows.len());
     assert_eq!(calib::port::lost_rows(&log.rows), 0);
     assert!(host.errors().is_empty(), "{:?}", host.errors());
+    // The host reads as cdc-acm does (128-byte URBs, complete on a short packet): a burst that
+    // ended on a full packet was closed with a ZLP, so no byte waited in the host for more than
+    // a few 2 ms ticks.
+    assert!(host.max_urb_wait_s() < 0.01, "bytes waited {:.3} s in an incomplete URB", host.max_urb_wait_s());
+    assert!(host.zlps() > 0, "no burst ended on a packet boundary in {} rows?", log.rows.len());
+}
+
+#[test]
+fn vbus_lost_while_running_disables_the_usbd_says_so_once_and_the_next_vbus_starts_it_again() {
+    let (mut b, host) = usb_bench();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    b.run_for(0.5);
+    host.read();
+    // The cable goes; the board runs on (from its other supply).
+    host.detach();
+    b.run_for(3.0);
+    let (enable, ed14) = {
+        let p = b.mcu.periph.borrow();
+        (p.usbd.enable, p.usbd.errata_ed14())
+    };
+    assert_eq!((enable, ed14), (0, 0), "USBD disabled as nrfx does on USBREMOVED, erratum 211 ended");
+    let usb_lines: Vec<&String> = b.mcu.log.iter().filter(|l| l.contains("USB")).collect();
+    let gone = usb_lines.iter().filter(|l| l.contains("VBUS gone")).count();
+    assert_eq!(gone, 1, "{usb_lines:#?}");
+    assert!(usb_lines.len() <= 3, "no flood of USB warnings: {usb_lines:#?}");
+    // Back: a new enumeration, and the port answers.
+    host.attach();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    assert_eq!(host.with(|h| h.enumerations), 2);
+    b.run_for(0.2);
+    host.read();
+    host.write(&[Command::Help.byte()]);
+    let text = read_for(&mut b, &host, 0.5);
+    assert!(events(&text).ends_with(&help()), "{text:?}\n{:#?}", b.mcu.log);
+    assert!(host.errors().is_empty(), "{:?}", host.errors());
+    let p = b.mcu.periph.borrow();
+    assert_eq!((p.usbd.locked_writes, p.usbd.errata_ed14()), (0, 3), "every errata write unlocked; 211 kept while enabled");
 }
 
 #[test]

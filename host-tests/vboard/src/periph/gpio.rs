@@ -116,6 +116,18 @@ impl Gpio {
         v
     }
 
+    /// The DETECT signal (DETECTMODE = default): a pin whose PIN_CNF.SENSE is high (2) reads 1,
+    /// or one whose SENSE is low (3) reads 0. It wakes the chip from System OFF.
+    pub fn detect(&self, button: bool) -> bool {
+        (0..2).any(|port| {
+            let input = self.input(port, button);
+            (0..32).any(|n| {
+                let (c, level) = (self.port[port].cnf[n], (input >> n) & 1 != 0);
+                c & 2 == 0 && matches!(((c >> 16) & 3, level), (2, true) | (3, false))
+            })
+        })
+    }
+
     /// An access at offset `o` of the GPIO block (P0 at 0x000, P1 at 0x300).
     pub fn access(&mut self, o: u32, a: Access, button: bool) -> Result<u32, String> {
         let port = usize::from(o >= 0x800);

@@ -14,6 +14,7 @@
 //! Boot: by default the board boots as the Arduino Nano 33 BLE's bootloader hands over (see
 //! [`Periph::bootloader`]); `bootloader = false` is a cold power-on straight into the application.
 
+pub mod bootloader;
 pub mod clock;
 pub mod gpio;
 pub mod mpu;
@@ -28,7 +29,7 @@ pub mod uarte;
 pub mod usbd;
 pub mod wdt;
 
-pub use power::ResetKind;
+pub use power::{ResetKind, Wake};
 
 use embedded_hal::i2c::{I2c, Operation};
 use embedded_storage::nor_flash::NorFlash;
@@ -125,6 +126,11 @@ impl Leds {
     }
 }
 
+/// FICR.DEVICEID[0..2] of the modelled chip (a made-up unique id).
+pub const FICR_DEVICEID: [u32; 2] = [0x5A5A_1234, 0xA5A5_5678];
+/// FICR.DEVICEADDR[0..2] of the modelled chip (made up; DEVICEADDR[1] bits 31:16 are 1).
+pub const FICR_DEVICEADDR: [u32; 2] = [0xC0FF_EE01, 0xFFFF_D00D];
+
 /// Everything outside the CPU.
 #[derive(Clone)]
 pub struct Periph {
@@ -146,6 +152,13 @@ pub struct Periph {
     /// 0x10000. `false`: a cold power-on straight into the application (VTOR 0, all at reset
     /// values).
     pub bootloader: bool,
+    /// The stock bootloader's stand-in (when [`Periph::bootloader`] is set): where it is.
+    pub stock: bootloader::StockBootloader,
+    /// A debugger holds the chip in debug interface mode: System OFF is only emulated (PS
+    /// §5.3.2): the CPU runs on after SYSTEMOFF.
+    pub debug_interface: bool,
+    /// In System OFF since SYSTEMOFF, with whether VBUS was present then (a rising VBUS wakes).
+    pub off: Option<bool>,
     /// CLOCK.
     pub clock: clock::Clock,
     /// POWER.
@@ -217,6 +230,9 @@ impl Periph {
             flash,
             button: false,
             bootloader: true,
+            stock: Default::default(),
+            debug_interface: false,
+            off: None,
             clock: Default::default(),
             power: power::Power::new(),
             gpio: Default::default(),
@@ -258,7 +274,11 @@ impl Periph {
         if bl {
             self.power.dcdcen = 1;
         }
-        self.gpio = Default::default();
+        if !matches!(kind, ResetKind::OffWake(_)) {
+            self.gpio = Default::default();
+        }
+        self.off = None;
+        self.usb_host.stand_in = None;
         if bl {
             self.gpio.port[0].cnf[13] = 0x3; // the bootloader's LED pin: output, input disconnected
         }
@@ -387,7 +407,8 @@ impl Periph {
                 self.scs.nvic_pending |= 1 << irq;
             }
         }
-        if self.wdt.deadline().is_some_and(|d| t > d) {
+        // The WDT does not run in System OFF.
+        if self.off.is_none() && self.wdt.deadline().is_some_and(|d| t > d) {
             self.watchdog_reset = true;
         }
         self.sensor.advance_to(t);
@@ -520,6 +541,10 @@ impl Periph {
                 (0x014, Access::Read) => Ok(256),  // CODESIZE
                 (0x100, Access::Read) => Ok(0x52840),
                 (0x104, Access::Read) => Ok(0x4141_4430), // INFO.VARIANT "AAD0"
+                (0x060, Access::Read) => Ok(FICR_DEVICEID[0]),
+                (0x064, Access::Read) => Ok(FICR_DEVICEID[1]),
+                (0x0A4, Access::Read) => Ok(FICR_DEVICEADDR[0]),
+                (0x0A8, Access::Read) => Ok(FICR_DEVICEADDR[1]), // bits 31:16 read 1 on the part
                 (_, Access::Read) => Ok(0xFFFF_FFFF),
                 _ => Err("FICR is read-only".into()),
             },

@@ -36,6 +36,18 @@ pub enum ResetKind {
     Soft,
     /// CPU lock-up: the WDT keeps running.
     Lockup,
+    /// Wake-up from System OFF: resets the WDT; GPREGRET and the GPIO configuration stay; RAM
+    /// not retained (RAMn.POWER's retention bits) is lost.
+    OffWake(Wake),
+}
+
+/// What woke the chip from System OFF (RESETREAS bit).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wake {
+    /// GPIO DETECT (RESETREAS.OFF, bit 16).
+    Detect,
+    /// VBUS rising (RESETREAS.VBUS, bit 20).
+    Vbus,
 }
 
 impl ResetKind {
@@ -47,6 +59,8 @@ impl ResetKind {
             ResetKind::Watchdog => 1 << 1,
             ResetKind::Soft => 1 << 2,
             ResetKind::Lockup => 1 << 3,
+            ResetKind::OffWake(Wake::Detect) => 1 << 16,
+            ResetKind::OffWake(Wake::Vbus) => 1 << 20,
         }
     }
 
@@ -68,7 +82,8 @@ pub struct Power {
     /// DCDCEN0 (REG0 DC/DC).
     pub dcdcen0: u32,
     pofcon: u32,
-    gpregret: u32,
+    /// GPREGRET (retained through every reset but power-on).
+    pub gpregret: u32,
     gpregret2: u32,
     inten: u32,
     ram_power: [u32; 9],
@@ -82,6 +97,8 @@ pub struct Power {
     regulator_since: Option<f64>,
     /// EVENTS_USBDETECTED/USBREMOVED/USBPWRRDY (bits as in INTEN).
     pub usb_events: u32,
+    /// SYSTEMOFF was written (the board model decides what follows).
+    pub system_off: bool,
 }
 
 impl Power {
@@ -102,6 +119,7 @@ impl Power {
             usbd_enabled: false,
             regulator_since: None,
             usb_events: 0,
+            system_off: false,
         }
     }
 
@@ -174,6 +192,7 @@ impl Power {
             self.vbus_since = vbus;
         } else {
             self.usb_events = 0;
+            self.system_off = false;
             self.resetreas |= kind.resetreas_bit();
             self.resetreas_read = None;
             self.pofcon = 0;
@@ -249,12 +268,13 @@ impl Power {
                 }
                 u32::from(self.vbus()) | (u32::from(self.output_ready) << 1)
             }
-            o if o == off!(power, systemoff) => {
-                if a.is_write() {
-                    return Err("POWER.SYSTEMOFF written (System OFF is not modelled)".into());
+            o if o == off!(power, systemoff) => match a {
+                Access::Write(v) => {
+                    self.system_off |= v & 1 != 0;
+                    0
                 }
-                0
-            }
+                Access::Read => return Err("POWER.SYSTEMOFF is write-only".into()),
+            },
             o if o == off!(power, pofcon) => a.rw(&mut self.pofcon),
             o if o == off!(power, gpregret) => a.rw(&mut self.gpregret),
             o if o == off!(power, gpregret2) => a.rw(&mut self.gpregret2),

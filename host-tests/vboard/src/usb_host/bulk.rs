@@ -1,8 +1,17 @@
-//! Bulk transfers on the CDC data interface: the IN endpoint polled while reading (received
-//! bytes kept for [`Host::read`]), bytes queued by [`Host::write`] sent to the OUT endpoint in
-//! packets of up to wMaxPacketSize, and the data toggles of both.
+//! Bulk transfers on the CDC data interface: the IN endpoint polled while reading, bytes queued
+//! by [`Host::write`] sent to the OUT endpoint in packets of up to wMaxPacketSize, and the data
+//! toggles of both.
+//!
+//! Reads complete as Linux's cdc-acm reads: into URBs of [`URB_SIZE`] bytes (its read URBs are
+//! 2 × wMaxPacketSize), each complete, and handed to the reader ([`Host::read`]), when full or
+//! when a short packet (a zero-length one included) arrives. A burst that ends exactly on a
+//! full packet stays in the URB until the device sends more or a ZLP ([`Host::urb_pending`],
+//! [`Host::max_urb_wait_s`]).
 
 use super::{txn_s, Host, Next};
+
+/// cdc-acm's read URB size (B) for a 64-byte bulk IN endpoint.
+pub const URB_SIZE: usize = 128;
 use crate::periph::usbd::{Handshake, Phy, Usbd};
 
 impl Host {
@@ -32,9 +41,39 @@ impl Host {
         self.tx.len()
     }
 
-    /// Takes the bytes received on bulk IN so far.
+    /// Takes the bytes of the completed URBs so far.
     pub fn read(&mut self) -> Vec<u8> {
         std::mem::take(&mut self.rx)
+    }
+
+    /// Bytes received in the URB not completed yet (the reader does not have them).
+    pub fn urb_pending(&self) -> usize {
+        self.urb.len()
+    }
+
+    /// Longest time received bytes waited in an incomplete URB so far, the current one
+    /// included (s).
+    pub fn max_urb_wait_s(&self) -> f64 {
+        let current = self.urb_since.map_or(0.0, |t| self.now - t);
+        self.max_urb_wait_s.max(current)
+    }
+
+    /// A packet into the URB; the URB completes when full or on a short packet.
+    fn urb_packet(&mut self, data: &[u8], mps: usize) {
+        if !data.is_empty() && self.urb.is_empty() {
+            self.urb_since = Some(self.now);
+        }
+        self.urb.extend_from_slice(data);
+        if data.is_empty() {
+            self.zlps += 1;
+        }
+        if data.len() < mps || self.urb.len() >= URB_SIZE {
+            if let Some(t) = self.urb_since.take() {
+                self.max_urb_wait_s = self.max_urb_wait_s.max(self.now - t);
+            }
+            let urb = std::mem::take(&mut self.urb);
+            self.rx.extend_from_slice(&urb);
+        }
     }
 
     /// One IN token to bulk IN: data (kept if its toggle is the expected one), NAK (retry after
@@ -51,7 +90,7 @@ impl Host {
                 } else {
                     self.in_toggle = !self.in_toggle;
                     self.rx_total += p.data.len() as u64;
-                    self.rx.extend_from_slice(&p.data);
+                    self.urb_packet(&p.data, mps as usize);
                 }
                 self.in_next = Next::At(self.now + txn_s(p.data.len()));
             }

@@ -69,6 +69,31 @@ impl UsbHost {
         self.with(|h| h.device.clone())
     }
 
+    /// The VID:PID of the device on the port: the enumerated one, or the stock bootloader's
+    /// stand-in in SAM-BA mode.
+    pub fn vid_pid(&self) -> Option<(u16, u16)> {
+        self.with(|h| match (&h.stand_in, h.enumerated()) {
+            (Some(s), _) => Some(s.0),
+            (None, true) => h.device.as_ref().map(|d| (d.vid, d.pid)),
+            _ => None,
+        })
+    }
+
+    /// See [`Host::urb_pending`].
+    pub fn urb_pending(&self) -> usize {
+        self.with(|h| h.urb_pending())
+    }
+
+    /// See [`Host::max_urb_wait_s`].
+    pub fn max_urb_wait_s(&self) -> f64 {
+        self.with(|h| h.max_urb_wait_s())
+    }
+
+    /// Zero-length packets received on bulk IN.
+    pub fn zlps(&self) -> u32 {
+        self.with(|h| h.zlps)
+    }
+
     /// The configuration descriptor as parsed.
     pub fn configuration(&self) -> Option<Configuration> {
         self.with(|h| h.configuration.clone())

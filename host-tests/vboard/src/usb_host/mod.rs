@@ -42,6 +42,7 @@ mod descriptors;
 mod handle;
 mod port;
 
+pub use bulk::URB_SIZE;
 pub use descriptors::{
     find_cdc, parse_configuration, parse_device, parse_string, Cdc, Configuration, DeviceDescriptor, Endpoint, Interface,
 };
@@ -109,6 +110,13 @@ pub struct Host {
     pub strings: Vec<(u8, String)>,
     reading: bool,
     rx: Vec<u8>,
+    /// The read URB being filled.
+    urb: Vec<u8>,
+    /// Since when its first byte waits (s).
+    urb_since: Option<f64>,
+    max_urb_wait_s: f64,
+    /// Zero-length packets received on bulk IN.
+    pub zlps: u32,
     tx: VecDeque<u8>,
     in_next: Next,
     out_next: Next,
@@ -130,6 +138,9 @@ pub struct Host {
     pub enumerations: u32,
     /// The line coding last set (baud) and the control line state (bit 0 DTR, bit 1 RTS).
     pub line: (u32, u16),
+    /// A device whose USB stack is not emulated (the stock bootloader in SAM-BA mode):
+    /// (VID:PID, manufacturer, product), set by the board model while it is on the port.
+    pub stand_in: Option<((u16, u16), &'static str, &'static str)>,
 }
 
 impl Default for Host {
@@ -162,6 +173,10 @@ impl Host {
             strings: vec![],
             reading: true,
             rx: vec![],
+            urb: vec![],
+            urb_since: None,
+            max_urb_wait_s: 0.0,
+            zlps: 0,
             tx: VecDeque::new(),
             in_next: Next::At(0.0),
             out_next: Next::At(0.0),
@@ -175,6 +190,7 @@ impl Host {
             toggle_errors: 0,
             enumerations: 0,
             line: (0, 0),
+            stand_in: None,
         }
     }
 

@@ -64,6 +64,9 @@ impl Host {
         self.running = Running::Idle;
         self.next_sof = None;
         self.addr = 0;
+        // The read URB is killed with the device: its bytes never reach the reader.
+        self.urb.clear();
+        self.urb_since = None;
     }
 
     /// The debounce is over: forget the last device and enumerate from the bus reset.
