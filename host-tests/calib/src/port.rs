@@ -30,6 +30,15 @@ use std::path::PathBuf;
 use std::sync::mpsc::{self, TryRecvError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+/// Arduino's 1200-baud touch: the port opened at 1200 baud, DTR dropped, closed. The gyrocal
+/// firmware (like Arduino's own cores) then leaves for the bootloader's serial mode. The DTR
+/// ioctl fails on a pseudo-terminal: ignored.
+pub fn touch_1200(port: &str) -> Result<(), serialport::Error> {
+    let mut p = serialport::new(port, 1200).timeout(Duration::from_millis(100)).open()?;
+    let _ = p.write_data_terminal_ready(false);
+    Ok(())
+}
+
 /// Baud rate the port is opened at: CDC-ACM ignores it, but 1200 would reset the board into its
 /// bootloader (the 1200-baud touch).
 pub const BAUD: u32 = 115_200;

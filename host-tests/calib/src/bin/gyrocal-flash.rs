@@ -364,15 +364,6 @@ const TOUCH_RESET: Duration = Duration::from_secs(3);
 /// How long to let the bootloader's port settle once it is back (udev sets its permissions).
 const PORT_SETTLE: Duration = Duration::from_millis(500);
 
-/// Arduino's 1200-baud touch: the port opened at 1200 baud, DTR dropped, closed. The gyrocal
-/// firmware (like Arduino's own cores) then resets into the bootloader's serial mode. The DTR
-/// ioctl fails on a pseudo-terminal: ignored.
-fn touch_1200(port: &str) -> Result<(), serialport::Error> {
-    let mut p = serialport::new(port, 1200).timeout(Duration::from_millis(100)).open()?;
-    let _ = p.write_data_terminal_ready(false);
-    Ok(())
-}
-
 /// The serial ports the system lists (none if it cannot list them).
 fn listed_ports() -> Vec<String> {
     serialport::available_ports().map(|v| v.into_iter().map(|p| p.port_name).collect()).unwrap_or_default()
@@ -418,7 +409,7 @@ fn wait_after_touch(port: &str, before: &[String], wait: Duration) -> Result<Str
 /// reason said) if the board must be put in its bootloader by hand.
 fn reset_into_bootloader(port: &str, wait: Duration) -> Option<String> {
     let before = listed_ports();
-    let r = touch_1200(port).map_err(|e| format!("{port}: {e}")).and_then(|()| {
+    let r = calib::port::touch_1200(port).map_err(|e| format!("{port}: {e}")).and_then(|()| {
         eprintln!("flash-usb: 1200-baud touch on {port}: the board resets into its bootloader ...");
         wait_after_touch(port, &before, wait)
     });

@@ -61,6 +61,11 @@ struct Args {
     /// Everything over USB serial with `calib --port` on a pseudo-terminal (no button, no RTT).
     #[arg(long, conflicts_with_all = ["raw_log", "no_probe"])]
     usb: bool,
+    /// With --usb: after the calibration, the 1200-baud touch (gyrocal-flash's own code) and
+    /// 60 s of board time in the bootloader the touch enters. Last line `RESULT
+    /// touch=<bootloader|app|off> held_s=<s> resets=<n>` (resets while held).
+    #[arg(long, requires = "usb")]
+    touch: bool,
     /// Where the demo writes its files (`--usb`: the raw log `demo-usb.csv`); default
     /// `target/demo` in the workspace.
     #[arg(long, value_name = "DIR")]
@@ -68,7 +73,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt, usb, out } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, out } = Args::parse_from(calib::cli_args());
     let out = out.unwrap_or_else(|| calib::firmware::target_dir().join("demo"));
     if let Err(e) = std::fs::create_dir_all(&out) {
         eprintln!("[demo] {}: {e}", out.display());
@@ -98,7 +103,7 @@ fn main() -> ExitCode {
     let wall = std::time::Instant::now();
     testbed.mcu.paint_stack();
     if usb {
-        return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, wall);
+        return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, touch, wall);
     }
     println!(
         "[demo] power on (seed {seed}); the button is pressed at 2 s{}",
@@ -235,7 +240,7 @@ fn print_speed(testbed: &Testbed, wall: std::time::Instant) {
 }
 
 /// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
-fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, wall: std::time::Instant) -> ExitCode {
+fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, touch: bool, wall: std::time::Instant) -> ExitCode {
     println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {})", log.display());
     let ui: Box<dyn std::io::Write + Send> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
     let (outcome, session) = match testbed.calibrate_over_usb(log, ui) {
@@ -267,9 +272,47 @@ fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, wall: std
     println!("[demo] the record in flash is the one reported over USB: {same}");
     print_speed(testbed, wall);
     println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", testbed.max_scale_error_pct(&out.record));
+    let ok = ok && (!touch || demo_touch(testbed));
     if ok {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)
     }
+}
+
+/// Board time the bootloader must stay up after the touch (s): what a slow upload takes.
+const HOLD_S: f64 = 60.0;
+
+/// `--touch`: the 1200-baud touch on the pty with `gyrocal-flash`'s code, then [`HOLD_S`] of
+/// board time. True if the board is in the bootloader's SAM-BA mode for all of it, with no
+/// reset of any kind.
+fn demo_touch(testbed: &mut Testbed) -> bool {
+    let Some(path) = testbed.usb.as_ref().map(|b| b.slave_path().to_string_lossy().into_owned()) else {
+        println!("RESULT touch=none held_s=0.0 resets=0");
+        return false;
+    };
+    println!("[demo] the 1200-baud touch on {path}, as gyrocal-flash does it");
+    let t = std::thread::spawn(move || calib::port::touch_1200(&path));
+    let t_end = testbed.mcu.now() + 5.0;
+    while !testbed.mcu.stock_bootloader().in_samba() && testbed.mcu.now() < t_end {
+        testbed.run_for(0.01);
+    }
+    if let Ok(Err(e)) = t.join() {
+        eprintln!("[demo] touch: {e}");
+    }
+    let resets = testbed.mcu.resets;
+    testbed.run_for(HOLD_S);
+    let bl = testbed.mcu.stock_bootloader();
+    let (held, resets) = (bl.held_s(testbed.mcu.now()), testbed.mcu.resets - resets);
+    let state = if bl.in_samba() {
+        "bootloader"
+    } else if testbed.mcu.in_app() {
+        "app"
+    } else {
+        "off"
+    };
+    let vid_pid = testbed.usb.as_ref().and_then(|b| b.host().vid_pid());
+    println!("[demo] after {HOLD_S} s: {state}, on USB as {vid_pid:04X?}, {} watchdog resets in all", testbed.mcu.watchdog_resets);
+    println!("RESULT touch={state} held_s={held:.1} resets={resets}");
+    bl.in_samba() && held >= HOLD_S && resets == 0
 }
