@@ -476,7 +476,8 @@ impl Mcu {
     /// Paints the free stack with a pattern (for the peak-stack measurement).
     pub fn paint_stack(&mut self) {
         if let Some((lo, hi)) = self.firmware.stack {
-            let sp = self.uc.reg_read(RegisterARM::SP).unwrap_or(hi);
+            // Before the bootloader's jump the CPU's SP is not the application's yet.
+            let sp = if self.in_app() { self.uc.reg_read(RegisterARM::SP).unwrap_or(hi) } else { hi };
             let top = sp.min(hi).saturating_sub(64);
             if top > lo {
                 let _ = self.uc.mem_write(lo, &vec![0xA5; (top - lo) as usize]);
