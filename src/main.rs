@@ -49,6 +49,12 @@ const FIFO_POLL_S: f64 = 0.010;
 const WATCHDOG_S: u32 = 2;
 /// Servo PWM: 1 µs ticks, 20 ms period.
 const PWM_TOP: u16 = 20_000;
+/// A servo pulse change waits until the PWM period in progress is this far along (µs): nrf-hal's
+/// `set_duty_off` restarts the period (SEQSTART), so a restart earlier would hand the servo a
+/// frame shorter than 16 ms or stretch the pulse it is outputting (≤ 2.5 ms).
+const SERVO_UPDATE_FROM_US: u64 = 16_000;
+/// … and no later than this (µs): a margin before the next period's rising edge.
+const SERVO_UPDATE_UNTIL_US: u64 = PWM_TOP as u64 - 500;
 
 /// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
 const SENSOR: SensorConfig =
@@ -86,6 +92,10 @@ fn TIMER2() {
 /// calibration, the log.
 struct Io {
     pwm: Pwm<pac::PWM0>,
+    /// Servo pulses (µs, 0 = off) waiting for their moment in the PWM period.
+    servo_pending: [Option<u16>; 2],
+    /// When the PWM period last restarted (µs, MCU clock); None before the first pulse.
+    pwm_restart_us: Option<u64>,
     storage: Option<Storage<hal::nvmc::Nvmc<pac::NVMC>>>,
     led: Led,
     applied: Option<Record>,
@@ -100,13 +110,35 @@ fn channel(ch: u8) -> Channel {
     }
 }
 
+impl Io {
+    /// Applies a pending servo pulse if the PWM period in progress is in its update window
+    /// ([`SERVO_UPDATE_FROM_US`]..[`SERVO_UPDATE_UNTIL_US`]), one channel per period (each call
+    /// restarts the period): the servos only ever see whole 16–20 ms frames and whole pulses.
+    /// Called every loop tick (2 ms, inside the 3.5 ms window); a change waits ≤ 20 ms.
+    fn flush_servos(&mut self, now_us: u64) {
+        let due = self.pwm_restart_us.is_none_or(|t0| {
+            let into = (now_us - t0) % PWM_TOP as u64;
+            (SERVO_UPDATE_FROM_US..SERVO_UPDATE_UNTIL_US).contains(&into)
+        });
+        if !due {
+            return;
+        }
+        let Some(ch) = self.servo_pending.iter().position(Option::is_some) else { return };
+        let pulse = self.servo_pending[ch].take().unwrap_or(0);
+        self.pwm.set_duty_off(channel(ch as u8), pulse);
+        if pulse > 0 || self.pwm_restart_us.is_some() {
+            self.pwm_restart_us = Some(now_us);
+        }
+    }
+}
+
 impl Shell for Io {
     fn servo(&mut self, ch: u8, pulse_us: u16) {
-        self.pwm.set_duty_off(channel(ch), CONFIG.clamp_pulse(pulse_us as f32));
+        self.servo_pending[usize::from(ch & 1)] = Some(CONFIG.clamp_pulse(pulse_us as f32));
     }
 
     fn servo_off(&mut self, ch: u8) {
-        self.pwm.set_duty_off(channel(ch), 0);
+        self.servo_pending[usize::from(ch & 1)] = Some(0);
     }
 
     fn led(&mut self, led: Led) {
@@ -352,14 +384,15 @@ fn main() -> ! {
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
     let pwm = Pwm::new(p.PWM0);
-    pwm.set_prescaler(Prescaler::Div16)
-        .set_max_duty(PWM_TOP)
-        .set_output_pin(Channel::C0, p0.p0_27.into_push_pull_output(Level::Low).degrade())
-        .set_output_pin(Channel::C1, p1.p1_02.into_push_pull_output(Level::Low).degrade());
+    pwm.set_prescaler(Prescaler::Div16).set_max_duty(PWM_TOP);
     // nRF PWM sequence values: bit 15 set = falling edge first = HIGH for `duty` ticks from the
     // start of the period. nrf-hal's `set_duty_off` sets bit 15 (`set_duty_on` would invert).
+    // Both channels at 0 before the pins are routed: between the two calls the second channel
+    // plays its zeroed buffer value (no bit 15: HIGH all period), a glitch on a servo pin.
     pwm.set_duty_off(Channel::C0, 0);
     pwm.set_duty_off(Channel::C1, 0);
+    pwm.set_output_pin(Channel::C0, p0.p0_27.into_push_pull_output(Level::Low).degrade())
+        .set_output_pin(Channel::C1, p1.p1_02.into_push_pull_output(Level::Low).degrade());
 
     // Calibration records in the reserved flash region (never the bootloader).
     extern "C" {
@@ -400,7 +433,7 @@ fn main() -> ! {
     }
 
     let procedure = procedure(applied);
-    let mut io = Io { pwm, storage, led: Led::Idle, applied, console };
+    let mut io = Io { pwm, servo_pending: [None; 2], pwm_restart_us: None, storage, led: Led::Idle, applied, console };
     let mut button = Button::new();
     let mut sensing = Sensing::new(bus.take());
     let mut status = Status::default();
@@ -415,6 +448,7 @@ fn main() -> ! {
         procedure.drive(now, &mut io);
         procedure.handle_tick(now);
         procedure.drive(now, &mut io);
+        io.flush_servos(clock.now_us());
 
         status.lines(now, &mut io.console, io.applied.is_some() && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));

@@ -31,6 +31,7 @@ fn calibrates_stores_and_reloads_after_reset() {
     let rec = b.stored().expect("a record in flash");
     let err = b.max_scale_error_pct(&rec);
     assert!(err <= 0.1, "max scale error {err:.4} %");
+    assert_servo_frames_whole(&b);
     let (instr, calls) = b.mcu.handle_sample.get();
     println!(
         "MEASURED instructions_per_sample={:.0} peak_stack_bytes_boot={boot_stack:?} peak_stack_bytes_calibration={:?} max_scale_error_pct={err:.4}",
@@ -118,6 +119,7 @@ fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
     assert_eq!(rec.method, calib_core::gyro::Method::Full);
     let (largest, rms) = rig_sim::pan_tilt::k_error(rec.gyro_k, rec.accel_m, b.mcu.periph.borrow().sensor.rig()).unwrap();
     assert!(largest < 1.5e-3 && rms < 5e-4, "E largest {largest:.2e}, rms {rms:.2e}");
+    assert_servo_frames_whole(&b);
     // The version-2 record reloads after a reset.
     b.reset().unwrap();
     b.run_for(3.0);
@@ -130,4 +132,12 @@ fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
     b.run_for(2.0);
     assert_eq!(b.calibrate(300.0), Outcome::Failed(3));
     assert!(b.stored().is_none());
+}
+
+/// The servos saw only whole frames: no PWM restart cut a period short of what a servo expects
+/// or stretched a pulse (nrf-hal's `set_duty_*` restarts the sequence on every call).
+fn assert_servo_frames_whole(b: &Testbed) {
+    let p = b.mcu.periph.borrow();
+    println!("MEASURED servo short_periods={} stretched_pulses={}", p.pwm.short_periods, p.pwm.stretched_pulses);
+    assert_eq!((p.pwm.short_periods, p.pwm.stretched_pulses), (0, 0), "servo frames cut or pulses stretched");
 }

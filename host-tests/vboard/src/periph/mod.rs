@@ -509,7 +509,7 @@ impl Periph {
             }
             b if b == base(pac::UARTE0::PTR.cast()) => self.uarte.access(o, a, t),
             b if b == base(pac::PWM0::PTR.cast()) => {
-                let v = self.pwm.access(o, a, mem)?;
+                let v = self.pwm.access(o, a, t, mem)?;
                 if a.is_write() {
                     self.drive_servos();
                 }

@@ -5,8 +5,20 @@
 //! `value` ticks from the start of the period. The outputs reach a pin only when ENABLE = 1 and
 //! PSEL.OUT[n] connects them: the servo sees the channel routed to P0.27, the tilt servo the one
 //! routed to P1.02, and the channel routed to P0.13 overrides the D13 LED.
+//!
+//! TASKS_SEQSTART while a sequence plays restarts the PWM period at once (nrf-hal's `set_duty_*`
+//! does that on every call): the period in progress is cut, and if a channel's output was still
+//! HIGH its pulse runs on into the new one. What a servo then sees is flagged: a period shorter
+//! than [`SERVO_MIN_PERIOD_US`] ([`Pwm::short_periods`]) or a pulse stretched by a restart
+//! during it ([`Pwm::stretched_pulses`]), on channels routed to a servo pin.
 
 use super::{off, Access, Dma};
+
+/// Shortest frame a hobby servo is made for (µs): they expect 50 Hz (20 ms); many analog servos
+/// misbehave well below it.
+pub const SERVO_MIN_PERIOD_US: f64 = 15_000.0;
+/// The servo pins (port, pin): the rotation servo on P0.27, the tilt servo on P1.02.
+pub const SERVO_PINS: [(u32, u32); 2] = [(0, 27), (1, 2)];
 
 /// PWM0 state.
 #[derive(Debug, Clone)]
@@ -36,6 +48,12 @@ pub struct Pwm {
     pub pulse_us: [u16; 4],
     /// Duty (HIGH fraction) per channel, for LEDs.
     pub duty: [f64; 4],
+    /// When the current PWM period began (s).
+    period_start: f64,
+    /// Servo-channel periods cut short of [`SERVO_MIN_PERIOD_US`] by a restart.
+    pub short_periods: u32,
+    /// Servo-channel pulses still HIGH when a restart began a new one.
+    pub stretched_pulses: u32,
 }
 
 impl Default for Pwm {
@@ -71,6 +89,9 @@ impl Pwm {
             running: false,
             pulse_us: [0; 4],
             duty: [0.0; 4],
+            period_start: 0.0,
+            short_periods: 0,
+            stretched_pulses: 0,
         };
         if bootloader {
             p.enable = 1;
@@ -130,8 +151,36 @@ impl Pwm {
         }
     }
 
-    /// A register access at offset `o`.
-    pub fn access(&mut self, o: u32, a: Access, mem: &mut dyn Dma) -> Result<u32, String> {
+    /// The PWM period (µs).
+    fn period_us(&self) -> f64 {
+        (self.countertop & 0x7FFF) as f64 * (1u32 << self.prescaler.min(7)) as f64 / 16.0
+    }
+
+    /// A restart at `t` (s) of a running generator: flags what the servo channels see of the
+    /// period it cuts.
+    fn restart(&mut self, t: f64) {
+        let period = self.period_us();
+        if period <= 0.0 {
+            return;
+        }
+        // The phase of the period in progress: the servo sees a frame of that length.
+        let into = ((t - self.period_start) * 1e6) % period;
+        for (ch, &pulse) in self.pulse_us.iter().enumerate() {
+            let servo = SERVO_PINS.iter().any(|&(port, pin)| self.channel_on(port, pin) == Some(ch));
+            if !servo || pulse == 0 {
+                continue;
+            }
+            if into < SERVO_MIN_PERIOD_US.min(period) {
+                self.short_periods += 1;
+            }
+            if into < pulse as f64 {
+                self.stretched_pulses += 1;
+            }
+        }
+    }
+
+    /// A register access at offset `o` at time `t` (s).
+    pub fn access(&mut self, o: u32, a: Access, t: f64, mem: &mut dyn Dma) -> Result<u32, String> {
         let ev = |e: &mut bool, a: Access| -> u32 {
             if let Access::Write(v) = a {
                 *e = v & 1 != 0;
@@ -152,6 +201,10 @@ impl Pwm {
             o if o == start || o == start + 4 => {
                 let n = ((o - start) / 4) as usize;
                 if a.is_write() && self.enable & 1 != 0 {
+                    if self.running {
+                        self.restart(t);
+                    }
+                    self.period_start = t;
                     self.load(n, mem);
                     self.running = true;
                     self.events_seqstarted[n] = true;
