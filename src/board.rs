@@ -181,8 +181,14 @@ pub(crate) fn flash_map(uicr: &pac::UICR) -> FlashMap {
 }
 
 /// Starts the 32 MHz crystal, the time base of every gyro integral, clearing a stale
-/// HFCLKSTARTED first (the bootloader may have started it already). Bounded.
+/// HFCLKSTARTED first. Bounded. A crystal that already runs (the stock bootloader starts it) is
+/// taken as it is (HFCLKSTAT: source Xtal, running), without relying on a start task raising
+/// HFCLKSTARTED again.
 pub(crate) fn start_hfxo(clock: &pac::CLOCK) -> bool {
+    let stat = clock.hfclkstat.read();
+    if stat.src().is_xtal() && stat.state().is_running() {
+        return true;
+    }
     // SAFETY: CLOCK is ours; event and task registers take 0 / 1.
     clock.events_hfclkstarted.write(|w| unsafe { w.bits(0) });
     clock.tasks_hfclkstart.write(|w| unsafe { w.bits(1) });

@@ -320,15 +320,36 @@ impl Status {
     }
 }
 
+/// RESETREAS.RESETPIN.
+const RESETREAS_RESETPIN: u32 = 1;
+/// FPSCR's cumulative exception flags (IOC, DZC, OFC, UFC, IXC, IDC).
+const FPSCR_EXCEPTIONS: u32 = 0x9F;
+
+/// Sleeps until the next interrupt. Erratum 87: an FPU exception flag left in FPSCR pends the
+/// FPU interrupt, which keeps the CPU from sleeping; the flags and the pending bit are cleared
+/// first, as Nordic's workaround does.
+fn sleep() {
+    let fpscr = cortex_m::register::fpscr::read().bits();
+    if fpscr & FPSCR_EXCEPTIONS != 0 {
+        // SAFETY: only the sticky exception flags change; rounding and modes stay.
+        unsafe { cortex_m::register::fpscr::write(cortex_m::register::fpscr::Fpscr::from_bits(fpscr & !FPSCR_EXCEPTIONS)) };
+    }
+    NVIC::unpend(pac::Interrupt::FPU);
+    cortex_m::asm::wfi();
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     let (Some(p), Some(mut core)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
         cortex_m::peripheral::SCB::sys_reset();
     };
     quiesce(&p, &mut core);
-    let reset_reason = p.POWER.resetreas.read().bits();
+    let raw_reason = p.POWER.resetreas.read().bits();
     // SAFETY: RESETREAS bits are cleared by writing 1.
-    p.POWER.resetreas.write(|w| unsafe { w.bits(reset_reason) });
+    p.POWER.resetreas.write(|w| unsafe { w.bits(raw_reason) });
+    // Erratum 136: after a pin reset other RESETREAS bits may be set too; with RESETPIN set,
+    // only it is true (nrfx's system_nrf52840.c clears the others).
+    let reset_reason = if raw_reason & RESETREAS_RESETPIN != 0 { RESETREAS_RESETPIN } else { raw_reason };
     defmt::info!("gyrocal-fw {=str}; reset reason 0x{=u32:08X}", env!("CARGO_PKG_VERSION"), reset_reason);
     if !start_hfxo(&p.CLOCK) {
         defmt::error!("the 32 MHz crystal did not start: gyro integrals would be timed by the RC oscillator (1.5 %); resetting");
@@ -452,6 +473,6 @@ fn main() -> ! {
 
         status.lines(now, &mut io.console, io.applied.is_some() && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));
-        cortex_m::asm::wfi();
+        sleep();
     }
 }

@@ -19,6 +19,9 @@ const EXCP_EXCEPTION_EXIT: u32 = 8;
 /// Unicorn interrupt number of a prefetch abort.
 const EXCP_PREFETCH_ABORT: u32 = 3;
 
+/// FPSCR's cumulative exception flags: set at a `wfi`, they pend the FPU interrupt, which keeps
+/// the CPU awake (erratum 87; counted in `Scs::wfi_with_fpu_flags`).
+const FPSCR_EXCEPTIONS: u64 = 0x9F;
 /// xPSR's IT/ICI bits (EPSR[26:25] and [15:10]).
 const XPSR_IT: u32 = 0x0600_FC00;
 
@@ -796,7 +799,9 @@ impl Mcu {
                 if self.wfi_addrs.contains(&pc) {
                     let _ = self.uc.reg_write(RegisterARM::PC, pc + 2);
                 }
+                let fpu_flags = self.uc.reg_read(RegisterARM::FPSCR).unwrap_or(0) & FPSCR_EXCEPTIONS != 0;
                 let mut p = self.periph.borrow_mut();
+                p.scs.wfi_with_fpu_flags += u32::from(fpu_flags);
                 let now = p.now();
                 let wake = p.next_event().unwrap_or(t_end).min(t_end);
                 if wake > now {

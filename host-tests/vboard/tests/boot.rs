@@ -46,7 +46,22 @@ fn boots_from_the_bootloader_state_and_from_cold() {
         // No STOP issued to an idle TWIM; the watchdog is fed.
         assert_eq!((p.twim.idle_stops, p.twim.broken_transfers), (0, 0), "{what}");
         assert!(p.wdt.running && p.wdt.reloads > 100, "{what}");
+        // Erratum 87: no `wfi` with FPU exception flags pending.
+        assert_eq!(p.scs.wfi_with_fpu_flags, 0, "{what}");
     }
+}
+
+/// Erratum 136: after a pin reset RESETREAS also shows SREQ; the firmware reports RESETPIN
+/// alone.
+#[test]
+fn a_pin_reset_is_reported_as_one_despite_erratum_136() {
+    let mut b = testbed(15, true);
+    b.run_for(1.0);
+    b.mcu.reset_pin().unwrap();
+    b.run_for(1.5);
+    let line = b.mcu.log.iter().rev().find(|l| l.contains("reset reason")).cloned().unwrap_or_default();
+    assert!(line.ends_with("reset reason 0x00000001"), "{line}");
+    assert_eq!(b.mcu.periph.borrow().power.resetreas_read, Some(0b101), "the part said RESETPIN | SREQ");
 }
 
 #[test]

@@ -28,7 +28,8 @@ pub const USBPWRRDY: u32 = 1 << 9;
 pub enum ResetKind {
     /// Power-on or brown-out: everything resets, RESETREAS reads 0.
     PowerOn,
-    /// The reset pin (the Nano's button): resets the WDT too.
+    /// The reset pin (the Nano's RESET button): resets the WDT too; RESETREAS gets RESETPIN and,
+    /// as erratum 136 says, another bit (SREQ).
     Pin,
     /// The watchdog fired: resets the WDT too.
     Watchdog,
@@ -55,7 +56,8 @@ impl ResetKind {
     fn resetreas_bit(self) -> u32 {
         match self {
             ResetKind::PowerOn => 0,
-            ResetKind::Pin => 1 << 0,
+            // Erratum 136: a pin reset may set other bits too (here SREQ).
+            ResetKind::Pin => (1 << 0) | (1 << 2),
             ResetKind::Watchdog => 1 << 1,
             ResetKind::Soft => 1 << 2,
             ResetKind::Lockup => 1 << 3,

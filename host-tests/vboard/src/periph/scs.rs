@@ -19,6 +19,9 @@ pub struct Scs {
     pub reset_request: bool,
     /// The MPU.
     pub mpu: Mpu,
+    /// `wfi`s executed with FPSCR exception flags set (erratum 87: on the part the pending FPU
+    /// interrupt keeps the CPU from sleeping; the model only counts them).
+    pub wfi_with_fpu_flags: u32,
     scr: u32,
     ccr: u32,
     shpr: [u32; 3],
