@@ -518,3 +518,37 @@ fn off_axis_radius_adds_tangential_acceleration() {
     }
     assert!(checked > 5, "the spin-up must be sampled");
 }
+
+/// The warm-up (1 − e^(−t/τ) from power-on), the bias random walk and the Earth's rotation,
+/// each off by default: a board at rest measures bias(T(t)) + walk + the Earth rate in its
+/// frame, and the truth's bias follows the temperature and the walk.
+#[test]
+fn warm_up_bias_walk_and_earth_rate() {
+    use rig_sim::sim::{Warmup, EARTH_RATE_RAD_S};
+    let mut cfg = RigConfig::ideal();
+    cfg.warmup = Some(Warmup { rise_c: 4.0, tau_s: 100.0, since_power_on_s: 10.0 });
+    assert_eq!(cfg.delta_temp_c(0.0), 0.0);
+    let left = 4.0 * (-0.1f64).exp();
+    assert!((cfg.delta_temp_c(1e4) - left).abs() < 1e-9, "the rest of the rise after 10 s");
+    assert!(cfg.delta_temp_c(10.0) > cfg.delta_temp_c(100.0) - cfg.delta_temp_c(90.0), "steepest first");
+    // Earth rate at the pole: the ideal gyro at rest reads ω_e along W's z in the body frame.
+    cfg.latitude_deg = Some(90.0);
+    cfg.gyro.bias_tempco_dps_per_c = Vector3::new(0.03, -0.05, 0.04);
+    let mut rig = Rig::new(cfg, 3);
+    let samples = record(&mut rig, 2.0);
+    let (s, t) = samples.last().unwrap();
+    let earth_b = (t.q_wb.inverse() * Vector3::z()) * EARTH_RATE_RAD_S.to_degrees();
+    assert!((v3(s.gyro_dps) - t.gyro_bias_dps - earth_b).norm() < 1e-6, "{:?}", s.gyro_dps);
+    assert!((earth_b.norm() - 0.004178).abs() < 1e-5);
+    let expected_bias = cfg.gyro.bias_tempco_dps_per_c * cfg.delta_temp_c(t.t_s);
+    assert!((t.gyro_bias_dps - expected_bias).norm() < 1e-12);
+    // The walk: 5e-4 °/s/√s over 400 s spreads the bias by ~0.01 °/s per axis.
+    let mut cfg = RigConfig::ideal();
+    cfg.bias_rw_dps_rtsec = 5e-4;
+    let mut rig = Rig::new(cfg, 4);
+    let samples = record(&mut rig, 400.0);
+    let (s, t) = samples.last().unwrap();
+    assert!((v3(s.gyro_dps) - t.gyro_bias_dps).norm() < 1e-6, "the reading follows the truth's bias");
+    let spread = t.gyro_bias_dps.norm() / 3f64.sqrt();
+    assert!((0.002..0.04).contains(&spread), "walk {spread:.4} °/s after 400 s (expected ~0.01)");
+}

@@ -249,7 +249,7 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     b.mcu.rtt_detach();
     let log = std::env::temp_dir().join(format!("gyrocal-usb-test-{}.csv", std::process::id()));
     let (outcome, session) = b.calibrate_over_usb(&log, Box::new(std::io::sink())).unwrap();
-    assert_eq!(outcome, vboard::testbed::Outcome::Done);
+    assert_eq!(outcome, vboard::testbed::Outcome::Done, "{:#?}", b.mcu.log.iter().rev().take(12).collect::<Vec<_>>());
     let out = session.unwrap_or_else(|e| panic!("calib --port: {e}"));
     assert_eq!(protocol::parse(&out.json), Some(Event::ResultJson(&out.json)));
     let stored = b.stored().expect("a record in flash");

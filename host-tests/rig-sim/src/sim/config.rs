@@ -36,6 +36,14 @@ pub struct RigConfig {
     pub temp_c: f64,
     /// Linear temperature drift (°C/s).
     pub temp_drift_c_per_s: f64,
+    /// The board's self-heating after power-on, on top of the linear drift (None: none).
+    pub warmup: Option<Warmup>,
+    /// Gyro bias rate random walk (deg/s/√s, each axis; 0: none): the bias wanders by this
+    /// times √t.
+    pub bias_rw_dps_rtsec: f64,
+    /// The Earth's rotation (7.292e-5 rad/s) at this latitude (deg), W's +y north and +z up;
+    /// None: not simulated. The gyro measures it in the body frame on top of the rig's motion.
+    pub latitude_deg: Option<f64>,
     /// Duration of the smooth move back onto the shaft in `Rig::attach` (s).
     pub attach_transition_s: f64,
     /// Optional tilt stage of a pan/tilt gimbal between the shaft and the board.
@@ -52,7 +60,39 @@ pub struct TiltStage {
     pub hinge_deg: f64,
 }
 
+/// Self-heating after power-on: the temperature rises by `rise_c` along 1 − e^(−t/τ) from
+/// power-on, which was `since_power_on_s` before the log's t = 0.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Warmup {
+    /// Total rise from power-on (°C).
+    pub rise_c: f64,
+    /// Time constant (s).
+    pub tau_s: f64,
+    /// Power-on to the log's t = 0 (s).
+    pub since_power_on_s: f64,
+}
+
+/// The Earth's rotation rate (rad/s).
+pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
+
 impl RigConfig {
+    /// Temperature change from t = 0 to true time `t_s` (°C): the linear drift and the warm-up.
+    pub fn delta_temp_c(&self, t_s: f64) -> f64 {
+        let warm = self.warmup.map_or(0.0, |w| {
+            let at = |t: f64| w.rise_c * (1.0 - (-(t + w.since_power_on_s) / w.tau_s).exp());
+            at(t_s) - at(0.0)
+        });
+        self.temp_drift_c_per_s * t_s + warm
+    }
+
+    /// The Earth's rotation in W (rad/s), zero if not simulated.
+    pub fn earth_rate_w(&self) -> Vector3<f64> {
+        self.latitude_deg.map_or(Vector3::zeros(), |lat| {
+            let phi = lat.to_radians();
+            Vector3::new(0.0, phi.cos(), phi.sin()) * EARTH_RATE_RAD_S
+        })
+    }
+
     /// Error-free sensors (no noise, no quantisation), exact servo (`PositionalServo::ideal`),
     /// exact 119 Hz, exact clock; shaft tilted 45° at azimuth 30°, axis `u_B = (2, −3, 6)/7`.
     pub fn ideal() -> Self {
@@ -70,6 +110,9 @@ impl RigConfig {
             timestamp_jitter_s: 0.0,
             temp_c: 25.0,
             temp_drift_c_per_s: 0.0,
+            warmup: None,
+            bias_rw_dps_rtsec: 0.0,
+            latitude_deg: None,
             attach_transition_s: 1.0,
             tilt: None,
         }
@@ -103,6 +146,9 @@ impl RigConfig {
             timestamp_jitter_s: 10e-6,
             temp_c: rng.random_range(20.0..30.0),
             temp_drift_c_per_s: rng.random_range(0.0..0.005),
+            warmup: None,
+            bias_rw_dps_rtsec: 0.0,
+            latitude_deg: None,
             attach_transition_s: 1.0,
             tilt: None,
         }

@@ -17,7 +17,7 @@ mod rig;
 mod sensor;
 mod servo;
 
-pub use config::{RigConfig, TiltStage};
+pub use config::{RigConfig, TiltStage, Warmup, EARTH_RATE_RAD_S};
 pub use kinematics::{tilted_axis, G0};
 pub use rig::{Reading, Rig, Truth};
 pub use sensor::{AccelRange, AccelSensor, GyroRange, GyroSensor};

@@ -91,6 +91,9 @@ pub struct Rig {
     noise_rng: ChaCha8Rng,
     clock_rng: ChaCha8Rng,
     event_rng: ChaCha8Rng,
+    /// The bias random walk's state (deg/s) and its stream.
+    bias_walk: Vector3<f64>,
+    walk_rng: ChaCha8Rng,
 }
 
 impl Rig {
@@ -132,6 +135,8 @@ impl Rig {
             noise_rng: stream(2),
             clock_rng: stream(3),
             event_rng: stream(4),
+            bias_walk: Vector3::zeros(),
+            walk_rng: stream(6),
         };
         rig.force_b = rig.specific_force(&rig.q_wb);
         rig
@@ -231,11 +236,16 @@ impl Rig {
         self.t_s = t_s;
         self.dt_s = dt_s;
 
+        if self.cfg.bias_rw_dps_rtsec > 0.0 {
+            let step = Vector3::from_fn(|_, _| self.walk_rng.sample::<f64, _>(StandardNormal));
+            self.bias_walk += step * self.cfg.bias_rw_dps_rtsec * dt_s.sqrt();
+        }
         let (cfg, rng) = (&self.cfg, &mut self.noise_rng);
         let odr = cfg.actual_odr_hz();
-        let delta_temp_c = cfg.temp_drift_c_per_s * t_s;
-        let rate_dps = self.rate_b.map(f64::to_degrees);
-        let (gyro_dps, gyro_saturated) = cfg.gyro.measure(&rate_dps, delta_temp_c, odr, rng);
+        let delta_temp_c = cfg.delta_temp_c(t_s);
+        // Inertial rate: the rig's motion in W plus the Earth's rotation, in the body frame.
+        let rate_dps = (self.rate_b + q_wb.inverse() * cfg.earth_rate_w()).map(f64::to_degrees);
+        let (gyro_dps, gyro_saturated) = cfg.gyro.measure(&rate_dps, delta_temp_c, &self.bias_walk, odr, rng);
         let (accel_g, accel_saturated) = cfg.accel.measure(&self.force_b, odr, rng);
 
         let jitter = self.cfg.timestamp_jitter_s * self.clock_rng.sample::<f64, _>(StandardNormal);
@@ -259,12 +269,12 @@ impl Rig {
 
     /// The simulator's truth now: K, biases, attitude, axis (for scoring, never for the estimators).
     pub fn truth(&self) -> Truth {
-        let delta_temp_c = self.cfg.temp_drift_c_per_s * self.t_s;
+        let delta_temp_c = self.cfg.delta_temp_c(self.t_s);
         Truth {
             t_s: self.t_s,
             dt_s: self.dt_s,
             gyro_k: self.cfg.gyro.matrix().try_inverse().expect("gyro matrix is singular"),
-            gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c),
+            gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c) + self.bias_walk,
             accel_c: self.cfg.accel.matrix(),
             accel_offset_g: self.cfg.accel.offset_g,
             axis_b: self.current_axis_b(),

@@ -108,10 +108,18 @@ impl GyroSensor {
         self.bias_dps + self.bias_tempco_dps_per_c * delta_temp_c
     }
 
-    /// Raw reading (deg/s) and saturation flag for body rate `rate_b_dps` (deg/s).
-    pub(crate) fn measure(&self, rate_b_dps: &Vector3<f64>, delta_temp_c: f64, odr_hz: f64, rng: &mut impl Rng) -> ([f32; 3], bool) {
+    /// Raw reading (deg/s) and saturation flag for inertial body rate `rate_b_dps` (deg/s), with
+    /// the bias `delta_temp_c` °C away from the initial temperature plus `walk_dps`.
+    pub(crate) fn measure(
+        &self,
+        rate_b_dps: &Vector3<f64>,
+        delta_temp_c: f64,
+        walk_dps: &Vector3<f64>,
+        odr_hz: f64,
+        rng: &mut impl Rng,
+    ) -> ([f32; 3], bool) {
         let noise = gaussian3(rng) * self.noise_dps_rthz * (odr_hz / 2.0).sqrt();
-        let g = self.matrix() * rate_b_dps + self.bias_at(delta_temp_c) + noise;
+        let g = self.matrix() * rate_b_dps + self.bias_at(delta_temp_c) + walk_dps + noise;
         digitize(&g, self.range.lsb_dps(), self.quantize)
     }
 }
