@@ -224,15 +224,13 @@ fn disable() {
 /// The USB serial number: FICR.DEVICEADDR[1] and [0] as 16 hex digits, as Arduino's core
 /// (ArduinoCore-mbed's USB PluggableUSBDevice) makes it, so that two boards are two ports.
 pub fn serial_number(ficr: &pac::FICR) -> &'static str {
-    let Some(buf) = cortex_m::singleton!(: [u8; 16] = [0; 16]) else {
+    use core::fmt::Write;
+    let Some(s) = cortex_m::singleton!(: heapless::String<16> = heapless::String::new()) else {
         return "";
     };
-    let words = [ficr.deviceaddr[1].read().bits(), ficr.deviceaddr[0].read().bits()];
-    for (i, d) in buf.iter_mut().enumerate() {
-        let nibble = (words[i / 8] >> (28 - 4 * (i % 8))) & 0xF;
-        *d = b"0123456789ABCDEF"[nibble as usize];
-    }
-    core::str::from_utf8(buf).unwrap_or("")
+    // 16 hex digits always fit.
+    let _ = write!(s, "{:08X}{:08X}", ficr.deviceaddr[1].read().bits(), ficr.deviceaddr[0].read().bits());
+    s.as_str()
 }
 
 /// The serial port.

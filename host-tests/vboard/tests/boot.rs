@@ -6,6 +6,7 @@ use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
 use vboard::mcu::Stop;
+use vboard::periph::NoDma;
 use vboard::testbed::{build_firmware, Testbed};
 
 fn testbed(seed: u64, bootloader: bool) -> Testbed {
@@ -188,7 +189,7 @@ fn the_stock_bootloader_is_cut_off_by_a_watchdog_a_soft_reset_kept_but_not_after
     {
         let mut p = b.mcu.periph.borrow_mut();
         p.power.gpregret = DFU_MAGIC_SERIAL_ONLY;
-        let mut ram = common_ram();
+        let mut ram = NoDma;
         p.write(0x5000_0300 + 0x700 + 4 * 11, (3 << 2) | (2 << 16), &mut ram);
         p.write(0x4000_0500, 1, &mut ram); // SYSTEMOFF
     }
@@ -202,7 +203,7 @@ fn the_stock_bootloader_is_cut_off_by_a_watchdog_a_soft_reset_kept_but_not_after
     // System OFF with nothing sensing: off until the button (DETECT) wakes it.
     let mut b = testbed(13, true);
     b.run_for(1.0);
-    b.mcu.periph.borrow_mut().write(0x4000_0500, 1, &mut common_ram());
+    b.mcu.periph.borrow_mut().write(0x4000_0500, 1, &mut NoDma);
     b.run_for(5.0);
     assert!(!b.mcu.in_app() && b.mcu.resets == 0, "{:#?}", b.mcu.log);
 
@@ -214,14 +215,4 @@ fn the_stock_bootloader_is_cut_off_by_a_watchdog_a_soft_reset_kept_but_not_after
     b.mcu.reset_pin().unwrap();
     b.run_for(2.0);
     assert!(b.mcu.stock_bootloader().in_samba());
-}
-
-/// RAM for a direct peripheral write (no EasyDMA involved).
-fn common_ram() -> impl vboard::periph::Dma {
-    struct NoRam;
-    impl vboard::periph::Dma for NoRam {
-        fn read(&mut self, _: u64, _: &mut [u8]) {}
-        fn write(&mut self, _: u64, _: &[u8]) {}
-    }
-    NoRam
 }

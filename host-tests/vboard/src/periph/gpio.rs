@@ -116,8 +116,9 @@ impl Gpio {
         v
     }
 
-    /// The DETECT signal (DETECTMODE = default): a pin whose PIN_CNF.SENSE is high (2) reads 1,
-    /// or one whose SENSE is low (3) reads 0. It wakes the chip from System OFF.
+    /// The DETECT signal (DETECTMODE = default; PS v1.7 §6.9.2 "Pin sense mechanism"): a pin
+    /// whose PIN_CNF.SENSE is high (2) reads 1, or one whose SENSE is low (3) reads 0. It wakes
+    /// the chip from System OFF (PS §5.3.2), at once if already high (a level, not an edge).
     pub fn detect(&self, button: bool) -> bool {
         (0..2).any(|port| {
             let input = self.input(port, button);

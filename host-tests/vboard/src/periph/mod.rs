@@ -601,8 +601,8 @@ impl Periph {
     }
 }
 
-/// A read needs no DMA.
-struct NoDma;
+/// An access that moves no EasyDMA data (reads give zeros).
+pub struct NoDma;
 
 impl Dma for NoDma {
     fn read(&mut self, _: u64, buf: &mut [u8]) {

@@ -38,7 +38,8 @@ pub enum ResetKind {
     /// CPU lock-up: the WDT keeps running.
     Lockup,
     /// Wake-up from System OFF: resets the WDT; GPREGRET and the GPIO configuration stay; RAM
-    /// not retained (RAMn.POWER's retention bits) is lost.
+    /// not retained (RAMn.POWER's retention bits) is lost (PS v1.7 §5.3.2 System OFF mode,
+    /// §5.3.6 reset behaviour table).
     OffWake(Wake),
 }
 

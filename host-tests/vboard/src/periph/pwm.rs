@@ -6,8 +6,9 @@
 //! PSEL.OUT[n] connects them: the servo sees the channel routed to P0.27, the tilt servo the one
 //! routed to P1.02, and the channel routed to P0.13 overrides the D13 LED.
 //!
-//! TASKS_SEQSTART while a sequence plays restarts the PWM period at once (nrf-hal's `set_duty_*`
-//! does that on every call): the period in progress is cut, and if a channel's output was still
+//! TASKS_SEQSTART while a sequence plays restarts the PWM period at once (PS v1.7 §6.17.2
+//! "Sequences": a started sequence begins from its first value; nrf-hal-common 0.19 `pwm.rs`'s
+//! `set_duty_*` triggers it on every call): the period in progress is cut, and if a channel's output was still
 //! HIGH its pulse runs on into the new one. What a servo then sees is flagged: a period shorter
 //! than [`SERVO_MIN_PERIOD_US`] ([`Pwm::short_periods`]) or a pulse stretched by a restart
 //! during it ([`Pwm::stretched_pulses`]), on channels routed to a servo pin.
