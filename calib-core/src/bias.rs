@@ -1,4 +1,11 @@
-//! Gyro bias from a rest period.
+//! Gyro bias from a rest period, and the bias tracked between rests.
+//!
+//! A MEMS gyro's zero rate moves over a calibration (warm-up after power-on, temperature, bias
+//! instability), and every rest measures it anew, together with the Earth's rate in that pose's
+//! frame. A move's integral therefore subtracts the bias of the two rests that bound it, linear in
+//! time between their mean times ([`RestBias::integral_deg`]): a drift that is smooth over a few
+//! seconds (a warm-up of τ ≥ 1 min) leaves `h² b'' / 8` (h the rest-to-rest time), and the
+//! Earth's rate is removed to first order in the move's turn with no latitude needed.
 
 use crate::stats::Welford3;
 use crate::{Error, Vec3};
@@ -41,6 +48,86 @@ pub struct Bias {
     pub noise_dps: Vec3,
     /// Samples averaged.
     pub samples: u32,
+}
+
+/// A rest's gyro mean relative to the bias the integrals subtract (°/s, sensor frame) and the
+/// mean time of its samples (s, MCU clock).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct RestBias {
+    /// Mean time of the rest's samples (s).
+    pub t_s: f64,
+    /// Its mean gyro reading minus the reference bias (°/s).
+    pub residual_dps: Vec3,
+}
+
+impl RestBias {
+    /// A rest from its first and last sample times (s), its mean gyro reading (°/s) and the
+    /// reference bias the integrals subtract (°/s).
+    pub fn new(t_first_s: f64, t_last_s: f64, gyro_mean_dps: Vec3, reference_dps: Vec3) -> Self {
+        let residual_dps = core::array::from_fn(|k| gyro_mean_dps[k] - reference_dps[k]);
+        Self {
+            t_s: 0.5 * (t_first_s + t_last_s),
+            residual_dps: if residual_dps.iter().all(|v| v.is_finite()) { residual_dps } else { [0.0; 3] },
+        }
+    }
+
+    /// `∫ b(t) dt` over `[t0_s, t1_s]` (°), `b` the residual bias on the line through `self` and
+    /// `to` (constant when both rests are at one time): what a move's integral over that span
+    /// must lose.
+    pub fn integral_deg(&self, to: &RestBias, t0_s: f64, t1_s: f64) -> [f64; 3] {
+        let span = to.t_s - self.t_s;
+        let f = if span > 0.0 { (0.5 * (t0_s + t1_s) - self.t_s) / span } else { 0.5 };
+        core::array::from_fn(|k| {
+            let (a, b) = (self.residual_dps[k] as f64, to.residual_dps[k] as f64);
+            (t1_s - t0_s) * (a + (b - a) * f)
+        })
+    }
+
+    /// The bias's largest rate of change from `self` to a later rest `to` (°/s per minute, ≥ 0;
+    /// 0 for rests at one time).
+    pub fn drift_dps_per_min(&self, to: &RestBias) -> f32 {
+        let span = to.t_s - self.t_s;
+        if !(span > 0.0) {
+            return 0.0;
+        }
+        let change = (0..3).map(|k| (to.residual_dps[k] - self.residual_dps[k]).abs()).fold(0.0f32, f32::max);
+        (change as f64 * 60.0 / span) as f32
+    }
+}
+
+/// The first and the latest rest of a calibration: the bias drift over it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Drift {
+    first: Option<RestBias>,
+    last: Option<RestBias>,
+}
+
+impl Drift {
+    /// No rest yet.
+    pub const fn new() -> Self {
+        Self { first: None, last: None }
+    }
+
+    /// A rest, in time order.
+    pub fn add(&mut self, rest: RestBias) {
+        self.first.get_or_insert(rest);
+        self.last = Some(rest);
+    }
+
+    /// The latest rest.
+    pub fn last(&self) -> Option<RestBias> {
+        self.last
+    }
+
+    /// The bias's largest rate of change from the first rest to the latest (°/s per minute).
+    pub fn dps_per_min(&self) -> f32 {
+        match (self.first, self.last) {
+            (Some(a), Some(b)) => a.drift_dps_per_min(&b),
+            _ => 0.0,
+        }
+    }
 }
 
 /// Accumulates a rest period, then checks it and returns the bias.
@@ -119,6 +206,22 @@ mod tests {
         assert!(matches!(b.finish(&tight), Err(Error::BiasOutOfRange { axis: 1, .. })));
         let few = BiasLimits { min_samples: 500, ..BiasLimits::default() };
         assert_eq!(b.finish(&few), Err(Error::TooFewSamples { have: 200, need: 500 }));
+    }
+
+    #[test]
+    fn a_move_loses_the_integral_of_the_bias_line_between_its_rests() {
+        let (a, b) =
+            (RestBias::new(9.0, 11.0, [1.1, 2.0, 0.0], [1.0, 2.0, 0.0]), RestBias::new(19.0, 21.0, [1.3, 1.9, 0.0], [1.0, 2.0, 0.0]));
+        assert_eq!((a.t_s, b.t_s), (10.0, 20.0));
+        // Over [12, 16]: the line is 0.1 + 0.02 (t - 10) on x, its mean at t = 14 is 0.18.
+        let i = a.integral_deg(&b, 12.0, 16.0);
+        assert!((i[0] - 4.0 * 0.18).abs() < 1e-6 && (i[1] + 4.0 * 0.04).abs() < 1e-6 && i[2] == 0.0, "{i:?}");
+        // Drift: 0.2 °/s on x over 10 s.
+        assert!((a.drift_dps_per_min(&b) - 1.2).abs() < 1e-5);
+        assert_eq!(b.drift_dps_per_min(&a), 0.0);
+        // Two rests at one time: a constant.
+        assert!((a.integral_deg(&a, 0.0, 2.0)[0] - 0.2).abs() < 1e-6);
+        assert_eq!(RestBias::new(0.0, 1.0, [f32::NAN, 0.0, 0.0], [0.0; 3]).residual_dps, [0.0; 3]);
     }
 
     #[test]

@@ -78,6 +78,23 @@ pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
     Ok(())
 }
 
+/// Bias drift (°/s per minute, first rest to last) above which moves that disagree with one `K`
+/// are blamed on the gyro warming up ([`Error::BiasDrifting`]) rather than on the rig (a slip).
+/// A warm-up of 2–6 °C at 0.03–0.05 °/s/°C with τ of 1–2.5 min drifts 0.05–0.3 °/s/min in its
+/// first minutes; a warmed-up part's bias instability stays below 0.005 °/s/min.
+pub const MAX_DRIFT_DPS_PER_MIN: f32 = 0.02;
+
+/// A solve's error as the user must read it: [`Error::MovesInconsistent`] becomes
+/// [`Error::BiasDrifting`] when the bias moved faster than [`MAX_DRIFT_DPS_PER_MIN`].
+pub fn blame(e: Error, drift_dps_per_min: f32) -> Error {
+    match e {
+        Error::MovesInconsistent { .. } if drift_dps_per_min > MAX_DRIFT_DPS_PER_MIN => {
+            Error::BiasDrifting { dps_per_min: drift_dps_per_min, limit_dps_per_min: MAX_DRIFT_DPS_PER_MIN }
+        }
+        e => e,
+    }
+}
+
 /// The paper's constant-rate spin: which part of it is averaged (the servo speeds up after
 /// the start and slows before the end), how long that part must be, and the least rate.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -17,18 +17,23 @@
 //! gives `R(K + δK) ≈ R Exp(J δk)`. In the tangent basis `(e₁, e₂)` of `g_i` the residual is
 //! `r_k = e_kᵀ R g_j` with the row `∂r_k/∂k = −e_kᵀ R [g_j]× J`.
 //!
+//! Bias: each chunk loses the residual bias tracked between the rests that bound its move
+//! ([`RestBias::integral_deg`], when the move ends); the coning integrals keep the reference
+//! bias (a 0.01 °/s error there is ≈ 1e-7 rad per chunk).
+//!
 //! Noise (1σ per row, rad): `σ² = σ_i² + σ_j² + σ_Γ²`, `σ_i` the direction noise of pose `i`
 //! (its mean's noise per component over `|f|`), `σ_Γ` the gyro integral's noise over one move.
 
 use crate::accel::AccelCal;
 use crate::axis::{Poses, MAX_POSES};
+use crate::bias::RestBias;
 use crate::linalg::sym_eigen;
 use crate::lsq::NormalEquations;
 use crate::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
-/// Chunks of all moves together (24 B each).
+/// Chunks of all moves together (32 B each).
 pub const MAX_CHUNKS: usize = 384;
 /// Rotation moves kept.
 pub const MAX_ROTATION_MOVES: usize = 32;
@@ -97,6 +102,8 @@ pub enum Rejected {
 struct Chunk {
     gamma: [f32; 3],
     coning: [f32; 3],
+    /// Its first and last sample times from the start of its move (s).
+    span_s: [f32; 2],
 }
 
 /// One kept move between two poses.
@@ -124,6 +131,7 @@ struct Open {
     coning: [f64; 3],
     last: Option<(f64, [f64; 3])>,
     t0: f64,
+    chunk_t0: f64,
     total: [f64; 3],
     max_step_deg: f64,
     why: Option<Rejected>,
@@ -133,9 +141,9 @@ struct Open {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rotations {
     poses: Poses,
-    /// Per pose (same index): the noise of its mean (g) and its bias-free gyro mean (°/s).
+    /// Per pose (same index): the noise of its mean (g) and its rest's bias.
     sigma_g: [f32; MAX_POSES],
-    gyro_dps: [Vec3; MAX_POSES],
+    rest: [RestBias; MAX_POSES],
     chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
     moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
@@ -184,7 +192,7 @@ impl Rotations {
         Self {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
-            gyro_dps: [[0.0; 3]; MAX_POSES],
+            rest: [RestBias { t_s: 0.0, residual_dps: [0.0; 3] }; MAX_POSES],
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
@@ -198,11 +206,11 @@ impl Rotations {
     }
 
     /// Adds a static pose: its mean specific force (raw until [`Self::calibrate_poses`], g), the
-    /// noise of that mean per component (g) and its bias-free gyro mean (°/s); returns its index.
-    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, gyro_dps: Vec3) -> Result<u8, Error> {
+    /// noise of that mean per component (g) and its rest's bias; returns its index.
+    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: RestBias) -> Result<u8, Error> {
         let i = self.poses.push(accel_g)?;
         self.sigma_g[i as usize] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
-        self.gyro_dps[i as usize] = gyro_dps;
+        self.rest[i as usize] = rest;
         Ok(i)
     }
 
@@ -215,6 +223,7 @@ impl Rotations {
             coning: [0.0; 3],
             last: None,
             t0: 0.0,
+            chunk_t0: 0.0,
             total: [0.0; 3],
             max_step_deg: 0.0,
             why: None,
@@ -230,7 +239,10 @@ impl Rotations {
             o.why.get_or_insert(Rejected::Saturated);
         }
         match o.last {
-            None => o.t0 = t_s,
+            None => {
+                o.t0 = t_s;
+                o.chunk_t0 = t_s;
+            }
             Some((t_prev, w_prev)) => {
                 let dt = t_s - t_prev;
                 if !(dt > 0.0) {
@@ -246,7 +258,7 @@ impl Rotations {
                 }
                 o.max_step_deg = o.max_step_deg.max(Vector3::from(d).norm());
                 if Vector3::from(o.gamma).norm() >= CHUNK_DEG {
-                    self.flush(&mut o);
+                    self.flush(&mut o, t_s);
                 }
             }
         }
@@ -254,8 +266,11 @@ impl Rotations {
         self.open = Some(o);
     }
 
-    fn flush(&mut self, o: &mut Open) {
-        let chunk = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32) };
+    /// Closes the open chunk at its last sample's time `t_end` (s).
+    fn flush(&mut self, o: &mut Open, t_end: f64) {
+        let span_s = [(o.chunk_t0 - o.t0) as f32, (t_end - o.t0) as f32];
+        let chunk = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32), span_s };
+        o.chunk_t0 = t_end;
         if self.chunks.push(chunk).is_err() {
             o.why.get_or_insert(Rejected::Full);
         }
@@ -263,14 +278,17 @@ impl Rotations {
         o.coning = [0.0; 3];
     }
 
-    /// Ends the open move at pose `to` and keeps it, or counts why not.
+    /// Ends the open move at pose `to` and keeps it (its chunks less the bias tracked between
+    /// the two poses' rests), or counts why not.
     pub fn end(&mut self, to: u8, limits: &RotationLimits) -> Result<(), Rejected> {
         let Some(mut o) = self.open.take() else { return Ok(()) };
         if Vector3::from(o.gamma).norm() > 0.0 {
-            self.flush(&mut o);
+            let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
+            self.flush(&mut o, t_end);
         }
         let turn = Vector3::from(o.total).norm();
-        let (a, b) = (v64(self.gyro_dps[o.from as usize % MAX_POSES]), v64(self.gyro_dps[to as usize % MAX_POSES]));
+        let (ra, rb) = (self.rest[o.from as usize % MAX_POSES], self.rest[to as usize % MAX_POSES]);
+        let (a, b) = (v64(ra.residual_dps), v64(rb.residual_dps));
         let why = o
             .why
             .or((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast))
@@ -280,7 +298,13 @@ impl Rotations {
         let n = (self.chunks.len() - o.first) as u16;
         let kept = RotationMove { from: o.from, to, first: o.first as u16, n, duration_s, turn_deg: turn as f32 };
         let result = match why {
-            None => self.moves.push(kept).map_err(|_| Rejected::Full),
+            None => {
+                for c in &mut self.chunks[o.first..] {
+                    let drift = ra.integral_deg(&rb, o.t0 + c.span_s[0] as f64, o.t0 + c.span_s[1] as f64);
+                    c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - drift[k]) as f32);
+                }
+                self.moves.push(kept).map_err(|_| Rejected::Full)
+            }
             Some(why) => Err(why),
         };
         if let Err(why) = result {
@@ -439,8 +463,8 @@ mod tests {
     #[test]
     fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
         let mut r = Rotations::new();
-        r.push_pose([0.0, 0.0, 1.0], 1e-4, [0.0; 3]).unwrap();
-        r.push_pose([0.0, 1.0, 0.0], 1e-4, [0.0; 3]).unwrap();
+        r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
+        r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
         r.begin(0);
         for i in 0..=900 {
             r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);

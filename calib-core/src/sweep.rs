@@ -4,6 +4,7 @@
 //! rate; back-and-forth moves cancel a residual bias.
 
 use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses};
+use crate::bias::RestBias;
 use crate::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
 use crate::lsq::NormalEquations;
 use crate::stats::Spread;
@@ -19,6 +20,7 @@ pub const MIN_MOVE_DEG: f64 = 10.0;
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Integrator {
     gamma: [f64; 3],
+    t_first: f64,
     last: Option<(f64, [f64; 3])>,
     samples: u32,
 }
@@ -26,7 +28,7 @@ pub struct Integrator {
 impl Integrator {
     /// Empty: the next sample starts the move.
     pub const fn new() -> Self {
-        Self { gamma: [0.0; 3], last: None, samples: 0 }
+        Self { gamma: [0.0; 3], t_first: 0.0, last: None, samples: 0 }
     }
 
     /// Adds a sample: MCU time (s) and bias-free gyro `g − b` (°/s). Out-of-order samples are ignored.
@@ -40,6 +42,8 @@ impl Integrator {
             for k in 0..3 {
                 self.gamma[k] += 0.5 * (g0[k] + g[k]) * dt;
             }
+        } else {
+            self.t_first = t_s;
         }
         self.last = Some((t_s, g));
         self.samples += 1;
@@ -48,6 +52,14 @@ impl Integrator {
     /// `Γ` so far (°).
     pub fn gamma(&self) -> [f64; 3] {
         self.gamma
+    }
+
+    /// `Γ` so far less the residual bias tracked between the rests `from` and `to` that bound
+    /// the move (°).
+    pub fn gamma_tracked(&self, from: &RestBias, to: &RestBias) -> [f64; 3] {
+        let t_last = self.last.map_or(self.t_first, |(t, _)| t);
+        let drift = from.integral_deg(to, self.t_first, t_last);
+        core::array::from_fn(|k| self.gamma[k] - drift[k])
     }
 
     /// Samples integrated.

@@ -5,6 +5,7 @@
 //! World frame W: z up; at rest the accelerometer measures `R_WBᵀ z` (1 g). A move slerps the
 //! board between two attitudes with smooth-step timing; the raw gyro is `K⁻¹ ω_B`.
 
+use calib_core::bias::RestBias;
 use calib_core::full::{Axes, FullLimits};
 use calib_core::rotation::{Rejected, RotationLimits, Rotations};
 use calib_core::Error;
@@ -36,18 +37,32 @@ fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
 }
 
 /// Records poses and the moves between them at `hz` into `r`, with `rate` times the nominal
-/// angular rate; pose `bad_bias` (if any) sees a gyro offset.
+/// angular rate; pose `bad_bias` (if any) sees a gyro offset; the bias moves by `drift` (°/s per
+/// s, every axis) from t = 0, and each pose's rest measures it.
 fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, bad_bias: Option<usize>) -> Vec<Result<(), Rejected>> {
+    record_drifting(r, atts, hz, rate, bad_bias, 0.0)
+}
+
+fn record_drifting(
+    r: &mut Rotations,
+    atts: &[UnitQuaternion<f64>],
+    hz: f64,
+    rate: f64,
+    bad_bias: Option<usize>,
+    drift: f64,
+) -> Vec<Result<(), Rejected>> {
     let kinv = k_true().try_inverse().unwrap();
     let lim = RotationLimits::DEFAULT;
     let mut out = vec![];
     let mut t = 0.0;
-    let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize| {
+    let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize, t: f64| {
         let a = q.inverse() * V3::z();
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
-        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, [off, 0.0, 0.0]).unwrap()
+        let b = (drift * t) as f32;
+        let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest).unwrap()
     };
-    let mut prev = pose(r, &atts[0], 0);
+    let mut prev = pose(r, &atts[0], 0, t);
     for (i, w) in atts.windows(2).enumerate() {
         let (qa, qb) = (w[0], w[1]);
         let dur = 1.5 / rate;
@@ -61,11 +76,11 @@ fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, b
             let (q0, q1) = (att((x - h).max(0.0)), att((x + h).min(1.0)));
             let dq = q0.inverse() * q1;
             let omega = dq.scaled_axis() / ((x + h).min(1.0) - (x - h).max(0.0)) / dur;
-            let g = kinv * omega.map(f64::to_degrees);
+            let g = kinv * omega.map(f64::to_degrees) + V3::repeat(drift * t);
             r.add(t, [g[0] as f32, g[1] as f32, g[2] as f32], false);
             t += 1.0 / hz;
         }
-        let next = pose(r, &qb, i + 1);
+        let next = pose(r, &qb, i + 1, t - 1.0 / hz);
         out.push(r.end(next, &lim));
         prev = next;
     }
@@ -98,6 +113,21 @@ fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
 }
 
 #[test]
+fn a_bias_that_drifts_between_the_rests_is_tracked() {
+    // 0.3 °/s per minute on every axis: 7.5e-3 ° over a 1.5 s move if it were left in.
+    let truth = k_true();
+    let solve = |drift: f64| {
+        let mut r = Rotations::new();
+        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift).iter().all(|m| m.is_ok()));
+        let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
+        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+        (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax()
+    };
+    let (still, drifting) = (solve(0.0), solve(0.005));
+    assert!(drifting < 2e-5 && (drifting - still).abs() < 5e-6, "E {drifting:.2e} drifting vs {still:.2e} without");
+}
+
+#[test]
 fn moves_about_one_axis_are_named() {
     let mut r = Rotations::new();
     record(&mut r, &attitudes(true), 238.0, 1.0, None);
@@ -119,8 +149,8 @@ fn moves_too_fast_for_the_rate_or_with_a_drifting_bias_are_rejected_and_counted(
     assert_eq!(r.moves().len(), 7);
     // A saturated sample.
     let mut r = Rotations::new();
-    r.push_pose([0.0, 0.0, 1.0], 1e-4, [0.0; 3]).unwrap();
-    r.push_pose([0.0, 1.0, 0.0], 1e-4, [0.0; 3]).unwrap();
+    r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
+    r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
     r.begin(0);
     r.add(0.0, [90.0, 0.0, 0.0], false);
     r.add(0.01, [90.0, 0.0, 0.0], true);

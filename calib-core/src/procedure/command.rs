@@ -48,7 +48,11 @@ impl ErrorClass {
     /// The class of an error.
     pub fn of(e: &Error) -> Self {
         match e {
-            Error::SensorTimeout { .. } | Error::Saturated | Error::BiasOutOfRange { .. } | Error::NonFinite => ErrorClass::Sensor,
+            Error::SensorTimeout { .. }
+            | Error::Saturated
+            | Error::BiasOutOfRange { .. }
+            | Error::BiasDrifting { .. }
+            | Error::NonFinite => ErrorClass::Sensor,
             Error::NotStill { .. } | Error::PoseDisturbed { .. } | Error::AxisNotFixed { .. } => ErrorClass::Motion,
             Error::ServoNotTurning { .. } | Error::NoSpin { .. } | Error::NoUsableMove => ErrorClass::Servo,
             Error::AxisNearVertical { .. }

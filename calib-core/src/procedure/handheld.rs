@@ -9,6 +9,7 @@ impl Procedure {
         match est.finish(&self.cfg.bias) {
             Ok(b) => {
                 self.bias = Some(b);
+                self.drift.add(capture.rest(self.bias));
                 self.push(Command::Report(Report::Bias(b)));
                 // The pan/tilt plan fits the accelerometer to its own rig poses.
                 if self.cfg.pan_tilt {
@@ -45,9 +46,9 @@ impl Procedure {
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let sigma = capture.accel.max_std_of_mean() as f32;
-        let gyro = capture.gyro.mean().map(|v| v as f32);
-        let gyro = self.bias.map_or(gyro, |b| sub(gyro, b.bias_dps));
-        match self.rotations.push_pose(a, sigma, gyro) {
+        let rest = capture.rest(self.bias);
+        self.drift.add(rest);
+        match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) if to > 0 => {
                 let kept = self.rotations.end(to, &self.cfg.rotation).is_ok();
                 let turn_deg = self.rotations.moves().last().filter(|_| kept).map_or(0.0, |m| m.turn_deg);

@@ -34,7 +34,7 @@ pub use config::{Config, ServoKind, TILT_SETTINGS};
 
 use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::Poses;
-use crate::bias::{Bias, BiasEstimator};
+use crate::bias::{Bias, BiasEstimator, Drift, RestBias};
 use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::{GyroCal, Method};
 use crate::pipeline::GravityTurn;
@@ -142,6 +142,11 @@ impl Capture {
     fn accel_mean(&self) -> Vec3 {
         self.accel.mean().map(|v| v as f32)
     }
+
+    /// Its rest's gyro mean relative to the measured bias.
+    fn rest(&self, bias: Option<Bias>) -> RestBias {
+        RestBias::new(self.t_first, self.t_last, self.gyro.mean().map(|v| v as f32), bias.map_or([0.0; 3], |b| b.bias_dps))
+    }
 }
 
 /// A commanded positional ramp (°) in time of servo `channel` (0 rotation, 1 tilt).
@@ -229,6 +234,8 @@ pub struct Procedure {
     rotations: Rotations,
     full: Option<FullCal>,
     integ: Integrator,
+    /// The rests so far (bias, poses): the bias tracked between them.
+    drift: Drift,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
@@ -261,6 +268,7 @@ impl Procedure {
             rotations: Rotations::new(),
             full: None,
             integ: Integrator::new(),
+            drift: Drift::new(),
             gbar: None,
             temp: Welford3::new(),
             overflow: false,
@@ -522,6 +530,7 @@ impl Procedure {
         self.rotations.clear();
         self.full = None;
         self.integ = Integrator::new();
+        self.drift = Drift::new();
         self.gbar = None;
         self.temp = Welford3::new();
         if let Some(acc) = self.stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
@@ -544,6 +553,7 @@ impl Procedure {
     }
 
     fn fail(&mut self, e: Error) {
+        let e = pipeline::blame(e, self.drift.dps_per_min());
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });

@@ -78,10 +78,13 @@ impl Procedure {
                 return self.fail(e);
             }
         }
+        let rest = capture.rest(self.bias);
+        let before = self.drift.last().unwrap_or(rest);
+        self.drift.add(rest);
         let servo_deg = self.servo_deg.unwrap_or(f32::NAN);
         self.push(Command::Report(Report::RigPose { index: idx, servo_deg, accel_g: a }));
         if k > 0 {
-            let gamma = self.integ.gamma();
+            let gamma = self.integ.gamma_tracked(&before, &rest);
             let turned = libm::sqrt(gamma.iter().map(|v| v * v).sum::<f64>()) as f32;
             // Step 0 of a later tilt setting (and every return step) is reached by a tilt move
             // (about the hinge, axis id `TILT_SETTINGS`); every other step by a pan move about
@@ -140,7 +143,9 @@ impl Procedure {
         let commanded = matches!(self.cfg.servo, ServoKind::Positional).then_some(self.cfg.spin_rate_dps);
         let (omega, _) = pipeline::spin_rate(commanded, &spin.gravity);
         if spin.rate.count() > 0 {
-            self.gbar = Some((spin.rate.mean().map(|v| v as f32), omega));
+            // The spin's bias: the last pose's rest, just before it.
+            let r = self.drift.last().map_or([0.0; 3], |r| r.residual_dps);
+            self.gbar = Some((sub(spin.rate.mean().map(|v| v as f32), r), omega));
         }
         self.solve(t_s);
     }

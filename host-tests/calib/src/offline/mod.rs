@@ -9,7 +9,7 @@
 use crate::csvlog::Row;
 use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
 use calib_core::axis::{Poses, MAX_POSES};
-use calib_core::bias::{Bias, BiasEstimator, BiasLimits};
+use calib_core::bias::{Bias, BiasEstimator, BiasLimits, Drift, RestBias};
 use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::pipeline::{GravityTurn, SteadyRate};
@@ -222,12 +222,19 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
         _ => AccelCal::IDENTITY,
     };
-    let gamma = |from_end: usize, to: &Segment| {
+    // Every still segment measures the bias anew: a move loses the bias tracked between the
+    // rests that bound it.
+    let rest = |s: &Segment| RestBias::new(rows[s.first].t_s, rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), bias.bias_dps);
+    let mut drift = Drift::new();
+    for s in &ph.segments {
+        drift.add(rest(s));
+    }
+    let gamma = |from: &Segment, to: &Segment| {
         let mut it = Integrator::new();
-        for r in &rows[from_end..=to.last] {
+        for r in &rows[from.last..=to.last] {
             it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
         }
-        it.gamma()
+        it.gamma_tracked(&rest(from), &rest(to))
     };
 
     // One axis (the most populated tilt setting): rig poses and the moves between consecutive
@@ -235,7 +242,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
     let mut poses = Poses::new();
     let mut moves = Moves::new();
-    let mut prev: Option<(u8, usize)> = None;
+    let mut prev: Option<(u8, &Segment)> = None;
     for s in &ph.segments {
         if !s.is_rig_pose() || Some(s.tilt_setting()) != main_setting {
             prev = None;
@@ -245,12 +252,12 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
             break;
         }
         let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
-        if let Some((from, end)) = prev {
+        if let Some((from, p)) = prev {
             if moves.len() < MAX_MOVES {
-                moves.push(from, idx, gamma(end, s)).map_err(stage("moves"))?;
+                moves.push(from, idx, gamma(p, s)).map_err(stage("moves"))?;
             }
         }
-        prev = Some((idx, s.last));
+        prev = Some((idx, s));
     }
 
     // Rotation constraints: every move between two consecutive hand-held poses (calibrated
@@ -264,8 +271,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
             continue;
         }
         let sigma = s.accel.max_std_of_mean();
-        let gyro = sub(s.gyro.mean().map(|v| v as f32), bias.bias_dps);
-        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, gyro) else { break };
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, rest(s)) else { break };
         if let Some((from, end)) = prev {
             rotations.begin(from);
             for r in &rows[end..=s.last] {
@@ -305,14 +311,16 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
                     (s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0), (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0);
                 let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
                 if d_tilt == 0.0 && d_pan.abs() >= 1.0 && (pan_angles(s.tilt_setting()) >= 3 || !pan_tilt) {
-                    axes.push_move(axis, from, idx, d_pan, gamma(p.last, s))?;
+                    axes.push_move(axis, from, idx, d_pan, gamma(p, s))?;
                 } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
-                    axes.push_move(hinge, from, idx, d_tilt, gamma(p.last, s))?;
+                    axes.push_move(hinge, from, idx, d_tilt, gamma(p, s))?;
                 }
             }
             prev = Some((s, idx));
         }
-        axes.solve_with(&cfg.full, with_rotations).and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+        axes.solve_with(&cfg.full, with_rotations)
+            .and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
+            .map_err(|e| pipeline::blame(e, drift.dps_per_min()))
     });
     let lim = cfg.geometry;
     let sweep = sweep::solve(&poses, &moves, &lim);
@@ -328,7 +336,9 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         }
         let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
         if w > 0.0 {
-            let gbar = sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps);
+            // The spin's bias: the rest just before it.
+            let before = ph.segments.iter().filter(|s| s.last < rot.rows.0).last().map_or([0.0; 3], |s| rest(s).residual_dps);
+            let gbar = sub(sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps), before);
             paper = Some(paper::solve(&poses, gbar, w, &lim));
             spin_rate = Some((w, source.name()));
         }
