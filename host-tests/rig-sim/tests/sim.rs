@@ -408,7 +408,8 @@ fn disturbance_wobbles_then_settles() {
 /// Raw outputs follow g = C_g ω + b and a = C_a f + o with the truth's K = C_g⁻¹ and C_a.
 #[test]
 fn truth_describes_the_sensor_models() {
-    let mut cfg = RigConfig::realistic(&mut ChaCha8Rng::seed_from_u64(6));
+    // The linear drift alone (no warm-up, walk or Earth rate: `rate_b_dps` is the rig's).
+    let mut cfg = RigConfig::realistic(&mut ChaCha8Rng::seed_from_u64(6)).constant_bias();
     (cfg.gyro.noise_dps_rthz, cfg.gyro.quantize) = (0.0, false);
     (cfg.accel.noise_ug_rthz, cfg.accel.quantize) = (0.0, false);
     cfg.temp_drift_c_per_s = 0.01;

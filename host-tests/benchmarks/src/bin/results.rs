@@ -274,6 +274,31 @@ fn rotation_section(j: &Value) -> String {
     s
 }
 
+fn drift_section(j: &Value) -> String {
+    let mut s = format!(
+        "## Drift
+
+`drift-bench` (seed {}, {} rigs per row): the firmware's procedure with the gyro bias constant, drifting as on a \
+         board just powered up (warm-up, tempco, random walk, Earth rate; the bias tracked between rests), and drifting after a \
+         warm-up wait; E as above, time from the button to the store plus the wait.\n\n\
+         | plan | bias | RMS of E | largest | time (s) | stored | failed |\n|---|---|---|---|---|---|---|\n",
+        j["seed"], j["rigs"]
+    );
+    for r in j["rows"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {} | {} | {:.0} | {} | {} |\n",
+            r["plan"].as_str().unwrap_or("?"),
+            r["bias"].as_str().unwrap_or("?"),
+            e3(f(&r["rms_mean"])),
+            e3(f(&r["max"])),
+            f(&r["time_s"]),
+            r["stored"],
+            count(&r["failed"])
+        );
+    }
+    s
+}
+
 fn page() -> Result<String, String> {
     build()?;
     let raw = calib::firmware::target_dir().join("results/raw.csv");
@@ -290,6 +315,7 @@ fn page() -> Result<String, String> {
         Run { bin: "demo", args: a(&["--quiet", "--tilt"]) },
         Run { bin: "demo", args: vec!["--quiet".into(), "--raw-log".into(), raw.display().to_string()] },
         Run { bin: "demo", args: a(&["--quiet", "--no-probe"]) },
+        Run { bin: "drift-bench", args: a(&["--json"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -322,6 +348,8 @@ fn page() -> Result<String, String> {
     s += &full_k_section(&json(&out[2])?);
     s += "\n";
     s += &rotation_section(&json(&out[0])?);
+    s += "\n";
+    s += &drift_section(&json(&out[8])?);
     Ok(s)
 }
 

@@ -123,7 +123,7 @@ impl RigConfig {
     /// `GyroSensor::realistic`, `AccelSensor::realistic`, `PositionalServo::realistic`; ODR error
     /// U(−5 %, −2 %), shaft tilt U(20°, 70°) at a random azimuth, random mount with
     /// |u_k| ≥ 0.2 on every sensor axis, radius U(0, 2 cm), crystal U(−20, 20) ppm,
-    /// 10 µs jitter, 20–30 °C drifting up to 0.3 °C/min.
+    /// 10 µs jitter, 20–30 °C; and a board just powered up ([`Self::drifting`]).
     pub fn realistic(rng: &mut impl Rng) -> Self {
         let axis_b = loop {
             let v = Vector3::<f64>::from_fn(|_, _| rng.sample(StandardNormal)).normalize();
@@ -153,6 +153,40 @@ impl RigConfig {
             tilt: None,
         }
         .with_axis(axis_b, twist_deg)
+        .drifting(rng)
+    }
+
+    /// A gyro bias that moves as on a board just powered up (issue 19), drawn from `rng`: the
+    /// board warming itself by U(2, 6) °C along 1 − e^(−t/τ), τ U(60, 150) s, the calibration
+    /// starting U(5, 30) s after power-on (the user plugs the board in, then presses the
+    /// button); a zero-rate tempco of U(0.03, 0.05) °/s/°C per axis with a random sign (ST's
+    /// I3G4250D: ±0.03 °/s/°C; x-io measured 0.015 on a BMI088); a bias rate random walk of
+    /// 5e-4 °/s/√s; the Earth's rotation at a latitude U(−60°, 60°). Replaces the linear
+    /// temperature drift.
+    pub fn drifting(mut self, rng: &mut impl Rng) -> Self {
+        self.warmup = Some(Warmup {
+            rise_c: rng.random_range(2.0..6.0),
+            tau_s: rng.random_range(60.0..150.0),
+            since_power_on_s: rng.random_range(5.0..30.0),
+        });
+        self.temp_drift_c_per_s = 0.0;
+        for a in 0..3 {
+            let m: f64 = rng.random_range(0.03..0.05);
+            self.gyro.bias_tempco_dps_per_c[a] = if rng.random_bool(0.5) { m } else { -m };
+        }
+        self.bias_rw_dps_rtsec = 5e-4;
+        self.latitude_deg = Some(rng.random_range(-60.0..60.0));
+        self
+    }
+
+    /// The same rig with a gyro bias that does not move: no warm-up, temperature drift, walk
+    /// or Earth rate (a constant-bias baseline).
+    pub fn constant_bias(mut self) -> Self {
+        self.warmup = None;
+        self.temp_drift_c_per_s = 0.0;
+        self.bias_rw_dps_rtsec = 0.0;
+        self.latitude_deg = None;
+        self
     }
 
     /// Shaft axis in W (unit).
