@@ -130,6 +130,102 @@ impl Drift {
     }
 }
 
+/// Least temperature span (°C) over the rests for [`TempFit`] to give a coefficient.
+pub const MIN_TEMP_SPAN_C: f32 = 1.0;
+/// Bias rate random walk of a part of this class (°/s/√s), in the 1σ of [`TempCo`]: a walk over
+/// the calibration is indistinguishable from a temperature trend when the temperature rises
+/// steadily.
+pub const BIAS_WALK_DPS_RTSEC: f32 = 5e-4;
+
+/// The zero rate's temperature coefficient: `b(T) = b₀ + c (T − T₀)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct TempCo {
+    /// `c` per sensor axis (°/s per °C).
+    pub dps_per_c: Vec3,
+    /// Its 1σ (°/s per °C): the fit's scatter and a bias walk of [`BIAS_WALK_DPS_RTSEC`].
+    pub sigma_dps_per_c: Vec3,
+    /// Lowest and highest rest temperature (°C).
+    pub range_c: [f32; 2],
+}
+
+/// Fits [`TempCo`] over the rests of a calibration, each with its mean temperature (bounded
+/// sums, no buffer).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TempFit {
+    n: u32,
+    st: f64,
+    stt: f64,
+    sb: [f64; 3],
+    stb: [f64; 3],
+    sbb: [f64; 3],
+    t_range: [f32; 2],
+    time_range: [f64; 2],
+}
+
+impl TempFit {
+    /// No rest yet.
+    pub const fn new() -> Self {
+        Self { n: 0, st: 0.0, stt: 0.0, sb: [0.0; 3], stb: [0.0; 3], sbb: [0.0; 3], t_range: [0.0; 2], time_range: [0.0; 2] }
+    }
+
+    /// A rest and its mean temperature (°C); a non-finite temperature is left out.
+    pub fn add(&mut self, temp_c: f32, rest: &RestBias) {
+        if !temp_c.is_finite() {
+            return;
+        }
+        if self.n == 0 {
+            self.t_range = [temp_c; 2];
+            self.time_range = [rest.t_s; 2];
+        }
+        self.t_range = [self.t_range[0].min(temp_c), self.t_range[1].max(temp_c)];
+        self.time_range = [self.time_range[0].min(rest.t_s), self.time_range[1].max(rest.t_s)];
+        let t = temp_c as f64;
+        self.n += 1;
+        self.st += t;
+        self.stt += t * t;
+        for k in 0..3 {
+            let b = rest.residual_dps[k] as f64;
+            self.sb[k] += b;
+            self.stb[k] += t * b;
+            self.sbb[k] += b * b;
+        }
+    }
+
+    /// The coefficient, or `None` when fewer than 4 rests or a span below [`MIN_TEMP_SPAN_C`]
+    /// leave it unknown.
+    pub fn finish(&self) -> Option<TempCo> {
+        let span = self.t_range[1] - self.t_range[0];
+        if self.n < 4 || !(span >= MIN_TEMP_SPAN_C) {
+            return None;
+        }
+        let n = self.n as f64;
+        let sxx = self.stt - self.st * self.st / n;
+        if !(sxx > 0.0) {
+            return None;
+        }
+        // The least-squares slope in time of a random walk of density q over `T` seconds has the
+        // variance 6 q² / (5 T); over a temperature that rose by `span` in that time its slope in
+        // temperature is `T / span` times that.
+        let walk = BIAS_WALK_DPS_RTSEC as f64 * libm::sqrt(1.2 * (self.time_range[1] - self.time_range[0])) / span as f64;
+        let (mut c, mut sigma) = ([0.0f32; 3], [0.0f32; 3]);
+        for k in 0..3 {
+            let sxy = self.stb[k] - self.st * self.sb[k] / n;
+            let syy = self.sbb[k] - self.sb[k] * self.sb[k] / n;
+            let slope = sxy / sxx;
+            let s2 = ((syy - slope * sxy) / (n - 2.0)).max(0.0);
+            c[k] = slope as f32;
+            sigma[k] = libm::sqrt(s2 / sxx + walk * walk) as f32;
+        }
+        c.iter().chain(sigma.iter()).all(|v| v.is_finite()).then_some(TempCo {
+            dps_per_c: c,
+            sigma_dps_per_c: sigma,
+            range_c: self.t_range,
+        })
+    }
+}
+
 /// Accumulates a rest period, then checks it and returns the bias.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BiasEstimator {
@@ -222,6 +318,26 @@ mod tests {
         // Two rests at one time: a constant.
         assert!((a.integral_deg(&a, 0.0, 2.0)[0] - 0.2).abs() < 1e-6);
         assert_eq!(RestBias::new(0.0, 1.0, [f32::NAN, 0.0, 0.0], [0.0; 3]).residual_dps, [0.0; 3]);
+    }
+
+    #[test]
+    fn the_temperature_coefficient_is_fitted_over_the_rests_when_the_span_allows() {
+        let mut fit = TempFit::new();
+        for i in 0..10 {
+            let (t, temp) = (10.0 * i as f64, 25.0 + 0.3 * i as f32);
+            let wiggle = if i % 2 == 0 { 0.002 } else { -0.002 };
+            let b = [0.04 * (temp - 25.0) + wiggle, -0.03 * (temp - 25.0), 0.0];
+            fit.add(temp, &RestBias { t_s: t, residual_dps: b });
+            if i == 2 {
+                assert_eq!(fit.finish(), None, "3 rests over 0.6 C");
+            }
+        }
+        fit.add(f32::NAN, &RestBias::default());
+        let c = fit.finish().expect("10 rests over 2.7 C");
+        assert!((c.dps_per_c[0] - 0.04).abs() < 2e-3 && (c.dps_per_c[1] + 0.03).abs() < 1e-5, "{c:?}");
+        assert_eq!(c.range_c, [25.0, 27.7]);
+        // 1σ: the scatter on x, the walk floor (5e-4 √(1.2·90) / 2.7 = 1.9e-3) on every axis.
+        assert!(c.sigma_dps_per_c[0] > c.sigma_dps_per_c[1] && (c.sigma_dps_per_c[1] - 1.92e-3).abs() < 1e-4, "{c:?}");
     }
 
     #[test]

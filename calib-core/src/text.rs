@@ -129,6 +129,19 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             }
             write!(w, "] deg; rejected: {} saturated, {} too fast, {} too short, {} bias drifted, {} no room", r[0], r[1], r[2], r[3], r[4])
         }
+        Report::TempCo(Some(c)) => write!(
+            w,
+            "gyro bias tempco {} dps/C, 1 sigma {}, over {}..{} C",
+            V3(c.dps_per_c, 4),
+            V3(c.sigma_dps_per_c, 4),
+            Fixed(c.range_c[0] as f64, 2),
+            Fixed(c.range_c[1] as f64, 2)
+        ),
+        Report::TempCo(None) => write!(
+            w,
+            "gyro bias tempco unknown: the rests' temperatures spanned < {} C (or were not read)",
+            Fixed(crate::bias::MIN_TEMP_SPAN_C as f64, 1)
+        ),
         Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
         Report::Done(rec) => protocol::record(w, RecordLine::CalibrationDone, rec),
         Report::Failed(e) => protocol::failed(w, e),

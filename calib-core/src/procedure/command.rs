@@ -2,7 +2,7 @@
 
 use super::Phase;
 use crate::accel::AccelCal;
-use crate::bias::Bias;
+use crate::bias::{Bias, TempCo};
 use crate::gyro::{GyroCal, Method};
 use crate::record::{Record, StoreError};
 use crate::rotation::MAX_ROTATION_MOVES;
@@ -116,6 +116,9 @@ pub enum Report {
     /// kept moves at the solution (0 when none was solved), and the moves rejected by reason
     /// ([`crate::rotation::Rejected`]).
     Rotations { moves: u8, rejected: [u16; 5], residual_deg: [f32; MAX_ROTATION_MOVES] },
+    /// The gyro bias's temperature coefficient over the rests, or `None` when their
+    /// temperatures spanned too little to determine it ([`crate::bias::MIN_TEMP_SPAN_C`]).
+    TempCo(Option<TempCo>),
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },
     /// The calibration was stored (verified) and is applied from now on.

@@ -9,7 +9,7 @@ impl Procedure {
         match est.finish(&self.cfg.bias) {
             Ok(b) => {
                 self.bias = Some(b);
-                self.drift.add(capture.rest(self.bias));
+                self.note_rest(capture, capture.rest(self.bias));
                 self.push(Command::Report(Report::Bias(b)));
                 // The pan/tilt plan fits the accelerometer to its own rig poses.
                 if self.cfg.pan_tilt {
@@ -47,7 +47,7 @@ impl Procedure {
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let sigma = capture.accel.max_std_of_mean() as f32;
         let rest = capture.rest(self.bias);
-        self.drift.add(rest);
+        self.note_rest(capture, rest);
         match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) if to > 0 => {
                 let kept = self.rotations.end(to, &self.cfg.rotation).is_ok();
@@ -74,6 +74,12 @@ impl Procedure {
             }
             Err(e) => self.fail(e),
         }
+    }
+
+    /// A rest of the calibration: its bias joins the drift and the temperature fit.
+    pub(super) fn note_rest(&mut self, capture: &Capture, rest: RestBias) {
+        self.drift.add(rest);
+        self.temp_fit.add(capture.temp_c(), &rest);
     }
 
     /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.

@@ -34,7 +34,7 @@ pub use config::{Config, ServoKind, TILT_SETTINGS};
 
 use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::Poses;
-use crate::bias::{Bias, BiasEstimator, Drift, RestBias};
+use crate::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::{GyroCal, Method};
 use crate::pipeline::GravityTurn;
@@ -110,6 +110,8 @@ impl Phase {
 struct Capture {
     accel: Welford3,
     gyro: Welford3,
+    /// Temperature (°C, first component) of the samples of its windows that had one.
+    temp: Welford3,
     t_first: f64,
     t_last: f64,
     retries: u8,
@@ -122,13 +124,15 @@ enum CaptureStep {
 }
 
 impl Capture {
-    fn feed(&mut self, w: &Window, tainted: bool, need_s: f32) -> CaptureStep {
+    /// A closed window and the temperatures read during it.
+    fn feed(&mut self, w: &Window, temp: &Welford3, tainted: bool, need_s: f32) -> CaptureStep {
         if w.still && w.state == RestState::Still && !tainted {
             if self.accel.count() == 0 {
                 self.t_first = w.t_start_s;
             }
             self.accel.merge(&w.accel);
             self.gyro.merge(&w.gyro);
+            self.temp.merge(temp);
             self.t_last = w.t_end_s;
             return if self.t_last - self.t_first >= need_s as f64 { CaptureStep::Done } else { CaptureStep::Pending };
         }
@@ -146,6 +150,15 @@ impl Capture {
     /// Its rest's gyro mean relative to the measured bias.
     fn rest(&self, bias: Option<Bias>) -> RestBias {
         RestBias::new(self.t_first, self.t_last, self.gyro.mean().map(|v| v as f32), bias.map_or([0.0; 3], |b| b.bias_dps))
+    }
+
+    /// Its mean temperature (°C; NaN when none was read).
+    fn temp_c(&self) -> f32 {
+        if self.temp.count() > 0 {
+            self.temp.mean()[0] as f32
+        } else {
+            f32::NAN
+        }
     }
 }
 
@@ -236,6 +249,10 @@ pub struct Procedure {
     integ: Integrator,
     /// The rests so far (bias, poses): the bias tracked between them.
     drift: Drift,
+    /// The rests' biases against their temperatures.
+    temp_fit: TempFit,
+    /// Temperatures read since the rest detector's last window closed.
+    window_temp: Welford3,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
@@ -269,6 +286,8 @@ impl Procedure {
             full: None,
             integ: Integrator::new(),
             drift: Drift::new(),
+            temp_fit: TempFit::new(),
+            window_temp: Welford3::new(),
             gbar: None,
             temp: Welford3::new(),
             overflow: false,
@@ -408,15 +427,17 @@ impl Procedure {
         let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.accel_range_g)
             || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.gyro_range_dps);
         self.tainted |= saturated;
+        if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
+            self.temp.add([t, 0.0, 0.0]);
+            self.window_temp.add([t, 0.0, 0.0]);
+        }
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
+        let wt = if window.is_some() { core::mem::take(&mut self.window_temp) } else { Welford3::new() };
         if window.is_some() {
             self.tainted = false;
         }
         let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
-        if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
-            self.temp.add([t, 0.0, 0.0]);
-        }
         match self.step {
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
@@ -430,7 +451,7 @@ impl Procedure {
             }
             Step::Bias { mut capture } => {
                 if let Some(w) = window {
-                    match capture.feed(&w, tainted, self.cfg.bias_s) {
+                    match capture.feed(&w, &wt, tainted, self.cfg.bias_s) {
                         CaptureStep::Pending => self.step = Step::Bias { capture },
                         CaptureStep::Disturbed => self.retake(0, capture, |c| Step::Bias { capture: c }),
                         CaptureStep::Done => self.finish_bias(&capture, s.t_s),
@@ -440,7 +461,7 @@ impl Procedure {
             Step::HandHeld { mut capture } => {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
-                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
+                    match capture.feed(&w, &wt, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Done => self.finish_accel_pose(&capture, s.t_s),
                         // A disturbed hand-held pose is simply taken again: the user is moving it.
                         CaptureStep::Pending | CaptureStep::Disturbed => self.step = Step::HandHeld { capture },
@@ -472,7 +493,7 @@ impl Procedure {
                 }
                 self.integ.add(s.t_s, g);
                 if let Some(w) = window {
-                    match capture.feed(&w, tainted, self.cfg.pose_average_s) {
+                    match capture.feed(&w, &wt, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Pending => self.step = Step::Pose { k, capture, since },
                         CaptureStep::Disturbed => self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since }),
                         CaptureStep::Done => self.finish_pose(k, &capture, s),
@@ -531,6 +552,8 @@ impl Procedure {
         self.full = None;
         self.integ = Integrator::new();
         self.drift = Drift::new();
+        self.temp_fit = TempFit::new();
+        self.window_temp = Welford3::new();
         self.gbar = None;
         self.temp = Welford3::new();
         if let Some(acc) = self.stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {

@@ -80,7 +80,7 @@ impl Procedure {
         }
         let rest = capture.rest(self.bias);
         let before = self.drift.last().unwrap_or(rest);
-        self.drift.add(rest);
+        self.note_rest(capture, rest);
         let servo_deg = self.servo_deg.unwrap_or(f32::NAN);
         self.push(Command::Report(Report::RigPose { index: idx, servo_deg, accel_g: a }));
         if k > 0 {

@@ -133,6 +133,7 @@ impl Procedure {
     pub(super) fn store(&mut self, record: Record, t_s: f64) {
         match record.check_finite().map(|_| record).map_err(|_| Error::ResultNotFinite) {
             Ok(record) => {
+                self.push(Command::Report(Report::TempCo(self.temp_fit.finish())));
                 self.enter(Step::Storing { record }, t_s);
                 self.push(Command::Store(record));
             }

@@ -5,13 +5,14 @@
 //! with the tracked bias, or wait. Both plans: one servo + hand-held poses (`Config::DEFAULT`)
 //! and the pan/tilt bracket (`Config::PAN_TILT`). Prints `E = Qᵀ K̂ K⁻¹ − I` (RMS over the 9
 //! elements, mean over the rigs, and the largest element) of the stored results, the rig time
-//! (button to store, plus the wait), and the runs that fail with their errors; `--json`: the last
-//! line is a JSON summary.
+//! (button to store, plus the wait), the bias's temperature coefficient (in how many runs it was
+//! reported, and the fraction of its axes within 2σ of the truth), and the runs that fail with
+//! their errors; `--json`: the last line is a JSON summary.
 //!
 //! `cargo run --profile host -p benchmarks --target host-tuple --bin drift-bench [--rigs N] [--json]`
 
 use benchmarks::moments::Moments;
-use calib_core::procedure::{Config, Procedure};
+use calib_core::procedure::{Config, Procedure, Report};
 use clap::Parser;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
@@ -48,10 +49,14 @@ fn main() {
     let args = Args::parse_from(calib::cli_args());
     let mut rows = vec![];
     println!("drift-bench: {} rigs per plan, the firmware's procedure, seed {}", args.rigs, args.seed);
-    println!("{:<10}{:<22}{:>12}{:>14}{:>10}{:>8}{:>8}", "plan", "bias", "RMS of E", "largest |E|", "time s", "stored", "failed");
+    println!(
+        "{:<10}{:<22}{:>12}{:>14}{:>10}{:>8}{:>8}{:>8}{:>10}",
+        "plan", "bias", "RMS of E", "largest |E|", "time s", "stored", "failed", "tempco", "in 2 sig"
+    );
     for plan in ["one-servo", "pan-tilt"] {
         for bias in [Bias::Constant, Bias::Drifting, Bias::Waited] {
             let (mut rms, mut largest, mut times, mut failed) = (vec![], vec![], vec![], vec![]);
+            let (mut tempco_runs, mut within, mut axes) = (0, 0, 0);
             for i in 0..args.rigs {
                 let (base, cfg): (RigConfig, Config) = match plan {
                     "one-servo" => (Variant::Hobby.config(args.seed, i), Config::DEFAULT),
@@ -65,6 +70,16 @@ fn main() {
                 let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
                 let mut p = Procedure::new(cfg, None);
                 let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+                let truth = rig_cfg.gyro.bias_tempco_dps_per_c;
+                for r in &out.reports {
+                    if let Report::TempCo(Some(c)) = r {
+                        tempco_runs += 1;
+                        for k in 0..3 {
+                            axes += 1;
+                            within += usize::from((c.dps_per_c[k] as f64 - truth[k]).abs() <= 2.0 * c.sigma_dps_per_c[k] as f64);
+                        }
+                    }
+                }
                 match (out.stored.first(), out.error) {
                     (Some(rec), _) => match pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
                         Some((mx, r)) => {
@@ -83,11 +98,18 @@ fn main() {
                 Bias::Waited => format!("drifting, {:.0} s wait", args.wait_s),
             };
             let (r, m, t) = (Moments::of(&rms).mean, largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&times).mean);
-            println!("{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{t:>10.0}{:>8}{:>8}", rms.len(), failed.len());
+            let cover = if axes > 0 { within as f64 / axes as f64 } else { 0.0 };
+            println!(
+                "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
+                rms.len(),
+                failed.len(),
+                100.0 * cover
+            );
             for f in &failed {
                 println!("  failed: {f}");
             }
-            rows.push(json!({"plan": plan, "bias": name, "rms_mean": r, "max": m, "time_s": t, "stored": rms.len(), "failed": failed}));
+            rows.push(json!({"plan": plan, "bias": name, "rms_mean": r, "max": m, "time_s": t, "stored": rms.len(), "failed": failed,
+                "tempco_runs": tempco_runs, "tempco_within_2sigma": cover}));
         }
     }
     if args.json {

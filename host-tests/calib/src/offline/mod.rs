@@ -337,7 +337,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
         if w > 0.0 {
             // The spin's bias: the rest just before it.
-            let before = ph.segments.iter().filter(|s| s.last < rot.rows.0).last().map_or([0.0; 3], |s| rest(s).residual_dps);
+            let before = ph.segments.iter().rfind(|s| s.last < rot.rows.0).map_or([0.0; 3], |s| rest(s).residual_dps);
             let gbar = sub(sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps), before);
             paper = Some(paper::solve(&poses, gbar, w, &lim));
             spin_rate = Some((w, source.name()));
