@@ -81,7 +81,7 @@ pub enum Odr {
 
 impl Odr {
     /// Nominal rate (Hz); the real one differs by several percent.
-    pub fn hz(self) -> f32 {
+    pub const fn hz(self) -> f32 {
         match self {
             Odr::Hz119 => 119.0,
             Odr::Hz238 => 238.0,

@@ -65,6 +65,7 @@ const SENSOR: SensorConfig =
 const CONFIG: Config = Config {
     accel_range_g: SENSOR.accel.range_g(),
     gyro_range_dps: SENSOR.gyro.range_dps(),
+    odr_hz: SENSOR.odr.hz(),
     ..if cfg!(feature = "tilt-servo") { Config::PAN_TILT } else { Config::DEFAULT }
 };
 

@@ -9,6 +9,10 @@
 //! 10^decimals) is `null` in JSON, `NAN` (math.h) in C and `f32::NAN` in Rust; a valid record
 //! has none in `K`, `b`, `M`, `o`.
 //!
+//! Every format states the sensor setup the calibration holds for (ODR, full scales) and the
+//! gyro bias's temperature coefficient `c` with its 1σ and temperature range, or that it is
+//! unknown: `b(T) = b + c (T − temp_c)`.
+//!
 //! JSON's `quality.source` is `board`, or `calib` for a record of sequence 0 (never stored: the
 //! offline tool's result). An unknown temperature is `null`. With the `serde` feature,
 //! [`RecordJson`] is the same JSON as a serde type (the PC writes and reads it with serde; the
@@ -18,6 +22,7 @@
 //! The C and Rust formats are several lines separated by `\n` (no line ending after the last),
 //! each at most [`MAX_LINE`] bytes.
 
+use crate::bias::TempCo;
 use crate::log::fixed;
 use crate::record::Record;
 use crate::{Mat3, Vec3};
@@ -53,6 +58,10 @@ const D_CONDITION: u32 = 3;
 const D_RESIDUAL: u32 = 6;
 /// Decimals of the accelerometer residual (g).
 const D_ACCEL_RMS: u32 = 7;
+/// Decimals of the tempco and its 1σ (°/s per °C).
+const D_TEMPCO: u32 = 6;
+/// Decimals of the ODR (Hz) and the full scales.
+const D_SETUP: u32 = 1;
 
 /// The first bytes of the JSON line (its first key), by which [`crate::protocol::parse`] knows it.
 pub(crate) const JSON_START: &str = "{\"gyro\":";
@@ -160,6 +169,27 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     json_num(w, r.non_coplanar_deg, D_CONDITION)?;
     write!(w, ",\"accel_model\":\"{}\",\"accel_rms_g\":", r.accel_model.name())?;
     json_num(w, r.accel_rms_g, D_ACCEL_RMS)?;
+    w.write_str(",\"setup\":{\"odr_hz\":")?;
+    json_num(w, r.setup.odr_hz, D_SETUP)?;
+    w.write_str(",\"gyro_range_dps\":")?;
+    json_num(w, r.setup.gyro_range_dps, D_SETUP)?;
+    w.write_str(",\"accel_range_g\":")?;
+    json_num(w, r.setup.accel_range_g, D_SETUP)?;
+    w.write_str("},\"tempco\":")?;
+    match r.tempco {
+        None => w.write_str("null")?,
+        Some(t) => {
+            w.write_str("{\"dps_per_c\":")?;
+            json_vec(w, &t.dps_per_c, D_TEMPCO)?;
+            w.write_str(",\"sigma_dps_per_c\":")?;
+            json_vec(w, &t.sigma_dps_per_c, D_TEMPCO)?;
+            w.write_str(",\"range_c\":[")?;
+            json_num(w, t.range_c[0], D_TEMP)?;
+            w.write_str(",")?;
+            json_num(w, t.range_c[1], D_TEMP)?;
+            w.write_str("]}")?;
+        }
+    }
     w.write_str("}}")
 }
 
@@ -201,7 +231,31 @@ fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Resul
     writeln!(w, "{close}")?;
     writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
     writeln!(w, "{open}Accel: f = M (a - o): a raw accel (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
-    writeln!(w, "{open}K maps the gyro into the calibrated accelerometer's frame; both matrices row-major.{close}")
+    writeln!(w, "{open}K maps the gyro into the calibrated accelerometer's frame; both matrices row-major.{close}")?;
+    w.write_str(open)?;
+    w.write_str("Holds for the sensor at ")?;
+    num(w, r.setup.odr_hz, 0, "?", " Hz, +-")?;
+    num(w, r.setup.gyro_range_dps, 0, "?", " deg/s, +-")?;
+    num(w, r.setup.accel_range_g, 0, "?", " g")?;
+    writeln!(w, "{close}")?;
+    match r.tempco {
+        None => writeln!(w, "{open}Gyro bias tempco unknown: the calibration's temperature did not span enough.{close}"),
+        Some(t) => tempco_comment(w, &t, open, close),
+    }
+}
+
+/// The tempco's comment line: `b(T) = b + c (T - T_cal)`, `c` and its range.
+fn tempco_comment(w: &mut impl Write, t: &TempCo, open: &str, close: &str) -> fmt::Result {
+    write!(w, "{open}Gyro bias tempco: b(T) = b + c (T - T_cal), T_cal the temperature above, fitted over ")?;
+    num(w, t.range_c[0], 1, "?", "..")?;
+    num(w, t.range_c[1], 1, "?", " degC:")?;
+    writeln!(w, "{close}")?;
+    write!(w, "{open}c = ")?;
+    array(w, &RUST_SYNTAX, &t.dps_per_c, D_TEMPCO)?;
+    w.write_str(" deg/s/degC,")?;
+    w.write_str(" 1 sigma ")?;
+    array(w, &RUST_SYNTAX, &t.sigma_dps_per_c, D_TEMPCO)?;
+    writeln!(w, "{close}")
 }
 
 fn c(w: &mut impl Write, r: &Record) -> fmt::Result {
@@ -242,7 +296,7 @@ fn rust(w: &mut impl Write, r: &Record) -> fmt::Result {
 
 pub use crate::record::NotFinite;
 #[cfg(feature = "serde")]
-pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson};
+pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson, TempCoJson};
 
 /// [`Format::Json`] as serde types (feature `serde`).
 #[cfg(feature = "serde")]
@@ -250,7 +304,7 @@ mod schema {
     use super::*;
     use crate::accel::AccelModel;
     use crate::gyro::Method;
-    use crate::record::NotFinite;
+    use crate::record::{NotFinite, SensorSetup};
     use serde::{Deserialize, Serialize};
 
     /// The JSON line of a record, field for field what [`Format::Json`] writes: the calibration
@@ -308,6 +362,19 @@ mod schema {
         #[serde(with = "by_name")]
         pub accel_model: AccelModel,
         pub accel_rms_g: Option<f32>,
+        pub setup: SensorSetup,
+        /// `null`: unknown.
+        pub tempco: Option<TempCoJson>,
+    }
+
+    /// The gyro bias's temperature coefficient (°/s per °C) with its 1σ, and the temperature
+    /// range (°C) over which it was fitted.
+    #[allow(missing_docs)] // named as [`TempCo`]'s fields
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct TempCoJson {
+        pub dps_per_c: Vec3,
+        pub sigma_dps_per_c: Vec3,
+        pub range_c: [f32; 2],
     }
 
     /// `v` where [`Format::Json`] writes a number, `None` where it writes `null`.
@@ -332,6 +399,8 @@ mod schema {
                     non_coplanar_deg: written(r.non_coplanar_deg, D_CONDITION),
                     accel_model: r.accel_model,
                     accel_rms_g: written(r.accel_rms_g, D_ACCEL_RMS),
+                    setup: r.setup,
+                    tempco: r.tempco.map(|t| TempCoJson { dps_per_c: t.dps_per_c, sigma_dps_per_c: t.sigma_dps_per_c, range_c: t.range_c }),
                 },
             }
         }
@@ -368,6 +437,8 @@ mod schema {
                 accel_rms_g: v(q.accel_rms_g),
                 residual_rms: v(q.residual_rms),
                 non_coplanar_deg: v(q.non_coplanar_deg),
+                setup: q.setup,
+                tempco: q.tempco.map(|t| TempCo { dps_per_c: t.dps_per_c, sigma_dps_per_c: t.sigma_dps_per_c, range_c: t.range_c }),
             };
             rec.check_finite().map(|_| rec)
         }
@@ -456,7 +527,10 @@ mod tests {
         assert!(s.contains("\"bias_dps\":[0.50000,-1.25000,2.00000],\"method\":\"sweep\"},\"accel\":{\"M\":[[1.0010000,"), "{s}");
         assert!(s.contains("\"offset_g\":[0.010000,-0.020000,0.015000]}"), "{s}");
         assert!(s.contains("\"quality\":{\"source\":\"board\",\"seq\":7,\"temp_c\":24.50,\"sigma_K\":[[0.000100000,"), "{s}");
-        assert!(s.ends_with("\"accel_model\":\"nine_param\",\"accel_rms_g\":0.0004000}}"), "{s}");
+        assert!(s.contains("\"accel_model\":\"nine_param\",\"accel_rms_g\":0.0004000,"), "{s}");
+        assert!(s.ends_with(",\"setup\":{\"odr_hz\":119.0,\"gyro_range_dps\":500.0,\"accel_range_g\":2.0},\"tempco\":{\"dps_per_c\":[0.030000,-0.045000,0.010000],\"sigma_dps_per_c\":[0.002000,0.003000,0.002500],\"range_c\":[24.00,27.50]}}}"), "{s}");
+        let unknown = text(&Record { tempco: None, ..sample() }, Format::Json);
+        assert!(unknown.ends_with("\"accel_range_g\":2.0},\"tempco\":null}}"), "{unknown}");
     }
 
     #[test]

@@ -1,7 +1,16 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
-//! Layout v2 (`LEN` = 188 bytes): magic `GYRC`, version, gyro method, accel model, poses,
-//! sequence (u32), rows (u16), flags (u16: bit 0 the temperature is unknown, the others 0),
+//! Layout v3 (`LEN` = 232 bytes): the v2 layout up to the angle from coplanar, then the sensor
+//! setup the calibration was made at (ODR Hz, gyro full scale °/s, accelerometer full scale g)
+//! and the gyro bias's temperature coefficient (3, °/s per °C), its 1σ (3) and the temperature
+//! range over which it was fitted (2, °C), all `f32` (zeros with flags bit 1 when it is unknown),
+//! then the CRC. `b(T) = b + c (T − temp_c)`.
+//!
+//! Layout v2 (`LEN_V2` = 188 bytes, written before the tempco) still loads, as made at the only
+//! setup that firmware had (119 Hz, ±500 °/s, ±2 g) with the tempco unknown: magic `GYRC`,
+//! version, gyro method, accel model, poses,
+//! sequence (u32), rows (u16), flags (u16: bit 0 the temperature is unknown, bit 1 the tempco is
+//! unknown (v3), the others 0),
 //! temperature (°C, 0 when unknown), gyro `K` (9, row-major),
 //! gyro bias (3, °/s), accel `M` (9), accel offset (3, g), 1σ of every element of `K` (9,
 //! row-major), invariant relative spread before and after, condition number, axis tilt (°),
@@ -13,14 +22,17 @@
 //! accel offset, then the 1σ of the diagonal of `K` only (3), the six quality fields, the CRC.
 
 use crate::accel::{AccelCal, AccelModel};
+use crate::bias::TempCo;
 use crate::full::FullCal;
 use crate::gyro::{GyroCal, Method};
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
-pub const VERSION: u8 = 2;
-/// Encoded length (bytes) of a version-2 record (the longest a reader needs).
-pub const LEN: usize = 188;
+pub const VERSION: u8 = 3;
+/// Encoded length (bytes) of a version-3 record (the longest a reader needs).
+pub const LEN: usize = 232;
+/// Encoded length (bytes) of a version-2 record.
+pub const LEN_V2: usize = 188;
 /// Encoded length (bytes) of a version-1 record.
 pub const LEN_V1: usize = 156;
 const MAGIC: [u8; 4] = *b"GYRC";
@@ -71,6 +83,27 @@ impl core::fmt::Display for NotFinite {
 
 /// Flags bit: the temperature is unknown.
 const TEMP_UNKNOWN: u16 = 1;
+/// Flags bit: the bias's temperature coefficient is unknown.
+const TEMPCO_UNKNOWN: u16 = 2;
+
+/// The sensor settings a calibration was made at: a `K` holds for its full scale and ODR.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct SensorSetup {
+    /// Output data rate (Hz).
+    pub odr_hz: f32,
+    /// Gyro full scale (°/s).
+    pub gyro_range_dps: f32,
+    /// Accelerometer full scale (g).
+    pub accel_range_g: f32,
+}
+
+impl SensorSetup {
+    /// The firmware's default (LSM9DS1 at 119 Hz, ±500 °/s, ±2 g): the only setup of the
+    /// firmware that wrote version-1 and -2 records.
+    pub const DEFAULT: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 500.0, accel_range_g: 2.0 };
+}
 
 impl core::fmt::Display for StoreError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -127,6 +160,11 @@ pub struct Record {
     pub residual_rms: f32,
     /// Angle (°) of the full `K`'s axes from coplanar (0 for one axis; 0 in version-1 records).
     pub non_coplanar_deg: f32,
+    /// The sensor settings it was made at.
+    pub setup: SensorSetup,
+    /// The gyro bias's temperature coefficient; `None`: unknown (too little temperature span,
+    /// no temperature, or a record older than version 3).
+    pub tempco: Option<TempCo>,
 }
 
 /// What a record holds beside the gyro result.
@@ -140,6 +178,10 @@ pub struct Context {
     pub gyro_bias_dps: Vec3,
     /// The accelerometer calibration the gyro result was made in.
     pub accel: AccelCal,
+    /// The sensor settings.
+    pub setup: SensorSetup,
+    /// The gyro bias's temperature coefficient, if the calibration determined it.
+    pub tempco: Option<TempCo>,
 }
 
 impl Context {
@@ -165,6 +207,8 @@ impl Context {
             accel_rms_g: self.accel.rms_after_g,
             residual_rms: 0.0,
             non_coplanar_deg: 0.0,
+            setup: self.setup,
+            tempco: self.tempco,
         }
     }
 
@@ -224,8 +268,9 @@ impl Record {
         core::array::from_fn(|i| self.gyro_k[i][0] * d[0] + self.gyro_k[i][1] * d[1] + self.gyro_k[i][2] * d[2])
     }
 
-    /// Every `f32` field (the temperature if known) is finite.
+    /// Every `f32` field (the temperature and the tempco if known) is finite.
     pub fn check_finite(&self) -> Result<(), NotFinite> {
+        let tempco = self.tempco_f32s();
         let scalars = [
             self.temp_c.unwrap_or(0.0),
             self.invariant_before_rel,
@@ -236,6 +281,9 @@ impl Record {
             self.accel_rms_g,
             self.residual_rms,
             self.non_coplanar_deg,
+            self.setup.odr_hz,
+            self.setup.gyro_range_dps,
+            self.setup.accel_range_g,
         ];
         let all = [
             self.gyro_k.as_flattened(),
@@ -244,6 +292,7 @@ impl Record {
             &self.accel_offset_g,
             self.sigma_k.as_flattened(),
             &scalars,
+            &tempco,
         ];
         if all.iter().all(|s| s.iter().all(|v| v.is_finite())) {
             Ok(())
@@ -252,7 +301,18 @@ impl Record {
         }
     }
 
-    /// Encodes to the version-2 layout; a record with a NaN or infinite field is refused.
+    /// The tempco's fields as stored: `c`, its 1σ, the temperature range (zeros when unknown).
+    fn tempco_f32s(&self) -> [f32; 8] {
+        let mut v = [0.0; 8];
+        if let Some(t) = self.tempco {
+            v[..3].copy_from_slice(&t.dps_per_c);
+            v[3..6].copy_from_slice(&t.sigma_dps_per_c);
+            v[6..].copy_from_slice(&t.range_c);
+        }
+        v
+    }
+
+    /// Encodes to the version-3 layout; a record with a NaN or infinite field is refused.
     pub fn encode(&self) -> Result<[u8; LEN], NotFinite> {
         self.check_finite()?;
         let mut w = Writer { buf: [0; LEN], at: 0 };
@@ -273,7 +333,7 @@ impl Record {
         ]);
         w.bytes(&self.seq.to_le_bytes());
         w.bytes(&self.rows.to_le_bytes());
-        let flags = if self.temp_c.is_none() { TEMP_UNKNOWN } else { 0 };
+        let flags = if self.temp_c.is_none() { TEMP_UNKNOWN } else { 0 } | if self.tempco.is_none() { TEMPCO_UNKNOWN } else { 0 };
         w.bytes(&flags.to_le_bytes());
         w.f32s(&[self.temp_c.unwrap_or(0.0)]);
         w.f32s(self.gyro_k.as_flattened());
@@ -283,12 +343,14 @@ impl Record {
         w.f32s(self.sigma_k.as_flattened());
         w.f32s(&[self.invariant_before_rel, self.invariant_after_rel, self.condition, self.tilt_deg, self.span_deg, self.accel_rms_g]);
         w.f32s(&[self.residual_rms, self.non_coplanar_deg]);
+        w.f32s(&[self.setup.odr_hz, self.setup.gyro_range_dps, self.setup.accel_range_g]);
+        w.f32s(&self.tempco_f32s());
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
         Ok(w.buf)
     }
 
-    /// Decodes and validates bytes of a version-2 or version-1 record (extra bytes after the
+    /// Decodes and validates bytes of a version-3, -2 or -1 record (extra bytes after the
     /// record are ignored).
     pub fn decode(bytes: &[u8]) -> Result<Record, DecodeError> {
         let truncated = |need: usize| DecodeError::Truncated { len: bytes.len().min(u16::MAX as usize) as u16, need: need as u16 };
@@ -300,7 +362,8 @@ impl Record {
         }
         let len = match bytes[4] {
             1 => LEN_V1,
-            2 => LEN,
+            2 => LEN_V2,
+            3 => LEN,
             v => return Err(DecodeError::UnsupportedVersion(v)),
         };
         if bytes.len() < len {
@@ -325,7 +388,8 @@ impl Record {
             _ => return Err(DecodeError::InvalidField),
         };
         let flags = u16::from_le_bytes([b[14], b[15]]);
-        if flags & !TEMP_UNKNOWN != 0 {
+        let known = if len == LEN { TEMP_UNKNOWN | TEMPCO_UNKNOWN } else { TEMP_UNKNOWN };
+        if flags & !known != 0 {
             return Err(DecodeError::InvalidField);
         }
         let mut r = Reader { buf: b, at: 16, all_finite: true };
@@ -334,7 +398,7 @@ impl Record {
         let gyro_bias_dps = r.vec3();
         let accel_m = r.mat3();
         let accel_offset_g = r.vec3();
-        let sigma_k = if len == LEN {
+        let sigma_k = if len >= LEN_V2 {
             r.mat3()
         } else {
             let d = r.vec3();
@@ -360,10 +424,19 @@ impl Record {
             accel_rms_g: r.f32(),
             residual_rms: 0.0,
             non_coplanar_deg: 0.0,
+            setup: SensorSetup::DEFAULT,
+            tempco: None,
         };
-        if len == LEN {
+        if len >= LEN_V2 {
             rec.residual_rms = r.f32();
             rec.non_coplanar_deg = r.f32();
+        }
+        if len == LEN {
+            rec.setup = SensorSetup { odr_hz: r.f32(), gyro_range_dps: r.f32(), accel_range_g: r.f32() };
+            let (c, sigma, range) = (r.vec3(), r.vec3(), [r.f32(), r.f32()]);
+            if flags & TEMPCO_UNKNOWN == 0 {
+                rec.tempco = Some(TempCo { dps_per_c: c, sigma_dps_per_c: sigma, range_c: range });
+            }
         }
         if !r.all_finite {
             return Err(DecodeError::InvalidField);
@@ -451,6 +524,8 @@ pub(crate) mod tests {
             accel_rms_g: 0.0004,
             residual_rms: 0.02,
             non_coplanar_deg: 54.0,
+            setup: SensorSetup::DEFAULT,
+            tempco: Some(TempCo { dps_per_c: [0.03, -0.045, 0.01], sigma_dps_per_c: [0.002, 0.003, 0.0025], range_c: [24.0, 27.5] }),
         }
     }
 
@@ -464,11 +539,11 @@ pub(crate) mod tests {
         let r = sample();
         let bytes = r.encode().unwrap();
         assert_eq!(Record::decode(&bytes), Ok(r));
-        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 188 })));
+        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 232 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
         let mut v = bytes;
-        v[4] = 3;
-        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(3)));
+        v[4] = 4;
+        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(4)));
         let mut c = bytes;
         c[40] ^= 0x10;
         assert!(matches!(Record::decode(&c), Err(DecodeError::BadCrc { .. })));
@@ -485,11 +560,47 @@ pub(crate) mod tests {
             v1[i] = u8::from_str_radix(&GOLDEN_V1[2 * i..2 * i + 2], 16).unwrap();
         }
         let sigma_k = [[1e-4, 0.0, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1.5e-4]];
-        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, ..sample() }));
+        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, tempco: None, ..sample() }));
         assert!(matches!(Record::decode(&v1[..150]), Err(DecodeError::Truncated { len: 150, need: 156 })));
         let mut torn = v1;
         torn[120] ^= 1;
         assert!(matches!(Record::decode(&torn), Err(DecodeError::BadCrc { .. })));
+    }
+
+    /// `sample()` without a tempco, as the version-2 encoder of the release before the tempco
+    /// (commit 7bcd77a) wrote it.
+    const GOLDEN_V2: &str = "475952430201020d070000000c0000000000c441ae47813f000000000000000000000000a4707d3f0000000000000000000000005c8f823f0000003f0000a0bf00000040c520803f6f12033b0000000000000000ee7c7f3f6f1283ba00000000000000004e62803f0ad7233c0ad7a3bc8fc2753c17b7d13882a8fb37000000000000000017b7513900000000000000000000000052491d390ad7a33c6f12833a00006040000034420000344317b7d1390ad7a33c000058421245c1de";
+
+    #[test]
+    fn version_2_records_still_load_at_the_default_setup_with_an_unknown_tempco() {
+        let mut v2 = [0xFFu8; LEN];
+        for i in 0..LEN_V2 {
+            v2[i] = u8::from_str_radix(&GOLDEN_V2[2 * i..2 * i + 2], 16).unwrap();
+        }
+        assert_eq!(Record::decode(&v2), Ok(Record { tempco: None, ..sample() }));
+        assert!(matches!(Record::decode(&v2[..180]), Err(DecodeError::Truncated { len: 180, need: 188 })));
+        // Bit 1 (tempco unknown) is not a v2 flag.
+        let mut flagged = v2;
+        flagged[14] |= 0b10;
+        let crc = crc32(&flagged[..LEN_V2 - 4]);
+        flagged[LEN_V2 - 4..LEN_V2].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(Record::decode(&flagged), Err(DecodeError::InvalidField));
+    }
+
+    #[test]
+    fn an_unknown_tempco_round_trips_as_unknown_and_a_known_one_must_be_finite() {
+        let r = Record { tempco: None, ..sample() };
+        let bytes = r.encode().unwrap();
+        assert_eq!((bytes[14], &bytes[200..228]), (0b10, &[0u8; 28][..]), "flag set, tempco zeros");
+        assert_eq!(Record::decode(&bytes), Ok(r));
+        let setup = SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 };
+        let r = Record { setup, ..sample() };
+        assert_eq!(Record::decode(&r.encode().unwrap()), Ok(r));
+        let mut t = sample();
+        if let Some(c) = t.tempco.as_mut() {
+            c.sigma_dps_per_c[1] = f32::INFINITY;
+        }
+        assert_eq!(t.encode(), Err(NotFinite));
     }
 
     /// `bytes` with its CRC made good again.
@@ -523,7 +634,7 @@ pub(crate) mod tests {
         assert_eq!((bytes[14], &bytes[16..20]), (1, &[0u8; 4][..]), "flag set, temperature 0");
         assert_eq!(Record::decode(&bytes), Ok(r));
         let mut other = bytes;
-        other[14] = 0b10;
+        other[14] = 0b100;
         assert_eq!(Record::decode(&re_crc(other)), Err(DecodeError::InvalidField));
     }
 }

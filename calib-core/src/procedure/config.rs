@@ -111,6 +111,8 @@ pub struct Config {
     pub accel_range_g: f32,
     /// Gyro full scale (°/s).
     pub gyro_range_dps: f32,
+    /// The sensor's output data rate (Hz), stored in the record.
+    pub odr_hz: f32,
     /// What a result must meet to be stored.
     pub acceptance: Acceptance,
 }
@@ -152,6 +154,7 @@ impl Config {
         min_turn_fraction: 0.5,
         accel_range_g: 2.0,
         gyro_range_dps: 500.0,
+        odr_hz: 119.0,
         acceptance: Acceptance { k_min: 0.8, k_max: 1.2, max_sigma_k: 0.005, max_accel_rms_g: 0.01 },
     };
 }

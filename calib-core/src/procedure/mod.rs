@@ -38,7 +38,7 @@ use crate::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::full::{Axes, FullAxis, FullCal};
 use crate::gyro::{GyroCal, Method};
 use crate::pipeline::GravityTurn;
-use crate::record::{self, Record, StoreError};
+use crate::record::{self, Record, SensorSetup, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::rotation::{Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;

@@ -133,7 +133,7 @@ impl Procedure {
     pub(super) fn store(&mut self, record: Record, t_s: f64) {
         match record.check_finite().map(|_| record).map_err(|_| Error::ResultNotFinite) {
             Ok(record) => {
-                self.push(Command::Report(Report::TempCo(self.temp_fit.finish())));
+                self.push(Command::Report(Report::TempCo(record.tempco)));
                 self.enter(Step::Storing { record }, t_s);
                 self.push(Command::Store(record));
             }
@@ -171,6 +171,8 @@ impl Procedure {
             temp_c: (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32),
             gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
             accel: self.accel_cal,
+            setup: SensorSetup { odr_hz: self.cfg.odr_hz, gyro_range_dps: self.cfg.gyro_range_dps, accel_range_g: self.cfg.accel_range_g },
+            tempco: self.temp_fit.finish(),
         }
     }
 }

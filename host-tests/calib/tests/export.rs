@@ -6,9 +6,10 @@ use calib::csvlog;
 use calib::offline;
 use calib::port::record_from_json;
 use calib_core::accel::AccelModel;
+use calib_core::bias::TempCo;
 use calib_core::export::{self, Format, NotFinite, RecordJson, Source};
 use calib_core::gyro::Method;
-use calib_core::record::Record;
+use calib_core::record::{Record, SensorSetup};
 use common::{calib, simulated_log};
 use rig_sim::variant::Variant;
 use std::collections::{BTreeMap, BTreeSet};
@@ -97,6 +98,8 @@ fn exact_record() -> Record {
         accel_rms_g: 0.0078125,
         residual_rms: 0.015625,
         non_coplanar_deg: 54.125,
+        setup: SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 },
+        tempco: Some(TempCo { dps_per_c: [0.03125, -0.046875, 0.015625], sigma_dps_per_c: [0.0025, 0.0015, 0.002], range_c: [24.0, 27.5] }),
     }
 }
 
@@ -105,11 +108,11 @@ fn the_boards_hand_written_line_is_the_serde_schema() {
     // The firmware's line (written without serde) read with the serde type: the same record, and
     // the serde type writes the same JSON (every field where the board writes it, null where it
     // writes null; value for value, every value here being exact at its decimals).
-    let unknown = Record { temp_c: None, condition: 3e30, ..exact_record() };
+    let unknown = Record { temp_c: None, condition: 3e30, tempco: None, ..exact_record() };
     for (what, rec, back) in [
         ("a stored record", exact_record(), exact_record()),
         // (a condition too large to print is written null and reads 0, never NaN)
-        ("an unknown temperature, an unwritable condition", unknown, Record { condition: 0.0, ..unknown }),
+        ("an unknown temperature and tempco, an unwritable condition", unknown, Record { condition: 0.0, ..unknown }),
         ("calib's own result", Record { seq: 0, ..exact_record() }, Record { seq: 0, ..exact_record() }),
     ] {
         let line = text(&rec, Format::Json);

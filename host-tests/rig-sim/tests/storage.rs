@@ -4,7 +4,7 @@
 
 use calib_core::accel::AccelModel;
 use calib_core::gyro::Method;
-use calib_core::record::Record;
+use calib_core::record::{Record, SensorSetup};
 use gyrocal_fw::storage::{Slot, Storage, StoreError};
 use rig_sim::nor::{NorError, NorSim};
 
@@ -29,6 +29,8 @@ fn record(seq: u32) -> Record {
         accel_rms_g: 1e-4,
         residual_rms: 0.01,
         non_coplanar_deg: 0.0,
+        setup: SensorSetup::DEFAULT,
+        tempco: None,
     }
 }
 
@@ -90,12 +92,13 @@ fn power_cut_at_every_step_never_loses_the_previous_record() {
 }
 
 #[test]
-fn a_version_1_record_in_flash_loads_and_the_next_store_is_version_2() {
+fn a_version_1_record_in_flash_loads_and_the_next_store_is_the_current_version() {
     // A record of the release before the full K (format version 1, 156 bytes), as it sits in
     // flash, laid out field by field: the v2 header, then the diagonal 1σ, six quality fields, CRC.
     use embedded_storage::nor_flash::NorFlash;
     let mut v1 = record(4).encode().unwrap()[..calib_core::record::LEN_V1].to_vec();
     v1[4] = 1;
+    v1[14] &= 1; // flags: only "temperature unknown" exists in v1
     let sigma = [1e-4f32; 3];
     let quality = [0.01f32, 0.001, 2.0, 40.0, 180.0, 1e-4];
     for (i, x) in sigma.iter().chain(quality.iter()).enumerate() {
