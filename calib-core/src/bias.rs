@@ -97,23 +97,47 @@ impl RestBias {
     }
 }
 
-/// The first and the latest rest of a calibration: the bias drift over it.
+/// Longest gap (s) between consecutive rests for [`Drift::off_trend_dps`]: over a longer gap
+/// (the board re-attached) even a smooth warm-up curves away from a line.
+pub const MAX_TREND_GAP_S: f64 = 10.0;
+
+/// The rests of a calibration in time order: the bias's drift over it, and how far a rest's
+/// bias left the line through its two neighbours (what tracking cannot follow: a smooth drift
+/// of τ ≥ 1 min stays within 1e-3 °/s of it over 10 s; rest-mean noise ≈ 0.007 °/s).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Drift {
     first: Option<RestBias>,
+    before: Option<RestBias>,
     last: Option<RestBias>,
+    off_trend_dps: f32,
 }
 
 impl Drift {
     /// No rest yet.
     pub const fn new() -> Self {
-        Self { first: None, last: None }
+        Self { first: None, before: None, last: None, off_trend_dps: 0.0 }
     }
 
     /// A rest, in time order.
     pub fn add(&mut self, rest: RestBias) {
         self.first.get_or_insert(rest);
+        if let (Some(a), Some(m)) = (self.before, self.last) {
+            if m.t_s - a.t_s <= MAX_TREND_GAP_S && rest.t_s - m.t_s <= MAX_TREND_GAP_S && rest.t_s > a.t_s {
+                let f = (m.t_s - a.t_s) as f32 / (rest.t_s - a.t_s) as f32;
+                for k in 0..3 {
+                    let line = a.residual_dps[k] + (rest.residual_dps[k] - a.residual_dps[k]) * f;
+                    self.off_trend_dps = self.off_trend_dps.max((m.residual_dps[k] - line).abs());
+                }
+            }
+        }
+        self.before = self.last;
         self.last = Some(rest);
+    }
+
+    /// The largest distance of a rest's bias from the line through its neighbours (°/s, any
+    /// axis; rests more than [`MAX_TREND_GAP_S`] apart are not compared).
+    pub fn off_trend_dps(&self) -> f32 {
+        self.off_trend_dps
     }
 
     /// The latest rest.
@@ -318,6 +342,29 @@ mod tests {
         // Two rests at one time: a constant.
         assert!((a.integral_deg(&a, 0.0, 2.0)[0] - 0.2).abs() < 1e-6);
         assert_eq!(RestBias::new(0.0, 1.0, [f32::NAN, 0.0, 0.0], [0.0; 3]).residual_dps, [0.0; 3]);
+    }
+
+    #[test]
+    fn a_bias_off_the_line_of_its_neighbours_is_measured_a_smooth_drift_is_not() {
+        let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, 0.0, -b] };
+        let mut smooth = Drift::new();
+        for i in 0..20 {
+            let t = 4.0 * i as f64;
+            smooth.add(rest(t, 0.2 * (1.0 - (-t / 60.0).exp()) as f32));
+        }
+        assert!(smooth.off_trend_dps() < 2e-3, "{}", smooth.off_trend_dps());
+        assert!(smooth.dps_per_min() > 0.1);
+        let mut jump = smooth;
+        jump.add(rest(80.0, 0.3));
+        jump.add(rest(84.0, 0.2));
+        // 0.3 at 80 s against the line from 0.144 (76 s) to 0.2 (84 s): 0.128 off.
+        assert!((jump.off_trend_dps() - 0.128).abs() < 2e-3, "{}", jump.off_trend_dps());
+        // Across a long gap (re-attached), no comparison.
+        let mut gap = Drift::new();
+        for (t, b) in [(0.0, 0.0), (4.0, 0.1), (100.0, 0.0)] {
+            gap.add(rest(t, b));
+        }
+        assert_eq!(gap.off_trend_dps(), 0.0);
     }
 
     #[test]

@@ -86,10 +86,10 @@ pub enum Error {
     RotationAxesCoplanar { spread: f32, limit: f32 },
     /// Full `K`: the moves disagree with one rigid `K` (RMS residual of the move equations).
     MovesInconsistent { residual_rms_deg: f32, limit_deg: f32 },
-    /// The moves disagree with one `K` and the gyro bias moved by `dps_per_min` (largest axis,
-    /// first rest to last) over the calibration, faster than `limit_dps_per_min`: the gyro is
-    /// still warming up (the bias is tracked between rests, but not a drift that fast or curved).
-    BiasDrifting { dps_per_min: f32, limit_dps_per_min: f32 },
+    /// The moves disagree with one `K` and a rest's gyro bias left the line through its
+    /// neighbours by `off_trend_dps` (> `limit_dps`): the bias moved unevenly, which tracking
+    /// between rests cannot follow; `dps_per_min` is its drift over the calibration.
+    BiasDrifting { off_trend_dps: f32, limit_dps: f32, dps_per_min: f32 },
 }
 
 impl fmt::Display for Error {
@@ -177,9 +177,9 @@ impl fmt::Display for Error {
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,
                 "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg as f64, 3), limit_deg = Fixed(limit_deg as f64, 3)),
-            Error::BiasDrifting { dps_per_min, limit_dps_per_min } => write!(
+            Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => write!(
                 f,
-                "the gyro bias moved {dps_per_min} deg/s per minute during the calibration (> {limit_dps_per_min}) and the moves disagree with one K: the gyro is still warming up; wait 5 min after power-on (or keep the board still longer at each pose) and rerun", dps_per_min = Fixed(dps_per_min as f64, 4), limit_dps_per_min = Fixed(limit_dps_per_min as f64, 4)),
+                "the gyro bias jumped {off_trend_dps} deg/s off its trend between rests (> {limit_dps}; drift {dps_per_min} deg/s per minute) and the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
         }
     }
 }

@@ -576,7 +576,7 @@ impl Procedure {
     }
 
     fn fail(&mut self, e: Error) {
-        let e = pipeline::blame(e, self.drift.dps_per_min());
+        let e = pipeline::blame(e, &self.drift);
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });

@@ -137,7 +137,14 @@ impl Mcu {
         uc.ctl_set_tlb_type(unicorn_engine::TlbType::VIRTUAL).map_err(err("TLB type"))?;
         let sram_exec = Rc::new(Cell::new(false));
         let exec = sram_exec.clone();
-        uc.add_tlb_hook(1, 0, move |_, addr, _| {
+        uc.add_tlb_hook(1, 0, move |uc, addr, _| {
+            // Unicorn restores the CPU state of the access's instruction before this hook
+            // (unicorn_vtlb.c), EPSR.IT included, and nothing clears it again: a load or store
+            // inside an IT block would leave its IT state to the next translation block looked
+            // up, which then runs under a stale condition (seen: memcpy's epilogue skipping
+            // `add sp` and popping garbage into PC). Between blocks the IT state is only ever
+            // held in the translated code, so clearing it here (Thumb kept) is exact.
+            let _ = uc.reg_write(RegisterARM::EPSR, 1 << 24);
             let ram = (RAM.0..RAM.1).contains(&addr);
             let perms = if ram && !exec.get() { Prot::READ | Prot::WRITE } else { Prot::ALL };
             Some(unicorn_engine::TlbEntry { paddr: addr, perms })
@@ -209,6 +216,15 @@ impl Mcu {
             }
         })
         .map_err(err("block hook"))?;
+        // Code below the application (the bootloader's pages, not emulated) or past it: a jump
+        // there (a corrupt function pointer or return address) is a fault, not a silent spin.
+        let f = fault.clone();
+        uc.add_block_hook(0, 0xFFFF, move |uc, addr, _| {
+            let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0);
+            *f.borrow_mut() = Some(format!("execution at 0x{addr:08X}, outside the application (LR 0x{lr:08X})"));
+            let _ = uc.emu_stop();
+        })
+        .map_err(err("low code hook"))?;
         // A `wfi` ends the slice before it executes: one code hook on each (Unicorn instruments
         // only the instructions inside a hook's range).
         let wfi_hit = Rc::new(Cell::new(false));
@@ -708,7 +724,25 @@ impl Mcu {
 
     /// Runs until virtual time `t_end` (s), or a fault or power cut.
     pub fn run_until(&mut self, t_end: f64) -> Stop {
+        // A CPU that neither executes nor lets time pass (an exception it cannot take, code
+        // outside the application) would spin this loop forever: a fault after this many turns.
+        const STUCK_TURNS: u32 = 100_000;
+        let (mut stuck, mut mark) = (0u32, (u64::MAX, f64::NAN));
         loop {
+            let now_mark = (self.instructions.get(), self.now());
+            if now_mark == mark {
+                stuck += 1;
+                if stuck >= STUCK_TURNS {
+                    let reg = |r| self.uc.reg_read(r).unwrap_or(0);
+                    let (pc, lr, sp) = (reg(RegisterARM::PC), reg(RegisterARM::LR), reg(RegisterARM::SP));
+                    let block = self.periph.borrow().pc.get();
+                    return Stop::Fault(format!(
+                        "the CPU makes no progress at PC 0x{pc:08X} (LR 0x{lr:08X}, SP 0x{sp:08X}, last block at 0x{block:08X})"
+                    ));
+                }
+            } else {
+                (stuck, mark) = (0, now_mark);
+            }
             self.periph.borrow_mut().update();
             self.drain_rtt();
             {

@@ -1,5 +1,6 @@
 //! The peripheral and sensor models against the PS / datasheet rules they enforce, driven at the
-//! register level (no firmware): fast, and each one fails if the model loses its strictness.
+//! register level (no firmware), and the emulated CPU on a few hand-assembled instructions: fast,
+//! and each one fails if the model loses its strictness.
 
 mod common;
 
@@ -8,6 +9,8 @@ use embedded_hal::i2c::{I2c, Operation};
 use rig_sim::lsm_model::{Board, Lsm9ds1Model, BOOT_S};
 use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
+use vboard::elf::Firmware;
+use vboard::mcu::{Mcu, Stop};
 use vboard::periph::clock::Clock;
 use vboard::periph::mpu::{Check, Mpu};
 use vboard::periph::{Dma, Periph, ResetKind};
@@ -402,4 +405,50 @@ fn lsm9ds1_fifo_burst_wraps_and_its_first_sample_is_junk() {
     rd(&mut m, 0x18, &mut one).unwrap();
     assert_eq!(&one[..6], &[0; 6]);
     assert_eq!(m.junk(), 2);
+}
+
+// The emulated Cortex-M4 against the ARMv7-M architecture where Unicorn's own state handling
+// gets it wrong: a few instructions of hand-assembled Thumb code.
+
+/// The application's vector table at 0x10000 (initial SP, reset vector) and `code` at 0x10100.
+fn firmware(code: &[u8]) -> Firmware {
+    let mut image = vec![0u8; 0x100];
+    image[..4].copy_from_slice(&0x2000_2000u32.to_le_bytes());
+    image[4..8].copy_from_slice(&0x1_0101u32.to_le_bytes());
+    image.extend_from_slice(code);
+    Firmware { bytes: Vec::new(), segments: vec![(0x1_0000, image)], rtt: None, rtt_dropped: None, handle_sample: None, stack: None }
+}
+
+/// A store inside an IT block that misses the TLB (the first access to its page), then an
+/// indirect branch: the code at the target must run unconditionally (ARMv7-M ARM A7.3.3: the IT
+/// block ended with its last instruction). Unicorn restores the store's IT state into the CPU
+/// when its TLB fill hook runs, and the next block looked up would inherit it.
+#[test]
+fn an_it_block_that_misses_the_tlb_leaves_no_condition_behind() {
+    // 0x10100: ldr r1, =0x20001000; movs r0, #0; movs r5, #0; cmp r0, #1 (LO true);
+    //          itt lo; strlo r0, [r1]; movlo r2, #5; cmp r0, #0 (LO false); ldr r3, =target+1; bx r3
+    // target:  adds r5, #1; adds r5, #1; cmp r5, #2; beq ok; fail: b fail; ok: b ok
+    let mut code = vec![
+        0x07, 0x49, 0x00, 0x20, 0x00, 0x25, 0x01, 0x28, 0x3c, 0xbf, 0x08, 0x60, 0x05, 0x22, 0x00, 0x28, 0x04, 0x4b, 0x18, 0x47, 0x01, 0x35,
+        0x01, 0x35, 0x02, 0x2d, 0x00, 0xd0, 0xfe, 0xe7, 0xfe, 0xe7,
+    ];
+    code.extend_from_slice(&0x2000_1000u32.to_le_bytes());
+    code.extend_from_slice(&0x1_0115u32.to_le_bytes());
+    let mut mcu = Mcu::new(firmware(&code), periph(Board::Rev1, false)).unwrap();
+    assert_eq!(mcu.run_until(0.001), Stop::Time);
+    assert_eq!(mcu.pc(), 0x1_011E, "0x1011C: the two adds at the target were skipped under a stale IT condition");
+}
+
+/// A jump below the application (into the bootloader's pages, not emulated: a corrupt return
+/// address) is a fault that names the address, not a CPU spinning without progress.
+#[test]
+fn a_jump_outside_the_application_is_a_fault() {
+    // 0x10100: ldr r3, [pc, #0]; bx r3; .word 0x101
+    let mut code = vec![0x00, 0x4b, 0x18, 0x47];
+    code.extend_from_slice(&0x101u32.to_le_bytes());
+    let mut mcu = Mcu::new(firmware(&code), periph(Board::Rev1, false)).unwrap();
+    match mcu.run_until(0.001) {
+        Stop::Fault(f) => assert!(f.contains("0x00000100"), "{f}"),
+        s => panic!("{s:?}"),
+    }
 }
