@@ -106,8 +106,16 @@ proptest! {
             c.add_pose(f32v(f.component_div(&m) + o)).unwrap();
         }
         let cal = c.solve6().unwrap();
+        // Six poses along a rotated frame can make the diagonal model nearly singular (the
+        // squared direction cosines nearly dependent): the f32 readings' rounding then reaches
+        // the gains through the fit's own condition number, which it reports. 1e-5 where it is
+        // well conditioned, the rounding bound where it says it is not.
+        let bound = 1e-5f64.max(f64::from(cal.condition).sqrt() * f64::from(f32::EPSILON));
         for i in 0..3 {
-            prop_assert!((cal.m[i][i] as f64 - m[i]).abs() < 1e-5 && (cal.offset_g[i] as f64 - o[i]).abs() < 1e-5);
+            prop_assert!(
+                (cal.m[i][i] as f64 - m[i]).abs() < bound && (cal.offset_g[i] as f64 - o[i]).abs() < bound,
+                "{:?} {:?} vs {m:?} {o:?}, condition {}", cal.m, cal.offset_g, cal.condition
+            );
         }
     }
 }
