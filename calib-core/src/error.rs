@@ -86,9 +86,11 @@ pub enum Error {
     RotationAxesCoplanar { spread: f32, limit: f32 },
     /// Full `K`: the moves disagree with one rigid `K` (RMS residual of the move equations).
     MovesInconsistent { residual_rms_deg: f32, limit_deg: f32 },
-    /// The moves disagree with one `K` and a rest's gyro bias left the line through its
-    /// neighbours by `off_trend_dps` (> `limit_dps`): the bias moved unevenly, which tracking
-    /// between rests cannot follow; `dps_per_min` is its drift over the calibration.
+    /// The gyro bias moved unevenly, which tracking between rests cannot follow: the moves
+    /// disagree with one `K` and a rest's bias left the line through its neighbours by
+    /// `off_trend_dps` (> `limit_dps`), or so many hand-held moves changed bias between their
+    /// rests by more than the limit that too few are left (`off_trend_dps` the largest change).
+    /// `dps_per_min`: the drift over the calibration, or across the largest change.
     BiasDrifting { off_trend_dps: f32, limit_dps: f32, dps_per_min: f32 },
 }
 
@@ -179,7 +181,7 @@ impl fmt::Display for Error {
                 "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg as f64, 3), limit_deg = Fixed(limit_deg as f64, 3)),
             Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => write!(
                 f,
-                "the gyro bias jumped {off_trend_dps} deg/s off its trend between rests (> {limit_dps}; drift {dps_per_min} deg/s per minute) and the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
+                "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
         }
     }
 }

@@ -148,6 +148,17 @@ pub struct Rotations {
     moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
     rejected: [u16; 5],
+    bias_jump: Option<BiasJump>,
+}
+
+/// The largest bias change between the two rests of a move rejected as
+/// [`Rejected::BiasDrifted`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BiasJump {
+    /// Largest per-axis change (°/s).
+    pub dps: f32,
+    /// The same per minute between the two rests (°/s/min).
+    pub dps_per_min: f32,
 }
 
 impl Default for Rotations {
@@ -197,6 +208,7 @@ impl Rotations {
             moves: heapless::Vec::new(),
             open: None,
             rejected: [0; 5],
+            bias_jump: None,
         }
     }
 
@@ -308,6 +320,13 @@ impl Rotations {
             Some(why) => Err(why),
         };
         if let Err(why) = result {
+            if why == Rejected::BiasDrifted {
+                let dps = (a - b).amax() as f32;
+                let dt_s = (rb.t_s - ra.t_s).abs().max(1e-3) as f32;
+                if self.bias_jump.is_none_or(|j| dps > j.dps) {
+                    self.bias_jump = Some(BiasJump { dps, dps_per_min: 60.0 * dps / dt_s });
+                }
+            }
             self.chunks.truncate(o.first);
             self.rejected[why as usize] = self.rejected[why as usize].saturating_add(1);
         }
@@ -317,6 +336,11 @@ impl Rotations {
     /// Moves rejected, by reason (in the order of [`Rejected`]).
     pub fn rejected(&self) -> [u16; 5] {
         self.rejected
+    }
+
+    /// The largest bias change of the moves rejected as [`Rejected::BiasDrifted`], if any.
+    pub fn bias_jump(&self) -> Option<BiasJump> {
+        self.bias_jump
     }
 
     /// The kept moves.

@@ -289,3 +289,26 @@ fn a_shell_that_never_drains_the_queue_gets_a_failure_not_lost_commands() {
     assert!(cmds.len() <= 16);
     assert!(cmds.contains(&calib_core::procedure::Command::Report(Report::Failed(Error::CommandQueueFull))), "{cmds:?}");
 }
+
+#[test]
+fn a_bias_that_wanders_between_rests_is_named_a_drift_not_the_poses() {
+    // A rate random walk 400x the datasheet class: the hand-held moves' rests disagree on the
+    // bias, so too few moves are left for the full K. The error names the drift (with the
+    // largest change) and nothing is stored; where enough moves survive, the run succeeds.
+    let mut named = 0;
+    for seed in 0..4 {
+        let mut cfg = Variant::Hobby.config(41, seed);
+        cfg.bias_rw_dps_rtsec = 0.2;
+        let (out, _) = calibrate(cfg, Config::default(), None, Faults::default());
+        match out.error {
+            None => assert_eq!(out.stored.len(), 1, "seed {seed}"),
+            Some(e) => {
+                assert!(out.stored.is_empty() && out.applied.is_empty(), "seed {seed}: a failed run stored a record");
+                let Error::BiasDrifting { off_trend_dps, limit_dps, .. } = e else { panic!("seed {seed}: {e:?}") };
+                assert!(off_trend_dps > limit_dps, "seed {seed}: {e:?}");
+                named += 1;
+            }
+        }
+    }
+    assert!(named >= 1, "no run failed: the walk is too small to test the naming");
+}
