@@ -414,6 +414,7 @@ fn truth_describes_the_sensor_models() {
     (cfg.accel.noise_ug_rthz, cfg.accel.quantize) = (0.0, false);
     cfg.temp_drift_c_per_s = 0.01;
     cfg.gyro.bias_tempco_dps_per_c = Vector3::new(0.01, -0.02, 0.005);
+    cfg.gyro.scale_tempco_per_c = Vector3::zeros();
     let mut rig = Rig::new(cfg, 1);
     rig.set_pulse_us(1900.0);
     for (s, t) in record(&mut rig, 3.0) {
@@ -432,6 +433,31 @@ fn truth_describes_the_sensor_models() {
     assert!(cfg.gyro.misalignment.norm() > 1e-4 && cfg.accel.misalignment.norm() > 1e-4);
     assert!((t.gyro_k * c_g - Matrix3::identity()).norm() < 1e-12);
     assert!((t.accel_c - c_a).norm() < 1e-15);
+}
+
+/// The gyro's scale moves with temperature: each reading follows `C_g` at its own temperature,
+/// and the truth's K is the one at the samples' mean temperature (what a calibration over them
+/// measures).
+#[test]
+fn the_gyro_scale_follows_the_temperature() {
+    let mut cfg = RigConfig::realistic(&mut ChaCha8Rng::seed_from_u64(6)).constant_bias();
+    (cfg.gyro.noise_dps_rthz, cfg.gyro.quantize) = (0.0, false);
+    cfg.temp_drift_c_per_s = 0.5;
+    cfg.gyro.scale_tempco_per_c = Vector3::new(2e-4, -1e-4, 1.5e-4);
+    let mut rig = Rig::new(cfg, 1);
+    rig.set_pulse_us(1900.0);
+    let samples = record(&mut rig, 4.0);
+    for (s, t) in &samples {
+        let c = cfg.gyro.matrix_at(cfg.delta_temp_c(t.t_s));
+        assert!((v3(s.gyro_dps) - t.gyro_bias_dps - c * t.rate_b_dps).norm() < 1e-4);
+    }
+    let moving = samples.iter().filter(|(_, t)| t.rate_b_dps.norm() > 10.0).count();
+    assert!(moving > 40, "the servo must turn for the readings to show the scale: {moving}");
+    let mean = samples.iter().map(|(_, t)| cfg.delta_temp_c(t.t_s)).sum::<f64>() / samples.len() as f64;
+    assert!(mean > 0.5, "{mean}");
+    let k = rig.truth().gyro_k;
+    assert!((k * cfg.gyro.matrix_at(mean) - Matrix3::identity()).norm() < 1e-9);
+    assert!((k * cfg.gyro.matrix() - Matrix3::identity()).norm() > 1e-4, "the scale did not move");
 }
 
 #[test]

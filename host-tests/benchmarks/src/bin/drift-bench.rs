@@ -1,5 +1,5 @@
 //! The firmware's procedure on the realistic rigs, whose gyro bias moves
-//! (`RigConfig::drifting`: warm-up after power-on, tempco, random walk, Earth rate), on the same
+//! (`RigConfig::drifting`: warm-up after power-on, bias and scale tempco, random walk, Earth rate), on the same
 //! rigs with a constant bias (`RigConfig::constant_bias`), and on the same drifting rigs started
 //! after a warm-up wait (the board powered `--wait-s` longer before the button): calibrate at once
 //! with the tracked bias, or wait. Both plans: one servo + hand-held poses (`Config::DEFAULT`)

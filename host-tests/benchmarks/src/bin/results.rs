@@ -279,7 +279,7 @@ fn drift_section(j: &Value) -> String {
         "## Drift
 
 `drift-bench` (seed {}, {} rigs per row): the firmware's procedure with the gyro bias constant, drifting as on a \
-         board just powered up (warm-up, tempco, random walk, Earth rate; the bias tracked between rests), and drifting after a \
+         board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from the button to the store plus the wait; the bias's temperature coefficient: the runs \
          that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth.\n\n\
          | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ |\n|---|---|---|---|---|---|---|---|---|\n",

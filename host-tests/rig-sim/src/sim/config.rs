@@ -161,7 +161,8 @@ impl RigConfig {
     /// starting U(5, 30) s after power-on (the user plugs the board in, then presses the
     /// button); a zero-rate tempco of U(0.03, 0.05) °/s/°C per axis with a random sign (ST's
     /// I3G4250D: ±0.03 °/s/°C; x-io measured 0.015 on a BMI088); a bias rate random walk of
-    /// 5e-4 °/s/√s; the Earth's rotation at a latitude U(−60°, 60°). Replaces the linear
+    /// 5e-4 °/s/√s; the Earth's rotation at a latitude U(−60°, 60°); each gyro axis' scale
+    /// moving by U(±0.02 %)/°C (a datasheet-class sensitivity tempco). Replaces the linear
     /// temperature drift.
     pub fn drifting(mut self, rng: &mut impl Rng) -> Self {
         self.warmup = Some(Warmup {
@@ -176,6 +177,7 @@ impl RigConfig {
         }
         self.bias_rw_dps_rtsec = 5e-4;
         self.latitude_deg = Some(rng.random_range(-60.0..60.0));
+        self.gyro.scale_tempco_per_c = Vector3::from_fn(|_, _| rng.random_range(-2e-4..2e-4));
         self
     }
 

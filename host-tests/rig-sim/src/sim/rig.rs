@@ -36,7 +36,8 @@ pub struct Truth {
     pub t_s: f64,
     /// True spacing from the previous sample (s).
     pub dt_s: f64,
-    /// Gyro scale matrix `K = C_g⁻¹`: `ω = K (g − b)`.
+    /// Gyro scale matrix `K = C_g⁻¹`: `ω = K (g − b)`, at the mean temperature of the samples
+    /// so far ([`Rig::mean_delta_temp_c`]; the scale moves with temperature).
     pub gyro_k: Matrix3<f64>,
     /// Gyro bias at the current temperature (raw deg/s: the reading at rest).
     pub gyro_bias_dps: Vector3<f64>,
@@ -94,6 +95,8 @@ pub struct Rig {
     /// The bias random walk's state (deg/s) and its stream.
     bias_walk: Vector3<f64>,
     walk_rng: ChaCha8Rng,
+    /// Sum of the temperature changes (°C) at the samples so far, and their count.
+    temp_sum: (f64, u64),
 }
 
 impl Rig {
@@ -137,6 +140,7 @@ impl Rig {
             event_rng: stream(4),
             bias_walk: Vector3::zeros(),
             walk_rng: stream(6),
+            temp_sum: (0.0, 0),
         };
         rig.force_b = rig.specific_force(&rig.q_wb);
         rig
@@ -243,6 +247,7 @@ impl Rig {
         let (cfg, rng) = (&self.cfg, &mut self.noise_rng);
         let odr = cfg.actual_odr_hz();
         let delta_temp_c = cfg.delta_temp_c(t_s);
+        self.temp_sum = (self.temp_sum.0 + delta_temp_c, self.temp_sum.1 + 1);
         // Inertial rate: the rig's motion in W plus the Earth's rotation, in the body frame.
         let rate_dps = (self.rate_b + q_wb.inverse() * cfg.earth_rate_w()).map(f64::to_degrees);
         let (gyro_dps, gyro_saturated) = cfg.gyro.measure(&rate_dps, delta_temp_c, &self.bias_walk, odr, rng);
@@ -267,13 +272,23 @@ impl Rig {
         self.t_s
     }
 
+    /// Mean temperature change (°C) over the samples so far: the temperature a calibration
+    /// from them holds for (its scale is their average).
+    pub fn mean_delta_temp_c(&self) -> f64 {
+        if self.temp_sum.1 == 0 {
+            0.0
+        } else {
+            self.temp_sum.0 / self.temp_sum.1 as f64
+        }
+    }
+
     /// The simulator's truth now: K, biases, attitude, axis (for scoring, never for the estimators).
     pub fn truth(&self) -> Truth {
         let delta_temp_c = self.cfg.delta_temp_c(self.t_s);
         Truth {
             t_s: self.t_s,
             dt_s: self.dt_s,
-            gyro_k: self.cfg.gyro.matrix().try_inverse().expect("gyro matrix is singular"),
+            gyro_k: self.cfg.gyro.matrix_at(self.mean_delta_temp_c()).try_inverse().expect("gyro matrix is singular"),
             gyro_bias_dps: self.cfg.gyro.bias_at(delta_temp_c) + self.bias_walk,
             accel_c: self.cfg.accel.matrix(),
             accel_offset_g: self.cfg.accel.offset_g,

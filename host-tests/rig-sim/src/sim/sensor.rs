@@ -64,6 +64,8 @@ pub struct GyroSensor {
     pub bias_dps: Vector3<f64>,
     /// Bias change per °C away from the initial temperature (deg/s/°C).
     pub bias_tempco_dps_per_c: Vector3<f64>,
+    /// Relative change of each axis' scale per °C away from the initial temperature (1/°C).
+    pub scale_tempco_per_c: Vector3<f64>,
     /// White rate-noise density (deg/s/√Hz); RMS per sample = density · √(ODR/2).
     pub noise_dps_rthz: f64,
     /// Round to whole LSBs (the real output); false keeps the exact value (saturation still applies).
@@ -79,13 +81,14 @@ impl GyroSensor {
             misalignment: Matrix3::zeros(),
             bias_dps: Vector3::zeros(),
             bias_tempco_dps_per_c: Vector3::zeros(),
+            scale_tempco_per_c: Vector3::zeros(),
             noise_dps_rthz: 0.0,
             quantize: false,
         }
     }
 
     /// Scale U(0.97, 1.03), bias U(−3, 3) deg/s, misalignment U(−0.2°, 0.2°),
-    /// tempco U(−0.01, 0.01) deg/s/°C, 0.008 deg/s/√Hz, quantised, ±500 dps.
+    /// tempco U(−0.01, 0.01) deg/s/°C, no scale tempco, 0.008 deg/s/√Hz, quantised, ±500 dps.
     pub fn realistic(rng: &mut impl Rng) -> Self {
         Self {
             range: GyroRange::Dps500,
@@ -93,14 +96,21 @@ impl GyroSensor {
             misalignment: misalignment(rng, 0.2),
             bias_dps: uniform3(rng, -3.0, 3.0),
             bias_tempco_dps_per_c: uniform3(rng, -0.01, 0.01),
+            scale_tempco_per_c: Vector3::zeros(),
             noise_dps_rthz: 0.008,
             quantize: true,
         }
     }
 
-    /// `C_g`: raw bias-free reading per true body rate.
+    /// `C_g`: raw bias-free reading per true body rate, at the initial temperature.
     pub fn matrix(&self) -> Matrix3<f64> {
-        (Matrix3::identity() + self.misalignment) * Matrix3::from_diagonal(&self.scale)
+        self.matrix_at(0.0)
+    }
+
+    /// `C_g` `delta_temp_c` °C away from the initial temperature.
+    pub fn matrix_at(&self, delta_temp_c: f64) -> Matrix3<f64> {
+        let scale = self.scale.component_mul(&self.scale_tempco_per_c.map(|c| 1.0 + c * delta_temp_c));
+        (Matrix3::identity() + self.misalignment) * Matrix3::from_diagonal(&scale)
     }
 
     /// Bias (deg/s) `delta_temp_c` °C away from the initial temperature.
@@ -119,7 +129,7 @@ impl GyroSensor {
         rng: &mut impl Rng,
     ) -> ([f32; 3], bool) {
         let noise = gaussian3(rng) * self.noise_dps_rthz * (odr_hz / 2.0).sqrt();
-        let g = self.matrix() * rate_b_dps + self.bias_at(delta_temp_c) + walk_dps + noise;
+        let g = self.matrix_at(delta_temp_c) * rate_b_dps + self.bias_at(delta_temp_c) + walk_dps + noise;
         digitize(&g, self.range.lsb_dps(), self.quantize)
     }
 }
