@@ -6,6 +6,7 @@ use crate::axis::turn_deg;
 use crate::bias::Drift;
 use crate::full::FullCal;
 use crate::gyro::GyroCal;
+use crate::rotation::Rotations;
 use crate::vec3::to_f64 as v64;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
@@ -88,13 +89,15 @@ pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 
 /// A solve's error as the user must read it: [`Error::MovesInconsistent`] becomes
 /// [`Error::BiasDrifting`] when a rest's bias left the trend of its neighbours by more than
-/// [`MAX_OFF_TREND_DPS`]. A slip moves the board, not the bias: it stays `MovesInconsistent`
-/// (or `AxisNotFixed`).
-pub fn blame(e: Error, drift: &Drift) -> Error {
+/// [`MAX_OFF_TREND_DPS`], and [`Error::RotationAxesCoplanar`] does when the hand-held moves
+/// dropped for a changing bias are why too few are left ([`Rotations::drift_error`]). A slip
+/// moves the board, not the bias: it stays `MovesInconsistent` (or `AxisNotFixed`).
+pub fn blame(e: Error, drift: &Drift, rotations: Option<&Rotations>) -> Error {
     match e {
         Error::MovesInconsistent { .. } if drift.off_trend_dps() > MAX_OFF_TREND_DPS => {
             Error::BiasDrifting { off_trend_dps: drift.off_trend_dps(), limit_dps: MAX_OFF_TREND_DPS, dps_per_min: drift.dps_per_min() }
         }
+        Error::RotationAxesCoplanar { .. } => rotations.and_then(Rotations::drift_error).unwrap_or(e),
         e => e,
     }
 }
@@ -204,18 +207,18 @@ mod tests {
         for i in 0..10 {
             smooth.add(rest(4.0 * i as f64, 0.02 * i as f32));
         }
-        assert_eq!(blame(inconsistent, &smooth), inconsistent);
+        assert_eq!(blame(inconsistent, &smooth, None), inconsistent);
         // One rest 0.08 °/s off the line of its neighbours: the bias.
         let mut uneven = smooth;
         uneven.add(rest(40.0, 0.28));
         uneven.add(rest(44.0, 0.22));
-        match blame(inconsistent, &uneven) {
+        match blame(inconsistent, &uneven, None) {
             Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => {
                 assert!((off_trend_dps - 0.08).abs() < 1e-4 && limit_dps == MAX_OFF_TREND_DPS && dps_per_min > 0.25);
             }
             e => panic!("{e:?}"),
         }
         // Other errors are never renamed.
-        assert_eq!(blame(Error::NoUsableMove, &uneven), Error::NoUsableMove);
+        assert_eq!(blame(Error::NoUsableMove, &uneven, None), Error::NoUsableMove);
     }
 }

@@ -159,6 +159,8 @@ pub struct BiasJump {
     pub dps: f32,
     /// The same per minute between the two rests (°/s/min).
     pub dps_per_min: f32,
+    /// The limit it exceeded ([`RotationLimits::max_bias_change_dps`], °/s).
+    pub limit_dps: f32,
 }
 
 impl Default for Rotations {
@@ -324,7 +326,7 @@ impl Rotations {
                 let dps = (a - b).amax() as f32;
                 let dt_s = (rb.t_s - ra.t_s).abs().max(1e-3) as f32;
                 if self.bias_jump.is_none_or(|j| dps > j.dps) {
-                    self.bias_jump = Some(BiasJump { dps, dps_per_min: 60.0 * dps / dt_s });
+                    self.bias_jump = Some(BiasJump { dps, dps_per_min: 60.0 * dps / dt_s, limit_dps: limits.max_bias_change_dps });
                 }
             }
             self.chunks.truncate(o.first);
@@ -338,9 +340,20 @@ impl Rotations {
         self.rejected
     }
 
-    /// The largest bias change of the moves rejected as [`Rejected::BiasDrifted`], if any.
-    pub fn bias_jump(&self) -> Option<BiasJump> {
-        self.bias_jump
+    /// Moves kept plus those dropped for a changing bias ([`Rejected::BiasDrifted`]).
+    pub fn moves_before_drift(&self) -> usize {
+        self.moves.len() + self.rejected[Rejected::BiasDrifted as usize] as usize
+    }
+
+    /// [`Error::BiasDrifting`] (with the largest change) when the moves dropped for a changing
+    /// bias are why fewer than three are left: the drift, not the poses, is the cause.
+    pub fn drift_error(&self) -> Option<Error> {
+        let j = self.bias_jump?;
+        (self.moves.len() < 3 && self.moves_before_drift() >= 3).then_some(Error::BiasDrifting {
+            off_trend_dps: j.dps,
+            limit_dps: j.limit_dps,
+            dps_per_min: j.dps_per_min,
+        })
     }
 
     /// The kept moves.
@@ -457,6 +470,34 @@ impl Rotations {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Three 30° moves whose rests disagree on the bias by 0.3 °/s (> 0.2): all dropped, and the
+    /// shortage is named as the drift, with the largest change and its rate.
+    #[test]
+    fn moves_dropped_for_a_changing_bias_are_named_as_drift() {
+        let lim = RotationLimits::DEFAULT;
+        let mut r = Rotations::new();
+        for i in 0..4u8 {
+            let t0 = 10.0 * f64::from(i);
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
+            if i > 0 {
+                r.begin(i - 1);
+                for k in 0..100 {
+                    r.add(t0 - 5.0 + 0.01 * f64::from(k), [30.0, 0.0, 0.0], false);
+                }
+                assert_eq!(r.end(i, &lim), Err(Rejected::BiasDrifted));
+            }
+        }
+        assert_eq!((r.moves().len(), r.moves_before_drift()), (0, 3));
+        match r.drift_error() {
+            Some(Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min }) => {
+                assert!((off_trend_dps - 0.3).abs() < 1e-5 && limit_dps == 0.2 && (dps_per_min - 1.8).abs() < 1e-4);
+            }
+            e => panic!("{e:?}"),
+        }
+        // Bias steady: nothing dropped, nothing to blame.
+        assert_eq!(Rotations::new().drift_error(), None);
+    }
 
     #[test]
     fn exp_and_its_right_jacobian_match_finite_differences() {

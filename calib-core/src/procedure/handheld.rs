@@ -63,20 +63,10 @@ impl Procedure {
             return;
         }
         // The hand-held moves must turn about three dimensions to give the full K.
+        // (Counting the moves dropped for a changing bias: `fail` names the drift then.)
         let spread = self.rotations.axis_spread();
-        let drifted = self.rotations.rejected()[crate::rotation::Rejected::BiasDrifted as usize] as usize;
-        let kept = self.rotations.moves().len();
-        if kept + drifted >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
-            // Too few moves left because the bias changed between their rests: the drift is
-            // the cause to name, not the user's choice of poses.
-            return self.fail(match self.rotations.bias_jump() {
-                Some(j) if kept < 3 => Error::BiasDrifting {
-                    off_trend_dps: j.dps,
-                    limit_dps: self.cfg.rotation.max_bias_change_dps,
-                    dps_per_min: j.dps_per_min,
-                },
-                _ => Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread },
-            });
+        if self.rotations.moves_before_drift() >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
+            return self.fail(Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread });
         }
         match self.fit_accel() {
             Ok(()) => {

@@ -576,7 +576,7 @@ impl Procedure {
     }
 
     fn fail(&mut self, e: Error) {
-        let e = pipeline::blame(e, &self.drift);
+        let e = pipeline::blame(e, &self.drift, Some(&self.rotations));
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });

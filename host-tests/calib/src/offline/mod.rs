@@ -320,7 +320,7 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
         }
         axes.solve_with(&cfg.full, with_rotations)
             .and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
-            .map_err(|e| pipeline::blame(e, &drift))
+            .map_err(|e| pipeline::blame(e, &drift, Some(&rotations)))
     });
     let lim = cfg.geometry;
     let sweep = sweep::solve(&poses, &moves, &lim);
