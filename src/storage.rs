@@ -7,33 +7,13 @@
 //! magic and field checks of `calib_core::record`).
 
 pub use calib_core::record::StoreError;
-use calib_core::record::{DecodeError, Record, LEN};
+use calib_core::record::{Record, LEN};
+pub use calib_core::region::{Slot, SLOTS};
 use embedded_storage::nor_flash::NorFlash;
-
-/// Number of slots.
-pub const SLOTS: usize = 2;
-
-/// What a slot holds.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[allow(clippy::large_enum_variant)] // a value read once per load or store; no heap to box it in
-pub enum Slot {
-    /// Erased flash.
-    Empty,
-    /// A valid record.
-    Valid(Record),
-    /// Not a valid record (torn write, corruption, unknown version).
-    Invalid(DecodeError),
-}
 
 /// The two record slots in a flash region (offsets relative to the driver's region).
 pub struct Storage<F> {
     flash: F,
-}
-
-/// `true` when `a` is a later sequence number than `b` (wrapping).
-fn newer(a: u32, b: u32) -> bool {
-    (a.wrapping_sub(b) as i32) > 0
 }
 
 impl<F: NorFlash> Storage<F> {
@@ -58,13 +38,7 @@ impl<F: NorFlash> Storage<F> {
     pub fn slot(&mut self, slot: usize) -> Result<Slot, StoreError> {
         let mut buf = [0u8; LEN];
         self.flash.read(Self::offset(slot), &mut buf).map_err(|_| StoreError::Flash)?;
-        if buf.iter().all(|&b| b == 0xFF) {
-            return Ok(Slot::Empty);
-        }
-        Ok(match Record::decode(&buf) {
-            Ok(r) => Slot::Valid(r),
-            Err(e) => Slot::Invalid(e),
-        })
+        Ok(Slot::of(&buf))
     }
 
     /// Both slots.
@@ -72,17 +46,9 @@ impl<F: NorFlash> Storage<F> {
         Ok([self.slot(0)?, self.slot(1)?])
     }
 
-    /// The newest valid record and its slot, if any.
+    /// The newest valid record and its slot, if any ([`calib_core::region::newest`]).
     pub fn load(&mut self) -> Result<Option<(usize, Record)>, StoreError> {
-        let mut best: Option<(usize, Record)> = None;
-        for (i, s) in self.slots()?.into_iter().enumerate() {
-            if let Slot::Valid(r) = s {
-                if best.is_none_or(|(_, b)| newer(r.seq, b.seq)) {
-                    best = Some((i, r));
-                }
-            }
-        }
-        Ok(best)
+        Ok(calib_core::region::newest(&self.slots()?))
     }
 
     /// Stores `rec` in the slot not holding the newest valid record; returns that slot.

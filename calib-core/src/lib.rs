@@ -63,6 +63,7 @@ pub mod pipeline;
 pub mod procedure;
 pub mod protocol;
 pub mod record;
+pub mod region;
 pub mod rest;
 pub mod rotation;
 pub mod stats;
