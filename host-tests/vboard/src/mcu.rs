@@ -722,6 +722,13 @@ impl Mcu {
         Ok(())
     }
 
+    /// Where the CPU is, for a fault message: PC, LR, SP and the last block entered.
+    fn cpu_at(&self) -> String {
+        let reg = |r| self.uc.reg_read(r).unwrap_or(0);
+        let (pc, lr, sp) = (reg(RegisterARM::PC), reg(RegisterARM::LR), reg(RegisterARM::SP));
+        format!("at PC 0x{pc:08X} (LR 0x{lr:08X}, SP 0x{sp:08X}, last block at 0x{:08X})", self.periph.borrow().pc.get())
+    }
+
     /// Runs until virtual time `t_end` (s), or a fault or power cut.
     pub fn run_until(&mut self, t_end: f64) -> Stop {
         // A CPU that neither executes nor lets time pass (an exception it cannot take, code
@@ -733,12 +740,7 @@ impl Mcu {
             if now_mark == mark {
                 stuck += 1;
                 if stuck >= STUCK_TURNS {
-                    let reg = |r| self.uc.reg_read(r).unwrap_or(0);
-                    let (pc, lr, sp) = (reg(RegisterARM::PC), reg(RegisterARM::LR), reg(RegisterARM::SP));
-                    let block = self.periph.borrow().pc.get();
-                    return Stop::Fault(format!(
-                        "the CPU makes no progress at PC 0x{pc:08X} (LR 0x{lr:08X}, SP 0x{sp:08X}, last block at 0x{block:08X})"
-                    ));
+                    return Stop::Fault(format!("the CPU makes no progress {}", self.cpu_at()));
                 }
             } else {
                 (stuck, mark) = (0, now_mark);
@@ -814,11 +816,7 @@ impl Mcu {
                     }
                     continue;
                 }
-                let reg = |r| self.uc.reg_read(r).unwrap_or(0);
-                let (lr, sp, block) = (reg(RegisterARM::LR), reg(RegisterARM::SP), self.periph.borrow().pc.get());
-                return Stop::Fault(format!(
-                    "emulation error {e:?} at PC 0x{pc:08X} (LR 0x{lr:08X}, SP 0x{sp:08X}, last block at 0x{block:08X})"
-                ));
+                return Stop::Fault(format!("emulation error {e:?} {}", self.cpu_at()));
             }
             let pc = self.uc.reg_read(RegisterARM::PC).unwrap_or(0);
             if pc >= 0xFFFF_FF00 {
