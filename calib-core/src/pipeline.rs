@@ -2,12 +2,14 @@
 //! call these, so that they choose, gate and reject alike.
 
 use crate::accel::{AccelCal, AccelCalibrator};
-use crate::axis::turn_deg;
+use crate::axis::{turn_deg, GeometryLimits, Poses};
 use crate::bias::Drift;
-use crate::full::FullCal;
+use crate::full::{Axes, FullCal, FullLimits};
 use crate::gyro::GyroCal;
-use crate::rotation::Rotations;
+use crate::rotation::{RotationLimits, Rotations};
+use crate::sweep::Moves;
 use crate::vec3::to_f64 as v64;
+use crate::{paper, sweep};
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -58,6 +60,55 @@ pub fn validate(cal: &GyroCal, acc: &Acceptance) -> Result<(), Error> {
         }
     }
     Ok(())
+}
+
+/// What a one-servo rig gives (its calibrated poses and the moves between them about the one
+/// axis, the paper's spin when there was one, the hand-held moves when there were any): each
+/// estimator's outcome, and with hand-held moves the full `K`.
+#[derive(Debug, Clone, Copy)]
+pub struct OneAxis {
+    /// The speed-free sweep estimator.
+    pub sweep: Result<GyroCal, Error>,
+    /// The paper's estimator (`None` without a spin).
+    pub paper: Option<Result<GyroCal, Error>>,
+    /// With hand-held moves: the full `K` from the rig's axis and their rotation constraints
+    /// (not yet validated).
+    pub full: Option<Result<FullCal, Error>>,
+}
+
+impl OneAxis {
+    /// Solves a one-servo rig. `spin`: the spin's mean bias-corrected rate (°/s, sensor frame)
+    /// and the shaft rate (°/s); `rotations`: the hand-held moves (`None` or none kept: no full
+    /// `K`). `axes` is scratch for the full solve, started at the diagonal of the one-axis result.
+    pub fn solve(
+        poses: &Poses,
+        moves: &Moves,
+        spin: Option<(Vec3, f32)>,
+        rotations: Option<(&Rotations, &RotationLimits)>,
+        limits: (&GeometryLimits, &FullLimits),
+        axes: &mut Axes,
+    ) -> Self {
+        let sweep = sweep::solve(poses, moves, limits.0);
+        let paper = spin.map(|(g, w)| paper::solve(poses, g, w, limits.0));
+        let full = rotations.filter(|(r, _)| !r.moves().is_empty()).map(|rot| {
+            let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
+            axes.clear();
+            for p in poses.iter() {
+                axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
+            }
+            for m in moves.as_slice() {
+                axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
+            }
+            let start = start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64));
+            axes.solve_from(limits.1, Some(rot), start)
+        });
+        OneAxis { sweep, paper, full }
+    }
+
+    /// The diagonal result to store when there is no full `K`: [`choose`]n and [`validate`]d.
+    pub fn chosen(&self, acc: &Acceptance) -> Result<GyroCal, Error> {
+        choose(self.sweep, self.paper).and_then(|c| validate(&c, acc).map(|_| c))
+    }
 }
 
 /// Largest accepted cross-axis term of a full `K` (|K_ij|, i ≠ j): low-cost MEMS couple ≈ 1 %.

@@ -36,15 +36,15 @@ use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::axis::Poses;
 use crate::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::full::{Axes, FullAxis, FullCal};
-use crate::gyro::{GyroCal, Method};
-use crate::pipeline::GravityTurn;
+use crate::gyro::Method;
+use crate::pipeline::{GravityTurn, OneAxis};
 use crate::record::{self, Record, SensorSetup, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
 use crate::rotation::{Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
-use crate::{paper, pipeline, sweep, Error, Vec3};
+use crate::{pipeline, sweep, Error, Vec3};
 use heapless::Deque;
 
 /// One IMU sample as the shell delivers it.

@@ -87,10 +87,10 @@ impl Procedure {
     }
 
     pub(super) fn solve(&mut self, t_s: f64) {
-        let lim = self.cfg.geometry;
-        let sweep = sweep::solve(&self.poses, &self.moves, &lim);
-        let paper = self.gbar.map(|(g, w)| paper::solve(&self.poses, g, w, &lim));
-        for (method, r) in [(Method::Sweep, Some(sweep)), (Method::Paper, paper)] {
+        let rotations = Some((&self.rotations, &self.cfg.rotation));
+        let limits = (&self.cfg.geometry, &self.cfg.full);
+        let solved = OneAxis::solve(&self.poses, &self.moves, self.gbar, rotations, limits, &mut self.axes);
+        for (method, r) in [(Method::Sweep, Some(solved.sweep)), (Method::Paper, solved.paper)] {
             match r {
                 Some(Ok(cal)) => self.push(Command::Report(Report::Gyro(cal))),
                 Some(Err(error)) => self.push(Command::Report(Report::EstimatorFailed { method, error })),
@@ -98,35 +98,20 @@ impl Procedure {
             }
         }
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
-        if !self.rotations.moves().is_empty() {
-            let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
-            let full = self.full_from_rotations(start);
+        if let Some(full) = solved.full {
             // Each move's misfit at the solution (none without one).
             let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k));
             let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
             self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
             return self.store_full(full, t_s);
         }
-        let chosen = match pipeline::choose(sweep, paper).and_then(|c| pipeline::validate(&c, &self.cfg.acceptance).map(|_| c)) {
-            Ok(c) => c,
-            Err(e) => return self.fail(e),
-        };
-        let record = self.context().one_axis(&chosen);
-        self.store(record, t_s);
-    }
-
-    /// The full `K` from the rig's poses and moves (one axis) and the hand-held rotations,
-    /// Gauss–Newton started at the diagonal `K` of the one-axis estimator when there is one.
-    pub(super) fn full_from_rotations(&mut self, start: Option<&GyroCal>) -> Result<FullCal, Error> {
-        self.axes.clear();
-        for p in self.poses.iter() {
-            self.axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
+        match solved.chosen(&self.cfg.acceptance) {
+            Ok(c) => {
+                let record = self.context().one_axis(&c);
+                self.store(record, t_s);
+            }
+            Err(e) => self.fail(e),
         }
-        for m in self.moves.as_slice() {
-            self.axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
-        }
-        let start = start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64));
-        self.axes.solve_from(&self.cfg.full, Some((&self.rotations, &self.cfg.rotation)), start)
     }
 
     /// Hands a built record to the shell to store (or fails: a NaN or an infinite number).

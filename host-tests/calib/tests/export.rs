@@ -99,7 +99,11 @@ fn exact_record() -> Record {
         residual_rms: 0.015625,
         non_coplanar_deg: 54.125,
         setup: SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 },
-        tempco: Some(TempCo { dps_per_c: [0.03125, -0.046875, 0.015625], sigma_dps_per_c: [0.0025, 0.0015, 0.002], range_c: [24.0, 27.5] }),
+        tempco: Some(TempCo {
+            dps_per_c: [0.03125, -0.046875, 0.015625],
+            sigma_dps_per_c: [0.015625, 0.03125, 0.0625],
+            range_c: [24.0, 27.5],
+        }),
     }
 }
 

@@ -16,15 +16,17 @@ use calib_core::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
 use calib_core::record::{self, Record};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
-use calib_core::rotation::Rotations;
+use calib_core::rotation::{RotationLimits, Rotations};
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};
+use calib_core::Vec3;
 use calib_core::{full, paper, pipeline, sweep, Error};
 use nalgebra::Vector3;
 use serde::Serialize;
 
 mod checks;
+mod driven;
 mod output;
 mod phases;
 
@@ -158,222 +160,40 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows, stored) {
-            if !time_base.lsm9ds1_odr {
-                let hint = "a run of the firmware samples at an LSM9DS1 output data rate: samples missing or duplicated";
-                return Err(OfflineError::TimeBase { rate_hz: time_base.rate_hz, hint });
-            }
-            let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
-                (Some(e), _) => Err(e),
-                (None, Ok(c)) => Ok(c),
-                (None, Err(error)) => Err(OfflineError::Calib { stage: "the firmware's procedure", error }),
-            };
-            if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
-                return Err(e);
-            }
-            let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
-            return Ok(Calibration {
-                gyro,
-                full: r.full,
-                bias: r.bias,
-                accel: r.accel,
-                sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
-                paper: r.paper,
-                spin_rate: None,
-                rig_poses: q.map_or(0, |q| q.poses as usize),
-                moves: q.map_or(0, |q| q.rows as usize),
-                handheld_poses: r.accel.poses as usize,
-                replayed: Some(r.config),
-                replayed_record: r.record,
-                time_base,
-                phases: ph,
-            });
+            return replayed(r, time_base, ph);
         }
     }
-    // Bias: every still segment pooled.
-    let mut b = BiasEstimator::new();
-    for s in &ph.segments {
-        b.add_window(&s.gyro, &s.accel);
-    }
-    let cfg = &CONFIG;
-    let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
-    let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
+    driven::calibrate(rows, method, rotations_on, time_base, ph)
+}
 
-    // Rig poses by tilt setting: each setting turns about its own pan axis.
-    let rig: Vec<&Segment> = ph.segments.iter().filter(|s| s.is_rig_pose()).collect();
-    let mut settings: Vec<(i32, usize)> = vec![];
-    for s in &rig {
-        match settings.iter_mut().find(|(t, _)| *t == s.tilt_setting()) {
-            Some((_, n)) => *n += 1,
-            None => settings.push((s.tilt_setting(), 1)),
-        }
+/// The calibration of a replayed run of the firmware: its procedure's results.
+fn replayed(r: crate::replay::Replay, time_base: TimeBase, ph: Phases) -> Result<Calibration, OfflineError> {
+    if !time_base.lsm9ds1_odr {
+        let hint = "a run of the firmware samples at an LSM9DS1 output data rate: samples missing or duplicated";
+        return Err(OfflineError::TimeBase { rate_hz: time_base.rate_hz, hint });
     }
-    let pan_tilt = settings.len() >= 2;
-
-    // Accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
-    // (spread over pan × tilt, they are no cone).
-    let mut acc = AccelCalibrator::new();
-    for s in ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
-        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
-            break;
-        }
-    }
-    let acceptance = cfg.acceptance;
-    let accel = match acc.len() {
-        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &acceptance).map_err(stage("accelerometer"))?,
-        _ => AccelCal::IDENTITY,
-    };
-    // Every still segment measures the bias anew: a move loses the bias tracked between the
-    // rests that bound it.
-    let rest = |s: &Segment| RestBias::new(rows[s.first].t_s, rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), bias.bias_dps);
-    let mut drift = Drift::new();
-    for s in &ph.segments {
-        drift.add(rest(s));
-    }
-    let gamma = |from: &Segment, to: &Segment| {
-        let mut it = Integrator::new();
-        for r in &rows[from.last..=to.last] {
-            it.add(r.t_s, sub(r.gyro_dps, bias.bias_dps));
-        }
-        it.gamma_tracked(&rest(from), &rest(to))
-    };
-
-    // One axis (the most populated tilt setting): rig poses and the moves between consecutive
-    // ones, for the diagonal estimators.
-    let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
-    let mut poses = Poses::new();
-    let mut moves = Moves::new();
-    let mut prev: Option<(u8, &Segment)> = None;
-    for s in &ph.segments {
-        if !s.is_rig_pose() || Some(s.tilt_setting()) != main_setting {
-            prev = None;
-            continue;
-        }
-        if poses.len() == MAX_POSES {
-            break;
-        }
-        let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
-        if let Some((from, p)) = prev {
-            if moves.len() < MAX_MOVES {
-                moves.push(from, idx, gamma(p, s)).map_err(stage("moves"))?;
-            }
-        }
-        prev = Some((idx, s));
-    }
-
-    // Rotation constraints: every move between two consecutive hand-held poses (calibrated
-    // gravity directions at both ends, the gyro integrated between them in chunks).
-    let rot_limits = cfg.rotation;
-    let mut rotations = Rotations::new();
-    let mut prev: Option<(u8, usize)> = None;
-    for s in &ph.segments {
-        if s.is_rig_pose() {
-            prev = None;
-            continue;
-        }
-        let sigma = s.accel.max_std_of_mean();
-        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, rest(s)) else { break };
-        if let Some((from, end)) = prev {
-            rotations.begin(from);
-            for r in &rows[end..=s.last] {
-                rotations.add(r.t_s, sub(r.gyro_dps, bias.bias_dps), r.gyro_dps.iter().any(|v| clipped(*v)));
-            }
-            let _ = rotations.end(idx, &rot_limits); // a rejected move is counted, not an error
-        }
-        prev = Some((idx, s.last));
-    }
-    rotations.calibrate_poses(&accel);
-    let with_rotations = (rotations_on && !rotations.moves().is_empty()).then_some((&rotations, &rot_limits));
-
-    // Pan/tilt: the full K from the pan moves of every setting and the tilt moves between them.
-    // A pan axis needs poses at ≥ 3 shaft angles (the plane through their tips). One servo: its
-    // axis and the rotation constraints. No servo: the rotation constraints alone.
-    let pan_angles = |setting: i32| {
-        let mut a: Vec<i32> =
-            rig.iter().filter(|s| s.tilt_setting() == setting).filter_map(|s| s.servo_deg).map(|d| d.round() as i32).collect();
-        a.sort_unstable();
-        a.dedup();
-        a.len()
-    };
-    // `--method paper|sweep` asks for that one-axis estimator alone.
-    let one_axis_only = matches!(method, Some(Method::Paper | Method::Sweep));
-    let full = (!one_axis_only && (pan_tilt || with_rotations.is_some())).then(|| {
-        let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
-        let mut axes = full::Axes::new();
-        let mut prev: Option<(&Segment, u8)> = None;
-        for s in &ph.segments {
-            if !s.is_rig_pose() {
-                prev = None;
-                continue;
-            }
-            let idx = axes.push_pose(accel.apply(s.accel.mean().map(|v| v as f32)))?;
-            if let Some((p, from)) = prev {
-                let (d_pan, d_tilt) =
-                    (s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0), (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0);
-                let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
-                if d_tilt == 0.0 && d_pan.abs() >= 1.0 && (pan_angles(s.tilt_setting()) >= 3 || !pan_tilt) {
-                    axes.push_move(axis, from, idx, d_pan, gamma(p, s))?;
-                } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
-                    axes.push_move(hinge, from, idx, d_tilt, gamma(p, s))?;
-                }
-            }
-            prev = Some((s, idx));
-        }
-        axes.solve_with(&cfg.full, with_rotations)
-            .and_then(|f| pipeline::validate_full(&f, &acceptance).map(|_| f))
-            .map_err(|e| pipeline::blame(e, &drift, Some(&rotations)))
-    });
-    let lim = cfg.geometry;
-    let sweep = sweep::solve(&poses, &moves, &lim);
-
-    // The paper's estimator on the steady spin, at the commanded rate when the servo column
-    // ramps linearly, else at the rate gravity turns about the axis.
-    let (mut paper, mut spin_rate) = (None, None);
-    if let Some(rot) = steady_spin(rows, bias.bias_dps, cfg.rest.window_s, &cfg.steady) {
-        let span = &rows[rot.rows.0..=rot.rows.1];
-        let mut gravity = GravityTurn::new(poses.geometry(&lim, false).ok().map(|g| g.u));
-        for r in span {
-            gravity.add(r.t_s, accel.apply(r.accel_g));
-        }
-        let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
-        if w > 0.0 {
-            // The spin's bias: the rest just before it.
-            let before = ph.segments.iter().rfind(|s| s.last < rot.rows.0).map_or([0.0; 3], |s| rest(s).residual_dps);
-            let gbar = sub(sub(rot.gyro.mean().map(|v| v as f32), bias.bias_dps), before);
-            paper = Some(paper::solve(&poses, gbar, w, &lim));
-            spin_rate = Some((w, source.name()));
-        }
-    }
-    let chosen = match method {
-        Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
-        Some(Method::Paper) => paper.ok_or(OfflineError::NoSpin).and_then(|p| p.map_err(stage("paper estimator"))),
-        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
-    };
-    // The firmware's acceptance: a result it would not store is not given either; a scale near
-    // a unit factor names the mistake.
-    let scale = implied_scale(chosen.as_ref().map_err(|e| match e {
-        OfflineError::Calib { error, .. } => error,
-        _ => &Error::NoUsableMove,
-    }));
-    let gyro = match scale.and_then(gyro_units) {
-        Some(e) => Err(e),
-        None => chosen.and_then(|c| pipeline::validate(&c, &acceptance).map(|_| c).map_err(stage("validation"))),
+    let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {
+        (Some(e), _) => Err(e),
+        (None, Ok(c)) => Ok(c),
+        (None, Err(error)) => Err(OfflineError::Calib { stage: "the firmware's procedure", error }),
     };
     if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
         return Err(e);
     }
+    let q = r.sweep.as_ref().and_then(|s| s.as_ref().ok()).map(|c| c.quality);
     Ok(Calibration {
         gyro,
-        full,
-        bias,
-        accel,
-        sweep,
-        paper,
-        spin_rate,
-        rig_poses: poses.len(),
-        moves: moves.len(),
-        handheld_poses: acc.len(),
-        replayed: None,
-        replayed_record: None,
+        full: r.full,
+        bias: r.bias,
+        accel: r.accel,
+        sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
+        paper: r.paper,
+        spin_rate: None,
+        rig_poses: q.map_or(0, |q| q.poses as usize),
+        moves: q.map_or(0, |q| q.rows as usize),
+        handheld_poses: r.accel.poses as usize,
+        replayed: Some(r.config),
+        replayed_record: r.record,
         time_base,
         phases: ph,
     })

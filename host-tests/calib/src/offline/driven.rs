@@ -1,0 +1,260 @@
+//! The data-driven path: a log that is not a run of the firmware's procedure (another tool's,
+//! another sensor's, `--no-rotations`, `--method`) turned into the inputs of calib-core's
+//! estimators from the phases found in it. The decisions (which estimator, which `K`, what is
+//! accepted, whom an error blames) are calib-core's [`pipeline`] ones, as in the firmware.
+
+use super::*;
+
+/// The log's phases with the bias they are corrected by.
+struct Log<'a> {
+    rows: &'a [Row],
+    ph: &'a Phases,
+    bias: Bias,
+}
+
+impl Log<'_> {
+    /// Every still segment measures the bias anew: a move loses the bias tracked between the
+    /// rests that bound it.
+    fn rest(&self, s: &Segment) -> RestBias {
+        RestBias::new(self.rows[s.first].t_s, self.rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), self.bias.bias_dps)
+    }
+
+    /// The bias-corrected gyro integrated from the end of `from` to the end of `to` (°, sensor
+    /// frame), the bias tracked between the two rests.
+    fn gamma(&self, from: &Segment, to: &Segment) -> [f64; 3] {
+        let mut it = Integrator::new();
+        for r in &self.rows[from.last..=to.last] {
+            it.add(r.t_s, sub(r.gyro_dps, self.bias.bias_dps));
+        }
+        it.gamma_tracked(&self.rest(from), &self.rest(to))
+    }
+
+    fn drift(&self) -> Drift {
+        let mut drift = Drift::new();
+        for s in &self.ph.segments {
+            drift.add(self.rest(s));
+        }
+        drift
+    }
+
+    fn rig(&self) -> impl Iterator<Item = &Segment> {
+        self.ph.segments.iter().filter(|s| s.is_rig_pose())
+    }
+}
+
+/// The tilt settings of the rig poses (0.5° steps) with their pose counts, in order of first use.
+fn settings(log: &Log) -> Vec<(i32, usize)> {
+    let mut settings: Vec<(i32, usize)> = vec![];
+    for s in log.rig() {
+        match settings.iter_mut().find(|(t, _)| *t == s.tilt_setting()) {
+            Some((_, n)) => *n += 1,
+            None => settings.push((s.tilt_setting(), 1)),
+        }
+    }
+    settings
+}
+
+/// Calibrates a log from its phases.
+pub(super) fn calibrate(
+    rows: &[Row],
+    method: Option<Method>,
+    rotations_on: bool,
+    time_base: TimeBase,
+    ph: Phases,
+) -> Result<Calibration, OfflineError> {
+    let cfg = &CONFIG;
+    // Bias: every still segment pooled, against the log's own noise floor.
+    let mut b = BiasEstimator::new();
+    for s in &ph.segments {
+        b.add_window(&s.gyro, &s.accel);
+    }
+    let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
+    let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
+    let log = Log { rows, ph: &ph, bias };
+    let settings = settings(&log);
+    let pan_tilt = settings.len() >= 2;
+
+    let (accel, handheld_poses) = accel(&log, pan_tilt)?;
+    let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
+    let (poses, moves) = one_axis_rig(&log, main_setting, &accel)?;
+    let rotations = rotations(&log, &accel);
+    let spin = spin(&log, &poses, &accel);
+
+    // `--method paper|sweep` asks for that one-axis estimator alone; `--no-rotations` leaves the
+    // hand-held moves out.
+    let one_axis_only = matches!(method, Some(Method::Paper | Method::Sweep));
+    let with_rotations = (rotations_on && !one_axis_only).then_some((&rotations, &cfg.rotation));
+    let (sweep, paper, full) = if pan_tilt {
+        let full = (!one_axis_only).then(|| pan_tilt_full(&log, &settings, &accel, with_rotations));
+        (sweep::solve(&poses, &moves, &cfg.geometry), spin.map(|(g, w, _)| paper::solve(&poses, g, w, &cfg.geometry)), full)
+    } else {
+        let mut axes = full::Axes::new();
+        let limits = (&cfg.geometry, &cfg.full);
+        let one = pipeline::OneAxis::solve(&poses, &moves, spin.map(|(g, w, _)| (g, w)), with_rotations, limits, &mut axes);
+        (one.sweep, one.paper, one.full)
+    };
+    let drift = log.drift();
+    let full = full.map(|f| {
+        f.and_then(|f| pipeline::validate_full(&f, &cfg.acceptance).map(|_| f)).map_err(|e| pipeline::blame(e, &drift, Some(&rotations)))
+    });
+    let chosen = match method {
+        Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
+        Some(Method::Paper) => paper.ok_or(OfflineError::NoSpin).and_then(|p| p.map_err(stage("paper estimator"))),
+        None => pipeline::choose(sweep, paper).map_err(stage("sweep estimator")),
+    };
+    // The firmware's acceptance: a result it would not store is not given either; a scale near
+    // a unit factor names the mistake.
+    let scale = implied_scale(chosen.as_ref().map_err(|e| match e {
+        OfflineError::Calib { error, .. } => error,
+        _ => &Error::NoUsableMove,
+    }));
+    let gyro = match scale.and_then(gyro_units) {
+        Some(e) => Err(e),
+        None => chosen.and_then(|c| pipeline::validate(&c, &cfg.acceptance).map(|_| c).map_err(stage("validation"))),
+    };
+    if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
+        return Err(e);
+    }
+    Ok(Calibration {
+        gyro,
+        full,
+        bias,
+        accel,
+        sweep,
+        paper,
+        spin_rate: spin.map(|(_, w, source)| (w, source)),
+        rig_poses: poses.len(),
+        moves: moves.len(),
+        handheld_poses,
+        replayed: None,
+        replayed_record: None,
+        time_base,
+        phases: ph,
+    })
+}
+
+/// The accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
+/// (spread over pan × tilt, they are no cone); identity below the six poses a fit needs. Also
+/// the number of poses used.
+fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, usize), OfflineError> {
+    let mut acc = AccelCalibrator::new();
+    for s in log.ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
+        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
+            break;
+        }
+    }
+    let cal = match acc.len() {
+        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &CONFIG.acceptance).map_err(stage("accelerometer"))?,
+        _ => AccelCal::IDENTITY,
+    };
+    Ok((cal, acc.len()))
+}
+
+/// One axis (the most populated tilt setting): its calibrated rig poses and the moves between
+/// consecutive ones, for the one-axis estimators.
+fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Poses, Moves), OfflineError> {
+    let (mut poses, mut moves) = (Poses::new(), Moves::new());
+    let mut prev: Option<(u8, &Segment)> = None;
+    for s in &log.ph.segments {
+        if !s.is_rig_pose() || Some(s.tilt_setting()) != setting {
+            prev = None;
+            continue;
+        }
+        if poses.len() == MAX_POSES {
+            break;
+        }
+        let idx = poses.push(accel.apply(s.accel.mean().map(|v| v as f32))).map_err(stage("rig poses"))?;
+        if let Some((from, p)) = prev {
+            if moves.len() < MAX_MOVES {
+                moves.push(from, idx, log.gamma(p, s)).map_err(stage("moves"))?;
+            }
+        }
+        prev = Some((idx, s));
+    }
+    Ok((poses, moves))
+}
+
+/// Rotation constraints: every move between two consecutive hand-held poses (calibrated gravity
+/// directions at both ends, the gyro integrated between them in chunks). A rejected move is
+/// counted, not an error.
+fn rotations(log: &Log, accel: &AccelCal) -> Rotations {
+    let mut rotations = Rotations::new();
+    let mut prev: Option<(u8, usize)> = None;
+    for s in &log.ph.segments {
+        if s.is_rig_pose() {
+            prev = None;
+            continue;
+        }
+        let sigma = s.accel.max_std_of_mean();
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, log.rest(s)) else { break };
+        if let Some((from, end)) = prev {
+            rotations.begin(from);
+            for r in &log.rows[end..=s.last] {
+                rotations.add(r.t_s, sub(r.gyro_dps, log.bias.bias_dps), r.gyro_dps.iter().any(|v| clipped(*v)));
+            }
+            let _ = rotations.end(idx, &CONFIG.rotation);
+        }
+        prev = Some((idx, s.last));
+    }
+    rotations.calibrate_poses(accel);
+    rotations
+}
+
+/// Pan/tilt: the full `K` (not yet validated) from the pan moves of every setting with poses at
+/// ≥ 3 shaft angles (the plane through their tips fixes its axis), the tilt moves between
+/// settings about the hinge, and the hand-held moves when asked.
+fn pan_tilt_full(
+    log: &Log,
+    settings: &[(i32, usize)],
+    accel: &AccelCal,
+    rotations: Option<(&Rotations, &RotationLimits)>,
+) -> Result<FullCal, Error> {
+    let pan_angles = |setting: i32| {
+        let mut a: Vec<i32> =
+            log.rig().filter(|s| s.tilt_setting() == setting).filter_map(|s| s.servo_deg).map(|d| d.round() as i32).collect();
+        a.sort_unstable();
+        a.dedup();
+        a.len()
+    };
+    let hinge = settings.len().min(full::MAX_AXES - 1) as u8;
+    let mut axes = full::Axes::new();
+    let mut prev: Option<(&Segment, u8)> = None;
+    for s in &log.ph.segments {
+        if !s.is_rig_pose() {
+            prev = None;
+            continue;
+        }
+        let idx = axes.push_pose(accel.apply(s.accel.mean().map(|v| v as f32)))?;
+        if let Some((p, from)) = prev {
+            let d_pan = s.servo_deg.unwrap_or(0.0) - p.servo_deg.unwrap_or(0.0);
+            let d_tilt = (s.tilt_setting() - p.tilt_setting()) as f32 / 2.0;
+            let axis = settings.iter().position(|(t, _)| *t == s.tilt_setting()).unwrap_or(0).min(full::MAX_AXES - 2) as u8;
+            if d_tilt == 0.0 && d_pan.abs() >= 1.0 && pan_angles(s.tilt_setting()) >= 3 {
+                axes.push_move(axis, from, idx, d_pan, log.gamma(p, s))?;
+            } else if d_pan.abs() < 0.5 && d_tilt.abs() >= 1.0 {
+                axes.push_move(hinge, from, idx, d_tilt, log.gamma(p, s))?;
+            }
+        }
+        prev = Some((s, idx));
+    }
+    axes.solve_with(&CONFIG.full, rotations)
+}
+
+/// The paper's constant-rate spin: its mean bias-corrected rate (°/s; the bias of the rest just
+/// before it removed), the shaft rate (°/s: commanded when the servo column ramps linearly,
+/// else the rate gravity turns about the rig's axis) and where that came from.
+fn spin(log: &Log, poses: &Poses, accel: &AccelCal) -> Option<(Vec3, f32, &'static str)> {
+    let cfg = &CONFIG;
+    let rot = steady_spin(log.rows, log.bias.bias_dps, cfg.rest.window_s, &cfg.steady)?;
+    let span = &log.rows[rot.rows.0..=rot.rows.1];
+    let mut gravity = GravityTurn::new(poses.geometry(&cfg.geometry, false).ok().map(|g| g.u));
+    for r in span {
+        gravity.add(r.t_s, accel.apply(r.accel_g));
+    }
+    let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
+    if w <= 0.0 {
+        return None;
+    }
+    let before = log.ph.segments.iter().rfind(|s| s.last < rot.rows.0).map_or([0.0; 3], |s| log.rest(s).residual_dps);
+    Some((sub(sub(rot.gyro.mean().map(|v| v as f32), log.bias.bias_dps), before), w, source.name()))
+}
