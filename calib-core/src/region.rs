@@ -3,10 +3,14 @@
 //! sequence number (wrapping) is the newest. The firmware's `storage` driver and a user's own
 //! firmware (which finds the pages at 0xF8000 after uploading over ours) decide alike.
 
-use crate::record::{DecodeError, Record, LEN};
+use crate::record::{DecodeError, NotFinite, Record, LEN};
 
 /// Record pages.
 pub const SLOTS: usize = 2;
+/// One record page (bytes): the nRF52840's flash erase page.
+pub const PAGE: usize = 4096;
+/// Where the two pages are in the Nano 33 BLE's flash (`memory.x`'s `STORAGE`).
+pub const ADDRESS: u32 = 0xF_8000;
 
 /// What a page holds.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,6 +66,14 @@ pub fn load(region: &[u8], page: usize) -> Option<(usize, Record)> {
     newest(&[Slot::of(&region[..page]), Slot::of(&region[page..2 * page])])
 }
 
+/// The two pages as the firmware's first store into erased flash leaves them: `rec` at the start
+/// of page A, every other byte erased (0xFF). A record with a NaN or an infinite field is refused.
+pub fn image(rec: &Record) -> Result<[u8; SLOTS * PAGE], NotFinite> {
+    let mut region = [0xFF; SLOTS * PAGE];
+    region[..LEN].copy_from_slice(&rec.encode()?);
+    Ok(region)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -69,7 +81,6 @@ mod tests {
 
     #[test]
     fn the_newest_valid_page_wins_across_the_sequence_wrap_and_garbage_is_never_loaded() {
-        const PAGE: usize = 4096;
         let page = |r: Option<Record>| {
             let mut p = [0xFFu8; PAGE];
             if let Some(r) = r {
@@ -90,5 +101,10 @@ mod tests {
         // Too short a region: nothing, not a panic.
         assert_eq!(load(&region(page(Some(new)), page(None))[..PAGE + 10], PAGE), None);
         assert_eq!(Slot::of(&[0xFF; 10]), Slot::Invalid(DecodeError::BadMagic));
+        // The image of one store: the record in page A, page B erased.
+        let img = image(&new).unwrap();
+        assert_eq!(load(&img, PAGE), Some((0, new)));
+        assert_eq!(Slot::of(&img[PAGE..]), Slot::Empty);
+        assert!(image(&Record { condition: f32::NAN, ..new }).is_err());
     }
 }

@@ -1,4 +1,4 @@
-//! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations] [--export c|json|rust]`:
+//! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations] [--export c|json|rust|record]`:
 //! calibrates a recorded log with calib-core and prints one JSON object. `calib --port PATH`:
 //! calibrates a board over its USB serial port, saves its log, prints its result and
 //! cross-checks it. `calib --help` says everything. (A log to try it on:
@@ -14,6 +14,7 @@ use calib_core::accel::AccelModel;
 use calib_core::export::{self, Format, RecordJson};
 use calib_core::gyro::Method;
 use calib_core::record::Record;
+use calib_core::region;
 use clap::{Parser, ValueEnum};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -65,7 +66,9 @@ struct Args {
     #[arg(long, value_name = "SECS", default_value_t = 600, requires = "port")]
     timeout: u64,
     /// Write the result as JSON (one line), a C snippet (arrays and gyrocal_apply()) or Rust
-    /// constants: to stdout instead of the usual output, or to --out.
+    /// constants: to stdout instead of the usual output, or to --out; `record`: the two record
+    /// pages (8 KiB) as they would be in the board's flash at 0xF8000 (needs --out), for the
+    /// GyroCal Arduino library's or calib_core::region's loader.
     #[arg(long, value_enum)]
     export: Option<ExportArg>,
     /// With --export: the file to write it to (the usual output stays on stdout).
@@ -84,28 +87,22 @@ enum ExportArg {
     C,
     Json,
     Rust,
-}
-
-impl From<ExportArg> for Format {
-    fn from(e: ExportArg) -> Format {
-        match e {
-            ExportArg::C => Format::C,
-            ExportArg::Json => Format::Json,
-            ExportArg::Rust => Format::Rust,
-        }
-    }
+    Record,
 }
 
 /// The export of `rec`: JSON through its serde schema ([`RecordJson`], the one the board writes
-/// by hand), C and Rust by `calib_core::export`.
-fn export_text(rec: &Record, format: ExportArg) -> Result<String, String> {
+/// by hand), C and Rust by `calib_core::export` (text, ending in a newline), the record pages by
+/// `calib_core::region::image`.
+fn export_bytes(rec: &Record, format: ExportArg) -> Result<Vec<u8>, String> {
     let failed = |e: &dyn std::fmt::Display| format!("--export: the record could not be written: {e}");
-    if let ExportArg::Json = format {
-        return serde_json::to_string(&RecordJson::from(rec)).map_err(|e| failed(&e));
-    }
     let mut text = String::new();
-    export::write(&mut text, rec, format.into()).map_err(|e| failed(&e))?;
-    Ok(text)
+    match format {
+        ExportArg::Record => return region::image(rec).map(|r| r.to_vec()).map_err(|e| failed(&e)),
+        ExportArg::Json => text = serde_json::to_string(&RecordJson::from(rec)).map_err(|e| failed(&e))?,
+        ExportArg::C => export::write(&mut text, rec, Format::C).map_err(|e| failed(&e))?,
+        ExportArg::Rust => export::write(&mut text, rec, Format::Rust).map_err(|e| failed(&e))?,
+    }
+    Ok((text + "\n").into_bytes())
 }
 
 /// Prints `usual` on stdout unless the export goes there instead; writes the export.
@@ -114,21 +111,21 @@ fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>)
         println!("{usual}");
         return Ok(());
     };
-    let text = export_text(rec, format)?;
+    let bytes = export_bytes(rec, format)?;
     match out {
         Some(path) => {
             println!("{usual}");
-            std::fs::write(path, text + "\n").map_err(|e| format!("{}: {e}", path.display()))
+            std::fs::write(path, bytes).map_err(|e| format!("{}: {e}", path.display()))
         }
-        None => {
-            println!("{text}");
-            Ok(())
-        }
+        None => std::io::Write::write_all(&mut std::io::stdout(), &bytes).map_err(|e| format!("stdout: {e}")),
     }
 }
 
 fn main() -> ExitCode {
     let args = Args::parse_from(calib::cli_args());
+    if matches!(args.export, Some(ExportArg::Record)) && args.out.is_none() {
+        return fail(2, "--export record writes the 8 KiB flash image: give --out FILE");
+    }
     // clap requires LOG without --port.
     match &args.port {
         Some(p) => by_port(&args, p),

@@ -14,8 +14,9 @@ const IMU_RATE_HZ: (f64, f64) = (5.0, 10_000.0);
 /// the rest are gaps or jitter).
 const REGULAR_SHARE: f64 = 0.9;
 
-fn is_odr(rate_hz: f64) -> bool {
-    ODRS_HZ.iter().any(|o| (rate_hz / o - 1.0).abs() <= ODR_TOLERANCE)
+/// The LSM9DS1 ODR (nominal, Hz) a measured rate is, if any.
+fn odr_of(rate_hz: f64) -> Option<f64> {
+    ODRS_HZ.into_iter().find(|o| (rate_hz / o - 1.0).abs() <= ODR_TOLERANCE)
 }
 
 fn is_imu_rate(rate_hz: f64) -> bool {
@@ -31,6 +32,14 @@ pub struct TimeBase {
     pub lsm9ds1_odr: bool,
 }
 
+impl TimeBase {
+    /// The rate a record states: the nominal LSM9DS1 ODR the log was sampled at (its real rate
+    /// differs by several %), else the measured rate (Hz).
+    pub fn nominal_hz(&self) -> f64 {
+        odr_of(self.rate_hz).unwrap_or(self.rate_hz)
+    }
+}
+
 /// Checks the time column: regular sampling at a rate an IMU logs at (a time column in ms or µs
 /// is named). Another sensor's rate is accepted and said in [`TimeBase::lsm9ds1_odr`].
 pub fn check_time_base(rows: &[Row]) -> Result<TimeBase, OfflineError> {
@@ -43,7 +52,7 @@ pub fn check_time_base(rows: &[Row]) -> Result<TimeBase, OfflineError> {
     let rate_hz = 1.0 / median;
     let regular = dt.iter().filter(|d| (*d / median - 1.0).abs() <= 0.5).count() as f64 / dt.len() as f64;
     if is_imu_rate(rate_hz) && regular >= REGULAR_SHARE {
-        return Ok(TimeBase { rate_hz, lsm9ds1_odr: is_odr(rate_hz) });
+        return Ok(TimeBase { rate_hz, lsm9ds1_odr: odr_of(rate_hz).is_some() });
     }
     let hint = if is_imu_rate(rate_hz * 1e3) {
         "the time column looks like milliseconds: t_s must be in seconds (divide by 1000, or --columns t_s=NAME/1000)"

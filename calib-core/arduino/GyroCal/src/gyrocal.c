@@ -1,0 +1,224 @@
+/* GyroCal: the record layout of calib-core's record.rs (versions 1-3) and the page choice of its
+ * region.rs, in C99 with no heap and no libm. See gyrocal.h. */
+#include "gyrocal.h"
+
+#include <stddef.h>
+#include <string.h>
+
+const struct gyrocal_setup GYROCAL_SETUP_DEFAULT = {119.0f, 500.0f, 2.0f};
+const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_LSM9DS1 = {119.0f, 2000.0f, 4.0f};
+
+/* Record lengths (bytes) by version; the CRC-32 is the last 4 bytes. */
+#define LEN_V1 156u
+#define LEN_V2 188u
+#define LEN_V3 232u
+/* Flags: bit 0 the temperature is unknown, bit 1 (v3) the tempco is unknown. */
+#define TEMP_UNKNOWN 1u
+#define TEMPCO_UNKNOWN 2u
+
+/* CRC-32 (IEEE 802.3, reflected, init and final XOR 0xFFFFFFFF), bitwise. */
+static uint32_t crc32(const uint8_t *p, size_t n) {
+    uint32_t crc = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; i++) {
+        crc ^= p[i];
+        for (int b = 0; b < 8; b++) {
+            crc = (crc & 1u) ? (crc >> 1) ^ 0xEDB88320u : crc >> 1;
+        }
+    }
+    return ~crc;
+}
+
+static uint32_t u32_le(const uint8_t *p) {
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+/* Reads little-endian f32s in order, noting any NaN or infinity. */
+struct reader {
+    const uint8_t *p;
+    bool finite;
+};
+
+static float next_f32(struct reader *r) {
+    uint32_t bits = u32_le(r->p);
+    float v;
+    r->p += 4;
+    if ((bits & 0x7F800000u) == 0x7F800000u) {
+        r->finite = false;
+    }
+    memcpy(&v, &bits, sizeof v);
+    return v;
+}
+
+static void next_f32s(struct reader *r, float *out, int n) {
+    for (int i = 0; i < n; i++) {
+        out[i] = next_f32(r);
+    }
+}
+
+static void identity(struct gyrocal *cal, enum gyrocal_status status) {
+    memset(cal, 0, sizeof *cal);
+    cal->status = status;
+    for (int i = 0; i < 3; i++) {
+        cal->gyro_k[i][i] = 1.0f;
+        cal->accel_m[i][i] = 1.0f;
+    }
+}
+
+/* Decodes one page into `cal`; false when it holds no valid record. */
+static bool decode(const uint8_t *b, struct gyrocal *cal) {
+    static const uint8_t magic[4] = {'G', 'Y', 'R', 'C'};
+    uint32_t len;
+    if (memcmp(b, magic, 4) != 0) {
+        return false;
+    }
+    switch (b[4]) {
+    case 1: len = LEN_V1; break;
+    case 2: len = LEN_V2; break;
+    case 3: len = LEN_V3; break;
+    default: return false;
+    }
+    if (u32_le(b + len - 4) != crc32(b, len - 4) || b[5] > 2 || b[6] > 2) {
+        return false;
+    }
+    uint16_t flags = (uint16_t)(b[14] | b[15] << 8);
+    uint16_t known = len == LEN_V3 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN) : TEMP_UNKNOWN;
+    if (flags & ~known) {
+        return false;
+    }
+    identity(cal, GYROCAL_OK);
+    cal->version = b[4];
+    cal->method = b[5];
+    cal->seq = u32_le(b + 8);
+    struct reader r = {b + 16, true};
+    cal->temp_c = next_f32(&r);
+    cal->temp_known = !(flags & TEMP_UNKNOWN);
+    next_f32s(&r, &cal->gyro_k[0][0], 9);
+    next_f32s(&r, cal->gyro_bias_dps, 3);
+    next_f32s(&r, &cal->accel_m[0][0], 9);
+    next_f32s(&r, cal->accel_offset_g, 3);
+    /* 1 sigma of K (v1: its diagonal), the six quality fields, (v2+) residual and coplanarity:
+     * not kept, but checked finite as the firmware does. */
+    float skip[9];
+    next_f32s(&r, skip, len == LEN_V1 ? 3 : 9);
+    next_f32s(&r, skip, 6);
+    cal->setup = GYROCAL_SETUP_DEFAULT;
+    if (len >= LEN_V2) {
+        next_f32s(&r, skip, 2);
+    }
+    if (len == LEN_V3) {
+        cal->setup.odr_hz = next_f32(&r);
+        cal->setup.gyro_range_dps = next_f32(&r);
+        cal->setup.accel_range_g = next_f32(&r);
+        next_f32s(&r, cal->tempco_dps_per_c, 3);
+        next_f32s(&r, skip, 5); /* its 1 sigma and the fitted temperature range */
+        cal->tempco_known = !(flags & TEMPCO_UNKNOWN);
+        if (!cal->tempco_known) {
+            memset(cal->tempco_dps_per_c, 0, sizeof cal->tempco_dps_per_c);
+        }
+    }
+    return r.finite;
+}
+
+static bool erased(const uint8_t *b) {
+    for (uint32_t i = 0; i < LEN_V3; i++) {
+        if (b[i] != 0xFF) {
+            return false;
+        }
+    }
+    return true;
+}
+
+bool gyrocal_load(const void *region, struct gyrocal *cal) {
+    const uint8_t *pages = (const uint8_t *)region;
+    struct gyrocal found;
+    bool any = false;
+    identity(cal, GYROCAL_NO_RECORD);
+    for (uint8_t i = 0; i < 2; i++) {
+        const uint8_t *page = pages + (uint32_t)i * GYROCAL_PAGE_SIZE;
+        /* A later sequence number, with wrap-around: (int32_t)(a - b) > 0. */
+        if (!erased(page) && decode(page, &found) && (!any || (int32_t)(found.seq - cal->seq) > 0)) {
+            found.page = i;
+            *cal = found;
+            any = true;
+        }
+    }
+    return any;
+}
+
+static bool same_setup(const struct gyrocal_setup *a, const struct gyrocal_setup *b) {
+    return a->odr_hz == b->odr_hz && a->gyro_range_dps == b->gyro_range_dps && a->accel_range_g == b->accel_range_g;
+}
+
+bool gyrocal_load_for(const void *region, const struct gyrocal_setup *runs_at, struct gyrocal *cal) {
+    if (!gyrocal_load(region, cal)) {
+        return false;
+    }
+    if (!same_setup(&cal->setup, runs_at)) {
+        struct gyrocal_setup made_at = cal->setup;
+        identity(cal, GYROCAL_OTHER_SETUP);
+        cal->setup = made_at;
+        return false;
+    }
+    return true;
+}
+
+#if defined(NRF52840_XXAA) || defined(ARDUINO_ARDUINO_NANO33BLE)
+#define GYROCAL_FLASH ((const void *)(uintptr_t)GYROCAL_FLASH_ADDRESS)
+#endif
+
+bool gyrocal_load_flash(struct gyrocal *cal) {
+#ifdef GYROCAL_FLASH
+    return gyrocal_load(GYROCAL_FLASH, cal);
+#else
+    identity(cal, GYROCAL_NO_RECORD);
+    return false;
+#endif
+}
+
+bool gyrocal_load_flash_for(const struct gyrocal_setup *runs_at, struct gyrocal *cal) {
+#ifdef GYROCAL_FLASH
+    return gyrocal_load_for(GYROCAL_FLASH, runs_at, cal);
+#else
+    (void)runs_at;
+    identity(cal, GYROCAL_NO_RECORD);
+    return false;
+#endif
+}
+
+static void apply(const float m[3][3], const float off[3], const float in[3], float out[3]) {
+    float d[3] = {in[0] - off[0], in[1] - off[1], in[2] - off[2]};
+    for (int i = 0; i < 3; i++) {
+        out[i] = m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2];
+    }
+}
+
+void gyrocal_gyro_dps(const struct gyrocal *cal, const float raw_dps[3], float out_dps[3]) {
+    apply(cal->gyro_k, cal->gyro_bias_dps, raw_dps, out_dps);
+}
+
+void gyrocal_accel_g(const struct gyrocal *cal, const float raw_g[3], float out_g[3]) {
+    apply(cal->accel_m, cal->accel_offset_g, raw_g, out_g);
+}
+
+const char *gyrocal_status_str(enum gyrocal_status status) {
+    switch (status) {
+    case GYROCAL_OK: return "calibration loaded";
+    case GYROCAL_NO_RECORD: return "no valid record (never calibrated, or the pages at 0xF8000 were overwritten)";
+    case GYROCAL_OTHER_SETUP: return "the record was made at another ODR or full scale: recalibrate at this one";
+    }
+    return "unknown status";
+}
+
+void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]) {
+    /* counts = reading * 32768 / range; datasheet units = counts * sensitivity. */
+    const float gyro = 0.070f * 32768.0f / 2000.0f;
+    const float accel = 0.000122f * 32768.0f / 4.0f;
+    for (int i = 0; i < 3; i++) {
+        if (gyro_dps) {
+            gyro_dps[i] *= gyro;
+        }
+        if (accel_g) {
+            accel_g[i] *= accel;
+        }
+    }
+}

@@ -1,0 +1,107 @@
+/* GyroCal: load and apply the calibration the gyrocal firmware stored in flash.
+ *
+ * The firmware keeps its calibration record in two 4 KiB flash pages at 0xF8000 (A/B). The
+ * Arduino bootloader erases only the pages a sketch upload writes, so the record survives the
+ * upload of your own sketch, and this library finds it there: the newest valid record of the two
+ * pages (magic, version, CRC-32 and every field checked, sequence numbers compared with
+ * wrap-around), exactly as the firmware's own storage and calib_core::region decide.
+ *
+ * Model and units (the same as the firmware and every export):
+ *   gyro   out_dps = K (raw_dps - bias_dps)        K row-major, raw in the datasheet's units
+ *   accel  out_g   = M (raw_g - offset_g)
+ * "raw" is the sensor's counts times the LSM9DS1 datasheet sensitivity at the range the record
+ * was made at (e.g. 70 mdps/LSB at +-2000 dps). Arduino_LSM9DS1 returns other units: pass its
+ * readings through gyrocal_from_arduino_lsm9ds1() first.
+ *
+ * A K holds for the configuration it was measured at (the gyro's sensitivity is trimmed per full
+ * scale), so load with the configuration your program runs the sensor at: a record made at
+ * another one is refused (GYROCAL_OTHER_SETUP), never applied. If the load fails, the struct
+ * holds the identity (K = M = I, no bias, no offset) and the apply functions return their input.
+ */
+#ifndef GYROCAL_H
+#define GYROCAL_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/** Flash address of the two record pages on the Nano 33 BLE, and one page's size (bytes). */
+#define GYROCAL_FLASH_ADDRESS 0xF8000u
+#define GYROCAL_PAGE_SIZE 4096u
+/** The region gyrocal_load() reads: both pages. */
+#define GYROCAL_REGION_SIZE (2u * GYROCAL_PAGE_SIZE)
+
+/** The sensor configuration a calibration was made at. */
+struct gyrocal_setup {
+    float odr_hz;         /**< output data rate (Hz) */
+    float gyro_range_dps; /**< gyro full scale (dps) */
+    float accel_range_g;  /**< accelerometer full scale (g) */
+};
+
+/** The firmware's default: LSM9DS1 at 119 Hz, +-500 dps, +-2 g. */
+extern const struct gyrocal_setup GYROCAL_SETUP_DEFAULT;
+/** What Arduino_LSM9DS1's IMU.begin() sets (CTRL_REG1_G 0x78, CTRL_REG6_XL 0x70): 119 Hz,
+ *  +-2000 dps, +-4 g. The firmware calibrates at it when built with `--features arduino-lsm9ds1`
+ *  or after the console command `p`. */
+extern const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_LSM9DS1;
+
+/** Why a load gave no calibration. */
+enum gyrocal_status {
+    GYROCAL_OK = 0,       /**< a valid record was loaded */
+    GYROCAL_NO_RECORD,    /**< neither page holds a valid record (erased, or overwritten by a
+                               sketch's own use of that flash) */
+    GYROCAL_OTHER_SETUP   /**< the newest record was made at another configuration */
+};
+
+/** A loaded calibration. */
+struct gyrocal {
+    enum gyrocal_status status;
+    uint32_t seq;               /**< the record's sequence number */
+    uint8_t page;               /**< which page it came from (0 = A at 0xF8000, 1 = B) */
+    uint8_t version;            /**< record format version (1..3) */
+    uint8_t method;             /**< gyro estimator: 0 paper, 1 sweep, 2 full 3x3 K */
+    struct gyrocal_setup setup; /**< the configuration it was made at */
+    float gyro_k[3][3];         /**< K, row-major (unitless) */
+    float gyro_bias_dps[3];     /**< gyro bias (dps) at temp_c */
+    float accel_m[3][3];        /**< M, row-major (unitless) */
+    float accel_offset_g[3];    /**< accelerometer offset (g) */
+    bool temp_known;            /**< temp_c holds the temperature K and the bias were made at */
+    float temp_c;               /**< (degC) */
+    bool tempco_known;          /**< tempco_dps_per_c holds the bias's temperature coefficient */
+    float tempco_dps_per_c[3];  /**< bias(T) = bias + tempco (T - temp_c) (dps per degC) */
+};
+
+/** Loads the newest valid record of `region` (GYROCAL_REGION_SIZE bytes: page A then page B),
+ *  whatever configuration it was made at. Returns true when one was found. */
+bool gyrocal_load(const void *region, struct gyrocal *cal);
+
+/** gyrocal_load(), refusing a record made at another configuration than `runs_at`. */
+bool gyrocal_load_for(const void *region, const struct gyrocal_setup *runs_at, struct gyrocal *cal);
+
+/** gyrocal_load() / gyrocal_load_for() of the pages in this board's flash at 0xF8000 (the
+ *  nRF52840's flash is memory-mapped). On any other target they return false, GYROCAL_NO_RECORD. */
+bool gyrocal_load_flash(struct gyrocal *cal);
+bool gyrocal_load_flash_for(const struct gyrocal_setup *runs_at, struct gyrocal *cal);
+
+/** Calibrated rate out = K (raw - bias) (dps); `raw_dps` and `out_dps` may be the same array. */
+void gyrocal_gyro_dps(const struct gyrocal *cal, const float raw_dps[3], float out_dps[3]);
+
+/** Calibrated specific force out = M (raw - offset) (g); `raw_g` and `out_g` may be the same. */
+void gyrocal_accel_g(const struct gyrocal *cal, const float raw_g[3], float out_g[3]);
+
+/** The record's status as a sentence. */
+const char *gyrocal_status_str(enum gyrocal_status status);
+
+/** Arduino_LSM9DS1's readGyroscope() (counts * 2000/32768) and readAcceleration() (counts * 4/32768)
+ *  in the datasheet's units at its +-2000 dps / +-4 g (70 mdps and 0.122 mg per LSB): the library's
+ *  gyro reads 12.8 % low. Either pointer may be NULL; arrays are converted in place. */
+void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* GYROCAL_H */

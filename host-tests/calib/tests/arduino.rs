@@ -1,0 +1,273 @@
+//! The GyroCal Arduino library (`calib-core/arduino/GyroCal`) compiled on the host with
+//! `-Wall -Wextra -Werror -pedantic` and run on regions of the board's flash: it loads what
+//! `calib_core::region` loads (the same page, every field, calibrated outputs to 1e-6), refuses
+//! what it refuses, and `calib LOG --export record` writes a region it reads.
+
+use calib_core::record::{crc32, Record, SensorSetup, LEN};
+use calib_core::region::{self, PAGE, SLOTS};
+use common::{calib, simulated_log};
+use rig_sim::variant::Variant;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+
+mod common;
+
+const LIB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../calib-core/arduino/GyroCal");
+const ARDUINO_LSM9DS1: [f32; 3] = [119.0, 2000.0, 4.0];
+
+fn dir() -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("arduino");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn cc(prog: &str, args: &[&str]) {
+    let o = Command::new(prog).args(args).output().unwrap_or_else(|e| panic!("{prog}: {e} (a C compiler is needed, as for Unicorn)"));
+    assert!(o.status.success(), "{prog} {args:?}:\n{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The library and tests/c/gyrocal_check.c built once; the header also checked as C++ (sketches
+/// are C++).
+fn checker() -> &'static Path {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        let bin = dir().join("gyrocal_check");
+        let (src, inc) = (format!("{LIB}/src/gyrocal.c"), format!("-I{LIB}/src"));
+        let driver = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/c/gyrocal_check.c");
+        let warn = ["-Wall", "-Wextra", "-Werror", "-pedantic"];
+        cc("cc", &[&["-std=c99", "-O2"], &warn[..], &[&inc, &src, driver, "-o", bin.to_str().unwrap()]].concat());
+        let cpp = dir().join("sketch.cpp");
+        let sketch = "#include <gyrocal.h>\nstruct gyrocal cal;\nfloat f(const void *r) {\n  float g[3] = {1, 2, 3};\n  \
+                      gyrocal_load_for(r, &GYROCAL_SETUP_ARDUINO_LSM9DS1, &cal);\n  gyrocal_from_arduino_lsm9ds1(g, nullptr);\n  \
+                      gyrocal_gyro_dps(&cal, g, g);\n  return g[0];\n}\n";
+        std::fs::write(&cpp, sketch).unwrap();
+        cc("c++", &[&["-std=c++11", "-fsyntax-only"], &warn[..], &[&inc, cpp.to_str().unwrap()]].concat());
+        bin
+    })
+}
+
+/// What the library loaded, and its outputs.
+#[derive(Debug, Default)]
+struct Loaded {
+    ok: bool,
+    status: u8,
+    seq: u32,
+    page: usize,
+    version: u8,
+    said: String,
+    values: std::collections::HashMap<String, Vec<f32>>,
+    outs: Vec<[f32; 6]>,
+}
+
+/// Runs the library on `region` (with `setup`: refusing another), then on each input line
+/// (`raw` or `lib`, gyro then accel).
+fn load(region: &[u8], setup: Option<[f32; 3]>, inputs: &[(&str, [f32; 6])]) -> Loaded {
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let file = dir().join(format!("region{}.bin", N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)));
+    std::fs::write(&file, region).unwrap();
+    let mut args = vec![file.to_str().unwrap().to_string()];
+    args.extend(setup.iter().flatten().map(|v| v.to_string()));
+    let mut child = Command::new(checker()).args(&args).stdin(Stdio::piped()).stdout(Stdio::piped()).spawn().unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    for (kind, v) in inputs {
+        writeln!(stdin, "{kind} {}", v.map(|x| format!("{x:e}")).join(" ")).unwrap();
+    }
+    drop(stdin);
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "gyrocal_check failed");
+    let mut l = Loaded::default();
+    for line in String::from_utf8(out.stdout).unwrap().lines() {
+        let (key, rest) = line.split_once(' ').unwrap();
+        let words: Vec<&str> = rest.split(' ').collect();
+        match key {
+            "ok" => {
+                let n = |i: usize| words[i].parse::<u32>().unwrap();
+                (l.ok, l.status, l.seq, l.page, l.version) = (n(0) == 1, n(2) as u8, n(4), n(6) as usize, n(8) as u8);
+            }
+            "says" => l.said = rest.to_string(),
+            "out" => l.outs.push(std::array::from_fn(|i| words[i].parse().unwrap())),
+            _ => {
+                l.values.insert(key.to_string(), words.iter().map(|w| w.parse().unwrap()).collect());
+            }
+        }
+    }
+    l
+}
+
+fn close(a: &[f32], b: &[f32], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    for (x, y) in a.iter().zip(b) {
+        assert!((x - y).abs() <= 1e-6 * y.abs().max(1.0), "{what}: {a:?} vs {b:?}");
+    }
+}
+
+/// The library loaded `rec` from `page`, field for field, and calibrates as calib-core does.
+fn same_as_calib_core(l: &Loaded, rec: &Record, page: usize, inputs: &[[f32; 6]]) {
+    assert!(l.ok && l.status == 0 && l.said == "calibration loaded", "{l:?}");
+    assert_eq!((l.seq, l.page), (rec.seq, page));
+    let v = |k: &str| l.values[k].as_slice();
+    close(v("k"), rec.gyro_k.as_flattened(), "K");
+    close(v("bias"), &rec.gyro_bias_dps, "bias");
+    close(v("m"), rec.accel_m.as_flattened(), "M");
+    close(v("offset"), &rec.accel_offset_g, "offset");
+    let s = rec.setup;
+    close(&[v("setup")[0], v("gyro_range")[0], v("accel_range")[0]], &[s.odr_hz, s.gyro_range_dps, s.accel_range_g], "setup");
+    assert_eq!(v("temp_known")[0] == 1.0, rec.temp_c.is_some());
+    close(v("temp"), &[rec.temp_c.unwrap_or(0.0)], "temp");
+    assert_eq!(v("tempco_known")[0] == 1.0, rec.tempco.is_some());
+    close(v("tempco"), &rec.tempco.map_or([0.0; 3], |t| t.dps_per_c), "tempco");
+    assert_eq!(l.outs.len(), inputs.len());
+    for (out, i) in l.outs.iter().zip(inputs) {
+        let want = [rec.apply_gyro([i[0], i[1], i[2]]), rec.accel().apply([i[3], i[4], i[5]])].concat();
+        close(out, &want, "calibrated sample");
+    }
+}
+
+/// Raw samples (gyro °/s, accel g) spread over the ranges.
+fn samples() -> Vec<[f32; 6]> {
+    vec![[0.0; 6], [1.5, -2.25, 3.0, 0.01, -0.02, 1.0], [-400.0, 250.0, 123.456, -1.9, 0.7, -0.3], [1999.0, -1800.0, 0.1, 3.9, -3.9, 0.5]]
+}
+
+fn raw(s: &[[f32; 6]]) -> Vec<(&'static str, [f32; 6])> {
+    s.iter().map(|v| ("raw", *v)).collect()
+}
+
+/// calib's record of a simulated run (its setup the firmware's default).
+fn record() -> &'static Record {
+    static R: OnceLock<Record> = OnceLock::new();
+    R.get_or_init(|| {
+        let log = dir().join("sim.csv");
+        std::fs::write(&log, simulated_log(Variant::Hobby.config(9, 0)).0).unwrap();
+        let (log, out) = (log.to_str().unwrap().to_string(), dir().join("calib-region.bin"));
+        let (code, _, err) = calib(&[&log, "--export", "record"]);
+        assert_eq!(code, 2, "binary to a terminal is refused: {err}");
+        assert!(err.contains("give --out FILE"), "{err}");
+        let (code, _, err) = calib(&[&log, "--export", "record", "--out", out.to_str().unwrap()]);
+        assert_eq!(code, 0, "{err}");
+        let region = std::fs::read(&out).unwrap();
+        assert_eq!(region.len(), SLOTS * PAGE);
+        let (page, rec) = region::load(&region, PAGE).expect("calib's region holds a valid record");
+        assert!(page == 0 && region[LEN..].iter().all(|&b| b == 0xFF), "the record in page A, all else erased");
+        rec
+    })
+}
+
+/// A region of two pages holding `a` and `b` (`None`: erased).
+fn region_of(a: Option<&[u8]>, b: Option<&[u8]>) -> Vec<u8> {
+    let mut r = vec![0xFF; SLOTS * PAGE];
+    for (i, bytes) in [a, b].into_iter().enumerate() {
+        if let Some(bytes) = bytes {
+            r[i * PAGE..i * PAGE + bytes.len()].copy_from_slice(bytes);
+        }
+    }
+    r
+}
+
+/// `bytes` with the CRC over all but its last 4 bytes made right.
+fn with_crc(mut bytes: Vec<u8>) -> Vec<u8> {
+    let n = bytes.len() - 4;
+    let crc = crc32(&bytes[..n]);
+    bytes[n..].copy_from_slice(&crc.to_le_bytes());
+    bytes
+}
+
+#[test]
+fn calibs_exported_region_loads_as_calib_core_loads_it_and_another_setup_is_refused() {
+    let rec = record();
+    let region = region::image(rec).unwrap();
+    assert_eq!(rec.setup, SensorSetup::DEFAULT);
+    same_as_calib_core(&load(&region, None, &raw(&samples())), rec, 0, &samples());
+    let s = rec.setup;
+    same_as_calib_core(&load(&region, Some([s.odr_hz, s.gyro_range_dps, s.accel_range_g]), &raw(&samples())), rec, 0, &samples());
+    // Made at ±500 °/s, asked for by a program that runs Arduino_LSM9DS1 (±2000 °/s): refused, and
+    // nothing applied.
+    let l = load(&region, Some(ARDUINO_LSM9DS1), &raw(&samples()));
+    assert!(!l.ok && l.status == 2 && l.said.contains("another ODR or full scale"), "{l:?}");
+    assert_eq!(l.values["gyro_range"], [500.0], "the refusal says what the record was made at");
+    for (out, i) in l.outs.iter().zip(samples()) {
+        assert_eq!(*out, i, "a refused record is never applied");
+    }
+    // A record made at the preset loads for it.
+    let preset = Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 }, ..*rec };
+    same_as_calib_core(&load(&region::image(&preset).unwrap(), Some(ARDUINO_LSM9DS1), &[]), &preset, 0, &[]);
+}
+
+#[test]
+fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
+    let rec = |seq: u32| Record { seq, temp_c: Some(31.5), ..*record() };
+    let enc = |r: &Record| r.encode().unwrap().to_vec();
+    // Versions 1 and 2 (as older firmware wrote them) from the v3 bytes: v2 is v3 up to the
+    // angle from coplanar; v1 up to the accel offset, the diagonal of σK, the six quality fields.
+    let v3 = enc(&rec(7));
+    let mut v2 = [&v3[..184], &[0; 4]].concat();
+    v2[4] = 2;
+    v2[14] &= 1;
+    let sigma_diag: Vec<u8> = [0usize, 4, 8].iter().flat_map(|i| v3[116 + 4 * i..120 + 4 * i].to_vec()).collect();
+    let mut v1 = [&v3[..116], &sigma_diag, &v3[152..176], &[0; 4]].concat();
+    v1[4] = 1;
+    v1[14] &= 1;
+    let (v1, v2) = (with_crc(v1), with_crc(v2));
+    // A NaN written with a valid CRC (no encoder makes one; a sketch's data might).
+    let mut nan = enc(&rec(9));
+    nan[24..28].copy_from_slice(&f32::NAN.to_le_bytes());
+    let nan = with_crc(nan);
+    let mut flipped = enc(&rec(9));
+    flipped[40] ^= 1;
+    let mut future = enc(&rec(9));
+    future[4] = 4;
+    let future = with_crc(future);
+    let sketch_data: Vec<u8> = (0..PAGE).map(|i| (i * 7 + 3) as u8).collect();
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("sequence wrap: B newer", region_of(Some(&enc(&rec(u32::MAX))), Some(&enc(&rec(0))))),
+        ("sequence wrap: A newer", region_of(Some(&enc(&rec(0))), Some(&enc(&rec(u32::MAX))))),
+        ("B torn", region_of(Some(&enc(&rec(3))), Some(&flipped))),
+        ("A a NaN with a good CRC", region_of(Some(&nan), None)),
+        ("A an unknown version", region_of(Some(&future), Some(&enc(&rec(2))))),
+        ("v2 in B", region_of(None, Some(&v2))),
+        ("v1 in A, v3 older in B", region_of(Some(&v1), Some(&enc(&rec(6))))),
+        ("both erased", region_of(None, None)),
+        ("a sketch's data over both", [&sketch_data[..], &sketch_data[..]].concat()),
+    ];
+    for (what, region) in cases {
+        let l = load(&region, None, &raw(&samples()));
+        match region::load(&region, PAGE) {
+            Some((page, r)) => {
+                same_as_calib_core(&l, &r, page, &samples());
+                assert_eq!(l.version, region[page * PAGE + 4], "{what}");
+            }
+            None => {
+                assert!(!l.ok && l.status == 1 && l.said.starts_with("no valid record"), "{what}: {l:?}");
+                for (out, i) in l.outs.iter().zip(samples()) {
+                    assert_eq!(*out, i, "{what}: nothing applied");
+                }
+            }
+        }
+        eprintln!("{what}: {}", if l.ok { format!("page {} seq {}", l.page, l.seq) } else { l.said.clone() });
+    }
+    // The cases above decide as expected (not only alike).
+    let page_of = |a: Option<&[u8]>, b: Option<&[u8]>| region::load(&region_of(a, b), PAGE).map(|(p, r)| (p, r.seq));
+    assert_eq!(page_of(Some(&enc(&rec(u32::MAX))), Some(&enc(&rec(0)))), Some((1, 0)));
+    assert_eq!(page_of(Some(&v1), Some(&enc(&rec(6)))), Some((0, 7)));
+    assert_eq!(page_of(Some(&nan), None), None);
+}
+
+#[test]
+fn arduino_lsm9ds1_readings_are_put_back_in_datasheet_units() {
+    // Counts as the sensor gives them at ±2000 °/s and ±4 g; Arduino_LSM9DS1's readings of them.
+    let counts = [[1000.0f32, -2000.0, 32767.0, 8192.0, -16384.0, 4096.0], [-32768.0, 5.0, 0.0, 1.0, -1.0, 30000.0]];
+    let lib: Vec<(&str, [f32; 6])> =
+        counts.iter().map(|c| ("lib", std::array::from_fn(|i| c[i] * if i < 3 { 2000.0 } else { 4.0 } / 32768.0))).collect();
+    let datasheet: Vec<[f32; 6]> = counts.iter().map(|c| std::array::from_fn(|i| c[i] * if i < 3 { 0.070 } else { 0.000122 })).collect();
+    // No record: the readings in datasheet units, nothing else.
+    let l = load(&region_of(None, None), None, &lib);
+    for (out, want) in l.outs.iter().zip(&datasheet) {
+        close(out, want, "Arduino_LSM9DS1's reading in datasheet units");
+    }
+    assert!((l.outs[0][0] / (1000.0 * 2000.0 / 32768.0) - 1.0 - 0.146_88).abs() < 1e-5, "its gyro reads 12.8 % low");
+    // With a record made at its configuration: calibrated as calib-core calibrates the datasheet units.
+    let preset = Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 }, ..*record() };
+    let l = load(&region::image(&preset).unwrap(), Some(ARDUINO_LSM9DS1), &lib);
+    same_as_calib_core(&l, &preset, 0, &datasheet);
+}
