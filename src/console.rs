@@ -5,7 +5,7 @@ use super::COMMANDS_PER_TICK;
 use calib_core::export::Format;
 use calib_core::procedure::{Report, Sample};
 use calib_core::protocol::{self, RecordLine};
-use calib_core::record::Record;
+use calib_core::record::{Record, SensorSetup};
 use calib_core::text::Level as Log;
 use core::fmt::{self, Write};
 use gyrocal_fw::lsm9ds1::SensorError;
@@ -195,8 +195,20 @@ impl Console {
     /// text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends) is a log
     /// `calib` reads.
     #[inline(never)]
-    pub(crate) fn set_raw_log(&mut self, on: bool) {
+    /// Starts (the header and the setup comment) or ends the raw log.
+    pub(crate) fn set_raw_log(&mut self, on: bool, setup: &SensorSetup) {
         self.raw(protocol::raw_log(on));
+        if on {
+            self.raw_setup(setup);
+        }
+    }
+
+    /// The raw log's setup comment ([`calib_core::log::write_setup`]).
+    pub(crate) fn raw_setup(&mut self, setup: &SensorSetup) {
+        let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
+        if calib_core::log::write_setup(&mut line, setup).is_ok() {
+            self.raw(&line);
+        }
     }
 
     #[inline(never)]

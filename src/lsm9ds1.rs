@@ -5,6 +5,7 @@
 //! and owns the bus, while this driver needs the FIFO at 952 Hz and runs on the host against a
 //! simulated register map through the same `I2c` trait.
 
+use calib_core::record::SensorSetup;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::{ErrorKind, I2c};
 
@@ -201,13 +202,24 @@ pub struct SensorConfig {
 }
 
 impl Default for SensorConfig {
-    /// 119 Hz, ±500 °/s, ±2 g.
+    /// [`SensorConfig::DEFAULT`].
     fn default() -> Self {
-        Self { odr: Odr::Hz119, gyro: GyroScale::Dps500, accel: AccelScale::G2 }
+        Self::DEFAULT
     }
 }
 
 impl SensorConfig {
+    /// 119 Hz, ±500 °/s, ±2 g: the firmware's default.
+    pub const DEFAULT: SensorConfig = SensorConfig { odr: Odr::Hz119, gyro: GyroScale::Dps500, accel: AccelScale::G2 };
+    /// What Arduino's Arduino_LSM9DS1 library sets in `IMU.begin()`: CTRL_REG1_G 0x78 (119 Hz,
+    /// ±2000 °/s, BW_G 00) and CTRL_REG6_XL 0x70 (119 Hz, ±4 g, bandwidth from the ODR).
+    pub const ARDUINO_LSM9DS1: SensorConfig = SensorConfig { odr: Odr::Hz119, gyro: GyroScale::Dps2000, accel: AccelScale::G4 };
+
+    /// The setup a record states.
+    pub const fn setup(&self) -> SensorSetup {
+        SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro.range_dps(), accel_range_g: self.accel.range_g() }
+    }
+
     /// CTRL_REG1_G value (gyro bandwidth BW_G = 00).
     pub fn ctrl_reg1_g(&self) -> u8 {
         (self.odr.code() << 5) | (self.gyro.code() << 3)

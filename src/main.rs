@@ -18,7 +18,7 @@ mod console;
 use board::{flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait, TWIM_FREQUENCY_390K};
 use console::{Console, LINE};
 
-use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Sample, Shell};
+use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use calib_core::protocol::{self, RecordLine};
 use calib_core::record::Record;
 use calib_core::stats::Welford3;
@@ -27,7 +27,7 @@ use cortex_m::peripheral::NVIC;
 use embedded_hal::digital::InputPin;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
-use gyrocal_fw::lsm9ds1::{AccelScale, GyroScale, Lsm9ds1, Odr, SensorConfig, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
@@ -56,18 +56,15 @@ const SERVO_UPDATE_FROM_US: u64 = 16_000;
 /// … and no later than this (µs): a margin before the next period's rising edge.
 const SERVO_UPDATE_UNTIL_US: u64 = PWM_TOP as u64 - 500;
 
-/// Sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
-const SENSOR: SensorConfig =
-    SensorConfig { odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 }, gyro: GyroScale::Dps500, accel: AccelScale::G2 };
+/// This firmware's own sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
+const OWN: SensorConfig = SensorConfig { odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 }, ..SensorConfig::DEFAULT };
+/// The settings at boot: [`OWN`], or Arduino_LSM9DS1's with `--features arduino-lsm9ds1`. The
+/// console's `p` switches between the two until reset.
+const SENSOR: SensorConfig = if cfg!(feature = "arduino-lsm9ds1") { SensorConfig::ARDUINO_LSM9DS1 } else { OWN };
 
 /// The procedure's configuration: the defaults, or with a pan/tilt bracket (`--features
 /// tilt-servo`, the tilt servo on D10) the pan/tilt plan and the full 3×3 `K`; the sensor's ranges.
-const CONFIG: Config = Config {
-    accel_range_g: SENSOR.accel.range_g(),
-    gyro_range_dps: SENSOR.gyro.range_dps(),
-    odr_hz: SENSOR.odr.hz(),
-    ..if cfg!(feature = "tilt-servo") { Config::PAN_TILT } else { Config::DEFAULT }
-};
+const CONFIG: Config = Config { setup: SENSOR.setup(), ..if cfg!(feature = "tilt-servo") { Config::PAN_TILT } else { Config::DEFAULT } };
 
 /// The procedure state (poses, moves, queue: ~11 KiB) in static RAM. Built once at boot in its
 /// own stack frame, so that the main loop's frame does not keep room for a copy of it.
@@ -168,6 +165,8 @@ impl Shell for Io {
 struct Sensing {
     bus: Option<Bus>,
     sensor: Option<Lsm9ds1<Bus>>,
+    /// The settings it runs (or is to run) at.
+    config: SensorConfig,
     stamper: Stamper,
     next_try_s: f64,
     last_poll_s: f64,
@@ -182,6 +181,7 @@ impl Sensing {
         Self {
             bus,
             sensor: None,
+            config: SENSOR,
             stamper: Stamper::new(SENSOR.odr.hz()),
             next_try_s: 0.0,
             last_poll_s: 0.0,
@@ -195,11 +195,14 @@ impl Sensing {
     fn service(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
         if self.sensor.is_none() && now >= self.next_try_s {
             if let Some(i2c) = self.bus.take() {
-                match Lsm9ds1::init(i2c, SENSOR, &mut Wait(clock)) {
+                match Lsm9ds1::init(i2c, self.config, &mut Wait(clock)) {
                     Ok(s) => {
-                        let (c, mut line) = (SENSOR, heapless::String::<LINE>::new());
+                        let (c, mut line) = (self.config, heapless::String::<LINE>::new());
                         let _ = protocol::sensor_ready(&mut line, c.odr.hz() as u32, c.gyro.range_dps() as u32, c.accel.range_g() as u32);
                         io.console.send(Log::Info, &line);
+                        if self.raw {
+                            io.console.raw_setup(&c.setup());
+                        }
                         self.stamper.restart();
                         self.sensor = Some(s);
                     }
@@ -255,6 +258,19 @@ impl Sensing {
     }
 }
 
+impl Sensing {
+    /// Runs the sensor at `config` from the next tick on: re-initialised (its ready line and, in
+    /// raw-log mode, the log's setup comment say the new settings).
+    fn reconfigure(&mut self, config: SensorConfig, now: f64) {
+        self.config = config;
+        self.stamper = Stamper::new(config.odr.hz());
+        if let Some(s) = self.sensor.take() {
+            self.bus = Some(s.release());
+        }
+        self.next_try_s = now;
+    }
+}
+
 /// This tick's commands, the button's first (a full tick of USB commands never hides a press),
 /// into the procedure and the console.
 fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure: &mut Procedure, io: &mut Io, sensing: &mut Sensing) {
@@ -285,7 +301,14 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
             }
             Command::RawLog => {
                 sensing.raw = !sensing.raw;
-                io.console.set_raw_log(sensing.raw);
+                io.console.set_raw_log(sensing.raw, &sensing.config.setup());
+            }
+            Command::Setup => {
+                let next = if sensing.config == SensorConfig::ARDUINO_LSM9DS1 { OWN } else { SensorConfig::ARDUINO_LSM9DS1 };
+                match procedure.handle_setup(next.setup()) {
+                    Ok(()) => sensing.reconfigure(next, now),
+                    Err(Running) => io.console.send(Log::Warn, "p: the sensor setup cannot change while a calibration runs"),
+                }
             }
             Command::Stored => io.console.stored(io.applied.as_ref()),
             Command::Help => serial::HELP.iter().for_each(|l| io.console.send(Log::Info, l)),

@@ -16,12 +16,14 @@ pub struct Outbox<const N: usize> {
     /// Bytes queued.
     len: usize,
     dropped: u32,
+    /// The last packet sent was a full one: a zero-length packet ends the burst.
+    zlp_due: bool,
 }
 
 impl<const N: usize> Outbox<N> {
     /// Empty.
     pub const fn new() -> Self {
-        Self { buf: [0; N], head: 0, len: 0, dropped: 0 }
+        Self { buf: [0; N], head: 0, len: 0, dropped: 0, zlp_due: false }
     }
 
     /// Queues `line` and `"\r\n"`, or drops them (counted) if they do not fit.
@@ -51,11 +53,26 @@ impl<const N: usize> Outbox<N> {
         self.len -= n;
     }
 
+    /// The next bulk IN packet of `packet` bytes at most: the oldest bytes, or an empty one (a
+    /// zero-length packet) after a burst that ended on a full packet, since a host completes a
+    /// read only on a short packet; `None` when there is nothing to send.
+    pub fn next_packet(&self, packet: usize) -> Option<&[u8]> {
+        let chunk = self.peek(packet);
+        (!chunk.is_empty() || self.zlp_due).then_some(chunk)
+    }
+
+    /// The host took `n` bytes of the packet [`Self::next_packet`] gave (0: the ZLP).
+    pub fn sent(&mut self, n: usize, packet: usize) {
+        self.consume(n);
+        self.zlp_due = n == packet;
+    }
+
     /// Drops everything queued (the host went away), counted.
     pub fn clear(&mut self) {
         self.dropped = self.dropped.saturating_add(self.len as u32);
         self.head = 0;
         self.len = 0;
+        self.zlp_due = false;
     }
 
     /// Bytes queued.

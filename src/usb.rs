@@ -240,8 +240,6 @@ pub struct Usb {
     /// Lines waiting for the host.
     pub out: Outbox<OUTBOX>,
     touch: Touch,
-    /// The last packet was a full one: a zero-length packet ends the burst.
-    zlp_due: bool,
     /// Reconnected after a stop: `usb-device` still holds the old session until the host's bus
     /// reset, and the endpoints are disabled: nothing is sent before that reset.
     awaiting_reset: bool,
@@ -272,8 +270,7 @@ impl Usb {
         // nrf-usbd's enable: READY is set, so its spin ends at once; it connects the pull-up.
         let dev = builder.build();
         errata::poke(errata::E187_211, 3);
-        match cortex_m::singleton!(: Usb = Usb { dev, acm, out: Outbox::new(), touch: Touch::default(), zlp_due: false, awaiting_reset: false })
-        {
+        match cortex_m::singleton!(: Usb = Usb { dev, acm, out: Outbox::new(), touch: Touch::default(), awaiting_reset: false }) {
             Some(usb) => usb,
             None => cortex_m::peripheral::SCB::sys_reset(),
         }
@@ -282,7 +279,7 @@ impl Usb {
     /// After a restart ([`Step::Ready`] again): connects; the host's bus reset re-initialises
     /// `usb-device`.
     pub fn reconnect(&mut self) {
-        self.zlp_due = false;
+        self.out.clear();
         self.awaiting_reset = true;
         connect();
     }
@@ -315,22 +312,16 @@ impl Usb {
         }
         if !self.listening() {
             self.out.clear();
-            self.zlp_due = false;
         }
         for _ in 0..PACKETS_PER_POLL {
-            let chunk = self.out.peek(PACKET);
-            if chunk.is_empty() {
-                if self.zlp_due && self.acm.write_packet(&[]).is_ok() {
-                    self.zlp_due = false;
-                }
-                break;
-            }
+            let Some(chunk) = self.out.next_packet(PACKET) else { break };
+            let zlp = chunk.is_empty();
             match self.acm.write_packet(chunk) {
-                Ok(n) => {
-                    self.out.consume(n);
-                    self.zlp_due = n == PACKET;
-                }
+                Ok(n) => self.out.sent(n, PACKET),
                 Err(_) => break,
+            }
+            if zlp {
+                break;
             }
         }
         errata::dma(false);
@@ -340,7 +331,6 @@ impl Usb {
     /// The link went down: nothing queued survives (counted as dropped).
     pub fn stopped(&mut self) {
         self.out.clear();
-        self.zlp_due = false;
     }
 }
 

@@ -14,12 +14,15 @@
 //! Numbers are written with fixed decimals (µs, µg, 10 µ°/s, 0.01°) by integer arithmetic, so
 //! the firmware needs no float-formatting code.
 
+use crate::record::SensorSetup;
 use core::fmt::{self, Write};
 
 /// The header line.
 pub const HEADER: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg";
 /// The comment line that ends a raw log (raw-log mode switched off).
 pub const END: &str = "# end of raw log";
+/// The comment that states the sensor setup the rows after it were sampled at ([`write_setup`]).
+pub const SETUP: &str = "# sensor setup:";
 /// Column names, in the order written.
 pub const COLUMNS: [&str; 9] = ["t_s", "ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "servo_deg", "tilt_deg"];
 /// Longest row [`write_row`] writes (bytes, without the newline).
@@ -94,6 +97,29 @@ pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
     Ok(())
 }
 
+/// Writes the setup comment (no newline): `# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0
+/// accel_range_g=4.0`. The firmware writes it after the header and again when the setup changes.
+pub fn write_setup(w: &mut impl Write, s: &SensorSetup) -> fmt::Result {
+    w.write_str(SETUP)?;
+    for (name, v) in [(" odr_hz=", s.odr_hz), (" gyro_range_dps=", s.gyro_range_dps), (" accel_range_g=", s.accel_range_g)] {
+        w.write_str(name)?;
+        fixed(w, v as f64, 1)?;
+    }
+    Ok(())
+}
+
+/// Reads a setup comment ([`write_setup`]); `None` for any other line or a value that is not a
+/// positive number.
+pub fn parse_setup(line: &str) -> Option<SensorSetup> {
+    let mut it = line.trim().strip_prefix(SETUP)?.split_whitespace();
+    let mut field = |name: &str| -> Option<f32> {
+        let v: f32 = it.next()?.strip_prefix(name)?.strip_prefix('=')?.parse().ok()?;
+        (v.is_finite() && v > 0.0).then_some(v)
+    };
+    let s = SensorSetup { odr_hz: field("odr_hz")?, gyro_range_dps: field("gyro_range_dps")?, accel_range_g: field("accel_range_g")? };
+    it.next().is_none().then_some(s)
+}
+
 /// Why a log line cannot be read. Lines are 1-based.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LogError {
@@ -124,6 +150,12 @@ pub enum LogError {
     },
     /// The log has no data rows.
     Empty,
+    /// A setup comment says another sensor setup than an earlier one: the rows are not one
+    /// calibration's.
+    SetupChanged {
+        /// Line number.
+        line: u32,
+    },
 }
 
 impl fmt::Display for LogError {
@@ -135,6 +167,9 @@ impl fmt::Display for LogError {
             LogError::BadNumber { line, column } => write!(f, "line {line}: column {column} is not a finite number"),
             LogError::NonMonotonicTime { line } => write!(f, "line {line}: time does not increase"),
             LogError::Empty => f.write_str("the log has no data rows"),
+            LogError::SetupChanged { line } => {
+                write!(f, "line {line}: the sensor setup changes (ODR or full scale): log one setup per file")
+            }
         }
     }
 }
@@ -215,6 +250,8 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
 pub enum Line {
     /// Blank or a comment.
     Skip,
+    /// The sensor setup of the rows that follow ([`write_setup`]).
+    Setup(SensorSetup),
     /// The end of the raw log.
     End,
     /// A log message between rows (not a number first).
@@ -228,6 +265,8 @@ pub fn parse_line(text: &str, cols: &Columns, line: u32) -> Result<Line, LogErro
     let t = text.trim();
     if t == END {
         Ok(Line::End)
+    } else if let Some(s) = parse_setup(t) {
+        Ok(Line::Setup(s))
     } else if t.is_empty() || t.starts_with('#') {
         Ok(Line::Skip)
     } else if !t.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) {

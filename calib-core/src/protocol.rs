@@ -30,13 +30,16 @@ pub enum Command {
     RawLog,
     /// `s`: the stored calibration (its record line, the JSON line, the C snippet).
     Stored,
+    /// `p`: the sensor setup of the next calibration: the firmware's own, or Arduino_LSM9DS1's
+    /// (119 Hz, ±2000 °/s, ±4 g), in turn.
+    Setup,
     /// `h` (or anything unknown): the help.
     Help,
 }
 
 impl Command {
     /// Every command.
-    pub const ALL: [Command; 4] = [Command::Calibrate, Command::RawLog, Command::Stored, Command::Help];
+    pub const ALL: [Command; 5] = [Command::Calibrate, Command::RawLog, Command::Stored, Command::Setup, Command::Help];
 
     /// The byte that sends it.
     pub const fn byte(self) -> u8 {
@@ -44,6 +47,7 @@ impl Command {
             Command::Calibrate => b'c',
             Command::RawLog => b'r',
             Command::Stored => b's',
+            Command::Setup => b'p',
             Command::Help => b'h',
         }
     }
@@ -54,11 +58,13 @@ impl Command {
         const CALIBRATE: u8 = Command::Calibrate.byte();
         const RAW_LOG: u8 = Command::RawLog.byte();
         const STORED: u8 = Command::Stored.byte();
+        const SETUP: u8 = Command::Setup.byte();
         Some(match b.to_ascii_lowercase() {
             b'\r' | b'\n' | b' ' | b'\t' | 0 => return None,
             CALIBRATE => Command::Calibrate,
             RAW_LOG => Command::RawLog,
             STORED => Command::Stored,
+            SETUP => Command::Setup,
             _ => Command::Help,
         })
     }
@@ -66,7 +72,7 @@ impl Command {
 
 /// The help (the answer to [`Command::Help`]), one line each.
 pub const HELP: [&str; 2] = [
-    "commands: c calibrate, or continue after re-clamping (= the button); r raw log (CSV rows) on/off; s stored calibration (JSON, C); h help",
+    "commands: c calibrate, or continue after re-clamping (= the button); r raw log (CSV rows) on/off; s stored calibration (JSON, C); p sensor setup: this firmware's or Arduino_LSM9DS1's (119 Hz, +-2000 dps, +-4 g), in turn, until reset; h help",
     "1200-baud touch (open the port at 1200 Bd, then close it): resets into the Arduino bootloader for bossac",
 ];
 

@@ -103,6 +103,9 @@ impl SensorSetup {
     /// The firmware's default (LSM9DS1 at 119 Hz, ±500 °/s, ±2 g): the only setup of the
     /// firmware that wrote version-1 and -2 records.
     pub const DEFAULT: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 500.0, accel_range_g: 2.0 };
+    /// What Arduino's Arduino_LSM9DS1 library sets in `IMU.begin()` (CTRL_REG1_G 0x78,
+    /// CTRL_REG6_XL 0x70): 119 Hz, ±2000 °/s, ±4 g.
+    pub const ARDUINO_LSM9DS1: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 };
 }
 
 impl core::fmt::Display for StoreError {

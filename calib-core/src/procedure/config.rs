@@ -5,6 +5,7 @@ use crate::axis::GeometryLimits;
 use crate::bias::BiasLimits;
 use crate::full::FullLimits;
 use crate::pipeline::{Acceptance, SteadyRate};
+use crate::record::SensorSetup;
 use crate::rest::RestConfig;
 use crate::rotation::RotationLimits;
 
@@ -107,12 +108,9 @@ pub struct Config {
     pub sample_timeout_s: f32,
     /// A move must turn the gyro by at least this fraction of the commanded angle.
     pub min_turn_fraction: f32,
-    /// Accelerometer full scale (g): samples at 98 % of it are saturated.
-    pub accel_range_g: f32,
-    /// Gyro full scale (°/s).
-    pub gyro_range_dps: f32,
-    /// The sensor's output data rate (Hz), stored in the record.
-    pub odr_hz: f32,
+    /// The sensor's ODR and full scales, stored in the record; samples at 98 % of a full scale
+    /// are saturated.
+    pub setup: SensorSetup,
     /// What a result must meet to be stored.
     pub acceptance: Acceptance,
 }
@@ -152,9 +150,7 @@ impl Config {
         reattach_timeout_s: 300.0,
         sample_timeout_s: 0.5,
         min_turn_fraction: 0.5,
-        accel_range_g: 2.0,
-        gyro_range_dps: 500.0,
-        odr_hz: 119.0,
+        setup: SensorSetup::DEFAULT,
         acceptance: Acceptance { k_min: 0.8, k_max: 1.2, max_sigma_k: 0.005, max_accel_rms_g: 0.01 },
     };
 }

@@ -61,6 +61,11 @@ pub struct Sample {
     pub temp_c: Option<f32>,
 }
 
+/// A change refused because a calibration is running.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Running;
+
 /// The phase the procedure is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -354,6 +359,24 @@ impl Procedure {
         self.settle();
     }
 
+    /// The sensor now runs at `setup` (a console command reconfigured it): the calibrations from
+    /// now on are made at it and their records say so. Refused while one runs (its samples are at
+    /// the setup it started with).
+    pub fn handle_setup(&mut self, setup: SensorSetup) -> Result<(), Running> {
+        match self.step {
+            Step::Idle | Step::Finished(_) => {
+                self.cfg.setup = setup;
+                Ok(())
+            }
+            _ => Err(Running),
+        }
+    }
+
+    /// The sensor setup calibrations are made at.
+    pub fn setup(&self) -> SensorSetup {
+        self.cfg.setup
+    }
+
     /// Samples were lost (`count`, at least 1: a FIFO overrun, or a read that failed): every
     /// gyro integral of a running calibration now has a gap, so it fails with
     /// [`Error::SamplesLost`] (nothing is stored).
@@ -424,8 +447,8 @@ impl Procedure {
             }
         }
         self.last_sample_t = Some(s.t_s);
-        let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.accel_range_g)
-            || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.gyro_range_dps);
+        let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g)
+            || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
         self.tainted |= saturated;
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
             self.temp.add([t, 0.0, 0.0]);

@@ -156,7 +156,7 @@ impl Procedure {
             temp_c: (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32),
             gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
             accel: self.accel_cal,
-            setup: SensorSetup { odr_hz: self.cfg.odr_hz, gyro_range_dps: self.cfg.gyro_range_dps, accel_range_g: self.cfg.accel_range_g },
+            setup: self.cfg.setup,
             tempco: self.temp_fit.finish(),
         }
     }

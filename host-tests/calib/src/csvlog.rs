@@ -3,6 +3,7 @@
 
 use calib_core::log::{self, Line};
 pub use calib_core::log::{LogError, Row, HEADER};
+use calib_core::record::SensorSetup;
 
 /// A parsed log.
 #[derive(Debug, Clone, PartialEq)]
@@ -11,6 +12,9 @@ pub struct Log {
     pub rows: Vec<Row>,
     /// Log messages between the rows that were skipped.
     pub messages: usize,
+    /// The sensor setup the log states ([`log::write_setup`]; the firmware's raw log does), if
+    /// it states one.
+    pub setup: Option<SensorSetup>,
 }
 
 /// Parses a whole log: lines before the header are skipped, comments skipped, log messages
@@ -25,10 +29,14 @@ pub fn parse(text: &str) -> Result<Log, LogError> {
             None => return Err(LogError::NoHeader),
         }
     };
-    let (mut rows, mut messages) = (Vec::<Row>::new(), 0);
+    let (mut rows, mut messages, mut setup) = (Vec::<Row>::new(), 0, None);
     for (n, l) in lines {
         match log::parse_line(l, &cols, n)? {
             Line::Skip => {}
+            Line::Setup(s) => match setup {
+                Some(old) if old != s => return Err(LogError::SetupChanged { line: n }),
+                _ => setup = Some(s),
+            },
             Line::Message => messages += 1,
             Line::End => break,
             Line::Row(r) => {
@@ -42,7 +50,7 @@ pub fn parse(text: &str) -> Result<Log, LogError> {
     if rows.is_empty() {
         return Err(LogError::Empty);
     }
-    Ok(Log { rows, messages })
+    Ok(Log { rows, messages, setup })
 }
 
 /// The header line, with its newline.
@@ -153,6 +161,31 @@ mod tests {
         assert_eq!(parse(&format!("{h}0,a,0,1,0,0,0,,\n")), Err(LogError::BadNumber { line: 2, column: "ax_g" }));
         assert_eq!(parse(&format!("{h}0,NaN,0,1,0,0,0,,\n")), Err(LogError::BadNumber { line: 2, column: "ax_g" }));
         assert_eq!(parse(&format!("{h}1,0,0,1,0,0,0,,\n1,0,0,1,0,0,0,,\n")), Err(LogError::NonMonotonicTime { line: 3 }));
+    }
+
+    #[test]
+    fn the_setup_comment_round_trips_and_a_change_is_an_error() {
+        let line = |s: &SensorSetup| {
+            let mut l = String::new();
+            log::write_setup(&mut l, s).unwrap();
+            l
+        };
+        let a = line(&SensorSetup::ARDUINO_LSM9DS1);
+        assert_eq!(a, "# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0 accel_range_g=4.0");
+        for s in [SensorSetup::DEFAULT, SensorSetup::ARDUINO_LSM9DS1, SensorSetup { odr_hz: 952.0, ..SensorSetup::DEFAULT }] {
+            assert_eq!(log::parse_setup(&line(&s)), Some(s));
+        }
+        for bad in
+            ["# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0", "# sensor setup: odr_hz=-1.0 gyro_range_dps=2000.0 accel_range_g=4.0"]
+        {
+            assert_eq!(log::parse_setup(bad), None, "{bad}");
+        }
+        let row = "0.0,0,0,1,0,0,0,,\n";
+        let log = format!("{}{a}\n{row}{a}\n", header());
+        assert_eq!(parse(&log).unwrap().setup, Some(SensorSetup::ARDUINO_LSM9DS1));
+        assert_eq!(parse(&format!("{}{row}", header())).unwrap().setup, None);
+        let changed = format!("{log}{}\n", line(&SensorSetup::DEFAULT));
+        assert_eq!(parse(&changed), Err(LogError::SetupChanged { line: 5 }));
     }
 
     #[test]

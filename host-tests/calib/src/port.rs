@@ -588,14 +588,14 @@ pub fn lost_rows(rows: &[Row]) -> usize {
     dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum()
 }
 
-/// Calibrates the saved log (`log_text`) with calib ([`offline::calibrate_stored`]: defaults,
+/// Calibrates the saved log (`log_text`) with calib ([`offline::calibrate_log`]: defaults,
 /// the replay starting from `stored`, the record the board had when the run started, as it did)
 /// and compares its `K` with the board's. Passes when every element agrees to [`K_TOLERANCE`]
 /// with the same method on a replayed log; otherwise [`SessionError::Mismatch`] naming the
 /// likely cause (rows lost on USB, with their number). `dropped_bytes`: the board's own count.
 pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64, stored: Option<&Record>) -> Result<CrossCheck, SessionError> {
     let log = csvlog::parse(log_text).map_err(SessionError::Log)?;
-    let c = offline::calibrate_stored(&log.rows, stored).map_err(|e| SessionError::Offline(e.to_string()))?;
+    let c = offline::calibrate_log(&log, None, true, stored).map_err(|e| SessionError::Offline(e.to_string()))?;
     let calib = c.record().ok_or_else(|| SessionError::Offline(format!("no gyro calibration: {}", c.missing().join("; "))))?;
     let (mut max_diff, mut at) = (0.0f32, (0, 0));
     for i in 0..3 {

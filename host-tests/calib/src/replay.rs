@@ -19,7 +19,7 @@ use calib_core::bias::Bias;
 use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
-use calib_core::record::{Record, StoreError};
+use calib_core::record::{Record, SensorSetup, StoreError};
 use calib_core::{pipeline, Error};
 
 /// What the procedure concluded on the replayed log.
@@ -83,12 +83,12 @@ impl Shell for Collect {
 }
 
 /// The configurations tried, in order: the firmware's default build, its `tilt-servo` build (the
-/// pan/tilt plan), and a continuous-rotation servo.
-fn configs() -> [(&'static str, Config); 3] {
+/// pan/tilt plan), and a continuous-rotation servo; each at the sensor `setup` the log states.
+fn configs(setup: SensorSetup) -> [(&'static str, Config); 3] {
     [
-        ("default", Config::DEFAULT),
-        ("tilt-servo", Config::PAN_TILT),
-        ("continuous servo", Config { servo: ServoKind::CONTINUOUS, ..Config::DEFAULT }),
+        ("default", Config { setup, ..Config::DEFAULT }),
+        ("tilt-servo", Config { setup, ..Config::PAN_TILT }),
+        ("continuous servo", Config { servo: ServoKind::CONTINUOUS, setup, ..Config::DEFAULT }),
     ]
 }
 
@@ -137,9 +137,10 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
 }
 
 /// Replays a log of the firmware's procedure; `None` if it is not one (see the module).
-/// `stored`: the record the board had in flash when the run started, if any.
-pub fn replay(rows: &[Row], stored: Option<&Record>) -> Option<Replay> {
-    configs().into_iter().find_map(|(name, cfg)| {
+/// `stored`: the record the board had in flash when the run started, if any; `setup`: the sensor
+/// setup the run was made at.
+pub fn replay(rows: &[Row], stored: Option<&Record>, setup: SensorSetup) -> Option<Replay> {
+    configs(setup).into_iter().find_map(|(name, cfg)| {
         let (c, full) = run(rows, cfg, stored)?;
         let attempted = cfg.pan_tilt || c.rotations;
         let full = attempted.then_some(match (c.done, c.failed, full) {

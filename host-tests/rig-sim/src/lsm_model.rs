@@ -21,7 +21,7 @@
 //! sample of the rig ([`Lsm9ds1Model::history`] does not list it; [`Lsm9ds1Model::junk`] counts
 //! it).
 
-use crate::sim::Rig;
+use crate::sim::{AccelRange, GyroRange, Rig};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, BMI270_CHIP_ID, FIFO_DEPTH, WHO_AM_I_AG};
 use std::collections::VecDeque;
@@ -98,8 +98,8 @@ const DEFAULT_CTRL_REG8: u8 = 0x04;
 pub const BOOT_S: f64 = 0.010;
 
 impl Lsm9ds1Model {
-    /// A model on `board`, sampling `rig` (whose sensor ranges should match what the firmware
-    /// configures: the counts are the rig's values divided by the configured sensitivity).
+    /// A model on `board`, sampling `rig` (its full scales and ODR follow CTRL_REG1_G and
+    /// CTRL_REG6_XL from the first write on).
     pub fn new(rig: Rig, board: Board) -> Self {
         let mut m = Self {
             rig,
@@ -216,20 +216,22 @@ impl Lsm9ds1Model {
         self.reg(reg::CTRL_REG1_G) >> 5 != 0
     }
 
-    fn gyro_lsb_dps(&self) -> f64 {
+    /// FS_G (CTRL_REG1_G bits 4:3; 10 is "not available" in the datasheet, read as ±2000 °/s).
+    fn gyro_range(&self) -> GyroRange {
         match (self.reg(reg::CTRL_REG1_G) >> 3) & 3 {
-            0 => 0.00875,
-            1 => 0.0175,
-            _ => 0.070,
+            0 => GyroRange::Dps245,
+            1 => GyroRange::Dps500,
+            _ => GyroRange::Dps2000,
         }
     }
 
-    fn accel_lsb_g(&self) -> f64 {
+    /// FS_XL (CTRL_REG6_XL bits 4:3).
+    fn accel_range(&self) -> AccelRange {
         match (self.reg(reg::CTRL_REG6_XL) >> 3) & 3 {
-            0 => 0.000061,
-            1 => 0.000732,
-            2 => 0.000122,
-            _ => 0.000244,
+            0 => AccelRange::G2,
+            1 => AccelRange::G16,
+            2 => AccelRange::G4,
+            _ => AccelRange::G8,
         }
     }
 
@@ -251,8 +253,8 @@ impl Lsm9ds1Model {
                 None => {
                     let s = self.rig.next_sample();
                     let slot = Slot {
-                        gyro: Self::counts_le(s.gyro_dps, self.gyro_lsb_dps()),
-                        accel: Self::counts_le(s.accel_g, self.accel_lsb_g()),
+                        gyro: Self::counts_le(s.gyro_dps, self.gyro_range().lsb_dps()),
+                        accel: Self::counts_le(s.accel_g, self.accel_range().lsb_g()),
                     };
                     let p = (self.rig.truth().t_s, slot, s.temp_c, s.accel_g, s.gyro_dps);
                     self.pending = Some(p);
@@ -346,6 +348,10 @@ impl Lsm9ds1Model {
         }
         let was_on = self.fifo_on();
         self.regs[r as usize] = v;
+        if matches!(r, reg::CTRL_REG1_G | reg::CTRL_REG6_XL) {
+            // The full scales saturate and quantise the rig's readings as the registers say.
+            self.rig.set_ranges(self.gyro_range(), self.accel_range());
+        }
         if !was_on && self.fifo_on() {
             self.fifo.clear();
             self.junk_next = true;

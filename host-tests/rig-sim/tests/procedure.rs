@@ -3,14 +3,14 @@
 
 use calib_core::accel::AccelModel;
 use calib_core::gyro::Method;
-use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, ServoKind};
-use calib_core::record::{Record, StoreError};
+use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, ServoKind};
+use calib_core::record::{Record, SensorSetup, StoreError};
 use calib_core::Error;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rig_sim::harness::{run, Faults, Run};
 use rig_sim::pan_tilt;
-use rig_sim::sim::{ContinuousServo, GyroRange, Rig, RigConfig, ServoModel};
+use rig_sim::sim::{AccelRange, ContinuousServo, GyroRange, Rig, RigConfig, ServoModel};
 use rig_sim::variant::Variant;
 
 fn calibrate(cfg: RigConfig, pcfg: Config, stored: Option<Record>, faults: Faults) -> (Run, Rig) {
@@ -50,6 +50,29 @@ fn positional_servo_at_every_odr_and_several_mounts() {
         assert!(*moves >= 9 && residual_deg[..*moves as usize].iter().all(|r| *r < 0.1), "{moves} moves: {residual_deg:?}");
         assert_eq!(Record::decode(&rec.encode().unwrap()), Ok(rec));
     }
+}
+
+#[test]
+fn at_arduino_lsm9ds1s_setup_the_record_says_so_and_a_change_waits_for_the_end() {
+    // ±2000 °/s (70 m°/s per LSB, 4× coarser) and ±4 g, as Arduino_LSM9DS1 runs the sensor.
+    let mut cfg = Variant::Hobby.config(11, 7);
+    (cfg.gyro.range, cfg.accel.range) = (GyroRange::Dps2000, AccelRange::G4);
+    let mut rig = Rig::new(cfg, 5);
+    let mut p = Procedure::new(Config { setup: SensorSetup::ARDUINO_LSM9DS1, ..Config::default() }, None);
+    let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+    // A change asked for while a calibration runs is refused.
+    let mut running = Procedure::new(Config::default(), None);
+    running.handle_button(0.0);
+    assert_eq!(running.handle_setup(SensorSetup::ARDUINO_LSM9DS1), Err(Running));
+    assert_eq!(running.setup(), SensorSetup::DEFAULT);
+    assert_eq!(out.error, None, "{:?}", out.reports.last());
+    let rec = out.stored[0];
+    assert_eq!(rec.setup, SensorSetup::ARDUINO_LSM9DS1);
+    let (largest, _) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig).unwrap();
+    assert!(largest < 1.5e-3, "E largest {largest:.2e}");
+    // Once it has ended the next calibration may run at another setup.
+    assert_eq!(p.handle_setup(SensorSetup::DEFAULT), Ok(()));
+    assert_eq!(p.setup(), SensorSetup::DEFAULT);
 }
 
 #[test]
@@ -146,7 +169,7 @@ fn saturation_during_a_move_is_an_error() {
         p.max_rate_dps = 1000.0;
         p.tau_s = 0.03;
     }
-    let pcfg = Config { move_rate_dps: 2000.0, gyro_range_dps: 245.0, ..Config::default() };
+    let pcfg = Config { move_rate_dps: 2000.0, setup: SensorSetup { gyro_range_dps: 245.0, ..SensorSetup::DEFAULT }, ..Config::default() };
     expect_failure(cfg, pcfg, Faults::default(), |e| *e == Error::Saturated);
 }
 

@@ -17,6 +17,39 @@ fn drain<const N: usize>(o: &mut Outbox<N>, packet: usize) -> String {
     String::from_utf8(out).unwrap()
 }
 
+/// The packets the endpoint sends for what is queued, as lengths (0: a ZLP), until none.
+fn packets<const N: usize>(o: &mut Outbox<N>) -> Vec<usize> {
+    let mut sent = vec![];
+    while let Some(p) = o.next_packet(64) {
+        let n = p.len();
+        o.sent(n, 64);
+        sent.push(n);
+    }
+    sent
+}
+
+#[test]
+fn a_burst_that_ends_on_a_full_packet_is_closed_by_a_zlp_and_only_then() {
+    let mut o = Outbox::<1024>::new();
+    // 126 + 2 = 128 bytes: two full packets, then the ZLP a host needs to complete its read.
+    o.push_line(&"a".repeat(126));
+    assert_eq!(packets(&mut o), [64, 64, 0]);
+    // 129 bytes: the short last packet ends the burst.
+    o.push_line(&"b".repeat(127));
+    assert_eq!(packets(&mut o), [64, 64, 1]);
+    // More queued after a full packet: no ZLP in the middle of a burst.
+    o.push_line(&"c".repeat(62));
+    assert_eq!(o.next_packet(64).map(<[u8]>::len), Some(64));
+    o.sent(64, 64);
+    o.push_line("d");
+    assert_eq!(packets(&mut o), [3]);
+    // A full packet and then the host went away: nothing owed after a clear.
+    o.push_line(&"e".repeat(62));
+    o.sent(64, 64);
+    o.clear();
+    assert_eq!(o.next_packet(64), None);
+}
+
 #[test]
 fn lines_go_in_whole_or_are_dropped_and_counted() {
     let mut o = Outbox::<64>::new();

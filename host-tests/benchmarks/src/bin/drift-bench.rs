@@ -7,16 +7,18 @@
 //! elements, mean over the rigs, and the largest element) of the stored results, the rig time
 //! (button to store, plus the wait), the bias's temperature coefficient (in how many runs it was
 //! reported, and the fraction of its axes within 2σ of the truth), and the runs that fail with
-//! their errors; `--json`: the last line is a JSON summary.
+//! their errors; `--json`: the last line is a JSON summary. `--setup arduino-lsm9ds1`: the sensor
+//! at ±2000 °/s and ±4 g (70 m°/s and 0.122 mg per count), as Arduino_LSM9DS1 runs it.
 //!
-//! `cargo run --profile host -p benchmarks --target host-tuple --bin drift-bench [--rigs N] [--json]`
+//! `cargo run --profile host -p benchmarks --target host-tuple --bin drift-bench [--rigs N] [--setup S] [--json]`
 
 use benchmarks::moments::Moments;
 use calib_core::procedure::{Config, Procedure, Report};
+use calib_core::record::SensorSetup;
 use clap::Parser;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
-use rig_sim::sim::{Rig, RigConfig};
+use rig_sim::sim::{AccelRange, GyroRange, Rig, RigConfig};
 use rig_sim::variant::Variant;
 use serde_json::json;
 
@@ -33,9 +35,30 @@ struct Args {
     /// The warm-up wait of the third row (s).
     #[arg(long, default_value_t = 300.0)]
     wait_s: f64,
+    /// The sensor's ODR and full scales.
+    #[arg(long, value_enum, default_value = "default")]
+    setup: Setup,
     /// Print a JSON summary as the last line.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Setup {
+    /// The firmware's: 119 Hz, ±500 °/s, ±2 g.
+    Default,
+    /// Arduino_LSM9DS1's: 119 Hz, ±2000 °/s, ±4 g.
+    ArduinoLsm9ds1,
+}
+
+impl Setup {
+    /// The procedure's setup, and the sensor's full scales to match.
+    fn of(self) -> (SensorSetup, GyroRange, AccelRange) {
+        match self {
+            Setup::Default => (SensorSetup::DEFAULT, GyroRange::Dps500, AccelRange::G2),
+            Setup::ArduinoLsm9ds1 => (SensorSetup::ARDUINO_LSM9DS1, GyroRange::Dps2000, AccelRange::G4),
+        }
+    }
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -48,7 +71,11 @@ enum Bias {
 fn main() {
     let args = Args::parse_from(calib::cli_args());
     let mut rows = vec![];
-    println!("drift-bench: {} rigs per plan, the firmware's procedure, seed {}", args.rigs, args.seed);
+    let (setup, gyro_range, accel_range) = args.setup.of();
+    println!(
+        "drift-bench: {} rigs per plan, the firmware's procedure, seed {}, sensor at {} Hz, +-{} dps, +-{} g",
+        args.rigs, args.seed, setup.odr_hz, setup.gyro_range_dps, setup.accel_range_g
+    );
     println!(
         "{:<10}{:<22}{:>12}{:>14}{:>10}{:>8}{:>8}{:>8}{:>10}",
         "plan", "bias", "RMS of E", "largest |E|", "time s", "stored", "failed", "tempco", "in 2 sig"
@@ -58,10 +85,11 @@ fn main() {
             let (mut rms, mut largest, mut times, mut failed) = (vec![], vec![], vec![], vec![]);
             let (mut tempco_runs, mut within, mut axes) = (0, 0, 0);
             for i in 0..args.rigs {
-                let (base, cfg): (RigConfig, Config) = match plan {
-                    "one-servo" => (Variant::Hobby.config(args.seed, i), Config::DEFAULT),
-                    _ => (pan_tilt::rig_config(args.seed, i), Config::PAN_TILT),
+                let (mut base, cfg): (RigConfig, Config) = match plan {
+                    "one-servo" => (Variant::Hobby.config(args.seed, i), Config { setup, ..Config::DEFAULT }),
+                    _ => (pan_tilt::rig_config(args.seed, i), Config { setup, ..Config::PAN_TILT }),
                 };
+                (base.gyro.range, base.accel.range) = (gyro_range, accel_range);
                 let mut rig_cfg = if bias == Bias::Constant { base.constant_bias() } else { base };
                 let wait = if bias == Bias::Waited { args.wait_s } else { 0.0 };
                 if let Some(w) = rig_cfg.warmup.as_mut() {
@@ -113,6 +141,7 @@ fn main() {
         }
     }
     if args.json {
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "rows": rows}));
+        let setup = json!({"odr_hz": setup.odr_hz, "gyro_range_dps": setup.gyro_range_dps, "accel_range_g": setup.accel_range_g});
+        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": setup, "rows": rows}));
     }
 }

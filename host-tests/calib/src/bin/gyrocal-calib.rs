@@ -175,7 +175,7 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
         Ok(l) => l,
         Err(e) => return fail(3, format!("{path}: {e}")),
     };
-    let c = match offline::calibrate_with(&log.rows, method, !args.no_rotations) {
+    let c = match offline::calibrate_log(&log, method, !args.no_rotations, None) {
         Ok(c) => c,
         Err(e) => return fail(1, format!("{path}: {e}")),
     };

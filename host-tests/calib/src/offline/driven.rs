@@ -130,6 +130,7 @@ pub(super) fn calibrate(
         replayed_record: None,
         time_base,
         phases: ph,
+        setup: None,
     })
 }
 

@@ -6,7 +6,7 @@
 //! pose; the motion between two consecutive rig poses is a move; a long run of windows with a
 //! steady gyro rate is the paper's constant-rate spin.
 
-use crate::csvlog::Row;
+use crate::csvlog::{Log, Row};
 use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
 use calib_core::axis::{Poses, MAX_POSES};
 use calib_core::bias::{Bias, BiasEstimator, BiasLimits, Drift, RestBias};
@@ -14,7 +14,7 @@ use calib_core::full::FullCal;
 use calib_core::gyro::{GyroCal, GyroQuality, Method};
 use calib_core::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
-use calib_core::record::{self, Record};
+use calib_core::record::{self, Record, SensorSetup};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
 use calib_core::rotation::{RotationLimits, Rotations};
 use calib_core::stats::Welford3;
@@ -123,6 +123,8 @@ pub struct Calibration {
     pub replayed_record: Option<Record>,
     /// The log's sample rate.
     pub time_base: TimeBase,
+    /// The sensor setup the log states (the firmware's raw log does), if it states one.
+    pub setup: Option<SensorSetup>,
 }
 
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
@@ -140,16 +142,23 @@ const CONFIG: Config = Config::DEFAULT;
 /// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
 /// (`calib --no-rotations`: to see what they add).
 pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
-    calibrate_from(rows, method, rotations_on, None)
+    calibrate_from(rows, method, rotations_on, None, None)
 }
 
-/// [`calibrate`] of a log of the firmware's run that started with `stored` in its flash (the
-/// board's `s` answer): the replay starts from it, as the board did.
-pub fn calibrate_stored(rows: &[Row], stored: Option<&Record>) -> Result<Calibration, OfflineError> {
-    calibrate_from(rows, None, true, stored)
+/// [`calibrate_with`] of a whole log, at the sensor setup it states (else the firmware's
+/// default full scales); a run of the firmware that started with `stored` in its flash (the
+/// board's `s` answer) is replayed from it, as the board did.
+pub fn calibrate_log(log: &Log, method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+    calibrate_from(&log.rows, method, rotations_on, stored, log.setup)
 }
 
-fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+fn calibrate_from(
+    rows: &[Row],
+    method: Option<Method>,
+    rotations_on: bool,
+    stored: Option<&Record>,
+    setup: Option<SensorSetup>,
+) -> Result<Calibration, OfflineError> {
     let time_base = check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
@@ -159,11 +168,11 @@ fn calibrate_from(rows: &[Row], method: Option<Method>, rotations_on: bool, stor
     // A run of the firmware's own procedure: replayed through it, the firmware's results (which
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
-        if let Some(r) = crate::replay::replay(rows, stored) {
-            return replayed(r, time_base, ph);
+        if let Some(r) = crate::replay::replay(rows, stored, setup.unwrap_or(SensorSetup::DEFAULT)) {
+            return Ok(Calibration { setup, ..replayed(r, time_base, ph)? });
         }
     }
-    driven::calibrate(rows, method, rotations_on, time_base, ph)
+    Ok(Calibration { setup, ..driven::calibrate(rows, method, rotations_on, time_base, ph)? })
 }
 
 /// The calibration of a replayed run of the firmware: its procedure's results.
@@ -196,6 +205,7 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, ph: Phases) -> Result
         replayed_record: r.record,
         time_base,
         phases: ph,
+        setup: None,
     })
 }
 

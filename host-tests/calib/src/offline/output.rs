@@ -171,11 +171,12 @@ impl Calibration {
     /// The result as a flash record, for `calib_core::export`: the gyro `K` of
     /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
     /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
-    /// and tempco unknown (a log has no temperature column), the log's rate (nominal:
-    /// [`TimeBase::nominal_hz`]) at the firmware's full scales. `None` without a gyro result.
+    /// and tempco unknown (a log has no temperature column), the setup the log states, else its
+    /// rate (nominal: [`TimeBase::nominal_hz`]) at the firmware's default full scales. `None`
+    /// without a gyro result.
     pub fn record(&self) -> Option<Record> {
-        // A log states its rate, not the full scales: those are the firmware's (the log format's).
-        let setup = record::SensorSetup { odr_hz: self.time_base.nominal_hz() as f32, ..record::SensorSetup::DEFAULT };
+        let setup =
+            self.setup.unwrap_or(record::SensorSetup { odr_hz: self.time_base.nominal_hz() as f32, ..record::SensorSetup::DEFAULT });
         if let Some(r) = self.replayed_record {
             return Some(Record { seq: 0, setup, ..r });
         }

@@ -3,6 +3,7 @@
 
 use super::config::RigConfig;
 use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
+use super::sensor::{AccelRange, GyroRange};
 use super::servo::{Servo, ServoModel};
 use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -157,6 +158,11 @@ impl Rig {
         if hz > 0.0 {
             self.cfg.odr_hz = hz;
         }
+    }
+
+    /// Changes the sensor's full scales (saturation and quantisation) from the next sample on.
+    pub fn set_ranges(&mut self, gyro: GyroRange, accel: AccelRange) {
+        (self.cfg.gyro.range, self.cfg.accel.range) = (gyro, accel);
     }
 
     /// Tilt servo pulse width (µs); ignored without a tilt stage.
