@@ -1,37 +1,43 @@
-//! The board around the procedure (part of the firmware binary, not of the library): the LEDs,
-//! the microsecond clock, the sensor's I2C bus, and the boot-time clean-up of what the Arduino
-//! bootloader leaves running.
+//! The Nano 33 BLE around the firmware (target only): the LEDs, the microsecond clock, the
+//! watchdog, the sensor's rail and I2C bus, and the boot-time clean-up of what the Arduino
+//! bootloader leaves running. Shared by the calibration firmware and the example that loads its
+//! record (`src/bin/calibrated-rates.rs`).
 
+use crate::bootloader::FlashMap;
+use crate::led::Lights;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::OutputPin;
 use embedded_hal::i2c::{ErrorType, I2c, Operation};
-use gyrocal_fw::bootloader::FlashMap;
-use gyrocal_fw::led::Lights;
-use hal::gpio::{Output, Pin, PushPull};
+use hal::gpio::{p0, p1, Disconnected, DriveConfig, Level, Output, Pin, PushPull};
 use hal::pac;
-use hal::{twim, Twim};
+use hal::{twim, wdt, Twim};
 use nrf52840_hal as hal;
 
 /// Polls of EVENTS_HFCLKSTARTED before giving up on the crystal (≥ 10 ms at 64 MHz; the
 /// crystal starts in ≈ 0.36 ms).
-pub(crate) const HFXO_POLLS: u32 = 200_000;
+pub const HFXO_POLLS: u32 = 200_000;
 /// Polls of UARTE0's EVENTS_RXTO after STOPRX (≥ 1 ms at 64 MHz; one character at 115 200 Bd
 /// is 87 µs).
-pub(crate) const UARTE_STOP_POLLS: u32 = 20_000;
+pub const UARTE_STOP_POLLS: u32 = 20_000;
 /// TWIM0 FREQUENCY: nRF52840 erratum 219 (at the 400 kHz setting the SCL low time is below the
 /// I2C minimum); Nordic's fix is this 390 kHz value.
-pub(crate) const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
+pub const TWIM_FREQUENCY_390K: u32 = 0x0620_0000;
 
 /// The four LEDs (RGB active low).
-pub(crate) struct Leds {
-    pub(crate) d13: Pin<Output<PushPull>>,
-    pub(crate) red: Pin<Output<PushPull>>,
-    pub(crate) green: Pin<Output<PushPull>>,
-    pub(crate) blue: Pin<Output<PushPull>>,
+pub struct Leds {
+    /// The yellow LED on D13 (P0.13), active high.
+    pub d13: Pin<Output<PushPull>>,
+    /// The RGB LED's red (P0.24).
+    pub red: Pin<Output<PushPull>>,
+    /// Its green (P0.16).
+    pub green: Pin<Output<PushPull>>,
+    /// Its blue (P0.06).
+    pub blue: Pin<Output<PushPull>>,
 }
 
 impl Leds {
-    pub(crate) fn show(&mut self, l: Lights) {
+    /// Shows a pattern's state.
+    pub fn show(&mut self, l: Lights) {
         let set = |p: &mut Pin<Output<PushPull>>, on: bool| {
             let _ = if on { p.set_high() } else { p.set_low() };
         };
@@ -45,14 +51,15 @@ impl Leds {
 /// Microseconds since boot from TIMER1, free-running at 1 MHz in 32-bit mode with no shortcut,
 /// so that it wraps at exactly 2³² µs (71.6 min); extended to 64 bits (read more often than
 /// that: the loop runs every 2 ms).
-pub(crate) struct Clock {
+pub struct Clock {
     timer: pac::TIMER1,
     last: u32,
     high: u64,
 }
 
 impl Clock {
-    pub(crate) fn start(timer: pac::TIMER1) -> Self {
+    /// Starts TIMER1 from 0.
+    pub fn start(timer: pac::TIMER1) -> Self {
         // SAFETY (all writes): TIMER1 is ours; values from the PS (PRESCALER 4: 16 MHz / 2⁴).
         timer.tasks_stop.write(|w| unsafe { w.bits(1) });
         timer.shorts.reset();
@@ -65,7 +72,8 @@ impl Clock {
         Self { timer, last: 0, high: 0 }
     }
 
-    pub(crate) fn now_us(&mut self) -> u64 {
+    /// Microseconds since [`Clock::start`].
+    pub fn now_us(&mut self) -> u64 {
         // SAFETY: CAPTURE[0] copies the counter into CC[0].
         self.timer.tasks_capture[0].write(|w| unsafe { w.bits(1) });
         let v = self.timer.cc[0].read().bits();
@@ -76,13 +84,14 @@ impl Clock {
         self.high + v as u64
     }
 
-    pub(crate) fn now_s(&mut self) -> f64 {
+    /// Seconds since [`Clock::start`].
+    pub fn now_s(&mut self) -> f64 {
         self.now_us() as f64 * 1e-6
     }
 }
 
 /// Busy waits on [`Clock`] (the sensor's reset; at most tens of ms, below the watchdog's 2 s).
-pub(crate) struct Wait<'a>(pub(crate) &'a mut Clock);
+pub struct Wait<'a>(pub &'a mut Clock);
 
 impl DelayNs for Wait<'_> {
     fn delay_ns(&mut self, ns: u32) {
@@ -95,7 +104,7 @@ impl DelayNs for Wait<'_> {
 /// disabled and enabled again before the next one: a TWIM that received a STOP task while idle
 /// fails the transfers that follow (embassy-rs/embassy #6722), which would spoil the Rev2 probe
 /// at 0x68 that follows a NACK at 0x6B.
-pub(crate) struct Bus(pub(crate) Twim<pac::TWIM0>);
+pub struct Bus(pub Twim<pac::TWIM0>);
 
 impl ErrorType for Bus {
     type Error = twim::Error;
@@ -119,7 +128,7 @@ impl I2c for Bus {
 /// receiving, PWM0 driving P0.13, RTC1 running with its interrupt enabled, and interrupts
 /// enabled in the NVIC whose handlers this firmware does not have. Nothing here relies on a
 /// reset value.
-pub(crate) fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
+pub fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
     // SAFETY (whole function): writes to peripherals this firmware owns, values from the PS and
     // the ARMv7-M ARM; no other code runs yet.
     unsafe {
@@ -171,7 +180,7 @@ pub(crate) fn quiesce(p: &pac::Peripherals, core: &mut cortex_m::Peripherals) {
 }
 
 /// What the UICR and the start of the flash say about the bootloader.
-pub(crate) fn flash_map(uicr: &pac::UICR) -> FlashMap {
+pub fn flash_map(uicr: &pac::UICR) -> FlashMap {
     let nrffw0 = uicr.nrffw[0].read().bits();
     // SAFETY: aligned reads of mapped flash (0x4: the vector table at 0x0; a bootloader's
     // vector table only where UICR says one starts, inside the 1 MiB flash).
@@ -184,7 +193,7 @@ pub(crate) fn flash_map(uicr: &pac::UICR) -> FlashMap {
 /// HFCLKSTARTED first. Bounded. A crystal that already runs (the stock bootloader starts it) is
 /// taken as it is (HFCLKSTAT: source Xtal, running), without relying on a start task raising
 /// HFCLKSTARTED again.
-pub(crate) fn start_hfxo(clock: &pac::CLOCK) -> bool {
+pub fn start_hfxo(clock: &pac::CLOCK) -> bool {
     let stat = clock.hfclkstat.read();
     if stat.src().is_xtal() && stat.state().is_running() {
         return true;
@@ -200,4 +209,42 @@ pub(crate) fn start_hfxo(clock: &pac::CLOCK) -> bool {
         }
     }
     false
+}
+
+/// The watchdog, started with `timeout_s`, or recovered when it already runs (after a soft reset,
+/// or left running by the firmware before an upload: it cannot be stopped); `None` when it is in
+/// a state neither way handles (the caller resets).
+pub fn watchdog(w: pac::WDT, timeout_s: u32) -> Option<wdt::WatchdogHandle<wdt::handles::Hdl0>> {
+    match wdt::Watchdog::try_new(w) {
+        Ok(mut w) => {
+            w.set_lfosc_ticks(timeout_s * 32_768);
+            Some(w.activate::<wdt::count::One>().handles.0)
+        }
+        Err(w) => wdt::Watchdog::try_recover::<wdt::count::One>(w).ok().map(|parts| parts.handles.0),
+    }
+}
+
+/// The sensor rail and its bus, as Arduino's core brings them up: VDD_ENV (P0.22) in high drive
+/// (against a voltage drop on the sensor rail), after ~10 ms the I2C pull-ups (P1.00), 5 ms,
+/// then TWIM0 on SCL P0.15 / SDA P0.14 at 390 kHz (erratum 219). The IMU answers only after
+/// both.
+pub fn sensor_bus(
+    vdd_env: p0::P0_22<Disconnected>,
+    pullups: p1::P1_00<Disconnected>,
+    scl: p0::P0_15<Disconnected>,
+    sda: p0::P0_14<Disconnected>,
+    twim0: pac::TWIM0,
+    clock: &mut Clock,
+) -> Bus {
+    let _vdd_env = vdd_env.into_push_pull_output_drive(Level::High, DriveConfig::HighDrive0HighDrive1);
+    let t0 = clock.now_us();
+    while clock.now_us() - t0 < 10_000 {}
+    let _pullups = pullups.into_push_pull_output(Level::High);
+    let t0 = clock.now_us();
+    while clock.now_us() - t0 < 5_000 {}
+    let pins = twim::Pins { scl: scl.into_floating_input().degrade(), sda: sda.into_floating_input().degrade() };
+    let bus = Bus(Twim::new(twim0, pins, twim::Frequency::K400));
+    // SAFETY: a plain register write to the TWIM we own, before any transfer.
+    unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(TWIM_FREQUENCY_390K)) };
+    bus
 }

@@ -9,9 +9,13 @@
 //! - [`rtt`]: the never-blocking defmt RTT logger.
 //! - [`serial`]: the USB serial console's outbox, commands and 1200-baud touch; `usb` (target
 //!   only): the CDC-ACM port over the USBD.
+//! - `board` (target only): the Nano 33 BLE's bring-up (bootloader clean-up, crystal, clock,
+//!   watchdog, sensor rail and bus, LEDs).
 #![no_std]
 #![deny(missing_docs)]
 
+#[cfg(target_os = "none")]
+pub mod board;
 pub mod bootloader;
 pub mod button;
 pub mod led;

@@ -215,6 +215,15 @@ impl SensorConfig {
     /// ±2000 °/s, BW_G 00) and CTRL_REG6_XL 0x70 (119 Hz, ±4 g, bandwidth from the ODR).
     pub const ARDUINO_LSM9DS1: SensorConfig = SensorConfig { odr: Odr::Hz119, gyro: GyroScale::Dps2000, accel: AccelScale::G4 };
 
+    /// The settings of a record's setup, if this driver can run them (its ODRs and full scales).
+    pub fn of(s: &SensorSetup) -> Option<SensorConfig> {
+        let odr = [Odr::Hz119, Odr::Hz238, Odr::Hz476, Odr::Hz952].into_iter().find(|o| o.hz() == s.odr_hz)?;
+        let gyro = [GyroScale::Dps245, GyroScale::Dps500, GyroScale::Dps2000].into_iter().find(|g| g.range_dps() == s.gyro_range_dps)?;
+        let accel =
+            [AccelScale::G2, AccelScale::G4, AccelScale::G8, AccelScale::G16].into_iter().find(|a| a.range_g() == s.accel_range_g)?;
+        Some(SensorConfig { odr, gyro, accel })
+    }
+
     /// The setup a record states.
     pub const fn setup(&self) -> SensorSetup {
         SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro.range_dps(), accel_range_g: self.accel.range_g() }

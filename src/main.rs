@@ -12,11 +12,10 @@
 #![no_std]
 #![no_main]
 
-mod board;
 mod console;
 
-use board::{flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait, TWIM_FREQUENCY_390K};
 use console::{Console, LINE};
+use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait};
 
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use calib_core::protocol::{self, RecordLine};
@@ -31,10 +30,10 @@ use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
-use hal::gpio::{DriveConfig, Level};
+use hal::gpio::Level;
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
-use hal::{twim, wdt, Timer, Twim};
+use hal::Timer;
 use nrf52840_hal as hal;
 use panic_probe as _;
 
@@ -380,19 +379,9 @@ fn main() -> ! {
         cortex_m::peripheral::SCB::sys_reset();
     }
 
-    let mut wd = match wdt::Watchdog::try_new(p.WDT) {
-        Ok(mut w) => {
-            w.set_lfosc_ticks(WATCHDOG_S * 32_768);
-            w.activate::<wdt::count::One>().handles.0
-        }
-        // Already running after a soft reset: recover its handle.
-        Err(w) => match wdt::Watchdog::try_recover::<wdt::count::One>(w) {
-            Ok(parts) => parts.handles.0,
-            Err(_) => {
-                defmt::error!("watchdog in an unknown state; rebooting");
-                cortex_m::peripheral::SCB::sys_reset();
-            }
-        },
+    let Some(mut wd) = board::watchdog(p.WDT, WATCHDOG_S) else {
+        defmt::error!("watchdog in an unknown state; rebooting");
+        cortex_m::peripheral::SCB::sys_reset();
     };
 
     let mut clock = Clock::start(p.TIMER1);
@@ -413,19 +402,7 @@ fn main() -> ! {
     };
     let mut button_pin = p1.p1_11.into_pullup_input();
 
-    // Sensor power (high drive, as Arduino's core does, against a voltage drop on the sensor
-    // rail), then (after ~10 ms) the I2C pull-ups: the IMU does not answer before both.
-    let _vdd_env = p0.p0_22.into_push_pull_output_drive(Level::High, DriveConfig::HighDrive0HighDrive1);
-    let t0 = clock.now_us();
-    while clock.now_us() - t0 < 10_000 {}
-    let _pullups = p1.p1_00.into_push_pull_output(Level::High);
-    let t0 = clock.now_us();
-    while clock.now_us() - t0 < 5_000 {}
-
-    let pins = twim::Pins { scl: p0.p0_15.into_floating_input().degrade(), sda: p0.p0_14.into_floating_input().degrade() };
-    let mut bus = Some(Bus(Twim::new(p.TWIM0, pins, twim::Frequency::K400)));
-    // SAFETY: a plain register write to the TWIM we own, before any transfer.
-    unsafe { (*pac::TWIM0::ptr()).frequency.write(|w| w.bits(TWIM_FREQUENCY_390K)) };
+    let mut bus = Some(board::sensor_bus(p0.p0_22, p1.p1_00, p0.p0_15, p0.p0_14, p.TWIM0, &mut clock));
 
     // Servo PWM: 1 MHz, 20 ms period; duty 0 = no pulse until the procedure commands one.
     let pwm = Pwm::new(p.PWM0);

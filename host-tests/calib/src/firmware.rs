@@ -1,9 +1,13 @@
 //! The firmware ELF of this workspace: `cargo build --release -p gyrocal-fw` in the workspace's
 //! one target directory, one variant (feature set) at a time, each ELF copied out to
-//! `target/firmware/<variant>/gyrocal-fw` so that building another variant never replaces it.
+//! `target/firmware/<variant>/` ([`BINS`]) so that building another variant never replaces it.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+/// The package's programs: the calibration firmware, and the example that loads its record
+/// (`src/bin/calibrated-rates.rs`).
+pub const BINS: [&str; 2] = ["gyrocal-fw", "calibrated-rates"];
 
 /// The workspace root (this crate is `host-tests/calib`).
 pub fn root() -> PathBuf {
@@ -23,7 +27,7 @@ pub fn variant_dir(features: &[&str]) -> PathBuf {
 }
 
 /// Builds the release firmware with `features` (nothing to do when it is up to date) and
-/// returns the path of its copied-out ELF. Builds and copies are serialised across threads and
+/// returns the path of its copied-out ELF (the example's beside it, [`BINS`]). Builds and copies are serialised across threads and
 /// processes by a lock file, so that the ELF copied is the one just built.
 pub fn build(features: &[&str]) -> Result<PathBuf, String> {
     let dir = variant_dir(features);
@@ -41,8 +45,9 @@ pub fn build(features: &[&str]) -> Result<PathBuf, String> {
     if !status.success() {
         return Err(format!("the firmware build failed ({status})"));
     }
-    let built = target_dir().join("thumbv7em-none-eabihf/release/gyrocal-fw");
-    let elf = dir.join("gyrocal-fw");
-    std::fs::copy(&built, &elf).map_err(|e| format!("{} -> {}: {e}", built.display(), elf.display()))?;
-    Ok(elf)
+    for bin in BINS {
+        let (built, elf) = (target_dir().join("thumbv7em-none-eabihf/release").join(bin), dir.join(bin));
+        std::fs::copy(&built, &elf).map_err(|e| format!("{} -> {}: {e}", built.display(), elf.display()))?;
+    }
+    Ok(dir.join(BINS[0]))
 }

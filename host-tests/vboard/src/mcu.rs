@@ -303,6 +303,30 @@ impl Mcu {
         Ok(mcu)
     }
 
+    /// Uploads `firmware` as the Arduino bootloader does (bossac's erase and write of the image):
+    /// the 4 KiB flash pages its image covers are erased and written; every other page keeps
+    /// what it held (the old program's tail, and the calibration records at 0xF8000, which live in
+    /// the storage flash model). Then the board powers on with it; the peripherals' models, the
+    /// flash, the sensor and the rig carry over.
+    pub fn upload(self, firmware: Firmware) -> Result<Mcu, String> {
+        const APP: u64 = 0x1_0000;
+        const PAGE: u64 = 4096;
+        let mut flash = vec![0u8; (FLASH_END - APP) as usize];
+        self.uc.mem_read(APP, &mut flash).map_err(err("flash read"))?;
+        let image: Vec<&(u64, Vec<u8>)> = firmware.segments.iter().filter(|(a, d)| *a >= APP && a + d.len() as u64 <= FLASH_END).collect();
+        for (addr, data) in &image {
+            let (first, last) = ((addr - APP) / PAGE, (addr - APP + data.len().max(1) as u64 - 1) / PAGE);
+            flash[(first * PAGE) as usize..((last + 1) * PAGE).min(FLASH_END - APP) as usize].fill(0xFF);
+        }
+        for (addr, data) in &image {
+            flash[(addr - APP) as usize..(addr - APP) as usize + data.len()].copy_from_slice(data);
+        }
+        let Mcu { uc, periph, .. } = self;
+        drop(uc);
+        let periph = Rc::try_unwrap(periph).map_err(|_| "the peripherals are still shared".to_string())?.into_inner();
+        Mcu::new(Firmware { segments: vec![(APP, flash)], ..firmware }, periph)
+    }
+
     /// Current PC (diagnostics).
     pub fn pc(&self) -> u64 {
         self.uc.reg_read(RegisterARM::PC).unwrap_or(0)

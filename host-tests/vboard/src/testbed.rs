@@ -336,6 +336,13 @@ impl Testbed {
         }
     }
 
+    /// Uploads another program (`elf`) as the Arduino bootloader would ([`Mcu::upload`]) and
+    /// powers it on: the same board, flash (the calibration records stay), sensor and rig.
+    pub fn upload(self, elf: Vec<u8>) -> Result<Testbed, String> {
+        let mcu = self.mcu.upload(Firmware::load(elf)?)?;
+        Ok(Testbed { mcu, printed: 0, echo: self.echo, usb: None, go: Go::Button })
+    }
+
     /// A reset of the MCU (power cycle): flash, sensor and rig keep their state.
     pub fn reset(&mut self) -> Result<(), String> {
         self.mcu.periph.borrow_mut().flash.reboot();

@@ -141,3 +141,58 @@ fn assert_servo_frames_whole(b: &Testbed) {
     println!("MEASURED servo short_periods={} stretched_pulses={}", p.pwm.short_periods, p.pwm.stretched_pulses);
     assert_eq!((p.pwm.short_periods, p.pwm.stretched_pulses), (0, 0), "servo frames cut or pulses stretched");
 }
+
+/// The `turned [x y z] deg` and `rate [x y z] dps` vectors of the example's log lines, in order.
+fn example_lines(b: &Testbed) -> Vec<([f64; 3], [f64; 3])> {
+    let vec3 = |m: &str, key: &str| -> Option<[f64; 3]> {
+        let v: Vec<f64> = m.split_once(key)?.1.split_once(']')?.0.split_whitespace().map(|x| x.parse().ok()).collect::<Option<_>>()?;
+        v.try_into().ok()
+    };
+    b.mcu.log.iter().map(|l| vboard::testbed::message(l)).filter_map(|m| Some((vec3(m, "rate [")?, vec3(m, "turned [")?))).collect()
+}
+
+#[test]
+fn a_program_uploaded_after_the_calibration_finds_its_record_and_measures_turns_with_it() {
+    let mut b = testbed(Board::Rev1, Variant::Hobby.config(3, 0), 3);
+    let example = std::fs::read(calib::firmware::variant_dir(&[]).join("calibrated-rates")).expect("built with the firmware");
+    b.run_for(2.0);
+    assert_eq!(b.calibrate(600.0), Outcome::Done, "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
+    let rec = b.stored().expect("a record");
+    let (own_scale, _) = b.k_errors_pct(&rec);
+    // The user's program, uploaded as the bootloader does: only its pages are written.
+    let example_elf = example.clone();
+    let mut b = b.upload(example).unwrap();
+    b.run_for(2.5);
+    let said = |what: &str| b.mcu.log.iter().any(|l| l.contains(what));
+    assert!(said(&format!("record {} loaded: K made at 119.0 Hz, +-500.0 dps, +-2.0 g", rec.seq)), "{:#?}", b.mcu.log);
+    assert_eq!(b.stored(), Some(rec), "the record is untouched");
+    // The board turns on the shaft; the program's angle (the rate at rest before the turn taken
+    // off as its bias) against the shaft's true turn.
+    let shaft = |b: &Testbed| b.mcu.periph.borrow().sensor.rig().truth().shaft_deg;
+    let turn = |b: &mut Testbed, us: f64| {
+        let (before, deg0) = (example_lines(b).len(), shaft(b));
+        b.mcu.periph.borrow_mut().sensor.rig_mut().set_pulse_us(us);
+        b.run_for(4.0);
+        let lines = example_lines(b);
+        let ((rate0, turned0), (_, turned1)) = (lines[before - 1], lines[lines.len() - 1]);
+        let secs = (lines.len() - before) as f64;
+        let measured: f64 = (0..3).map(|k| (turned1[k] - turned0[k] - rate0[k] * secs).powi(2)).sum::<f64>().sqrt();
+        (measured, (shaft(b) - deg0).abs())
+    };
+    turn(&mut b, 1000.0);
+    for us in [2000.0, 1000.0] {
+        let (measured, truth) = turn(&mut b, us);
+        let rel = measured / truth - 1.0;
+        println!(
+            "MEASURED turn {truth:.3} deg, the program's {measured:.3} deg: {:.2e} (the calibration's own largest scale error {:.2e})",
+            rel,
+            own_scale / 100.0
+        );
+        assert!(truth > 90.0 && rel.abs() < 1e-3, "{measured} deg for {truth} deg");
+    }
+    // A program on a board that never calibrated says so and logs raw rates.
+    let mut fresh = Testbed::new(example_elf, Variant::Hobby.config(3, 0), 3, Board::Rev1, NorSim::new(8, 3), false).unwrap();
+    fresh.run_for(2.5);
+    assert!(fresh.mcu.log.iter().any(|l| l.contains("no valid calibration record at 0xF8000")), "{:#?}", fresh.mcu.log);
+    assert!(fresh.mcu.log.iter().any(|l| l.contains("dps (raw, 1 s mean)")));
+}
