@@ -4,9 +4,11 @@
 //! calibrated over its USB serial port, its log saved and cross-checked ([`port`]). The
 //! binaries `gyrocal-calib` and `gyrocal-flash` are what a user installs (`cargo install --locked
 //! --path host-tests/calib --target host-tuple --profile host`); [`firmware`] builds the firmware
-//! they flash; nothing here depends on the simulator.
+//! they flash; [`allan`] the noise figures of a long static log. Nothing here depends on the
+//! simulator.
 #![deny(missing_docs)]
 
+pub mod allan;
 pub mod csvlog;
 pub mod firmware;
 pub mod offline;

@@ -1,5 +1,6 @@
 //! `calib LOG.csv [--method paper|sweep] [--columns MAP] [--no-rotations] [--export c|json|rust|record]`:
-//! calibrates a recorded log with calib-core and prints one JSON object. `calib --port PATH`:
+//! calibrates a recorded log with calib-core and prints one JSON object. `calib allan LOG
+//! [--yaml imu.yaml]`: the noise figures of a long static log. `calib --port PATH`:
 //! calibrates a board over its USB serial port, saves its log, prints its result and
 //! cross-checks it. `calib --help` says everything. (A log to try it on:
 //! `cargo run --release -p rig-sim --target host-tuple --bin simulate -- OUT.csv`.)
@@ -37,8 +38,10 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
 /// board did not answer (nothing for 30 s, or no answer to a command in 10 s), or the session
 /// exceeded --timeout.
 #[derive(Parser, Debug)]
-#[command(name = "gyrocal-calib", version)]
+#[command(name = "gyrocal-calib", version, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Args {
+    #[command(subcommand)]
+    command: Option<Sub>,
     /// The log to calibrate (CSV: t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg[,tilt_deg]).
     #[arg(required_unless_present = "port", conflicts_with = "port")]
     log: Option<String>,
@@ -74,6 +77,26 @@ struct Args {
     /// With --export: the file to write it to (the usual output stays on stdout).
     #[arg(long, value_name = "FILE", requires = "export")]
     out: Option<PathBuf>,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum Sub {
+    /// Noise figures of a long static log (the board lying still in raw-log mode, an hour or
+    /// more): the Allan deviation of each axis, the white-noise density, random walk and bias
+    /// instability with their 1σ, as one JSON object; --yaml writes Kalibr's imu.yaml.
+    Allan {
+        /// The static log (CSV as for calibration).
+        log: String,
+        /// Read a log with other column names or units (as for calibration).
+        #[arg(long, value_name = "MAP")]
+        columns: Option<String>,
+        /// Also write Kalibr's imu.yaml (SI units) to this file.
+        #[arg(long, value_name = "FILE")]
+        yaml: Option<PathBuf>,
+        /// The rostopic written in the YAML.
+        #[arg(long, default_value = "/imu0")]
+        topic: String,
+    },
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -123,6 +146,9 @@ fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>)
 
 fn main() -> ExitCode {
     let args = Args::parse_from(calib::cli_args());
+    if let Some(Sub::Allan { log, columns, yaml, topic }) = &args.command {
+        return allan(log, columns.as_deref(), yaml.as_deref(), topic);
+    }
     if matches!(args.export, Some(ExportArg::Record)) && args.out.is_none() {
         return fail(2, "--export record writes the 8 KiB flash image: give --out FILE");
     }
@@ -156,24 +182,46 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     }
 }
 
+/// Reads and parses a log (remapped by `--columns`): exit 2 on I/O, 3 when malformed.
+fn read_log(path: &str, columns: Option<&str>) -> Result<csvlog::Log, ExitCode> {
+    let mut text = std::fs::read_to_string(path).map_err(|e| fail(2, format!("{path}: {e}")))?;
+    if let Some(spec) = columns {
+        text = csvlog::remap(&text, spec).map_err(|e| fail(3, format!("{path}: {e}")))?;
+    }
+    csvlog::parse(&text).map_err(|e| fail(3, format!("{path}: {e}")))
+}
+
+fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str) -> ExitCode {
+    let log = match read_log(path, columns) {
+        Ok(l) => l,
+        Err(code) => return code,
+    };
+    let a = match calib::allan::analyse(&log.rows) {
+        Ok(a) => a,
+        Err(e) => return fail(1, format!("{path}: {e}")),
+    };
+    if let Some(file) = yaml {
+        if let Err(e) = std::fs::write(file, a.kalibr_yaml(topic)) {
+            return fail(2, format!("{}: {e}", file.display()));
+        }
+    }
+    match serde_json::to_string(&serde_json::json!({ "allan": a })) {
+        Ok(j) => {
+            println!("{j}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(2, e),
+    }
+}
+
 fn offline_log(args: &Args, path: &str) -> ExitCode {
     let method = args.method.map(|m| match m {
         MethodArg::Paper => Method::Paper,
         MethodArg::Sweep => Method::Sweep,
     });
-    let mut text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) => return fail(2, format!("{path}: {e}")),
-    };
-    if let Some(spec) = &args.columns {
-        text = match csvlog::remap(&text, spec) {
-            Ok(t) => t,
-            Err(e) => return fail(3, format!("{path}: {e}")),
-        };
-    }
-    let log = match csvlog::parse(&text) {
+    let log = match read_log(path, args.columns.as_deref()) {
         Ok(l) => l,
-        Err(e) => return fail(3, format!("{path}: {e}")),
+        Err(code) => return code,
     };
     let c = match offline::calibrate_log(&log, method, !args.no_rotations, None) {
         Ok(c) => c,
