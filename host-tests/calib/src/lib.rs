@@ -14,6 +14,7 @@ pub mod firmware;
 pub mod offline;
 pub mod port;
 pub mod replay;
+pub mod report;
 
 /// The process arguments for a clap parser, without a leading `--`: the cargo aliases
 /// (`cargo paper-tables`, `cargo demo`, …) already end with one, so `cargo demo -- --seed 2`

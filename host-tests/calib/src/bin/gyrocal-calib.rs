@@ -74,6 +74,11 @@ struct Args {
     /// GyroCal Arduino library's or calib_core::region's loader.
     #[arg(long, value_enum)]
     export: Option<ExportArg>,
+    /// Also write a report to look at: one self-contained HTML page with plots (the poses on the
+    /// sphere, the paper's invariant before and after, each move's residual, the bias over time),
+    /// K with its 1σ and what to do about whatever is weak. With --port: of the saved log.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
     /// With --export: the file to write it to (the usual output stays on stdout).
     #[arg(long, value_name = "FILE", requires = "export")]
     out: Option<PathBuf>,
@@ -168,6 +173,18 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     match result {
         Ok(o) => {
             eprintln!("calib: the board's log is in {} ({} lines)", opts.log.display(), o.lines);
+            if let Some(file) = &args.report {
+                let log = std::fs::read_to_string(&opts.log)
+                    .map_err(|e| e.to_string())
+                    .and_then(|t| csvlog::parse(&t).map_err(|e| e.to_string()));
+                let written = log.and_then(|l| {
+                    let c = offline::calibrate_log(&l, None, true, None).map_err(|e| e.to_string())?;
+                    write_report(file, &opts.log.display().to_string(), &l, &c)
+                });
+                if let Err(e) = written {
+                    return fail(2, format!("--report: {e}"));
+                }
+            }
             match output(&o.json, args.export.map(|f| (&o.record, f)), args.out.as_deref()) {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(e) => fail(2, e),
@@ -214,6 +231,14 @@ fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str) ->
     }
 }
 
+/// Writes the report of `log` (named `name`) to `file`.
+fn write_report(file: &Path, name: &str, log: &csvlog::Log, c: &offline::Calibration) -> Result<(), String> {
+    let page = calib::report::html(name, &log.rows, c)?;
+    std::fs::write(file, page).map_err(|e| format!("{}: {e}", file.display()))?;
+    eprintln!("calib: report written to {}", file.display());
+    Ok(())
+}
+
 fn offline_log(args: &Args, path: &str) -> ExitCode {
     let method = args.method.map(|m| match m {
         MethodArg::Paper => Method::Paper,
@@ -227,6 +252,11 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
         Ok(c) => c,
         Err(e) => return fail(1, format!("{path}: {e}")),
     };
+    if let Some(file) = &args.report {
+        if let Err(e) = write_report(file, path, &log, &c) {
+            return fail(2, format!("--report: {e}"));
+        }
+    }
     let missing = c.missing();
     if let Err(e) = &c.gyro {
         if c.accel.model == AccelModel::None && !matches!(c.full, Some(Ok(_))) {

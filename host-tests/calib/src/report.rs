@@ -1,0 +1,268 @@
+//! `gyrocal-calib LOG --report report.html`: one self-contained HTML page to look at. Its plots
+//! (SVG, drawn with `plotters`) show where the poses are on the sphere, the paper's invariant per
+//! rig pose before and after calibration, each rig move's axis residual, and the residual gyro
+//! bias of every rest over time; beside them `K` with its 1σ, the quality figures and what to do
+//! about whatever is weak.
+//!
+//! The invariant: on a rig turning about one axis `u`, the gravity direction `a_i` of every pose
+//! keeps one angle to `u`, so `a_i · (K γ̄) / |K γ̄|` (γ̄ the moves' mean integrated gyro) is the
+//! same at every pose with the right `K`; with a wrong one it swings with the shaft angle (the
+//! paper's figure of `A · (K g)`).
+
+use crate::csvlog::Row;
+use crate::offline::{Calibration, Segment};
+use calib_core::record::Record;
+use calib_core::vec3::sub;
+use nalgebra::{Matrix3, Vector3};
+use plotters::prelude::*;
+
+/// Plot size (px).
+const SIZE: (u32, u32) = (640, 320);
+/// Marker colours, distinct so that a rendered plot can be checked by colour.
+pub const RIG: RGBColor = RGBColor(214, 39, 40);
+/// See [`RIG`].
+pub const HAND: RGBColor = RGBColor(31, 119, 180);
+/// See [`RIG`].
+pub const BEFORE: RGBColor = RGBColor(255, 127, 14);
+/// See [`RIG`].
+pub const AFTER: RGBColor = RGBColor(44, 160, 44);
+/// See [`RIG`].
+pub const RESIDUAL: RGBColor = RGBColor(148, 103, 189);
+/// The bias plot's x, y, z.
+pub const AXES: [RGBColor; 3] = [RGBColor(230, 25, 75), RGBColor(60, 180, 75), RGBColor(0, 130, 200)];
+/// Marker radius (px).
+pub const MARKER: u32 = 4;
+
+/// One plot: its SVG document and, per series, the pixel centre of every marker drawn.
+#[derive(Debug, Clone)]
+pub struct Plot {
+    /// The SVG document.
+    pub svg: String,
+    /// Per series, in order: the markers' centres (px).
+    pub markers: Vec<Vec<(i32, i32)>>,
+}
+
+/// The report's plots.
+#[derive(Debug, Clone)]
+pub struct Plots {
+    /// Pose directions (calibrated gravity) on the sphere: longitude and latitude (°); rig
+    /// poses, then hand-held ones.
+    pub sphere: Plot,
+    /// The invariant per rig pose, before (`K = I`) and after calibration.
+    pub invariant: Option<Plot>,
+    /// Each rig move's axis residual (°): the angle of its `K γ` from the mean axis.
+    pub residuals: Option<Plot>,
+    /// Each rest's gyro bias minus the calibration's (°/s; x, y, z) over time (s).
+    pub bias: Plot,
+}
+
+fn unit(v: [f32; 3]) -> Vector3<f64> {
+    Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64).normalize()
+}
+
+/// The still segments' calibrated gravity directions.
+fn direction(c: &Calibration, s: &Segment) -> Vector3<f64> {
+    unit(c.accel.apply(s.accel.mean().map(|v| v as f32)))
+}
+
+/// The moves between consecutive rig poses of one tilt setting: (from, to, bias-corrected
+/// integrated gyro in °).
+fn moves<'a>(rows: &[Row], c: &'a Calibration) -> Vec<(&'a Segment, &'a Segment, Vector3<f64>)> {
+    let seg = &c.phases.segments;
+    seg.windows(2)
+        .filter(|w| w[0].is_rig_pose() && w[1].is_rig_pose() && w[0].tilt_deg == w[1].tilt_deg && w[0].servo_deg != w[1].servo_deg)
+        .map(|w| {
+            let mut g = Vector3::zeros();
+            for p in rows[w[0].last..=w[1].last].windows(2) {
+                let d = sub(p[1].gyro_dps, c.bias.bias_dps);
+                g += Vector3::new(d[0] as f64, d[1] as f64, d[2] as f64) * (p[1].t_s - p[0].t_s);
+            }
+            (&w[0], &w[1], g)
+        })
+        .collect()
+}
+
+fn chart_err<E: std::fmt::Debug>(e: E) -> String {
+    format!("plot: {e:?}")
+}
+
+/// One series of a scatter plot: its colour, label and points.
+type Series<'a> = (RGBColor, &'a str, Vec<(f64, f64)>);
+
+/// A scatter plot of `series` with axis names.
+fn scatter(title: &str, x: (&str, std::ops::Range<f64>), y: (&str, std::ops::Range<f64>), series: &[Series]) -> Result<Plot, String> {
+    let mut svg = String::new();
+    let mut markers = vec![];
+    {
+        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
+        root.fill(&WHITE).map_err(chart_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(32)
+            .y_label_area_size(56)
+            .build_cartesian_2d(x.1, y.1)
+            .map_err(chart_err)?;
+        chart.configure_mesh().x_desc(x.0).y_desc(y.0).light_line_style(WHITE).draw().map_err(chart_err)?;
+        for (colour, label, pts) in series {
+            markers.push(pts.iter().map(|p| chart.backend_coord(p)).collect());
+            let c = *colour;
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, MARKER, c.filled())))
+                .map_err(chart_err)?
+                .label(*label)
+                .legend(move |(x, y)| Circle::new((x, y), MARKER, c.filled()));
+        }
+        chart.configure_series_labels().background_style(TRANSPARENT).border_style(TRANSPARENT).draw().map_err(chart_err)?;
+        root.present().map_err(chart_err)?;
+    }
+    Ok(Plot { svg, markers })
+}
+
+/// `lo..hi` widened by 10 % (and never empty).
+fn span(values: impl Iterator<Item = f64> + Clone) -> std::ops::Range<f64> {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if !lo.is_finite() {
+        return 0.0..1.0;
+    }
+    let pad = ((hi - lo) * 0.1).max(1e-9 * hi.abs().max(1.0));
+    lo - pad..hi + pad
+}
+
+/// The record's `K` (the full one if there is one), as a matrix.
+fn k_of(rec: &Record) -> Matrix3<f64> {
+    Matrix3::from_fn(|i, j| rec.gyro_k[i][j] as f64)
+}
+
+/// The plots of a calibrated log.
+pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
+    let seg = &c.phases.segments;
+    let lonlat = |v: Vector3<f64>| (v.y.atan2(v.x).to_degrees(), v.z.clamp(-1.0, 1.0).asin().to_degrees());
+    let rig: Vec<(f64, f64)> = seg.iter().filter(|s| s.is_rig_pose()).map(|s| lonlat(direction(c, s))).collect();
+    let hand: Vec<(f64, f64)> = seg.iter().filter(|s| !s.is_rig_pose()).map(|s| lonlat(direction(c, s))).collect();
+    let sphere = scatter(
+        "Poses: the gravity direction of each (sensor frame)",
+        ("longitude atan2(y, x) (°)", -180.0..180.0),
+        ("latitude asin(z) (°)", -90.0..90.0),
+        &[(RIG, "rig poses", rig), (HAND, "hand-held poses", hand)],
+    )?;
+    let k = c.record().map(|r| k_of(&r)).unwrap_or_else(Matrix3::identity);
+    let mv = moves(rows, c);
+    let (mut invariant, mut residuals) = (None, None);
+    if !mv.is_empty() {
+        // The moves' mean axis, each signed along the first.
+        let axis = |k: &Matrix3<f64>| {
+            let first = (k * mv[0].2).normalize();
+            mv.iter().map(|m| (k * m.2).normalize()).map(|d| if d.dot(&first) < 0.0 { -d } else { d }).sum::<Vector3<f64>>().normalize()
+        };
+        let (u_raw, u_cal) = (axis(&Matrix3::identity()), axis(&k));
+        let poses: Vec<&Segment> = seg.iter().filter(|s| s.is_rig_pose()).collect();
+        let at = |u: Vector3<f64>| poses.iter().enumerate().map(|(i, s)| (i as f64, direction(c, s).dot(&u))).collect::<Vec<_>>();
+        let (before, after) = (at(u_raw), at(u_cal));
+        let y = span(before.iter().chain(&after).map(|p| p.1));
+        invariant = Some(scatter(
+            "The invariant per rig pose: gravity · rig axis",
+            ("rig pose", -0.5..poses.len() as f64 - 0.5),
+            ("a · (K γ̄) / |K γ̄|", y),
+            &[(BEFORE, "before (K = I)", before), (AFTER, "after (K)", after)],
+        )?);
+        let res: Vec<(f64, f64)> =
+            mv.iter().enumerate().map(|(i, m)| (i as f64, (k * m.2).normalize().dot(&u_cal).abs().min(1.0).acos().to_degrees())).collect();
+        let y = span(res.iter().map(|p| p.1).chain([0.0]));
+        residuals = Some(scatter(
+            "Each rig move: its axis from the mean axis (°)",
+            ("move", -0.5..mv.len() as f64 - 0.5),
+            ("angle (°)", y),
+            &[(RESIDUAL, "after (K)", res)],
+        )?);
+    }
+    let t0 = rows.first().map_or(0.0, |r| r.t_s);
+    let series: Vec<Series> = (0..3)
+        .map(|a| {
+            let pts = seg
+                .iter()
+                .map(|s| ((rows[s.first].t_s + rows[s.last].t_s) / 2.0 - t0, s.gyro.mean()[a] - c.bias.bias_dps[a] as f64))
+                .collect();
+            (AXES[a], ["x", "y", "z"][a], pts)
+        })
+        .collect();
+    let x = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.0)));
+    let y = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.1)));
+    let bias = scatter("Each rest's gyro bias minus the calibration's (the log has no temperature)", ("time (s)", x), ("°/s", y), &series)?;
+    Ok(Plots { sphere, invariant, residuals, bias })
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// What to do about whatever is weak in `c`.
+fn advice(c: &Calibration) -> Vec<String> {
+    let mut out: Vec<String> = c.missing().iter().map(|m| format!("Missing: {m}.")).collect();
+    if let Some(r) = c.record() {
+        let worst = r.sigma_k.iter().flatten().fold(0.0f32, |a, b| a.max(*b));
+        if worst > 1e-3 {
+            out.push(format!(
+                "An element of K is uncertain to {worst:.1e} (1σ): more rig poses or hand-held poses spread over the sphere, held still longer."
+            ));
+        }
+        if r.accel_rms_g > 0.005 {
+            out.push(format!(
+                "The accelerometer fit leaves {:.4} g RMS: hold each hand-held pose still, and spread them wider.",
+                r.accel_rms_g
+            ));
+        }
+    }
+    if c.handheld_poses > 0 && c.handheld_poses < 9 {
+        out.push(format!("{} hand-held poses: 9 or more allow the 9-parameter accelerometer model.", c.handheld_poses));
+    }
+    if out.is_empty() {
+        out.push("Nothing weak: every figure is within what the firmware accepts.".into());
+    }
+    out
+}
+
+/// The report page of log `name`.
+pub fn html(name: &str, rows: &[Row], c: &Calibration) -> Result<String, String> {
+    let p = plots(rows, c)?;
+    let mut h = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>gyrocal report: {n}</title>\n<style>body{{font-family:sans-serif;max-width:700px;margin:auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}</style></head><body>\n<h1>gyrocal report</h1>\n<p>Log <code>{n}</code>: {rows} samples at {rate:.2} Hz, {poses} rig poses, {hand} hand-held poses{replayed}.</p>\n",
+        n = escape(name),
+        rows = rows.len(),
+        rate = c.time_base.rate_hz,
+        poses = c.rig_poses,
+        hand = c.handheld_poses,
+        replayed = c.replayed.map_or(String::new(), |cfg| format!("; replayed through the firmware's procedure ({cfg})")),
+    );
+    match c.record() {
+        Some(r) => {
+            h += &format!("<h2>Gyro K ({:?}) with its 1σ</h2>\n<table>", r.method);
+            for i in 0..3 {
+                h += "<tr>";
+                for j in 0..3 {
+                    h += &format!("<td>{:.6} ± {:.1e}</td>", r.gyro_k[i][j], r.sigma_k[i][j]);
+                }
+                h += "</tr>";
+            }
+            let b = r.gyro_bias_dps;
+            h += &format!(
+                "</table>\n<p>Bias {:.4}, {:.4}, {:.4} °/s; made at {} Hz, ±{} °/s, ±{} g; accelerometer {:?}, residual {:.4} g.</p>\n",
+                b[0], b[1], b[2], r.setup.odr_hz, r.setup.gyro_range_dps, r.setup.accel_range_g, r.accel_model, r.accel_rms_g
+            );
+        }
+        None => h += "<h2>No gyro calibration</h2>\n",
+    }
+    h += "<h2>What to do</h2>\n<ul>";
+    for a in advice(c) {
+        h += &format!("<li>{}</li>", escape(&a));
+    }
+    h += "</ul>\n<h2>Plots</h2>\n";
+    for plot in [Some(&p.sphere), p.invariant.as_ref(), p.residuals.as_ref(), Some(&p.bias)].into_iter().flatten() {
+        h += &format!("<figure>{}</figure>\n", plot.svg);
+    }
+    if p.invariant.is_none() {
+        h += "<p>No rig moves in the log: no invariant or move residual to show.</p>\n";
+    }
+    h += "</body></html>\n";
+    Ok(h)
+}

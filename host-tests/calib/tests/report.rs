@@ -1,0 +1,152 @@
+//! `gyrocal-calib LOG --report`: the page holds K and the plots, and the plots, rendered (resvg),
+//! draw what the log holds: one marker per distinct pose direction, the invariant flat after
+//! calibration and swinging before.
+
+use calib::csvlog;
+use calib::offline::calibrate_log;
+use calib::report::{self, Plots, AFTER, BEFORE, HAND, RIG};
+use common::{calib, simulated_log};
+use plotters::style::RGBColor;
+use rig_sim::variant::Variant;
+
+mod common;
+
+/// The SVG rendered to RGBA pixels (width, pixels).
+fn render(svg: &str) -> (usize, Vec<[u8; 4]>) {
+    let tree = resvg::usvg::Tree::from_str(svg, &resvg::usvg::Options::default()).expect("valid SVG");
+    let size = tree.size().to_int_size();
+    let mut pixmap = resvg::tiny_skia::Pixmap::new(size.width(), size.height()).unwrap();
+    resvg::render(&tree, resvg::tiny_skia::Transform::default(), &mut pixmap.as_mut());
+    (size.width() as usize, pixmap.pixels().iter().map(|p| [p.red(), p.green(), p.blue(), p.alpha()]).collect())
+}
+
+/// The blobs of exactly `c` (4-connected), as (pixels, top row, bottom row).
+fn blobs(img: &(usize, Vec<[u8; 4]>), c: RGBColor) -> Vec<(usize, usize, usize)> {
+    let (w, px) = img;
+    let is = |i: usize| px[i] == [c.0, c.1, c.2, 255];
+    let mut seen = vec![false; px.len()];
+    let mut out = vec![];
+    for start in 0..px.len() {
+        if seen[start] || !is(start) {
+            continue;
+        }
+        let (mut stack, mut n, mut top, mut bottom) = (vec![start], 0, usize::MAX, 0);
+        seen[start] = true;
+        while let Some(i) = stack.pop() {
+            n += 1;
+            (top, bottom) = (top.min(i / w), bottom.max(i / w));
+            let (x, y) = (i % w, i / w);
+            let near = [(x > 0).then(|| i - 1), (x + 1 < *w).then(|| i + 1), (y > 0).then(|| i - w), (i + w < px.len()).then(|| i + w)];
+            for j in near.into_iter().flatten() {
+                if !seen[j] && is(j) {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        out.push((n, top, bottom));
+    }
+    out
+}
+
+/// Blobs the size of a marker (the legend's included).
+fn markers(img: &(usize, Vec<[u8; 4]>), c: RGBColor) -> Vec<(usize, usize, usize)> {
+    blobs(img, c).into_iter().filter(|b| b.0 >= 9).collect()
+}
+
+/// How many blobs `centres` make when each is a marker of [`report::MARKER`] px: those whose
+/// discs touch merge.
+fn expected_blobs(centres: &[(i32, i32)]) -> usize {
+    let mut group: Vec<usize> = (0..centres.len()).collect();
+    fn root(g: &mut [usize], i: usize) -> usize {
+        if g[i] == i {
+            i
+        } else {
+            let r = root(g, g[i]);
+            g[i] = r;
+            r
+        }
+    }
+    let touch = (2 * report::MARKER + 2) as i32;
+    for i in 0..centres.len() {
+        for j in 0..i {
+            let (dx, dy) = (centres[i].0 - centres[j].0, centres[i].1 - centres[j].1);
+            if dx * dx + dy * dy <= touch * touch {
+                let (a, b) = (root(&mut group, i), root(&mut group, j));
+                group[a] = b;
+            }
+        }
+    }
+    (0..centres.len()).filter(|&i| root(&mut group, i) == i).count()
+}
+
+/// Every marker centre is drawn in its colour unless a marker of a series drawn later
+/// (`later`) covers it, and the plot has as many marker blobs of the colour as the centres make
+/// (+ the legend's; exactly when nothing covers them).
+fn drawn_as_placed(img: &(usize, Vec<[u8; 4]>), c: RGBColor, centres: &[(i32, i32)], later: &[(i32, i32)], what: &str) {
+    let (w, px) = img;
+    let reach = (2 * report::MARKER + 1) as i32;
+    let covered = |p: &(i32, i32)| later.iter().any(|q| (p.0 - q.0).pow(2) + (p.1 - q.1).pow(2) <= reach * reach);
+    let open: Vec<(i32, i32)> = centres.iter().copied().filter(|p| !covered(p)).collect();
+    for &(x, y) in &open {
+        assert_eq!(px[y as usize * w + x as usize], [c.0, c.1, c.2, 255], "{what}: no marker at ({x}, {y})");
+    }
+    let found = markers(img, c).len();
+    let (least, most) = (expected_blobs(&open) + 1, expected_blobs(centres) + 1 + (centres.len() - open.len()));
+    println!(
+        "{what}: {} markers ({} covered by later ones), {found} blobs drawn, {least}..={most} expected",
+        centres.len(),
+        centres.len() - open.len()
+    );
+    assert!(open.len() * 2 > centres.len() && (least..=most).contains(&found), "{what}");
+}
+
+#[test]
+fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calibration() {
+    let text = simulated_log(Variant::Hobby.config(9, 0)).0;
+    let log = csvlog::parse(&text).unwrap();
+    let c = calibrate_log(&log, None, true, None).unwrap();
+    let Plots { sphere, invariant, residuals, bias } = report::plots(&log.rows, &c).unwrap();
+    // A marker per pose, where the data puts it.
+    let rig = c.phases.segments.iter().filter(|s| s.is_rig_pose()).count();
+    let hand = c.phases.segments.len() - rig;
+    assert!(rig >= 10 && hand >= 10 && sphere.markers[0].len() == rig && sphere.markers[1].len() == hand);
+    let img = render(&sphere.svg);
+    drawn_as_placed(&img, RIG, &sphere.markers[0], &sphere.markers[1], "rig poses");
+    drawn_as_placed(&img, HAND, &sphere.markers[1], &[], "hand-held poses");
+    // The invariant: the calibrated one flat, the raw one swinging with the shaft angle.
+    let invariant = invariant.expect("rig moves");
+    let img = render(&invariant.svg);
+    drawn_as_placed(&img, BEFORE, &invariant.markers[0], &invariant.markers[1], "invariant before");
+    drawn_as_placed(&img, AFTER, &invariant.markers[1], &[], "invariant after");
+    let spread = |m: &[(i32, i32)]| m.iter().map(|p| p.1).max().unwrap() - m.iter().map(|p| p.1).min().unwrap();
+    let (before, after) = (spread(&invariant.markers[0]), spread(&invariant.markers[1]));
+    println!("invariant: before over {before} px, after over {after} px");
+    assert!(before > 40 && after < before / 4, "before {before} px, after {after} px");
+    // Residuals and the bias are drawn too.
+    let residuals = residuals.expect("rig moves");
+    drawn_as_placed(&render(&residuals.svg), report::RESIDUAL, &residuals.markers[0], &[], "move residuals");
+    let img = render(&bias.svg);
+    for (a, colour) in report::AXES.iter().enumerate() {
+        assert_eq!(bias.markers[a].len(), c.phases.segments.len());
+        let later: Vec<(i32, i32)> = bias.markers[a + 1..].concat();
+        drawn_as_placed(&img, *colour, &bias.markers[a], &later, "bias");
+    }
+}
+
+#[test]
+fn calib_writes_a_self_contained_page_with_k_and_its_plots() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("report");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (log, page) = (dir.join("sim.csv"), dir.join("report.html"));
+    std::fs::write(&log, simulated_log(Variant::Hobby.config(9, 1)).0).unwrap();
+    let (code, out, err) = calib(&[log.to_str().unwrap(), "--report", page.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("\"gyro\""), "the usual JSON stays on stdout");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>") && html.contains("± ") && html.contains("What to do"));
+    assert_eq!(html.matches("<svg").count(), 4, "sphere, invariant, residuals, bias");
+    assert!(!html.contains("src=\"http") && !html.contains("<script"), "self-contained");
+    let (code, _, err) = calib(&[log.to_str().unwrap(), "--report", dir.join("no/such/dir/r.html").to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+}
