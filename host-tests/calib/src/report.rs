@@ -9,6 +9,7 @@
 //! same at every pose with the right `K`; with a wrong one it swings with the shaft angle (the
 //! paper's figure of `A · (K g)`).
 
+use crate::allan::{Allan, Noise};
 use crate::csvlog::Row;
 use crate::offline::{Calibration, Segment};
 use calib_core::record::Record;
@@ -262,6 +263,76 @@ pub fn html(name: &str, rows: &[Row], c: &Calibration) -> Result<String, String>
     }
     if p.invariant.is_none() {
         h += "<p>No rig moves in the log: no invariant or move residual to show.</p>\n";
+    }
+    h += "</body></html>\n";
+    Ok(h)
+}
+
+/// An Allan-deviation plot (log–log) of one sensor: each axis' curve as markers and its fitted
+/// noise model (white + random walk) as a line.
+pub fn adev_plot(title: &str, unit: &str, n: &Noise) -> Result<Plot, String> {
+    let taus = || n.tau_s.iter().copied();
+    let values = || n.adev.iter().flatten().copied().filter(|v| *v > 0.0);
+    let (t0, t1) = (taus().fold(f64::INFINITY, f64::min), taus().fold(0.0, f64::max));
+    let (v0, v1) = (values().fold(f64::INFINITY, f64::min), values().fold(0.0, f64::max));
+    if !(t0 > 0.0 && t1 > t0 && v0 > 0.0 && v1 >= v0) {
+        return Err("no Allan deviation to plot".into());
+    }
+    let mut svg = String::new();
+    let mut markers = vec![];
+    {
+        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
+        root.fill(&WHITE).map_err(chart_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(32)
+            .y_label_area_size(64)
+            .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (v0 / 2.0..v1 * 2.0).log_scale())
+            .map_err(chart_err)?;
+        chart.configure_mesh().x_desc("τ (s)").y_desc(format!("σ(τ) ({unit})")).light_line_style(WHITE).draw().map_err(chart_err)?;
+        for (a, colour) in AXES.iter().enumerate() {
+            let pts: Vec<(f64, f64)> = n.tau_s.iter().zip(&n.adev).map(|(t, s)| (*t, s[a])).filter(|p| p.1 > 0.0).collect();
+            markers.push(pts.iter().map(|p| chart.backend_coord(p)).collect());
+            let c = *colour;
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, MARKER, c.filled())))
+                .map_err(chart_err)?
+                .label(["x", "y", "z"][a])
+                .legend(move |(x, y)| Circle::new((x, y), MARKER, c.filled()));
+            let (wn, rw) = (n.noise_density[a].value, n.random_walk[a].value);
+            let model = n.tau_s.iter().map(|&t| (t, (wn * wn / t + rw * rw * t / 3.0).sqrt()));
+            chart.draw_series(LineSeries::new(model, c.stroke_width(1))).map_err(chart_err)?;
+        }
+        chart.configure_series_labels().background_style(TRANSPARENT).border_style(TRANSPARENT).draw().map_err(chart_err)?;
+        root.present().map_err(chart_err)?;
+    }
+    Ok(Plot { svg, markers })
+}
+
+/// The page of `calib allan`'s figures for log `name`: a table per sensor and its plot.
+pub fn allan_html(name: &str, a: &Allan) -> Result<String, String> {
+    let mut h = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>gyrocal noise: {n}</title>\n<style>body{{font-family:sans-serif;max-width:700px;margin:auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}</style></head><body>\n<h1>gyrocal noise figures</h1>\n<p>Log <code>{n}</code>: {d:.0} s still at {r:.2} Hz. N: white-noise density (two-sided, Kalibr's), K: random walk, B: bias instability; 1σ after ±.</p>\n",
+        n = escape(name),
+        d = a.duration_s,
+        r = a.sample_rate_hz
+    );
+    for (title, unit, n) in [("Gyro", "°/s", &a.gyro), ("Accelerometer", "g", &a.accel)] {
+        h += &format!("<h2>{title}</h2>\n<table><tr><th>axis</th><th>N ({unit}/√Hz)</th><th>K ({unit}/s/√Hz)</th><th>B ({unit})</th></tr>");
+        for k in 0..3 {
+            let (wn, rw) = (n.noise_density[k], n.random_walk[k]);
+            let walk =
+                if rw.value > 0.0 { format!("{:.2e} ± {:.1e}", rw.value, rw.sigma) } else { format!("none seen (≤ {:.1e})", rw.sigma) };
+            h += &format!(
+                "<tr><td>{}</td><td>{:.3e} ± {:.1e}</td><td>{walk}</td><td>{:.2e}</td></tr>",
+                ["x", "y", "z"][k],
+                wn.value,
+                wn.sigma,
+                n.adev_floor[k].0
+            );
+        }
+        h += &format!("</table>\n<figure>{}</figure>\n", adev_plot(&format!("{title}: Allan deviation"), unit, n)?.svg);
     }
     h += "</body></html>\n";
     Ok(h)

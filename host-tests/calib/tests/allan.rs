@@ -59,6 +59,22 @@ fn an_hour_still_recovers_the_simulated_noise_within_its_uncertainty() {
     // The curve falls as 1/√τ, then rises as the walk takes over (its floor between).
     let (floor, at) = a.gyro.adev_floor[0];
     assert!(at > 5.0 && at < 200.0 && floor > 0.0, "floor {floor} at {at} s");
+    // Its plot, rendered: a marker per point and axis, falling then rising on the page.
+    let plot = calib::report::adev_plot("gyro", "°/s", &a.gyro).unwrap();
+    let tree = resvg::usvg::Tree::from_str(&plot.svg, &resvg::usvg::Options::default()).unwrap();
+    let size = tree.size().to_int_size();
+    let mut pixmap = resvg::tiny_skia::Pixmap::new(size.width(), size.height()).unwrap();
+    resvg::render(&tree, resvg::tiny_skia::Transform::default(), &mut pixmap.as_mut());
+    for (axis, m) in plot.markers.iter().enumerate() {
+        assert_eq!(m.len(), a.gyro.tau_s.len());
+        let c = calib::report::AXES[axis];
+        // Each axis' last point is drawn in its colour (later axes may cover earlier ones elsewhere).
+        let (x, y) = m[m.len() - 1];
+        let p = pixmap.pixel(x as u32, y as u32).unwrap();
+        assert!(axis < 2 || (p.red(), p.green(), p.blue()) == (c.0, c.1, c.2), "axis {axis} at ({x}, {y})");
+        let lowest = m.iter().enumerate().max_by_key(|(_, p)| p.1).map(|(i, _)| i).unwrap();
+        assert!(lowest > 0 && lowest < m.len() - 1, "the curve's floor is inside the plot (screen y grows down)");
+    }
 }
 
 #[test]
@@ -82,8 +98,12 @@ fn a_log_that_moves_or_is_short_is_named_and_the_cli_writes_json_and_kalibr_yaml
         csvlog::format_row(&mut text, &r);
     }
     std::fs::write(&log, text).unwrap();
-    let (code, out, err) = calib(&["allan", log.to_str().unwrap(), "--yaml", yaml.to_str().unwrap()]);
+    let page = dir.join("allan.html");
+    let (code, out, err) = calib(&["allan", log.to_str().unwrap(), "--yaml", yaml.to_str().unwrap(), "--report", page.to_str().unwrap()]);
     assert_eq!(code, 0, "{err}");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert_eq!(html.matches("<svg").count(), 2, "gyro and accelerometer plots");
+    assert!(html.contains("N (°/s/√Hz)") && html.contains("± "));
     let j: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     let n = j["allan"]["gyro"]["noise_density"][0]["value"].as_f64().unwrap();
     assert!((n / (cfg.gyro.noise_dps_rthz / 2f64.sqrt()) - 1.0).abs() < 0.05, "{n}");

@@ -101,6 +101,9 @@ enum Sub {
         /// The rostopic written in the YAML.
         #[arg(long, default_value = "/imu0")]
         topic: String,
+        /// Also write a page with the figures and the Allan-deviation plots (HTML).
+        #[arg(long, value_name = "FILE")]
+        report: Option<PathBuf>,
     },
 }
 
@@ -151,8 +154,8 @@ fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>)
 
 fn main() -> ExitCode {
     let args = Args::parse_from(calib::cli_args());
-    if let Some(Sub::Allan { log, columns, yaml, topic }) = &args.command {
-        return allan(log, columns.as_deref(), yaml.as_deref(), topic);
+    if let Some(Sub::Allan { log, columns, yaml, topic, report }) = &args.command {
+        return allan(log, columns.as_deref(), yaml.as_deref(), topic, report.as_deref());
     }
     if matches!(args.export, Some(ExportArg::Record)) && args.out.is_none() {
         return fail(2, "--export record writes the 8 KiB flash image: give --out FILE");
@@ -208,7 +211,7 @@ fn read_log(path: &str, columns: Option<&str>) -> Result<csvlog::Log, ExitCode> 
     csvlog::parse(&text).map_err(|e| fail(3, format!("{path}: {e}")))
 }
 
-fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str) -> ExitCode {
+fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str, report: Option<&Path>) -> ExitCode {
     let log = match read_log(path, columns) {
         Ok(l) => l,
         Err(code) => return code,
@@ -220,6 +223,13 @@ fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str) ->
     if let Some(file) = yaml {
         if let Err(e) = std::fs::write(file, a.kalibr_yaml(topic)) {
             return fail(2, format!("{}: {e}", file.display()));
+        }
+    }
+    if let Some(file) = report {
+        let written =
+            calib::report::allan_html(path, &a).and_then(|page| std::fs::write(file, page).map_err(|e| format!("{}: {e}", file.display())));
+        if let Err(e) = written {
+            return fail(2, format!("--report: {e}"));
         }
     }
     match serde_json::to_string(&serde_json::json!({ "allan": a })) {
