@@ -15,6 +15,7 @@ use crate::offline::{Calibration, Segment};
 use calib_core::record::Record;
 use calib_core::vec3::sub;
 use nalgebra::{Matrix3, Vector3};
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 
 /// Plot size (px).
@@ -90,8 +91,15 @@ fn chart_err<E: std::fmt::Debug>(e: E) -> String {
 /// One series of a scatter plot: its colour, label and points.
 type Series<'a> = (RGBColor, &'a str, Vec<(f64, f64)>);
 
-/// A scatter plot of `series` with axis names.
-fn scatter(title: &str, x: (&str, std::ops::Range<f64>), y: (&str, std::ops::Range<f64>), series: &[Series]) -> Result<Plot, String> {
+/// A plot of `series` as markers and `lines` (colour, points) with axis names, on any
+/// coordinates (linear or logarithmic).
+fn plot<X, Y>(title: &str, x: (&str, X), y: (&str, Y), series: &[Series], lines: &[(RGBColor, Vec<(f64, f64)>)]) -> Result<Plot, String>
+where
+    X: AsRangedCoord<Value = f64>,
+    Y: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
     let mut svg = String::new();
     let mut markers = vec![];
     {
@@ -101,7 +109,7 @@ fn scatter(title: &str, x: (&str, std::ops::Range<f64>), y: (&str, std::ops::Ran
             .caption(title, ("sans-serif", 16))
             .margin(10)
             .x_label_area_size(32)
-            .y_label_area_size(56)
+            .y_label_area_size(64)
             .build_cartesian_2d(x.1, y.1)
             .map_err(chart_err)?;
         chart.configure_mesh().x_desc(x.0).y_desc(y.0).light_line_style(WHITE).draw().map_err(chart_err)?;
@@ -114,10 +122,18 @@ fn scatter(title: &str, x: (&str, std::ops::Range<f64>), y: (&str, std::ops::Ran
                 .label(*label)
                 .legend(move |(x, y)| Circle::new((x, y), MARKER, c.filled()));
         }
+        for (colour, pts) in lines {
+            chart.draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(1))).map_err(chart_err)?;
+        }
         chart.configure_series_labels().background_style(TRANSPARENT).border_style(TRANSPARENT).draw().map_err(chart_err)?;
         root.present().map_err(chart_err)?;
     }
     Ok(Plot { svg, markers })
+}
+
+/// A scatter plot on linear axes.
+fn scatter(title: &str, x: (&str, std::ops::Range<f64>), y: (&str, std::ops::Range<f64>), series: &[Series]) -> Result<Plot, String> {
+    plot(title, x, y, series, &[])
 }
 
 /// `lo..hi` widened by 10 % (and never empty).
@@ -278,36 +294,17 @@ pub fn adev_plot(title: &str, unit: &str, n: &Noise) -> Result<Plot, String> {
     if !(t0 > 0.0 && t1 > t0 && v0 > 0.0 && v1 >= v0) {
         return Err("no Allan deviation to plot".into());
     }
-    let mut svg = String::new();
-    let mut markers = vec![];
-    {
-        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
-        root.fill(&WHITE).map_err(chart_err)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(32)
-            .y_label_area_size(64)
-            .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (v0 / 2.0..v1 * 2.0).log_scale())
-            .map_err(chart_err)?;
-        chart.configure_mesh().x_desc("τ (s)").y_desc(format!("σ(τ) ({unit})")).light_line_style(WHITE).draw().map_err(chart_err)?;
-        for (a, colour) in AXES.iter().enumerate() {
-            let pts: Vec<(f64, f64)> = n.tau_s.iter().zip(&n.adev).map(|(t, s)| (*t, s[a])).filter(|p| p.1 > 0.0).collect();
-            markers.push(pts.iter().map(|p| chart.backend_coord(p)).collect());
-            let c = *colour;
-            chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, MARKER, c.filled())))
-                .map_err(chart_err)?
-                .label(["x", "y", "z"][a])
-                .legend(move |(x, y)| Circle::new((x, y), MARKER, c.filled()));
+    let names = ["x", "y", "z"];
+    let series: Vec<Series> =
+        (0..3).map(|a| (AXES[a], names[a], n.tau_s.iter().zip(&n.adev).map(|(t, s)| (*t, s[a])).filter(|p| p.1 > 0.0).collect())).collect();
+    let lines: Vec<(RGBColor, Vec<(f64, f64)>)> = (0..3)
+        .map(|a| {
             let (wn, rw) = (n.noise_density[a].value, n.random_walk[a].value);
-            let model = n.tau_s.iter().map(|&t| (t, (wn * wn / t + rw * rw * t / 3.0).sqrt()));
-            chart.draw_series(LineSeries::new(model, c.stroke_width(1))).map_err(chart_err)?;
-        }
-        chart.configure_series_labels().background_style(TRANSPARENT).border_style(TRANSPARENT).draw().map_err(chart_err)?;
-        root.present().map_err(chart_err)?;
-    }
-    Ok(Plot { svg, markers })
+            (AXES[a], n.tau_s.iter().map(|&t| (t, (wn * wn / t + rw * rw * t / 3.0).sqrt())).collect())
+        })
+        .collect();
+    let y = format!("σ(τ) ({unit})");
+    plot(title, ("τ (s)", (t0 / 1.5..t1 * 1.5).log_scale()), (y.as_str(), (v0 / 2.0..v1 * 2.0).log_scale()), &series, &lines)
 }
 
 /// The page of `calib allan`'s figures for log `name`: a table per sensor and its plot.
