@@ -10,7 +10,8 @@ use embedded_hal::digital::OutputPin;
 use embedded_hal::i2c::{ErrorType, I2c, Operation};
 use hal::gpio::{p0, p1, Disconnected, DriveConfig, Level, Output, Pin, PushPull};
 use hal::pac;
-use hal::{twim, wdt, Twim};
+use hal::timer::Periodic;
+use hal::{twim, wdt, Timer, Twim};
 use nrf52840_hal as hal;
 
 /// Polls of EVENTS_HFCLKSTARTED before giving up on the crystal (≥ 10 ms at 64 MHz; the
@@ -209,6 +210,44 @@ pub fn start_hfxo(clock: &pac::CLOCK) -> bool {
         }
     }
     false
+}
+
+/// TIMER2 interrupting every `period_us` to wake the loop from [`sleep`] (its handler calls
+/// [`tick_handled`]); light sleep (SLEEPDEEP off).
+pub fn start_tick(timer2: pac::TIMER2, period_us: u32, core: &mut cortex_m::Peripherals) -> Timer<pac::TIMER2, Periodic> {
+    let mut tick = Timer::periodic(timer2);
+    tick.enable_interrupt();
+    tick.start(period_us);
+    // SAFETY: the handler only clears its event; no shared state.
+    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::TIMER2) };
+    core.SCB.clear_sleepdeep();
+    tick
+}
+
+/// The TIMER2 handler's work: it only wakes the loop. Clears the compare event and reads it
+/// back, so that the write has reached the peripheral before the handler returns (else the
+/// interrupt fires again).
+pub fn tick_handled() {
+    // SAFETY: this timer's own event register.
+    let t = unsafe { &*pac::TIMER2::ptr() };
+    t.events_compare[0].write(|w| unsafe { w.bits(0) });
+    let _ = t.events_compare[0].read().bits();
+}
+
+/// FPSCR's cumulative exception flags (IOC, DZC, OFC, UFC, IXC, IDC).
+const FPSCR_EXCEPTIONS: u32 = 0x9F;
+
+/// Sleeps until the next interrupt. Erratum 87: an FPU exception flag left in FPSCR pends the
+/// FPU interrupt, which keeps the CPU from sleeping; the flags and the pending bit are cleared
+/// first, as Nordic's workaround does.
+pub fn sleep() {
+    let fpscr = cortex_m::register::fpscr::read().bits();
+    if fpscr & FPSCR_EXCEPTIONS != 0 {
+        // SAFETY: only the sticky exception flags change; rounding and modes stay.
+        unsafe { cortex_m::register::fpscr::write(cortex_m::register::fpscr::Fpscr::from_bits(fpscr & !FPSCR_EXCEPTIONS)) };
+    }
+    cortex_m::peripheral::NVIC::unpend(pac::Interrupt::FPU);
+    cortex_m::asm::wfi();
 }
 
 /// The watchdog, started with `timeout_s`, or recovered when it already runs (after a soft reset,

@@ -22,7 +22,6 @@ use calib_core::protocol::{self, RecordLine};
 use calib_core::record::Record;
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
-use cortex_m::peripheral::NVIC;
 use embedded_hal::digital::InputPin;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
@@ -33,7 +32,6 @@ use gyrocal_fw::storage::{Storage, StoreError};
 use hal::gpio::Level;
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
-use hal::Timer;
 use nrf52840_hal as hal;
 use panic_probe as _;
 
@@ -77,12 +75,7 @@ fn procedure(stored: Option<Record>) -> &'static mut Procedure {
 
 #[interrupt]
 fn TIMER2() {
-    // Only wakes the loop: clear the compare event, and read it back so that the write has
-    // reached the peripheral before the handler returns (else the interrupt fires again).
-    // SAFETY: this timer's own event register.
-    let t = unsafe { &*pac::TIMER2::ptr() };
-    t.events_compare[0].write(|w| unsafe { w.bits(0) });
-    let _ = t.events_compare[0].read().bits();
+    board::tick_handled();
 }
 
 /// The outputs the procedure drives: servo PWM, LEDs, the record storage, the applied
@@ -345,21 +338,6 @@ impl Status {
 
 /// RESETREAS.RESETPIN.
 const RESETREAS_RESETPIN: u32 = 1;
-/// FPSCR's cumulative exception flags (IOC, DZC, OFC, UFC, IXC, IDC).
-const FPSCR_EXCEPTIONS: u32 = 0x9F;
-
-/// Sleeps until the next interrupt. Erratum 87: an FPU exception flag left in FPSCR pends the
-/// FPU interrupt, which keeps the CPU from sleeping; the flags and the pending bit are cleared
-/// first, as Nordic's workaround does.
-fn sleep() {
-    let fpscr = cortex_m::register::fpscr::read().bits();
-    if fpscr & FPSCR_EXCEPTIONS != 0 {
-        // SAFETY: only the sticky exception flags change; rounding and modes stay.
-        unsafe { cortex_m::register::fpscr::write(cortex_m::register::fpscr::Fpscr::from_bits(fpscr & !FPSCR_EXCEPTIONS)) };
-    }
-    NVIC::unpend(pac::Interrupt::FPU);
-    cortex_m::asm::wfi();
-}
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -385,12 +363,7 @@ fn main() -> ! {
     };
 
     let mut clock = Clock::start(p.TIMER1);
-    let mut tick = Timer::periodic(p.TIMER2);
-    tick.enable_interrupt();
-    tick.start(TICK_US);
-    // SAFETY: the handler only clears its event; no shared state.
-    unsafe { NVIC::unmask(pac::Interrupt::TIMER2) };
-    core.SCB.clear_sleepdeep();
+    let _tick = board::start_tick(p.TIMER2, TICK_US, &mut core);
 
     let p0 = hal::gpio::p0::Parts::new(p.P0);
     let p1 = hal::gpio::p1::Parts::new(p.P1);
@@ -474,6 +447,6 @@ fn main() -> ! {
 
         status.lines(now, &mut io.console, io.applied.is_some() && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));
-        sleep();
+        board::sleep();
     }
 }

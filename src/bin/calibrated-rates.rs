@@ -15,20 +15,25 @@ use calib_core::stats::Welford3;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::stamp::Stamper;
-use hal::pac;
+use hal::pac::{self, interrupt};
 use nrf52840_hal as hal;
 use panic_probe as _;
 
 /// Watchdog timeout (s).
 const WATCHDOG_S: u32 = 2;
-/// FIFO read period (µs).
-const POLL_US: u64 = 10_000;
+/// FIFO read period (µs): the loop sleeps between reads.
+const POLL_US: u32 = 10_000;
 
 /// The newest valid record in the two pages at 0xF8000.
 fn stored() -> Option<Record> {
     // SAFETY: the record pages are memory-mapped flash, read only.
     let pages = unsafe { core::slice::from_raw_parts(ADDRESS as *const u8, SLOTS * PAGE) };
     region::load(pages, PAGE).map(|(_, r)| r)
+}
+
+#[interrupt]
+fn TIMER2() {
+    board::tick_handled();
 }
 
 #[cortex_m_rt::entry]
@@ -45,6 +50,7 @@ fn main() -> ! {
         cortex_m::peripheral::SCB::sys_reset();
     };
     let mut clock = Clock::start(p.TIMER1);
+    let _tick = board::start_tick(p.TIMER2, POLL_US, &mut core);
     let (p0, p1) = (hal::gpio::p0::Parts::new(p.P0), hal::gpio::p1::Parts::new(p.P1));
     let mut bus = board::sensor_bus(p0.p0_22, p1.p1_00, p0.p0_15, p0.p0_14, p.TWIM0, &mut clock);
 
@@ -90,14 +96,11 @@ fn main() -> ! {
     let setup: SensorSetup = config.setup();
     let mut stamper = Stamper::new(setup.odr_hz);
     let (mut rate, mut turned_deg, mut last_t) = (Welford3::new(), [0.0f64; 3], None::<f64>);
-    let (mut next_poll, mut next_line) = (clock.now_us(), clock.now_us() + 1_000_000);
+    let mut next_line = clock.now_us() + 1_000_000;
     loop {
+        board::sleep();
         wd.pet();
         let now = clock.now_us();
-        if now < next_poll {
-            continue;
-        }
-        next_poll = now + POLL_US;
         let status = match sensor.fifo_status() {
             Ok(s) => s,
             Err(e) => {
