@@ -190,12 +190,11 @@ impl Console {
     }
 
     /// Raw-log mode (a long press or `r` toggles it): every sample as a row of
-    /// `calib_core::log` after its header line; the end marker when it is switched off. The
-    /// other log lines in between are not rows (`calib` skips and counts them), so the message
-    /// text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends) is a log
-    /// `calib` reads.
+    /// `calib_core::log` after its header line and the setup comment; the end marker when it is
+    /// switched off. The other log lines in between are not rows (`calib` skips and counts them),
+    /// so the message text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends)
+    /// is a log `calib` reads.
     #[inline(never)]
-    /// Starts (the header and the setup comment) or ends the raw log.
     pub(crate) fn set_raw_log(&mut self, on: bool, setup: &SensorSetup) {
         self.raw(protocol::raw_log(on));
         if on {

@@ -88,6 +88,8 @@ struct Io {
     pwm_restart_us: Option<u64>,
     storage: Option<Storage<hal::nvmc::Nvmc<pac::NVMC>>>,
     led: Led,
+    /// The newest record (loaded at boot or stored since): applied to the samples only while
+    /// the sensor runs at the setup it was made at.
     applied: Option<Record>,
     console: Console,
 }
@@ -232,7 +234,7 @@ impl Sensing {
                 if raw {
                     io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
                 }
-                if let Some(rec) = io.applied {
+                if let Some(rec) = io.applied.filter(|r| r.setup == self.config.setup()) {
                     rate.add(rec.apply_gyro(gyro_dps));
                 }
                 procedure.handle_sample(&sample);
@@ -420,7 +422,11 @@ fn main() -> ! {
             let mut line = heapless::String::<LINE>::new();
             let _ = protocol::record(&mut line, RecordLine::Loaded, &rec);
             console.send(Log::Info, &line);
-            console.say(Log::Info, format_args!("record read from slot {slot}; applied"));
+            if rec.setup == SENSOR.setup() {
+                console.say(Log::Info, format_args!("record read from slot {slot}; applied"));
+            } else {
+                console.say(Log::Warn, format_args!("record read from slot {slot}; made at another sensor setup: not applied"));
+            }
             applied = Some(rec);
         }
         Some(Ok(None)) => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),
@@ -445,7 +451,8 @@ fn main() -> ! {
         procedure.drive(now, &mut io);
         io.flush_servos(clock.now_us());
 
-        status.lines(now, &mut io.console, io.applied.is_some() && !sensing.raw, &mut sensing.rate);
+        let applied = io.applied.is_some_and(|r| r.setup == sensing.config.setup());
+        status.lines(now, &mut io.console, applied && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));
         board::sleep();
     }

@@ -115,7 +115,13 @@ fn main() -> ! {
         let n = status.level.min(FIFO_DEPTH) as usize;
         let batch = stamper.batch(clock.now_s(), n);
         for i in 0..n {
-            let Ok(slot) = sensor.read_slot() else { break };
+            let Ok(slot) = sensor.read_slot() else {
+                // The samples left in the FIFO would be stamped as the next batch's: start over.
+                defmt::error!("LSM9DS1 read failed");
+                stamper.restart();
+                last_t = None;
+                break;
+            };
             let (_, gyro_dps) = sensor.convert(&slot);
             let w = apply(gyro_dps);
             let t = batch.stamp(i);

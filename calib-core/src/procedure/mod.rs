@@ -299,10 +299,16 @@ impl Procedure {
         }
     }
 
+    /// The stored record's accelerometer calibration, if it has one made at this setup (one from
+    /// another full scale is never reused).
+    fn stored_accel(&self) -> Option<AccelCal> {
+        self.stored.filter(|r| r.setup == self.cfg.setup).map(|r| r.accel()).filter(|a| a.model != AccelModel::None)
+    }
+
     /// What a calibration started now asks for: (rig poses, hand-held poses). No hand-held
     /// poses when the stored accelerometer calibration is reused or the pan/tilt plan fits it.
     pub fn plan(&self) -> (u16, u8) {
-        let reuse = self.stored.is_some_and(|r| r.accel().model != AccelModel::None);
+        let reuse = self.stored_accel().is_some();
         let hand = if self.cfg.pan_tilt || reuse { 0 } else { self.cfg.accel_poses.max(6) };
         (self.cfg.plan_steps(), hand)
     }
@@ -579,7 +585,7 @@ impl Procedure {
         self.window_temp = Welford3::new();
         self.gbar = None;
         self.temp = Welford3::new();
-        if let Some(acc) = self.stored.map(|r| r.accel()).filter(|a| a.model != AccelModel::None) {
+        if let Some(acc) = self.stored_accel() {
             self.accel_cal = acc;
         }
         self.park_servo();

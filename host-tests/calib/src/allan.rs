@@ -21,6 +21,8 @@ use crate::csvlog::Row;
 use crate::offline::phases;
 use serde::Serialize;
 
+/// Largest share of the samples that may be missing (gaps), of the still stretch.
+pub const MAX_MISSING_SHARE: f64 = 1e-3;
 /// Shortest still log accepted (s): below it the random walk cannot be seen at all.
 pub const MIN_DURATION_S: f64 = 100.0;
 /// Share of the log that must be one still segment.
@@ -38,6 +40,11 @@ pub enum AllanError {
         /// Its duration (s).
         duration_s: f64,
     },
+    /// Samples are missing (gaps in the time column): the curve would be wrong.
+    Gaps {
+        /// Samples missing.
+        missing: usize,
+    },
     /// Not one still period: the board moved.
     NotStatic {
         /// The longest still stretch (s).
@@ -53,6 +60,10 @@ impl std::fmt::Display for AllanError {
             AllanError::TooShort { duration_s } => {
                 write!(f, "the log is {duration_s:.0} s long: an Allan analysis needs at least {MIN_DURATION_S:.0} s of the board lying still (an hour or more to see the random walk)")
             }
+            AllanError::Gaps { missing } => write!(
+                f,
+                "{missing} samples are missing from the still stretch (gaps in the time column): log over RTT, or read the USB port without pauses"
+            ),
             AllanError::NotStatic { still_s, duration_s } => write!(
                 f,
                 "the board moved: the longest still stretch is {still_s:.0} s of {duration_s:.0} s (an Allan analysis needs one still log; lay the board down and log again)"
@@ -143,7 +154,8 @@ fn fit(curve: &[(f64, f64, f64)]) -> ([f64; 4], [f64; 4]) {
         let idx: Vec<usize> = (0..4).filter(|&j| active[j]).collect();
         let k = idx.len();
         let (mut ata, mut atb) = (nalgebra::DMatrix::<f64>::zeros(k, k), nalgebra::DVector::<f64>::zeros(k));
-        for &(tau, s, rel) in curve {
+        // A flat curve point (an axis that never changed) carries no weight it could be fitted by.
+        for &(tau, s, rel) in curve.iter().filter(|p| p.1 > 0.0) {
             let (b, y, w) = (basis(tau), s * s, 1.0 / (2.0 * rel * s * s).powi(2));
             for (r, &jr) in idx.iter().enumerate() {
                 atb[r] += w * b[jr] * y;
@@ -203,7 +215,8 @@ fn noise(x: &[[f64; 3]], fs: f64) -> Noise {
 }
 
 /// The noise figures of a static log: the longest still stretch (it must be
-/// [`MIN_STILL_SHARE`] of the log and at least [`MIN_DURATION_S`] long), at its median rate.
+/// [`MIN_STILL_SHARE`] of the log and at least [`MIN_DURATION_S`] long, with at most
+/// [`MAX_MISSING_SHARE`] of its samples missing), at its median rate.
 pub fn analyse(rows: &[Row]) -> Result<Allan, AllanError> {
     let duration_s = match (rows.first(), rows.last()) {
         (Some(a), Some(b)) => b.t_s - a.t_s,
@@ -220,13 +233,18 @@ pub fn analyse(rows: &[Row]) -> Result<Allan, AllanError> {
         .max_by(|a, b| (rows[a.1].t_s - rows[a.0].t_s).total_cmp(&(rows[b.1].t_s - rows[b.0].t_s)))
         .unwrap_or((0, 0));
     let still_s = rows[last].t_s - rows[first].t_s;
-    if still_s < MIN_STILL_SHARE * duration_s {
+    if still_s < MIN_STILL_SHARE * duration_s || still_s < MIN_DURATION_S {
         return Err(AllanError::NotStatic { still_s, duration_s });
     }
     let span = &rows[first..=last];
     let mut dt: Vec<f64> = span.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
     dt.sort_by(f64::total_cmp);
-    let fs = 1.0 / dt[dt.len() / 2];
+    let median = dt[dt.len() / 2];
+    let missing: usize = dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum();
+    if missing as f64 > MAX_MISSING_SHARE * span.len() as f64 {
+        return Err(AllanError::Gaps { missing });
+    }
+    let fs = 1.0 / median;
     let gyro: Vec<[f64; 3]> = span.iter().map(|r| r.gyro_dps.map(f64::from)).collect();
     let accel: Vec<[f64; 3]> = span.iter().map(|r| r.accel_g.map(f64::from)).collect();
     Ok(Allan { sample_rate_hz: fs, duration_s: still_s, gyro: noise(&gyro, fs), accel: noise(&accel, fs) })

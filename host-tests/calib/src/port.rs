@@ -96,6 +96,9 @@ pub struct Outcome {
     pub lines: usize,
     /// The board's `K` beside calib's on the saved log.
     pub check: CrossCheck,
+    /// The record the board had when the run started (its `s` answer), which the run started
+    /// from: the saved log replays from it ([`offline::calibrate_log`]).
+    pub stored: Option<Record>,
 }
 
 /// calib's result on the saved log, beside the board's.
@@ -416,7 +419,7 @@ pub fn run(
             n => format!("; {n} rows were lost on USB, without effect on K"),
         }
     ));
-    Ok(Outcome { json, record, lines, check })
+    Ok(Outcome { json, record, lines, check, stored })
 }
 
 /// Reads `input` on a thread: one message per line (the user's Enter); disconnected at its end.

@@ -5,9 +5,10 @@
 //! about whatever is weak.
 //!
 //! The invariant: on a rig turning about one axis `u`, the gravity direction `a_i` of every pose
-//! keeps one angle to `u`, so `a_i · (K γ̄) / |K γ̄|` (γ̄ the moves' mean integrated gyro) is the
-//! same at every pose with the right `K`; with a wrong one it swings with the shaft angle (the
-//! paper's figure of `A · (K g)`).
+//! keeps one angle to `u`, so `a_i · ū` (ū the mean of the moves' directions `K γ / |K γ|`, γ
+//! a move's integrated gyro) is the same at every pose with the right `K`; with a wrong one it
+//! swings with the shaft angle (the paper's figure of `A · (K g)`). On a pan/tilt rig, the poses
+//! and moves of the most used tilt setting (one pan axis).
 
 use crate::allan::{Allan, Noise};
 use crate::csvlog::Row;
@@ -67,12 +68,24 @@ fn direction(c: &Calibration, s: &Segment) -> Vector3<f64> {
     unit(c.accel.apply(s.accel.mean().map(|v| v as f32)))
 }
 
-/// The moves between consecutive rig poses of one tilt setting: (from, to, bias-corrected
-/// integrated gyro in °).
-fn moves<'a>(rows: &[Row], c: &'a Calibration) -> Vec<(&'a Segment, &'a Segment, Vector3<f64>)> {
+/// The most used tilt setting of the rig poses (0.5° steps; 0 without a tilt column).
+fn main_tilt(c: &Calibration) -> i32 {
+    let tilt = |s: &Segment| (s.tilt_deg.unwrap_or(0.0) * 2.0).round() as i32;
+    let rig: Vec<i32> = c.phases.segments.iter().filter(|s| s.is_rig_pose()).map(tilt).collect();
+    rig.iter().copied().max_by_key(|t| rig.iter().filter(|u| *u == t).count()).unwrap_or(0)
+}
+
+/// A rig pose at the tilt setting `tilt`.
+fn at_tilt(s: &Segment, tilt: i32) -> bool {
+    s.is_rig_pose() && (s.tilt_deg.unwrap_or(0.0) * 2.0).round() as i32 == tilt
+}
+
+/// The moves between consecutive rig poses of the tilt setting `tilt`: (from, to,
+/// bias-corrected integrated gyro in °).
+fn moves<'a>(rows: &[Row], c: &'a Calibration, tilt: i32) -> Vec<(&'a Segment, &'a Segment, Vector3<f64>)> {
     let seg = &c.phases.segments;
     seg.windows(2)
-        .filter(|w| w[0].is_rig_pose() && w[1].is_rig_pose() && w[0].tilt_deg == w[1].tilt_deg && w[0].servo_deg != w[1].servo_deg)
+        .filter(|w| at_tilt(&w[0], tilt) && at_tilt(&w[1], tilt) && w[0].servo_deg != w[1].servo_deg)
         .map(|w| {
             let mut g = Vector3::zeros();
             for p in rows[w[0].last..=w[1].last].windows(2) {
@@ -164,7 +177,8 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
         &[(RIG, "rig poses", rig), (HAND, "hand-held poses", hand)],
     )?;
     let k = c.record().map(|r| k_of(&r)).unwrap_or_else(Matrix3::identity);
-    let mv = moves(rows, c);
+    let tilt = main_tilt(c);
+    let mv = moves(rows, c, tilt);
     let (mut invariant, mut residuals) = (None, None);
     if !mv.is_empty() {
         // The moves' mean axis, each signed along the first.
@@ -173,7 +187,7 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
             mv.iter().map(|m| (k * m.2).normalize()).map(|d| if d.dot(&first) < 0.0 { -d } else { d }).sum::<Vector3<f64>>().normalize()
         };
         let (u_raw, u_cal) = (axis(&Matrix3::identity()), axis(&k));
-        let poses: Vec<&Segment> = seg.iter().filter(|s| s.is_rig_pose()).collect();
+        let poses: Vec<&Segment> = seg.iter().filter(|s| at_tilt(s, tilt)).collect();
         let at = |u: Vector3<f64>| poses.iter().enumerate().map(|(i, s)| (i as f64, direction(c, s).dot(&u))).collect::<Vec<_>>();
         let (before, after) = (at(u_raw), at(u_cal));
         let y = span(before.iter().chain(&after).map(|p| p.1));
@@ -310,13 +324,13 @@ pub fn adev_plot(title: &str, unit: &str, n: &Noise) -> Result<Plot, String> {
 /// The page of `calib allan`'s figures for log `name`: a table per sensor and its plot.
 pub fn allan_html(name: &str, a: &Allan) -> Result<String, String> {
     let mut h = format!(
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>gyrocal noise: {n}</title>\n<style>body{{font-family:sans-serif;max-width:700px;margin:auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}</style></head><body>\n<h1>gyrocal noise figures</h1>\n<p>Log <code>{n}</code>: {d:.0} s still at {r:.2} Hz. N: white-noise density (two-sided, Kalibr's), K: random walk, B: bias instability; 1σ after ±.</p>\n",
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>gyrocal noise: {n}</title>\n<style>body{{font-family:sans-serif;max-width:700px;margin:auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}</style></head><body>\n<h1>gyrocal noise figures</h1>\n<p>Log <code>{n}</code>: {d:.0} s still at {r:.2} Hz. N: white-noise density (two-sided, Kalibr's), K: random walk, min σ / 0.664: the classic bias instability; 1σ after ±.</p>\n",
         n = escape(name),
         d = a.duration_s,
         r = a.sample_rate_hz
     );
     for (title, unit, n) in [("Gyro", "°/s", &a.gyro), ("Accelerometer", "g", &a.accel)] {
-        h += &format!("<h2>{title}</h2>\n<table><tr><th>axis</th><th>N ({unit}/√Hz)</th><th>K ({unit}/s/√Hz)</th><th>B ({unit})</th></tr>");
+        h += &format!("<h2>{title}</h2>\n<table><tr><th>axis</th><th>N ({unit}/√Hz)</th><th>K ({unit}/s/√Hz)</th><th>min σ / 0.664 ({unit})</th></tr>");
         for k in 0..3 {
             let (wn, rw) = (n.noise_density[k], n.random_walk[k]);
             let walk =

@@ -90,6 +90,15 @@ fn a_log_that_moves_or_is_short_is_named_and_the_cli_writes_json_and_kalibr_yaml
         r.accel_g[0] += 0.3;
     }
     assert!(matches!(analyse(&moved), Err(AllanError::NotStatic { .. })), "{:?}", analyse(&moved).map(|a| a.duration_s));
+    // Rows lost (a host that paused reading USB): named, not analysed.
+    let mut lossy = rows(cfg, 42, 300.0);
+    lossy.drain(1000..1100);
+    assert_eq!(analyse(&lossy), Err(AllanError::Gaps { missing: 100 }));
+    // An axis that never changes (a stuck output) gives figures of 0, not NaN.
+    let mut stuck = rows(cfg, 42, 300.0);
+    stuck.iter_mut().for_each(|r| r.gyro_dps[1] = 0.5);
+    let a = analyse(&stuck).unwrap();
+    assert!(a.gyro.noise_density[1].value == 0.0 && a.gyro.noise_density[0].value > 0.0, "{:?}", a.gyro.noise_density);
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("allan");
     std::fs::create_dir_all(&dir).unwrap();
     let (log, yaml) = (dir.join("still.csv"), dir.join("imu.yaml"));

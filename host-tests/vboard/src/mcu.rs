@@ -313,7 +313,10 @@ impl Mcu {
         const PAGE: u64 = 4096;
         let mut flash = vec![0u8; (FLASH_END - APP) as usize];
         self.uc.mem_read(APP, &mut flash).map_err(err("flash read"))?;
-        let image: Vec<&(u64, Vec<u8>)> = firmware.segments.iter().filter(|(a, d)| *a >= APP && a + d.len() as u64 <= FLASH_END).collect();
+        let image: Vec<&(u64, Vec<u8>)> = firmware.segments.iter().filter(|(a, _)| *a < FLASH_END).collect();
+        if let Some((a, d)) = image.iter().find(|(a, d)| *a < APP || a + d.len() as u64 > FLASH_END) {
+            return Err(format!("a segment at 0x{a:X} ({} bytes) lies outside the application flash 0x{APP:X}..0x{FLASH_END:X}", d.len()));
+        }
         for (addr, data) in &image {
             let (first, last) = ((addr - APP) / PAGE, (addr - APP + data.len().max(1) as u64 - 1) / PAGE);
             flash[(first * PAGE) as usize..((last + 1) * PAGE).min(FLASH_END - APP) as usize].fill(0xFF);

@@ -184,11 +184,17 @@ fn p_runs_the_sensor_at_arduino_lsm9ds1s_setup_and_the_calibration_is_made_and_s
     let (scale, cross) = b.k_errors_pct(&stored);
     println!("at +-2000 dps: max scale error {scale:.4} %, max cross-axis {cross:.4} %");
     assert!(scale < 0.1 && cross < 0.1, "{scale} % {cross} %");
-    // `p` again: the firmware's own setup.
+    // `p` again: the firmware's own setup, at which the record (made at ±2000 °/s) is not applied:
+    // the calibrated rate lines stop.
     host.read();
     host.write(&[Command::Setup.byte()]);
     let text = read_for(&mut b, &host, 0.5);
     assert!(events(&text).contains(&Some(Event::SensorReady { odr_hz: 119, gyro_dps: 500, accel_g: 2 })), "{text}");
+    let rate_lines = |b: &vboard::testbed::Testbed| b.mcu.log.iter().filter(|l| l.contains("(calibrated, 1 s mean)")).count();
+    let before = rate_lines(&b);
+    assert!(before > 0, "rate lines while the record applied");
+    b.run_for(3.0);
+    assert_eq!(rate_lines(&b), before, "a record from another setup is not applied");
 }
 
 #[test]

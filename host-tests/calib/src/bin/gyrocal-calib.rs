@@ -176,22 +176,23 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     match result {
         Ok(o) => {
             eprintln!("calib: the board's log is in {} ({} lines)", opts.log.display(), o.lines);
+            if let Err(e) = output(&o.json, args.export.map(|f| (&o.record, f)), args.out.as_deref()) {
+                return fail(2, e);
+            }
+            // The report of the saved log, replayed from the record the board started with.
             if let Some(file) = &args.report {
                 let log = std::fs::read_to_string(&opts.log)
                     .map_err(|e| e.to_string())
                     .and_then(|t| csvlog::parse(&t).map_err(|e| e.to_string()));
                 let written = log.and_then(|l| {
-                    let c = offline::calibrate_log(&l, None, true, None).map_err(|e| e.to_string())?;
+                    let c = offline::calibrate_log(&l, None, true, o.stored.as_ref()).map_err(|e| e.to_string())?;
                     write_report(file, &opts.log.display().to_string(), &l, &c)
                 });
                 if let Err(e) = written {
-                    return fail(2, format!("--report: {e}"));
+                    return fail(2, format!("--report: {e} (the board's calibration is stored)"));
                 }
             }
-            match output(&o.json, args.export.map(|f| (&o.record, f)), args.out.as_deref()) {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e) => fail(2, e),
-            }
+            ExitCode::SUCCESS
         }
         Err(e) => {
             if !matches!(e, port::SessionError::Open { .. }) {
