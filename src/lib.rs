@@ -2,7 +2,8 @@
 //! peripherals and `calib_core::procedure`, testable on the host.
 //!
 //! - [`bootloader`]: which Arduino bootloader, and whether the record pages are safe to write.
-//! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C.
+//! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C;
+//!   [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
@@ -14,6 +15,7 @@
 #![no_std]
 #![deny(missing_docs)]
 
+pub mod bmi270;
 #[cfg(target_os = "none")]
 pub mod board;
 pub mod bootloader;

@@ -255,7 +255,7 @@ pub enum BusFault {
 }
 
 impl BusFault {
-    fn of<E: embedded_hal::i2c::Error>(e: E) -> Self {
+    pub(crate) fn of<E: embedded_hal::i2c::Error>(e: E) -> Self {
         match e.kind() {
             ErrorKind::NoAcknowledge(_) => BusFault::Nack,
             ErrorKind::Bus | ErrorKind::ArbitrationLoss => BusFault::Bus,

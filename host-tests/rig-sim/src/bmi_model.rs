@@ -1,0 +1,253 @@
+//! A register model of the Bosch BMI270 at 0x68 (the Nano 33 BLE Rev2), as strict as the part is
+//! with what Bosch's BMI270_SensorAPI does (every rule and its source: `docs/rev2-sources.md`):
+//!
+//! - CHIP_ID 0x24; CMD 0xB6 resets every register and the part does not answer for 2 ms.
+//! - Advanced power save (PWR_CONF bit 0, on after a reset): an access that comes less than
+//!   450 µs after the previous one is lost (a write does nothing, a read returns 0), and a burst
+//!   write keeps only its first byte.
+//! - The configuration upload: INIT_DATA (0x5E, the address does not increment) takes a burst at
+//!   the word address in INIT_ADDR_0/1, only while INIT_CTRL = 0 and power save is off. INIT_CTRL
+//!   = 1 starts the initialisation: 15 ms later INTERNAL_STATUS reads 0x01 if the 8192 bytes are
+//!   Bosch's configuration file, else 0x02 (init error); 0x00 until then.
+//! - ACC_CONF/GYR_CONF checked once initialised: an ODR or bandwidth the part does not have sets
+//!   EVENT's error code (1 accelerometer, 2 gyro, 3 both).
+//! - The data registers hold the rig's latest sample in counts at the configured full scales
+//!   while PWR_CTRL enables that sensor (0 otherwise).
+
+use crate::lsm_model::BusError;
+use crate::sim::Rig;
+use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
+
+/// The model's copy of Bosch's configuration file (its SHA-256 is checked against Bosch's
+/// source in the tests).
+pub static BOSCH_CONFIG: &[u8; 8192] = include_bytes!("../../../src/bmi270_config.bin");
+
+/// I2C address.
+pub const ADDR: u8 = 0x68;
+/// How long the part is away after a soft reset (s).
+pub const RESET_S: f64 = 0.002;
+/// The access gap advanced power save needs (s).
+pub const APS_GAP_S: f64 = 450e-6;
+/// From INIT_CTRL = 1 to the initialisation's result (s).
+pub const INIT_S: f64 = 0.015;
+
+const CHIP_ID: u8 = 0x00;
+const ACC_X_LSB: u8 = 0x0C;
+const EVENT: u8 = 0x1B;
+const INTERNAL_STATUS: u8 = 0x21;
+const ACC_CONF: u8 = 0x40;
+const ACC_RANGE: u8 = 0x41;
+const GYR_CONF: u8 = 0x42;
+const GYR_RANGE: u8 = 0x43;
+const INIT_CTRL: u8 = 0x59;
+const INIT_ADDR_0: u8 = 0x5B;
+const INIT_ADDR_1: u8 = 0x5C;
+const INIT_DATA: u8 = 0x5E;
+const PWR_CONF: u8 = 0x7C;
+const PWR_CTRL: u8 = 0x7D;
+const CMD: u8 = 0x7E;
+
+/// The BMI270 on the rig.
+pub struct Bmi270Model {
+    rig: Rig,
+    /// The rig's latest sample: (accelerometer g, gyro °/s), exact (the model quantises).
+    last: ([f32; 3], [f32; 3]),
+    regs: [u8; 0x80],
+    upload: Vec<u8>,
+    now_s: f64,
+    /// The part does not answer before this time (s).
+    away_until: f64,
+    /// End of the last access (s), for the power-save gap.
+    last_access_s: f64,
+    /// INIT_CTRL = 1 was written at this time (s).
+    init_started: Option<f64>,
+    /// Accesses lost to the power-save rule.
+    pub lost_accesses: u32,
+    /// Soft resets seen.
+    pub resets: u32,
+    /// Fault injection: the upload byte at this offset arrives with a bit flipped (a disturbed
+    /// bus), so that the initialisation fails.
+    pub flip_upload_byte: Option<usize>,
+}
+
+impl Bmi270Model {
+    /// A part just powered, sampling `rig`.
+    pub fn new(rig: Rig) -> Self {
+        let mut m = Self {
+            rig,
+            last: ([0.0; 3], [0.0; 3]),
+            regs: [0; 0x80],
+            upload: vec![0; 8192],
+            now_s: 0.0,
+            away_until: 0.0,
+            last_access_s: f64::NEG_INFINITY,
+            init_started: None,
+            lost_accesses: 0,
+            resets: 0,
+            flip_upload_byte: None,
+        };
+        m.reset();
+        m
+    }
+
+    fn reset(&mut self) {
+        self.regs = [0; 0x80];
+        self.regs[CHIP_ID as usize] = 0x24;
+        self.regs[PWR_CONF as usize] = 0x03;
+        self.regs[ACC_CONF as usize] = 0xA8;
+        self.regs[GYR_CONF as usize] = 0xA9;
+        self.upload.fill(0);
+        self.init_started = None;
+    }
+
+    /// True time (s).
+    pub fn now_s(&self) -> f64 {
+        self.now_s
+    }
+
+    /// Advances true time to `t_s` (the rig samples on its own).
+    pub fn advance_to(&mut self, t_s: f64) {
+        if t_s > self.now_s {
+            self.now_s = t_s;
+        }
+        while self.rig.truth().t_s < self.now_s {
+            let r = self.rig.next_sample();
+            self.last = (r.accel_g, r.gyro_dps);
+        }
+    }
+
+    /// The rig.
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
+    fn aps(&self) -> bool {
+        self.regs[PWR_CONF as usize] & 1 != 0
+    }
+
+    fn initialised(&self) -> bool {
+        self.status() == 1
+    }
+
+    fn status(&self) -> u8 {
+        match self.init_started {
+            Some(t) if self.now_s >= t + INIT_S => u8::from(self.upload.as_slice() != BOSCH_CONFIG.as_slice()) + 1,
+            _ => 0,
+        }
+    }
+
+    /// EVENT's configuration error code for the current ACC_CONF/GYR_CONF.
+    fn config_error(&self) -> u8 {
+        if !self.initialised() {
+            return 0;
+        }
+        let (acc, gyr) = (self.regs[ACC_CONF as usize], self.regs[GYR_CONF as usize]);
+        let acc_ok = (0x01..=0x0C).contains(&(acc & 0x0F)) && (acc & 0x80 == 0 || (acc >> 4) & 0x07 <= 3);
+        let gyr_ok = (0x06..=0x0D).contains(&(gyr & 0x0F)) && (gyr >> 4) & 0x03 <= 2;
+        u8::from(!acc_ok) | (u8::from(!gyr_ok) << 1)
+    }
+
+    fn read_byte(&mut self, r: u8) -> u8 {
+        match r {
+            INTERNAL_STATUS => self.status(),
+            EVENT => self.config_error() << 2,
+            ACC_X_LSB..=0x17 => {
+                let s = self.last;
+                let (dps, g) = (
+                    [2000.0, 1000.0, 500.0, 250.0, 125.0][(self.regs[GYR_RANGE as usize] & 0x07).min(4) as usize] / 32768.0,
+                    [2.0, 4.0, 8.0, 16.0][(self.regs[ACC_RANGE as usize] & 0x03) as usize] / 32768.0,
+                );
+                let on = self.regs[PWR_CTRL as usize];
+                let i = (r - ACC_X_LSB) as usize;
+                let (value, enabled, lsb) = if i < 6 { (s.0[i / 2], on & 0x04 != 0, g) } else { (s.1[(i - 6) / 2], on & 0x02 != 0, dps) };
+                let counts = if enabled { (value as f64 / lsb).round().clamp(-32768.0, 32767.0) as i16 } else { 0 };
+                counts.to_le_bytes()[i % 2]
+            }
+            r => self.regs[r as usize & 0x7F],
+        }
+    }
+
+    fn write_bytes(&mut self, r: u8, data: &[u8]) {
+        match r {
+            INIT_DATA => {
+                if self.regs[INIT_CTRL as usize] != 0 || self.aps() {
+                    return;
+                }
+                let word = self.regs[INIT_ADDR_0 as usize] as usize & 0x0F | (self.regs[INIT_ADDR_1 as usize] as usize) << 4;
+                for (k, &b) in data.iter().enumerate() {
+                    let at = 2 * word + k;
+                    if let Some(slot) = self.upload.get_mut(at) {
+                        *slot = if self.flip_upload_byte == Some(at) { b ^ 1 } else { b };
+                    }
+                }
+            }
+            CMD if data.first() == Some(&0xB6) => {
+                self.reset();
+                self.resets += 1;
+                self.away_until = self.now_s + RESET_S;
+            }
+            _ => {
+                for (k, &b) in data.iter().enumerate() {
+                    let reg = r as usize + k;
+                    if reg >= 0x80 || matches!(reg as u8, CHIP_ID | INTERNAL_STATUS | EVENT | CMD) {
+                        continue;
+                    }
+                    self.regs[reg] = b;
+                    if reg as u8 == INIT_CTRL && b & 1 != 0 && self.init_started.is_none() {
+                        self.init_started = Some(self.now_s);
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl ErrorType for Bmi270Model {
+    type Error = BusError;
+}
+
+impl I2c for Bmi270Model {
+    fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), BusError> {
+        if address != ADDR || self.now_s < self.away_until {
+            return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
+        }
+        let lost = self.aps() && self.now_s - self.last_access_s < APS_GAP_S;
+        let aps = self.aps();
+        // 400 kHz: 9 bit times per byte.
+        let bytes: usize = operations
+            .iter()
+            .map(|op| {
+                1 + match op {
+                    Operation::Write(b) => b.len(),
+                    Operation::Read(b) => b.len(),
+                }
+            })
+            .sum();
+        self.advance_to(self.now_s + bytes as f64 * 9.0 / 400e3);
+        self.last_access_s = self.now_s;
+        if lost {
+            self.lost_accesses += 1;
+        }
+        let mut ptr = 0u8;
+        for op in operations.iter_mut() {
+            match op {
+                Operation::Write(bytes) => {
+                    let Some((&r, data)) = bytes.split_first() else { continue };
+                    ptr = r;
+                    if !lost && !data.is_empty() {
+                        // Under power save a burst keeps only its first byte.
+                        self.write_bytes(r, if aps { &data[..1] } else { data });
+                    }
+                }
+                Operation::Read(buf) => {
+                    for (k, b) in buf.iter_mut().enumerate() {
+                        // FIFO_DATA (0x26) and INIT_DATA (0x5E) trap the address.
+                        let r = if matches!(ptr, 0x26 | INIT_DATA) { ptr } else { ptr.wrapping_add(k as u8) };
+                        *b = if lost { 0 } else { self.read_byte(r) };
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,126 @@
+//! The firmware's BMI270 driver against the register model (Bosch's rules: the soft reset's
+//! absence, the power-save access gap, the configuration upload and its check, invalid
+//! configurations), and the configuration file against Bosch's published array.
+
+use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
+use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG};
+use rig_sim::sim::Rig;
+use rig_sim::variant::Variant;
+use sha2::{Digest, Sha256};
+use std::cell::RefCell;
+use std::rc::Rc;
+
+#[derive(Clone)]
+struct Bus(Rc<RefCell<Bmi270Model>>);
+
+impl embedded_hal::i2c::ErrorType for Bus {
+    type Error = rig_sim::lsm_model::BusError;
+}
+
+impl embedded_hal::i2c::I2c for Bus {
+    fn transaction(&mut self, address: u8, operations: &mut [embedded_hal::i2c::Operation<'_>]) -> Result<(), Self::Error> {
+        self.0.borrow_mut().transaction(address, operations)
+    }
+}
+
+/// A delay that advances the model's clock; `scale` 0 never waits.
+struct ModelDelay(Bus, f64);
+
+impl embedded_hal::delay::DelayNs for ModelDelay {
+    fn delay_ns(&mut self, ns: u32) {
+        let m = &self.0 .0;
+        let t = m.borrow().now_s() + ns as f64 * 1e-9 * self.1;
+        m.borrow_mut().advance_to(t);
+    }
+}
+
+fn bus() -> Bus {
+    let mut cfg = Variant::Hobby.config(51, 0);
+    cfg.gyro.quantize = false;
+    cfg.accel.quantize = false;
+    Bus(Rc::new(RefCell::new(Bmi270Model::new(Rig::new(cfg, 5)))))
+}
+
+#[test]
+fn the_configuration_file_is_boschs() {
+    // SHA-256 of `bmi270_config_file[]` in BMI270_SensorAPI's bmi270.c (v2.86.1, docs/rev2-sources.md).
+    let hash: String = Sha256::digest(CONFIG).iter().map(|b| format!("{b:02x}")).collect();
+    assert_eq!(hash, "2d75e68e343a13ff99be98261dfbd99d9e8c6f267da9e3c5aeb883276ad178db");
+    assert_eq!(CONFIG.as_slice(), BOSCH_CONFIG.as_slice());
+}
+
+#[test]
+fn the_driver_brings_the_bmi270_up_as_boschs_api_does_and_reads_the_rig() {
+    let b = bus();
+    let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+    {
+        let m = b.0.borrow();
+        assert_eq!((m.resets, m.lost_accesses), (1, 0), "one soft reset; no access inside a power-save gap");
+        // Mostly the 8 KiB upload at 400 kHz (9 bit times a byte: 184 ms), well inside the 2 s watchdog.
+        println!("init took {:.1} ms of model time", m.now_s() * 1e3);
+        assert!(m.now_s() > 0.184 && m.now_s() < 0.3);
+    }
+    b.0.borrow_mut().advance_to(0.5);
+    let (accel, gyro) = s.read_sample().unwrap();
+    let g = (accel.iter().map(|v| v * v).sum::<f32>()).sqrt();
+    assert!((g - 1.0).abs() < 0.05, "|a| = {g} g at rest");
+    let truth = b.0.borrow().rig().truth().gyro_bias_dps;
+    for k in 0..3 {
+        assert!((gyro[k] as f64 - truth[k]).abs() < 0.5, "gyro {gyro:?} at rest, bias {truth:?}");
+    }
+    assert_eq!(s.config(), Config::DEFAULT);
+}
+
+#[test]
+fn what_the_part_rejects_the_driver_names() {
+    // A driver that never waits: its accesses inside the power-save gaps are lost (the reset
+    // among them), and the part never reports itself initialised.
+    let b = bus();
+    let e = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 0.0)).err().map(|e| e.0);
+    assert_eq!(e, Some(Bmi270Error::Init(0)));
+    assert!(b.0.borrow().lost_accesses > 0);
+    // A byte of the upload disturbed on the bus: INTERNAL_STATUS says init error (2).
+    let b = bus();
+    b.0.borrow_mut().flip_upload_byte = Some(4000);
+    let e = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).err().map(|e| e.0);
+    assert_eq!(e, Some(Bmi270Error::Init(2)));
+    // A full scale the part does not have: refused before any transfer.
+    let b = bus();
+    let e = Bmi270::init(b.clone(), Config { gyro_range_dps: 300, ..Config::DEFAULT }, &mut ModelDelay(b.clone(), 1.0)).err().map(|e| e.0);
+    assert_eq!(e, Some(Bmi270Error::BadConfig));
+    assert_eq!(b.0.borrow().resets, 0);
+}
+
+#[test]
+fn the_model_keeps_boschs_rules() {
+    use embedded_hal::i2c::I2c;
+    let b = bus();
+    let mut m = b.0.borrow_mut();
+    // After a reset power save is on: a second access within 450 µs is lost.
+    m.write(bmi270::ADDR, &[bmi270::reg::CMD, 0xB6]).unwrap();
+    let mut id = [0u8];
+    assert!(m.write_read(bmi270::ADDR, &[bmi270::reg::CHIP_ID], &mut id).is_err(), "away for 2 ms after the soft reset");
+    m.advance_to(0.003);
+    m.write_read(bmi270::ADDR, &[bmi270::reg::CHIP_ID], &mut id).unwrap();
+    assert_eq!(id[0], bmi270::CHIP_ID);
+    m.advance_to(0.004);
+    m.write(bmi270::ADDR, &[bmi270::reg::INIT_CTRL, 0x00]).unwrap();
+    m.write(bmi270::ADDR, &[bmi270::reg::PWR_CONF, 0x00]).unwrap();
+    assert_eq!(m.lost_accesses, 1);
+    let mut pc = [0u8];
+    m.advance_to(0.005);
+    m.write_read(bmi270::ADDR, &[bmi270::reg::PWR_CONF], &mut pc).unwrap();
+    assert_eq!(pc[0] & 1, 1, "the write inside the gap did nothing");
+    // Initialisation without an upload: init error.
+    m.advance_to(0.006);
+    m.write(bmi270::ADDR, &[bmi270::reg::PWR_CONF, 0x00]).unwrap();
+    m.write(bmi270::ADDR, &[bmi270::reg::INIT_CTRL, 0x01]).unwrap();
+    let mut st = [0u8];
+    m.write_read(bmi270::ADDR, &[bmi270::reg::INTERNAL_STATUS], &mut st).unwrap();
+    assert_eq!(st[0], 0, "not done yet");
+    m.advance_to(0.03);
+    m.write_read(bmi270::ADDR, &[bmi270::reg::INTERNAL_STATUS], &mut st).unwrap();
+    assert_eq!(st[0], 2);
+    // Another address: not acknowledged.
+    assert!(m.write(0x69, &[0x00]).is_err());
+}

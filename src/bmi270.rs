@@ -1,0 +1,318 @@
+//! Bosch BMI270 (the Nano 33 BLE Rev2's IMU at 0x68) over embedded-hal I2C: identity, soft reset,
+//! the configuration file upload, the sensor configuration and its checks, as Bosch's
+//! BMI270_SensorAPI does them (v2.86.1; every step and its source: `docs/rev2-sources.md`).
+//!
+//! The configuration file [`CONFIG`] is Bosch's `bmi270_config_file[]`, under this licence:
+//!
+//! Copyright (c) 2023 Bosch Sensortec GmbH. All rights reserved. BSD-3-Clause.
+//! Redistribution and use in source and binary forms, with or without modification, are
+//! permitted provided that the following conditions are met: 1. Redistributions of source code
+//! must retain the above copyright notice, this list of conditions and the following disclaimer.
+//! 2. Redistributions in binary form must reproduce the above copyright notice, this list of
+//! conditions and the following disclaimer in the documentation and/or other materials provided
+//! with the distribution. 3. Neither the name of the copyright holder nor the names of its
+//! contributors may be used to endorse or promote products derived from this software without
+//! specific prior written permission. THIS SOFTWARE IS PROVIDED BY THE COPYRIGHT HOLDERS AND
+//! CONTRIBUTORS "AS IS" AND ANY EXPRESS OR IMPLIED WARRANTIES, INCLUDING, BUT NOT LIMITED TO,
+//! THE IMPLIED WARRANTIES OF MERCHANTABILITY AND FITNESS FOR A PARTICULAR PURPOSE ARE
+//! DISCLAIMED. IN NO EVENT SHALL THE COPYRIGHT HOLDER OR CONTRIBUTORS BE LIABLE FOR ANY DIRECT,
+//! INDIRECT, INCIDENTAL, SPECIAL, EXEMPLARY, OR CONSEQUENTIAL DAMAGES (INCLUDING, BUT NOT LIMITED
+//! TO, PROCUREMENT OF SUBSTITUTE GOODS OR SERVICES; LOSS OF USE, DATA, OR PROFITS; OR BUSINESS
+//! INTERRUPTION) HOWEVER CAUSED AND ON ANY THEORY OF LIABILITY, WHETHER IN CONTRACT, STRICT
+//! LIABILITY, OR TORT (INCLUDING NEGLIGENCE OR OTHERWISE) ARISING IN ANY WAY OUT OF THE USE OF
+//! THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF SUCH DAMAGE.
+
+use crate::lsm9ds1::BusFault;
+use embedded_hal::delay::DelayNs;
+use embedded_hal::i2c::I2c;
+
+/// I2C address on the Nano 33 BLE Rev2 (SDO low).
+pub const ADDR: u8 = 0x68;
+/// CHIP_ID of a BMI270.
+pub const CHIP_ID: u8 = 0x24;
+/// Bosch's configuration file (8192 bytes; SHA-256 2d75e68e…178db, `docs/rev2-sources.md`).
+pub static CONFIG: &[u8; 8192] = include_bytes!("bmi270_config.bin");
+
+/// Register addresses (Bosch's `bmi2_defs.h`; the two RANGE registers and ERR_REG as Zephyr
+/// names them).
+pub mod reg {
+    /// CHIP_ID.
+    pub const CHIP_ID: u8 = 0x00;
+    /// ERR_REG.
+    pub const ERR_REG: u8 = 0x02;
+    /// First accelerometer data byte (ACC_X_LSB); the gyro follows at 0x12.
+    pub const ACC_X_LSB: u8 = 0x0C;
+    /// EVENT: bits 4:2 the configuration error code.
+    pub const EVENT: u8 = 0x1B;
+    /// INTERNAL_STATUS: bits 3:0 the initialisation's message.
+    pub const INTERNAL_STATUS: u8 = 0x21;
+    /// ACC_CONF (ODR bits 3:0, bandwidth 6:4, filter_perf 7); ACC_RANGE follows.
+    pub const ACC_CONF: u8 = 0x40;
+    /// ACC_RANGE (bits 1:0).
+    pub const ACC_RANGE: u8 = 0x41;
+    /// GYR_CONF (ODR 3:0, bandwidth 5:4, noise_perf 6, filter_perf 7); GYR_RANGE follows.
+    pub const GYR_CONF: u8 = 0x42;
+    /// GYR_RANGE (bits 2:0).
+    pub const GYR_RANGE: u8 = 0x43;
+    /// INIT_CTRL: 0 before the upload, 1 to start the initialisation.
+    pub const INIT_CTRL: u8 = 0x59;
+    /// INIT_ADDR_0 (word address bits 3:0); INIT_ADDR_1 (bits 11:4) follows.
+    pub const INIT_ADDR_0: u8 = 0x5B;
+    /// INIT_DATA: the upload's bytes (the address does not increment).
+    pub const INIT_DATA: u8 = 0x5E;
+    /// PWR_CONF: bit 0 advanced power save.
+    pub const PWR_CONF: u8 = 0x7C;
+    /// PWR_CTRL: bit 1 gyro, 2 accelerometer, 3 temperature.
+    pub const PWR_CTRL: u8 = 0x7D;
+    /// CMD.
+    pub const CMD: u8 = 0x7E;
+}
+
+/// CMD: soft reset.
+pub const CMD_SOFT_RESET: u8 = 0xB6;
+/// After the soft reset (ms; Bosch waits 2).
+pub const RESET_WAIT_MS: u32 = 2;
+/// While advanced power save is on, every access needs this gap (µs).
+pub const APS_GAP_US: u32 = 450;
+/// Bytes of the upload per I2C write (even: the address is in 16-bit words).
+pub const UPLOAD_CHUNK: usize = 32;
+/// Bosch reads INTERNAL_STATUS once, 20 ms after INIT_CTRL = 1 (an older API waited 140 ms):
+/// polled every [`STATUS_POLL_MS`] up to this (ms).
+pub const INIT_TIMEOUT_MS: u32 = 150;
+/// See [`INIT_TIMEOUT_MS`].
+pub const STATUS_POLL_MS: u32 = 5;
+/// INTERNAL_STATUS message: initialised.
+pub const INIT_OK: u8 = 0x01;
+/// PWR_CTRL: gyro, accelerometer and temperature on.
+pub const PWR_CTRL_ON: u8 = 0x0E;
+
+/// Output data rate of both sensors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Odr {
+    /// 100 Hz (code 0x08).
+    Hz100,
+    /// 200 Hz (code 0x09).
+    Hz200,
+}
+
+impl Odr {
+    /// Nominal rate (Hz).
+    pub const fn hz(self) -> f32 {
+        match self {
+            Odr::Hz100 => 100.0,
+            Odr::Hz200 => 200.0,
+        }
+    }
+
+    /// The ODR field of ACC_CONF and GYR_CONF.
+    pub const fn code(self) -> u8 {
+        match self {
+            Odr::Hz100 => 0x08,
+            Odr::Hz200 => 0x09,
+        }
+    }
+}
+
+/// Sensor settings: ODR and full scales.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Config {
+    /// Both sensors' ODR.
+    pub odr: Odr,
+    /// Gyro full scale (°/s): 125, 250, 500, 1000 or 2000.
+    pub gyro_range_dps: u16,
+    /// Accelerometer full scale (g): 2, 4, 8 or 16.
+    pub accel_range_g: u8,
+}
+
+impl Config {
+    /// 100 Hz, ±500 °/s, ±2 g: as close to the LSM9DS1 default as the BMI270 goes.
+    pub const DEFAULT: Config = Config { odr: Odr::Hz100, gyro_range_dps: 500, accel_range_g: 2 };
+
+    /// ACC_CONF: the ODR, the normal bandwidth (bwp 2, NORMAL_AVG4), performance mode.
+    pub const fn acc_conf(&self) -> u8 {
+        0x80 | (2 << 4) | self.odr.code()
+    }
+
+    /// GYR_CONF: the ODR, normal bandwidth (code 2), noise and filter performance modes.
+    pub const fn gyr_conf(&self) -> u8 {
+        0x80 | 0x40 | (2 << 4) | self.odr.code()
+    }
+
+    /// ACC_RANGE, or `None` for a full scale the part does not have.
+    pub const fn acc_range(&self) -> Option<u8> {
+        match self.accel_range_g {
+            2 => Some(0),
+            4 => Some(1),
+            8 => Some(2),
+            16 => Some(3),
+            _ => None,
+        }
+    }
+
+    /// GYR_RANGE, or `None` for a full scale the part does not have.
+    pub const fn gyr_range(&self) -> Option<u8> {
+        match self.gyro_range_dps {
+            2000 => Some(0),
+            1000 => Some(1),
+            500 => Some(2),
+            250 => Some(3),
+            125 => Some(4),
+            _ => None,
+        }
+    }
+
+    /// Sensitivities: (°/s per LSB, g per LSB) = range / 32768.
+    pub fn per_lsb(&self) -> (f32, f32) {
+        (self.gyro_range_dps as f32 / 32768.0, self.accel_range_g as f32 / 32768.0)
+    }
+}
+
+/// Why the BMI270 could not be used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Bmi270Error {
+    /// An I2C transfer failed.
+    Bus(BusFault),
+    /// Another CHIP_ID at 0x68.
+    WrongId(u8),
+    /// INTERNAL_STATUS did not read "initialised" after the upload: its message (0 not yet
+    /// within the timeout, 2 init error: a wrong upload, 3 driver error, …).
+    Init(u8),
+    /// A full scale the part does not have.
+    BadConfig,
+    /// EVENT reports the configuration invalid (1 accelerometer, 2 gyro, 3 both).
+    ConfigRejected(u8),
+    /// A register did not keep the value written.
+    ConfigMismatch {
+        /// Register address.
+        reg: u8,
+        /// Value written.
+        wrote: u8,
+        /// Value read back.
+        read: u8,
+    },
+}
+
+impl core::fmt::Display for Bmi270Error {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Bmi270Error::Bus(b) => write!(f, "BMI270 I2C: {b:?}"),
+            Bmi270Error::WrongId(id) => write!(f, "CHIP_ID 0x{id:02X} at 0x68 is not a BMI270"),
+            Bmi270Error::Init(s) => write!(f, "BMI270 not initialised: INTERNAL_STATUS message 0x{s:X} (1 expected)"),
+            Bmi270Error::BadConfig => f.write_str("a full scale the BMI270 does not have"),
+            Bmi270Error::ConfigRejected(e) => write!(f, "BMI270 rejected its configuration (EVENT error code {e})"),
+            Bmi270Error::ConfigMismatch { reg, wrote, read } => {
+                write!(f, "BMI270 register 0x{reg:02X} reads 0x{read:02X} after 0x{wrote:02X}")
+            }
+        }
+    }
+}
+
+/// An initialised BMI270.
+pub struct Bmi270<I> {
+    i2c: I,
+    cfg: Config,
+}
+
+impl<I: I2c> Bmi270<I> {
+    /// Identity, soft reset, configuration upload and check, then `cfg`, with every step's wait
+    /// as Bosch's API has it. Bounded: a fixed number of transfers and at most
+    /// [`INIT_TIMEOUT_MS`] of polling.
+    pub fn init(i2c: I, cfg: Config, delay: &mut impl DelayNs) -> Result<Self, (Bmi270Error, I)> {
+        let mut s = Self { i2c, cfg };
+        match s.bring_up(delay) {
+            Ok(()) => Ok(s),
+            Err(e) => Err((e, s.i2c)),
+        }
+    }
+
+    /// The bus back.
+    pub fn release(self) -> I {
+        self.i2c
+    }
+
+    /// The settings it runs at.
+    pub fn config(&self) -> Config {
+        self.cfg
+    }
+
+    fn write(&mut self, reg: u8, data: &[u8]) -> Result<(), Bmi270Error> {
+        let mut buf = [0u8; 1 + UPLOAD_CHUNK];
+        buf[0] = reg;
+        buf[1..=data.len()].copy_from_slice(data);
+        self.i2c.write(ADDR, &buf[..=data.len()]).map_err(|e| Bmi270Error::Bus(BusFault::of(e)))
+    }
+
+    fn read(&mut self, reg: u8, out: &mut [u8]) -> Result<(), Bmi270Error> {
+        self.i2c.write_read(ADDR, &[reg], out).map_err(|e| Bmi270Error::Bus(BusFault::of(e)))
+    }
+
+    fn read1(&mut self, reg: u8) -> Result<u8, Bmi270Error> {
+        let mut b = [0u8];
+        self.read(reg, &mut b)?;
+        Ok(b[0])
+    }
+
+    fn bring_up(&mut self, delay: &mut impl DelayNs) -> Result<(), Bmi270Error> {
+        let (Some(acc_range), Some(gyr_range)) = (self.cfg.acc_range(), self.cfg.gyr_range()) else {
+            return Err(Bmi270Error::BadConfig);
+        };
+        match self.read1(reg::CHIP_ID)? {
+            CHIP_ID => {}
+            id => return Err(Bmi270Error::WrongId(id)),
+        }
+        delay.delay_us(APS_GAP_US);
+        self.write(reg::CMD, &[CMD_SOFT_RESET])?;
+        delay.delay_ms(RESET_WAIT_MS);
+        // Advanced power save is on after the reset: one access per 450 µs until it is off.
+        self.write(reg::PWR_CONF, &[0x00])?;
+        delay.delay_us(APS_GAP_US);
+        self.write(reg::INIT_CTRL, &[0x00])?;
+        for (i, chunk) in CONFIG.chunks(UPLOAD_CHUNK).enumerate() {
+            let word = (i * UPLOAD_CHUNK / 2) as u16;
+            self.write(reg::INIT_ADDR_0, &[(word & 0x0F) as u8, (word >> 4) as u8])?;
+            self.write(reg::INIT_DATA, chunk)?;
+        }
+        self.write(reg::INIT_CTRL, &[0x01])?;
+        let mut status = 0;
+        for _ in 0..INIT_TIMEOUT_MS / STATUS_POLL_MS {
+            delay.delay_ms(STATUS_POLL_MS);
+            status = self.read1(reg::INTERNAL_STATUS)? & 0x0F;
+            if status != 0 {
+                break;
+            }
+        }
+        if status != INIT_OK {
+            return Err(Bmi270Error::Init(status));
+        }
+        let c = self.cfg;
+        for (r, v) in
+            [(reg::ACC_CONF, c.acc_conf()), (reg::ACC_RANGE, acc_range), (reg::GYR_CONF, c.gyr_conf()), (reg::GYR_RANGE, gyr_range)]
+        {
+            self.write(r, &[v])?;
+            let read = self.read1(r)?;
+            if read != v {
+                return Err(Bmi270Error::ConfigMismatch { reg: r, wrote: v, read });
+            }
+        }
+        match (self.read1(reg::EVENT)? >> 2) & 0x07 {
+            0 => {}
+            e => return Err(Bmi270Error::ConfigRejected(e)),
+        }
+        // Advanced power save stays off (Bosch turns it back on; then every access would need
+        // its 450 µs gap).
+        self.write(reg::PWR_CTRL, &[PWR_CTRL_ON])?;
+        Ok(())
+    }
+
+    /// The latest sample from the data registers: (accelerometer g, gyro °/s), sensor axes.
+    pub fn read_sample(&mut self) -> Result<([f32; 3], [f32; 3]), Bmi270Error> {
+        let mut b = [0u8; 12];
+        self.read(reg::ACC_X_LSB, &mut b)?;
+        let v = |i: usize| i16::from_le_bytes([b[2 * i], b[2 * i + 1]]) as f32;
+        let (dps, g) = self.cfg.per_lsb();
+        Ok(([v(0) * g, v(1) * g, v(2) * g], [v(3) * dps, v(4) * dps, v(5) * dps]))
+    }
+}
