@@ -259,6 +259,8 @@ impl<I: I2c> Bmi270<I> {
         let (Some(acc_range), Some(gyr_range)) = (self.cfg.acc_range(), self.cfg.gyr_range()) else {
             return Err(Bmi270Error::BadConfig);
         };
+        // Power save may be on (after power-up, or a probe just before): one access per gap.
+        delay.delay_us(APS_GAP_US);
         match self.read1(reg::CHIP_ID)? {
             CHIP_ID => {}
             id => return Err(Bmi270Error::WrongId(id)),

@@ -23,9 +23,10 @@ use calib_core::record::Record;
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
 use embedded_hal::digital::InputPin;
+use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
-use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
@@ -34,6 +35,10 @@ use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
 use nrf52840_hal as hal;
 use panic_probe as _;
+
+/// Said once a Rev2 board's BMI270 is up.
+const REV2_READY: &str =
+    "Nano 33 BLE Rev2: BMI270 initialised (Bosch's configuration loaded; 100 Hz, +-500 dps, +-2 g); calibrating on the Rev2 is not supported yet";
 
 /// Loop period (µs): the FIFO (32 slots) lasts 33 ms at 952 Hz.
 const TICK_US: u32 = 2_000;
@@ -159,6 +164,8 @@ impl Shell for Io {
 struct Sensing {
     bus: Option<Bus>,
     sensor: Option<Lsm9ds1<Bus>>,
+    /// A Rev2 board's BMI270, brought up (it holds the bus; nothing is sampled yet).
+    rev2: Option<Bmi270<Bus>>,
     /// The settings it runs (or is to run) at.
     config: SensorConfig,
     stamper: Stamper,
@@ -175,6 +182,7 @@ impl Sensing {
         Self {
             bus,
             sensor: None,
+            rev2: None,
             config: SENSOR,
             stamper: Stamper::new(SENSOR.odr.hz()),
             next_try_s: 0.0,
@@ -199,6 +207,21 @@ impl Sensing {
                         }
                         self.stamper.restart();
                         self.sensor = Some(s);
+                    }
+                    // A Rev2 board: its BMI270 brought up (the calibration does not run on it yet).
+                    Err((SensorError::Rev2Bmi270, i2c)) => {
+                        io.led = Led::Error(ErrorClass::Sensor);
+                        match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
+                            Ok(s) => {
+                                io.console.send(Log::Error, REV2_READY);
+                                self.rev2 = Some(s);
+                            }
+                            Err((e, i2c)) => {
+                                io.console.say(Log::Error, format_args!("Nano 33 BLE Rev2: {e}; retrying"));
+                                self.bus = Some(i2c);
+                                self.next_try_s = now + 2.0;
+                            }
+                        }
                     }
                     Err((e, i2c)) => {
                         io.console.sensor_error(&e);

@@ -11,11 +11,11 @@
 //!   Bosch's configuration file, else 0x02 (init error); 0x00 until then.
 //! - ACC_CONF/GYR_CONF checked once initialised: an ODR or bandwidth the part does not have sets
 //!   EVENT's error code (1 accelerometer, 2 gyro, 3 both).
-//! - The data registers hold the rig's latest sample in counts at the configured full scales
-//!   while PWR_CTRL enables that sensor (0 otherwise).
+//! - The data registers hold the latest sample handed in ([`Bmi270Model::set_sample`]: the
+//!   rig's, by the board model that owns the rig) in counts at the configured full scales while
+//!   PWR_CTRL enables that sensor (0 otherwise).
 
 use crate::lsm_model::BusError;
-use crate::sim::Rig;
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
 /// The model's copy of Bosch's configuration file (its SHA-256 is checked against Bosch's
@@ -47,10 +47,10 @@ const PWR_CONF: u8 = 0x7C;
 const PWR_CTRL: u8 = 0x7D;
 const CMD: u8 = 0x7E;
 
-/// The BMI270 on the rig.
+/// The BMI270.
+#[derive(Clone)]
 pub struct Bmi270Model {
-    rig: Rig,
-    /// The rig's latest sample: (accelerometer g, gyro °/s), exact (the model quantises).
+    /// The latest sample: (accelerometer g, gyro °/s), exact (the model quantises).
     last: ([f32; 3], [f32; 3]),
     regs: [u8; 0x80],
     upload: Vec<u8>,
@@ -68,23 +68,26 @@ pub struct Bmi270Model {
     /// Fault injection: the upload byte at this offset arrives with a bit flipped (a disturbed
     /// bus), so that the initialisation fails.
     pub flip_upload_byte: Option<usize>,
+    /// Each transaction advances true time by its bus time at this rate (Hz), if set (a model
+    /// that owns the clock; the board model advances it itself).
+    pub bus_hz: Option<f64>,
 }
 
 impl Bmi270Model {
-    /// A part just powered, sampling `rig`.
-    pub fn new(rig: Rig) -> Self {
+    /// A part just powered, at time `now_s`.
+    pub fn new(now_s: f64) -> Self {
         let mut m = Self {
-            rig,
             last: ([0.0; 3], [0.0; 3]),
             regs: [0; 0x80],
             upload: vec![0; 8192],
-            now_s: 0.0,
+            now_s,
             away_until: 0.0,
             last_access_s: f64::NEG_INFINITY,
             init_started: None,
             lost_accesses: 0,
             resets: 0,
             flip_upload_byte: None,
+            bus_hz: None,
         };
         m.reset();
         m
@@ -105,20 +108,16 @@ impl Bmi270Model {
         self.now_s
     }
 
-    /// Advances true time to `t_s` (the rig samples on its own).
+    /// Advances true time to `t_s`.
     pub fn advance_to(&mut self, t_s: f64) {
         if t_s > self.now_s {
             self.now_s = t_s;
         }
-        while self.rig.truth().t_s < self.now_s {
-            let r = self.rig.next_sample();
-            self.last = (r.accel_g, r.gyro_dps);
-        }
     }
 
-    /// The rig.
-    pub fn rig(&self) -> &Rig {
-        &self.rig
+    /// The sensor's latest reading: specific force (g) and rate (°/s), sensor axes.
+    pub fn set_sample(&mut self, accel_g: [f32; 3], gyro_dps: [f32; 3]) {
+        self.last = (accel_g, gyro_dps);
     }
 
     fn aps(&self) -> bool {
@@ -213,17 +212,19 @@ impl I2c for Bmi270Model {
         }
         let lost = self.aps() && self.now_s - self.last_access_s < APS_GAP_S;
         let aps = self.aps();
-        // 400 kHz: 9 bit times per byte.
-        let bytes: usize = operations
-            .iter()
-            .map(|op| {
-                1 + match op {
-                    Operation::Write(b) => b.len(),
-                    Operation::Read(b) => b.len(),
-                }
-            })
-            .sum();
-        self.advance_to(self.now_s + bytes as f64 * 9.0 / 400e3);
+        if let Some(hz) = self.bus_hz {
+            // 9 bit times per byte.
+            let bytes: usize = operations
+                .iter()
+                .map(|op| {
+                    1 + match op {
+                        Operation::Write(b) => b.len(),
+                        Operation::Read(b) => b.len(),
+                    }
+                })
+                .sum();
+            self.advance_to(self.now_s + bytes as f64 * 9.0 / hz);
+        }
         self.last_access_s = self.now_s;
         if lost {
             self.lost_accesses += 1;

@@ -21,9 +21,10 @@
 //! sample of the rig ([`Lsm9ds1Model::history`] does not list it; [`Lsm9ds1Model::junk`] counts
 //! it).
 
+use crate::bmi_model::Bmi270Model;
 use crate::sim::{AccelRange, GyroRange, Rig};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
-use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, BMI270_CHIP_ID, FIFO_DEPTH, WHO_AM_I_AG};
+use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, FIFO_DEPTH, WHO_AM_I_AG};
 use std::collections::VecDeque;
 
 /// A bus failure of the model.
@@ -87,6 +88,8 @@ pub struct Lsm9ds1Model {
     pub bus_hz: Option<f64>,
     /// External clock (s): every transaction first advances true time to it.
     pub clock: Option<std::rc::Rc<std::cell::Cell<f64>>>,
+    /// On a Rev2 board: the BMI270 that answers at 0x68, fed the rig's samples.
+    bmi: Option<Bmi270Model>,
 }
 
 const DEFAULT_CTRL_REG8: u8 = 0x04;
@@ -122,6 +125,7 @@ impl Lsm9ds1Model {
             junk: 0,
             bus_hz: None,
             clock: None,
+            bmi: (board == Board::Rev2).then(|| Bmi270Model::new(0.0)),
         };
         m.reset_registers();
         m
@@ -137,6 +141,9 @@ impl Lsm9ds1Model {
         self.reset_registers();
         if on {
             self.busy_until = self.now_s + BOOT_S;
+            if self.board == Board::Rev2 {
+                self.bmi = Some(Bmi270Model::new(self.now_s));
+            }
         }
     }
 
@@ -265,6 +272,9 @@ impl Lsm9ds1Model {
                 break;
             }
             self.pending = None;
+            if let Some(b) = self.bmi.as_mut() {
+                b.set_sample(accel, gyro);
+            }
             if !self.running() || !self.powered {
                 continue;
             }
@@ -386,14 +396,9 @@ impl I2c for Lsm9ds1Model {
         if !acked {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
         }
-        if self.board == Board::Rev2 {
-            for op in operations.iter_mut() {
-                if let Operation::Read(buf) = op {
-                    buf.fill(0);
-                    buf[0] = BMI270_CHIP_ID;
-                }
-            }
-            return Ok(());
+        if let Some(b) = self.bmi.as_mut() {
+            b.advance_to(self.now_s);
+            return b.transaction(address, operations);
         }
         let mut ptr: Option<u8> = None;
         let inc = self.reg(reg::CTRL_REG8) & 0x04 != 0;

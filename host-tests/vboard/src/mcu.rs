@@ -8,7 +8,7 @@ use crate::periph::{mpu, Dma, Periph, ResetKind, Wake, CPU_HZ, STORAGE};
 use std::cell::{Cell, RefCell};
 use std::collections::HashSet;
 use std::rc::Rc;
-use unicorn_engine::{Arch, Mode, Prot, RegisterARM, Unicorn};
+use unicorn_engine::{Arch, MemType, Mode, Prot, RegisterARM, Unicorn};
 
 const FLASH_END: u64 = STORAGE.0;
 const RAM: (u64, u64) = (0x2000_0000, 0x2004_0000);
@@ -137,14 +137,20 @@ impl Mcu {
         uc.ctl_set_tlb_type(unicorn_engine::TlbType::VIRTUAL).map_err(err("TLB type"))?;
         let sram_exec = Rc::new(Cell::new(false));
         let exec = sram_exec.clone();
-        uc.add_tlb_hook(1, 0, move |uc, addr, _| {
+        uc.add_tlb_hook(1, 0, move |uc, addr, access| {
             // Unicorn restores the CPU state of the access's instruction before this hook
             // (unicorn_vtlb.c), EPSR.IT included, and nothing clears it again: a load or store
             // inside an IT block would leave its IT state to the next translation block looked
             // up, which then runs under a stale condition (seen: memcpy's epilogue skipping
             // `add sp` and popping garbage into PC). Between blocks the IT state is only ever
-            // held in the translated code, so clearing it here (Thumb kept) is exact.
-            let _ = uc.reg_write(RegisterARM::EPSR, 1 << 24);
+            // held in the translated code, so clearing it after a data access's fill (Thumb
+            // kept) is exact. An instruction fetch's fill restores nothing: it comes when the
+            // next block is looked up or translated, and if that block starts inside an IT block
+            // (one that crosses into a page not fetched before) the IT state held then is the
+            // block's own: it must stay (seen: a `-` in the USB serial number from core::fmt).
+            if access != MemType::FETCH {
+                let _ = uc.reg_write(RegisterARM::EPSR, 1 << 24);
+            }
             let ram = (RAM.0..RAM.1).contains(&addr);
             let perms = if ram && !exec.get() { Prot::READ | Prot::WRITE } else { Prot::ALL };
             Some(unicorn_engine::TlbEntry { paddr: addr, perms })

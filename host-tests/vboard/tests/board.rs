@@ -48,11 +48,7 @@ fn calibrates_stores_and_reloads_after_reset() {
 #[test]
 fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
     // The error names what was found: the firmware's `SensorError` for it, in its own words.
-    for (board, error) in [
-        (Board::Missing, SensorError::Missing),
-        (Board::OtherChip(0x3D), SensorError::WrongId(0x3D)),
-        (Board::Rev2, SensorError::Rev2Bmi270),
-    ] {
+    for (board, error) in [(Board::Missing, SensorError::Missing), (Board::OtherChip(0x3D), SensorError::WrongId(0x3D))] {
         let token = error.to_string();
         let mut b = testbed(board, Variant::Hobby.config(4, 0), 4);
         assert_eq!(b.run_for(5.0), Stop::Time);
@@ -63,6 +59,15 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
         assert!(b.leds().red && !b.leds().green);
         assert_eq!(b.flashes(), Ok(1));
     }
+    // A Rev2 board: its BMI270 brought up once (Bosch's configuration accepted by the model),
+    // said, and the sensor error shown (the calibration does not run on it yet).
+    let mut b = testbed(Board::Rev2, Variant::Hobby.config(4, 0), 4);
+    assert_eq!(b.run_for(5.0), Stop::Time);
+    let ready = b.mcu.log.iter().filter(|l| l.contains("Nano 33 BLE Rev2: BMI270 initialised")).count();
+    assert_eq!(ready, 1, "{:?}", b.mcu.log);
+    assert_eq!(b.mcu.resets, 0);
+    assert!(b.leds().red && !b.leds().green);
+    assert_eq!(b.flashes(), Ok(1));
 }
 
 #[test]

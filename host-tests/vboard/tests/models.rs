@@ -439,6 +439,24 @@ fn an_it_block_that_misses_the_tlb_leaves_no_condition_behind() {
     assert_eq!(mcu.pc(), 0x1_011E, "0x1011C: the two adds at the target were skipped under a stale IT condition");
 }
 
+/// An IT block that crosses into a page not fetched before: the block after the page boundary
+/// starts inside the IT block, and its condition must hold there (the TLB fill of that fetch
+/// must leave the IT state alone). Seen: a `-` in the USB serial number from core::fmt once the
+/// firmware's layout put an IT block across a page.
+#[test]
+fn an_it_block_across_a_page_boundary_keeps_its_condition() {
+    // 0x10100: movs r1, #0; movs r0, #0; cmp r0, #1 (NE true); nop … ; 0x10FFE: ite ne
+    // 0x11000: addne r1, #1; addeq r1, #2 (skipped); cmp r1, #1; beq ok; fail: b fail; ok: b ok
+    let mut code = vec![0x00, 0x21, 0x00, 0x20, 0x01, 0x28];
+    while 0x1_0100 + code.len() < 0x1_0FFE {
+        code.extend_from_slice(&[0x00, 0xbf]);
+    }
+    code.extend_from_slice(&[0x14, 0xbf, 0x01, 0x31, 0x02, 0x31, 0x01, 0x29, 0x00, 0xd0, 0xfe, 0xe7, 0xfe, 0xe7]);
+    let mut mcu = Mcu::new(firmware(&code), periph(Board::Rev1, false)).unwrap();
+    assert_eq!(mcu.run_until(0.001), Stop::Time);
+    assert_eq!(mcu.pc(), 0x1_100A, "0x11008: r1 != 1, the IT block's condition lost at the page");
+}
+
 /// A jump below the application (into the bootloader's pages, not emulated: a corrupt return
 /// address) is a fault that names the address, not a CPU spinning without progress.
 #[test]
