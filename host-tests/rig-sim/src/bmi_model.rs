@@ -15,7 +15,7 @@
 //!   rig's, by the board model that owns the rig) in counts at the configured full scales while
 //!   PWR_CTRL enables that sensor (0 otherwise).
 
-use crate::lsm_model::BusError;
+use crate::lsm_model::{bus_time_s, BusError};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
 /// The model's copy of Bosch's configuration file (its SHA-256 is checked against Bosch's
@@ -213,17 +213,7 @@ impl I2c for Bmi270Model {
         let lost = self.aps() && self.now_s - self.last_access_s < APS_GAP_S;
         let aps = self.aps();
         if let Some(hz) = self.bus_hz {
-            // 9 bit times per byte.
-            let bytes: usize = operations
-                .iter()
-                .map(|op| {
-                    1 + match op {
-                        Operation::Write(b) => b.len(),
-                        Operation::Read(b) => b.len(),
-                    }
-                })
-                .sum();
-            self.advance_to(self.now_s + bytes as f64 * 9.0 / hz);
+            self.advance_to(self.now_s + bus_time_s(operations, hz));
         }
         self.last_access_s = self.now_s;
         if lost {

@@ -369,6 +369,21 @@ impl Lsm9ds1Model {
     }
 }
 
+/// The bus time of a transaction at `hz` (s): 9 bit times per byte, the address byte of each
+/// operation included.
+pub fn bus_time_s(operations: &[Operation<'_>], hz: f64) -> f64 {
+    let bytes: usize = operations
+        .iter()
+        .map(|op| {
+            1 + match op {
+                Operation::Write(b) => b.len(),
+                Operation::Read(b) => b.len(),
+            }
+        })
+        .sum();
+    bytes as f64 * 9.0 / hz
+}
+
 impl ErrorType for Lsm9ds1Model {
     type Error = BusError;
 }
@@ -379,16 +394,7 @@ impl I2c for Lsm9ds1Model {
             self.advance_to(c.get());
         }
         if let Some(hz) = self.bus_hz {
-            let bytes: usize = operations
-                .iter()
-                .map(|op| {
-                    1 + match op {
-                        Operation::Write(b) => b.len(),
-                        Operation::Read(b) => b.len(),
-                    }
-                })
-                .sum();
-            let t = self.now_s + bytes as f64 * 9.0 / hz;
+            let t = self.now_s + bus_time_s(operations, hz);
             self.advance_to(t);
         }
         let acked = self.acks(address);
