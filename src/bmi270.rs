@@ -23,6 +23,7 @@
 //! THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF SUCH DAMAGE.
 
 use crate::lsm9ds1::BusFault;
+use calib_core::record::SensorSetup;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -46,6 +47,14 @@ pub mod reg {
     pub const EVENT: u8 = 0x1B;
     /// INTERNAL_STATUS: bits 3:0 the initialisation's message.
     pub const INTERNAL_STATUS: u8 = 0x21;
+    /// FIFO_LENGTH_0 (byte count bits 7:0); FIFO_LENGTH_1 (bits 13:8) follows.
+    pub const FIFO_LENGTH_0: u8 = 0x24;
+    /// FIFO_DATA (the address does not increment: one burst reads the bytes in order).
+    pub const FIFO_DATA: u8 = 0x26;
+    /// FIFO_CONFIG_0 (bit 0 stop on full, bit 1 sensortime frames).
+    pub const FIFO_CONFIG_0: u8 = 0x48;
+    /// FIFO_CONFIG_1 (bit 4 header mode, 6 accelerometer, 7 gyro).
+    pub const FIFO_CONFIG_1: u8 = 0x49;
     /// ACC_CONF (ODR bits 3:0, bandwidth 6:4, filter_perf 7); ACC_RANGE follows.
     pub const ACC_CONF: u8 = 0x40;
     /// ACC_RANGE (bits 1:0).
@@ -85,6 +94,20 @@ pub const STATUS_POLL_MS: u32 = 5;
 pub const INIT_OK: u8 = 0x01;
 /// PWR_CTRL: gyro, accelerometer and temperature on.
 pub const PWR_CTRL_ON: u8 = 0x0E;
+/// FIFO_CONFIG_1: header mode, accelerometer and gyro frames.
+pub const FIFO_HEADER_ACC_GYR: u8 = 0xD0;
+/// FIFO header: a gyro + accelerometer frame (12 bytes, gyro first).
+pub const FRAME_ACC_GYR: u8 = 0x8C;
+/// FIFO header: frames were dropped (1 byte: how many).
+pub const FRAME_SKIP: u8 = 0x40;
+/// FIFO header: sensortime (3 bytes).
+pub const FRAME_SENSORTIME: u8 = 0x44;
+/// FIFO header: a configuration change (4 bytes).
+pub const FRAME_CONFIG: u8 = 0x48;
+/// FIFO header: read past the data.
+pub const FRAME_OVER_READ: u8 = 0x80;
+/// The FIFO's size (bytes): a read takes all of it, so that no frame is ever cut.
+pub const FIFO_BYTES: usize = 2048;
 
 /// Output data rate of both sensors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -161,6 +184,11 @@ impl Config {
             125 => Some(4),
             _ => None,
         }
+    }
+
+    /// The setup a record states.
+    pub fn setup(&self) -> SensorSetup {
+        SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro_range_dps as f32, accel_range_g: self.accel_range_g as f32 }
     }
 
     /// Sensitivities: (°/s per LSB, g per LSB) = range / 32768.
@@ -306,7 +334,27 @@ impl<I: I2c> Bmi270<I> {
         // Advanced power save stays off (Bosch turns it back on; then every access would need
         // its 450 µs gap).
         self.write(reg::PWR_CTRL, &[PWR_CTRL_ON])?;
+        for (r, v) in [(reg::FIFO_CONFIG_0, 0x00), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)] {
+            self.write(r, &[v])?;
+            let read = self.read1(r)?;
+            if read != v {
+                return Err(Bmi270Error::ConfigMismatch { reg: r, wrote: v, read });
+            }
+        }
         Ok(())
+    }
+
+    /// Reads the whole FIFO (one burst) and hands each sample to `each` as (accelerometer g,
+    /// gyro °/s), oldest first: how many, and how many were lost (dropped by a full FIFO).
+    pub fn read_fifo(&mut self, each: impl FnMut([f32; 3], [f32; 3])) -> Result<FifoRead, Bmi270Error> {
+        let mut len = [0u8; 2];
+        self.read(reg::FIFO_LENGTH_0, &mut len)?;
+        let n = (u16::from_le_bytes([len[0], len[1] & 0x3F]) as usize).min(FIFO_BYTES);
+        let mut buf = [0u8; FIFO_BYTES];
+        if n > 0 {
+            self.read(reg::FIFO_DATA, &mut buf[..n])?;
+        }
+        Ok(parse_fifo(&buf[..n], self.cfg.per_lsb(), each))
     }
 
     /// The latest sample from the data registers: (accelerometer g, gyro °/s), sensor axes.
@@ -317,4 +365,48 @@ impl<I: I2c> Bmi270<I> {
         let (dps, g) = self.cfg.per_lsb();
         Ok(([v(0) * g, v(1) * g, v(2) * g], [v(3) * dps, v(4) * dps, v(5) * dps]))
     }
+}
+
+/// What one FIFO read gave.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FifoRead {
+    /// Samples handed on.
+    pub samples: usize,
+    /// Samples lost.
+    pub lost: usize,
+}
+
+/// Parses header-mode FIFO bytes (Bosch's frame layout) with the sensitivities `(°/s, g)` per
+/// LSB, each sample to `each` (accelerometer g, gyro °/s).
+pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32; 3], [f32; 3])) -> FifoRead {
+    let mut r = FifoRead::default();
+    let mut i = 0;
+    let v = |b: &[u8], k: usize| i16::from_le_bytes([b[2 * k], b[2 * k + 1]]) as f32;
+    while i < bytes.len() {
+        // Bits 1:0 are interrupt tags.
+        let (header, rest) = (bytes[i] & 0xFC, &bytes[i + 1..]);
+        let payload = match header {
+            FRAME_ACC_GYR => 12,
+            FRAME_SKIP => 1,
+            FRAME_SENSORTIME => 3,
+            FRAME_CONFIG => 4,
+            // Over-read, or an unknown header: the end of the data.
+            _ => break,
+        };
+        if rest.len() < payload {
+            r.lost += usize::from(header == FRAME_ACC_GYR);
+            break;
+        }
+        match header {
+            FRAME_ACC_GYR => {
+                each([v(rest, 3) * g, v(rest, 4) * g, v(rest, 5) * g], [v(rest, 0) * dps, v(rest, 1) * dps, v(rest, 2) * dps]);
+                r.samples += 1;
+            }
+            FRAME_SKIP => r.lost += rest[0] as usize,
+            _ => {}
+        }
+        i += 1 + payload;
+    }
+    r
 }

@@ -19,7 +19,7 @@ use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, 
 
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use calib_core::protocol::{self, RecordLine};
-use calib_core::record::Record;
+use calib_core::record::{Record, SensorSetup};
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
 use embedded_hal::digital::InputPin;
@@ -37,8 +37,7 @@ use nrf52840_hal as hal;
 use panic_probe as _;
 
 /// Said once a Rev2 board's BMI270 is up.
-const REV2_READY: &str =
-    "Nano 33 BLE Rev2: BMI270 initialised (Bosch's configuration loaded; 100 Hz, +-500 dps, +-2 g); calibrating on the Rev2 is not supported yet";
+const REV2_READY: &str = "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): 100 Hz, +-500 dps, +-2 g";
 
 /// Loop period (µs): the FIFO (32 slots) lasts 33 ms at 952 Hz.
 const TICK_US: u32 = 2_000;
@@ -195,7 +194,7 @@ impl Sensing {
     /// One loop tick at `now` (s): (re)initialise, or drain the FIFO. A lost sample or a failed
     /// read enters the procedure.
     fn service(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
-        if self.sensor.is_none() && now >= self.next_try_s {
+        if self.sensor.is_none() && self.rev2.is_none() && now >= self.next_try_s {
             if let Some(i2c) = self.bus.take() {
                 match Lsm9ds1::init(i2c, self.config, &mut Wait(clock)) {
                     Ok(s) => {
@@ -208,21 +207,27 @@ impl Sensing {
                         self.stamper.restart();
                         self.sensor = Some(s);
                     }
-                    // A Rev2 board: its BMI270 brought up (the calibration does not run on it yet).
-                    Err((SensorError::Rev2Bmi270, i2c)) => {
-                        io.led = Led::Error(ErrorClass::Sensor);
-                        match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
-                            Ok(s) => {
-                                io.console.send(Log::Error, REV2_READY);
-                                self.rev2 = Some(s);
+                    // A Rev2 board: its BMI270, at its own setup.
+                    Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
+                        Ok(s) => {
+                            let setup = s.config().setup();
+                            io.console.send(Log::Info, REV2_READY);
+                            // Idle at boot (and after a re-initialisation): refused only mid-run,
+                            // which the fault that re-initialised it has ended.
+                            let _ = procedure.handle_setup(setup);
+                            if self.raw {
+                                io.console.raw_setup(&setup);
                             }
-                            Err((e, i2c)) => {
-                                io.console.say(Log::Error, format_args!("Nano 33 BLE Rev2: {e}; retrying"));
-                                self.bus = Some(i2c);
-                                self.next_try_s = now + 2.0;
-                            }
+                            self.stamper = Stamper::new(setup.odr_hz);
+                            self.rev2 = Some(s);
                         }
-                    }
+                        Err((e, i2c)) => {
+                            io.console.say(Log::Error, format_args!("Nano 33 BLE Rev2: {e}; retrying"));
+                            io.led = Led::Error(ErrorClass::Sensor);
+                            self.bus = Some(i2c);
+                            self.next_try_s = now + 2.0;
+                        }
+                    },
                     Err((e, i2c)) => {
                         io.console.sensor_error(&e);
                         io.led = Led::Error(ErrorClass::Sensor);
@@ -236,6 +241,9 @@ impl Sensing {
             return;
         }
         self.last_poll_s = now;
+        if self.rev2.is_some() {
+            return self.service_rev2(now, clock, procedure, io);
+        }
         let Some(s) = self.sensor.as_mut() else { return };
         let (stamper, raw, rate) = (&mut self.stamper, self.raw, &mut self.rate);
         let result = s.fifo_status().and_then(|st| {
@@ -276,6 +284,49 @@ impl Sensing {
 }
 
 impl Sensing {
+    /// The setup the sensor runs at (the Rev2's BMI270, or the LSM9DS1's).
+    fn setup(&self) -> SensorSetup {
+        self.rev2.as_ref().map_or(self.config.setup(), |b| b.config().setup())
+    }
+
+    /// A Rev2 board's FIFO drained into the procedure (as the LSM9DS1's: timestamps by the MCU
+    /// clock, lost samples and failed reads enter the procedure).
+    fn service_rev2(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
+        let Some(b) = self.rev2.as_mut() else { return };
+        let mut got = heapless::Vec::<([f32; 3], [f32; 3]), { bmi270::FIFO_BYTES / 13 + 1 }>::new();
+        match b.read_fifo(|a, g| {
+            let _ = got.push((a, g));
+        }) {
+            Ok(r) => {
+                if r.lost > 0 {
+                    io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} samples lost", r.lost));
+                    self.stamper.restart();
+                    procedure.handle_samples_lost(r.lost.min(u16::MAX as usize) as u16);
+                    procedure.drive(now, io);
+                }
+                let batch = self.stamper.batch(clock.now_s(), got.len());
+                for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
+                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
+                    if self.raw {
+                        io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
+                    }
+                    if let Some(rec) = io.applied.filter(|r| r.setup == b.config().setup()) {
+                        self.rate.add(rec.apply_gyro(gyro_dps));
+                    }
+                    procedure.handle_sample(&sample);
+                    procedure.drive(sample.t_s, io);
+                }
+            }
+            Err(e) => {
+                io.console.say(Log::Error, format_args!("{e}; reinitialising"));
+                procedure.handle_sensor_fault();
+                procedure.drive(now, io);
+                self.bus = self.rev2.take().map(|s| s.release());
+                self.next_try_s = now + 0.5;
+            }
+        }
+    }
+
     /// Runs the sensor at `config` from the next tick on: re-initialised (its ready line and, in
     /// raw-log mode, the log's setup comment say the new settings).
     fn reconfigure(&mut self, config: SensorConfig, now: f64) {
@@ -319,6 +370,9 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
             Command::RawLog => {
                 sensing.raw = !sensing.raw;
                 io.console.set_raw_log(sensing.raw, &sensing.config.setup());
+            }
+            Command::Setup if sensing.rev2.is_some() => {
+                io.console.send(Log::Warn, "p: the Rev2's BMI270 runs at 100 Hz, +-500 dps, +-2 g only")
             }
             Command::Setup => {
                 let next = if sensing.config == SensorConfig::ARDUINO_LSM9DS1 { OWN } else { SensorConfig::ARDUINO_LSM9DS1 };
@@ -474,7 +528,7 @@ fn main() -> ! {
         procedure.drive(now, &mut io);
         io.flush_servos(clock.now_us());
 
-        let applied = io.applied.is_some_and(|r| r.setup == sensing.config.setup());
+        let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());
         status.lines(now, &mut io.console, applied && !sensing.raw, &mut sensing.rate);
         leds.show(render(io.led, clock.now_us() / 1000));
         board::sleep();

@@ -14,6 +14,11 @@
 //! - The data registers hold the latest sample handed in ([`Bmi270Model::set_sample`]: the
 //!   rig's, by the board model that owns the rig) in counts at the configured full scales while
 //!   PWR_CTRL enables that sensor (0 otherwise).
+//! - The FIFO (2048 bytes) in header mode with both sensors (FIFO_CONFIG_1 0xD0): each sample
+//!   enters as a 0x8C frame (gyro then accelerometer, 6 bytes each); FIFO_LENGTH 0x24/0x25 its
+//!   byte count (14 bits), FIFO_DATA 0x26 its bytes in one burst (a read past the data gives
+//!   0x80, "over-read"). Full, it drops its oldest frames and the next read starts with a skip
+//!   frame (0x40 and the frames lost, at most 255).
 
 use crate::lsm_model::{bus_time_s, BusError};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
@@ -46,12 +51,22 @@ const INIT_DATA: u8 = 0x5E;
 const PWR_CONF: u8 = 0x7C;
 const PWR_CTRL: u8 = 0x7D;
 const CMD: u8 = 0x7E;
+const FIFO_LENGTH_0: u8 = 0x24;
+const FIFO_DATA: u8 = 0x26;
+const FIFO_CONFIG_1: u8 = 0x49;
+/// FIFO size (bytes).
+pub const FIFO_BYTES: usize = 2048;
+/// A gyro + accelerometer frame: header and 12 bytes.
+const FRAME: usize = 13;
 
 /// The BMI270.
 #[derive(Clone)]
 pub struct Bmi270Model {
     /// The latest sample: (accelerometer g, gyro °/s), exact (the model quantises).
     last: ([f32; 3], [f32; 3]),
+    fifo: std::collections::VecDeque<u8>,
+    /// Frames dropped since the last read (a full FIFO).
+    skipped: usize,
     regs: [u8; 0x80],
     upload: Vec<u8>,
     now_s: f64,
@@ -78,6 +93,8 @@ impl Bmi270Model {
     pub fn new(now_s: f64) -> Self {
         let mut m = Self {
             last: ([0.0; 3], [0.0; 3]),
+            fifo: std::collections::VecDeque::new(),
+            skipped: 0,
             regs: [0; 0x80],
             upload: vec![0; 8192],
             now_s,
@@ -101,6 +118,8 @@ impl Bmi270Model {
         self.regs[GYR_CONF as usize] = 0xA9;
         self.upload.fill(0);
         self.init_started = None;
+        self.fifo.clear();
+        self.skipped = 0;
     }
 
     /// True time (s).
@@ -115,9 +134,46 @@ impl Bmi270Model {
         }
     }
 
-    /// The sensor's latest reading: specific force (g) and rate (°/s), sensor axes.
+    /// The sensor's latest reading: specific force (g) and rate (°/s), sensor axes; into the
+    /// FIFO when it takes both sensors in header mode and they are on.
     pub fn set_sample(&mut self, accel_g: [f32; 3], gyro_dps: [f32; 3]) {
         self.last = (accel_g, gyro_dps);
+        let on = self.regs[PWR_CTRL as usize] & 0x06 == 0x06;
+        if !(self.initialised() && on && self.regs[FIFO_CONFIG_1 as usize] & 0xD0 == 0xD0) {
+            return;
+        }
+        while self.fifo.len() + FRAME > FIFO_BYTES {
+            self.fifo.drain(..FRAME);
+            self.skipped += 1;
+        }
+        self.fifo.push_back(0x8C);
+        for r in 0x12..0x18u8 {
+            let b = self.read_byte(r);
+            self.fifo.push_back(b);
+        }
+        for r in ACC_X_LSB..0x12 {
+            let b = self.read_byte(r);
+            self.fifo.push_back(b);
+        }
+    }
+
+    /// The nominal ODR the accelerometer and gyro are set to (Hz), if they agree and are valid.
+    pub fn odr_hz(&self) -> Option<f64> {
+        let code = |r: u8| self.regs[r as usize] & 0x0F;
+        let (a, g) = (code(ACC_CONF), code(GYR_CONF));
+        (a == g && (0x06..=0x0C).contains(&a)).then(|| 25.0 * 2f64.powi(a as i32 - 6))
+    }
+
+    /// The FIFO's next byte (a skip frame first after frames were dropped; 0x80 past the data).
+    fn fifo_byte(&mut self) -> u8 {
+        if self.skipped > 0 {
+            let n = self.skipped.min(255) as u8;
+            self.skipped = 0;
+            // The skip frame's header now, its count next.
+            self.fifo.push_front(n);
+            return 0x40;
+        }
+        self.fifo.pop_front().unwrap_or(0x80)
     }
 
     fn aps(&self) -> bool {
@@ -149,6 +205,9 @@ impl Bmi270Model {
     fn read_byte(&mut self, r: u8) -> u8 {
         match r {
             INTERNAL_STATUS => self.status(),
+            FIFO_LENGTH_0 => (self.fifo.len() + 2 * usize::from(self.skipped > 0)) as u8,
+            0x25 => ((self.fifo.len() + 2 * usize::from(self.skipped > 0)) >> 8) as u8 & 0x3F,
+            FIFO_DATA => self.fifo_byte(),
             EVENT => self.config_error() << 2,
             ACC_X_LSB..=0x17 => {
                 let s = self.last;

@@ -103,7 +103,11 @@ pub const BOOT_S: f64 = 0.010;
 impl Lsm9ds1Model {
     /// A model on `board`, sampling `rig` (its full scales and ODR follow CTRL_REG1_G and
     /// CTRL_REG6_XL from the first write on).
-    pub fn new(rig: Rig, board: Board) -> Self {
+    pub fn new(mut rig: Rig, board: Board) -> Self {
+        // A BMI270 quantises at its own full scales.
+        if board == Board::Rev2 {
+            rig.set_quantized(false);
+        }
         let mut m = Self {
             rig,
             board,
@@ -404,7 +408,12 @@ impl I2c for Lsm9ds1Model {
         }
         if let Some(b) = self.bmi.as_mut() {
             b.advance_to(self.now_s);
-            return b.transaction(address, operations);
+            let r = b.transaction(address, operations);
+            // The BMI270 samples at its configured ODR (with the rig's ODR error).
+            if let Some(hz) = b.odr_hz() {
+                self.rig.set_odr_hz(hz);
+            }
+            return r;
         }
         let mut ptr: Option<u8> = None;
         let inc = self.reg(reg::CTRL_REG8) & 0x04 != 0;

@@ -160,6 +160,12 @@ impl Rig {
         }
     }
 
+    /// Whether the readings are rounded to the LSM9DS1's counts (false: exact, for a sensor
+    /// model that quantises at its own full scales).
+    pub fn set_quantized(&mut self, on: bool) {
+        (self.cfg.gyro.quantize, self.cfg.accel.quantize) = (on, on);
+    }
+
     /// Changes the sensor's full scales (saturation and quantisation) from the next sample on.
     pub fn set_ranges(&mut self, gyro: GyroRange, accel: AccelRange) {
         (self.cfg.gyro.range, self.cfg.accel.range) = (gyro, accel);
