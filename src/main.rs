@@ -261,6 +261,8 @@ impl Sensing {
             for i in 0..n {
                 let raw_slot = s.read_slot()?;
                 let (accel_g, gyro_dps) = s.convert(&raw_slot);
+                // As the raw log holds them: a replay of the log sees what the procedure saw.
+                let (accel_g, gyro_dps) = calib_core::log::as_logged(accel_g, gyro_dps);
                 let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                 if raw {
                     io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
@@ -306,6 +308,7 @@ impl Sensing {
                 }
                 let batch = self.stamper.batch(clock.now_s(), got.len());
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
+                    let (accel_g, gyro_dps) = calib_core::log::as_logged(accel_g, gyro_dps);
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
                     if self.raw {
                         io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
@@ -369,7 +372,7 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
             }
             Command::RawLog => {
                 sensing.raw = !sensing.raw;
-                io.console.set_raw_log(sensing.raw, &sensing.config.setup());
+                io.console.set_raw_log(sensing.raw, &sensing.setup());
             }
             Command::Setup if sensing.rev2.is_some() => {
                 io.console.send(Log::Warn, "p: the Rev2's BMI270 runs at 100 Hz, +-500 dps, +-2 g only")

@@ -76,6 +76,26 @@ pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
     buf[..n].iter().rev().try_for_each(|&b| w.write_char(b as char))
 }
 
+/// `v` rounded to `decimals` as [`fixed`] writes it (half away from zero), as the nearest `f32`.
+fn on_grid(v: f32, decimals: u32) -> f32 {
+    let scale = 10u64.pow(decimals) as f64;
+    let scaled = v as f64 * scale;
+    if !(scaled.abs() < 9.2e18) {
+        return v;
+    }
+    let r = if scaled >= 0.0 { (scaled + 0.5) as i64 } else { (scaled - 0.5) as i64 };
+    (r as f64 / scale) as f32
+}
+
+/// A sample's readings as a row holds them (accelerometer to 1 µg, gyro to 10 µ°/s; the text
+/// parses back to these very `f32`s). The firmware hands its procedure these, so that a replay
+/// of its log sees exactly what it saw, whatever the sensor's sensitivity (a BMI270's counts are
+/// not on the log's grid).
+pub fn as_logged(accel_g: [f32; 3], gyro_dps: [f32; 3]) -> ([f32; 3], [f32; 3]) {
+    let (_, da, dg, _) = DECIMALS;
+    (accel_g.map(|v| on_grid(v, da)), gyro_dps.map(|v| on_grid(v, dg)))
+}
+
 /// Writes one row (no newline).
 pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
     let (dt, da, dg, ds) = DECIMALS;

@@ -169,16 +169,21 @@ fn calibrate_from(
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows, stored, setup.unwrap_or(SensorSetup::DEFAULT)) {
-            return Ok(Calibration { setup, ..replayed(r, time_base, ph)? });
+            return Ok(Calibration { setup, ..replayed(r, time_base, setup, ph)? });
         }
     }
     Ok(Calibration { setup, ..driven::calibrate(rows, method, rotations_on, time_base, ph)? })
 }
 
-/// The calibration of a replayed run of the firmware: its procedure's results.
-fn replayed(r: crate::replay::Replay, time_base: TimeBase, ph: Phases) -> Result<Calibration, OfflineError> {
-    if !time_base.lsm9ds1_odr {
-        let hint = "a run of the firmware samples at an LSM9DS1 output data rate: samples missing or duplicated";
+/// The calibration of a replayed run of the firmware: its procedure's results. Its rate must
+/// be the ODR the log states (a BMI270's on a Rev2 board), else an LSM9DS1 ODR.
+fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorSetup>, ph: Phases) -> Result<Calibration, OfflineError> {
+    let at_odr = match setup {
+        Some(s) => (time_base.rate_hz / s.odr_hz as f64 - 1.0).abs() <= 0.1,
+        None => time_base.lsm9ds1_odr,
+    };
+    if !at_odr {
+        let hint = "a run of the firmware samples at its sensor's output data rate: samples missing or duplicated";
         return Err(OfflineError::TimeBase { rate_hz: time_base.rate_hz, hint });
     }
     let gyro = match (implied_scale(r.result.as_ref()).and_then(gyro_units), r.result) {

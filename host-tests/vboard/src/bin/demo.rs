@@ -3,8 +3,11 @@
 //! presses the button, plays the operator (who watches the LEDs, never the log), prints the
 //! firmware's own defmt log, resets the board,
 //! reads the stored record back from the emulated flash and compares it with the simulator's
-//! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>`,
-//! after `SPEED board_s=<virtual s> wall_s=<s> x=<virtual s per wall s>`.
+//! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>
+//! board=rev1`, after `SPEED board_s=<virtual s> wall_s=<s> x=<virtual s per wall s>`.
+//!
+//! `--rev2` (with any of the modes below): the same firmware on a Nano 33 BLE Rev2, its BMI270 at
+//! 0x68 (Bosch's configuration upload, the FIFO in header mode); `board=rev2`.
 //!
 //! `--raw-log OUT.csv`: the firmware's raw-log mode (a long press before the calibration, another
 //! after it) and the message text of every line from the header on written to OUT.csv, exactly
@@ -66,6 +69,9 @@ struct Args {
     /// touch=<bootloader|app|off> held_s=<s> resets=<n>` (resets while held).
     #[arg(long, requires = "usb")]
     touch: bool,
+    /// A Nano 33 BLE Rev2 (BMI270 at 0x68) instead of a Rev1 (LSM9DS1): the same firmware.
+    #[arg(long)]
+    rev2: bool,
     /// Where the demo writes its files (`--usb`: the raw log `demo-usb.csv`); default
     /// `target/demo` in the workspace.
     #[arg(long, value_name = "DIR")]
@@ -73,7 +79,8 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, out } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, rev2, out } = Args::parse_from(calib::cli_args());
+    let (board, board_name) = if rev2 { (Board::Rev2, "rev2") } else { (Board::Rev1, "rev1") };
     let out = out.unwrap_or_else(|| calib::firmware::target_dir().join("demo"));
     if let Err(e) = std::fs::create_dir_all(&out) {
         eprintln!("[demo] {}: {e}", out.display());
@@ -90,7 +97,7 @@ fn main() -> ExitCode {
         }
     };
     let rig = if tilt { pan_tilt::rig_config(seed, 0) } else { Variant::Hobby.config(seed, 0) };
-    let mut testbed = match Testbed::new(elf, rig, seed, Board::Rev1, NorSim::new(8, seed), !quiet) {
+    let mut testbed = match Testbed::new(elf, rig, seed, board, NorSim::new(8, seed), !quiet) {
         Ok(b) => b,
         Err(e) => {
             eprintln!("[demo] {e}");
@@ -103,7 +110,7 @@ fn main() -> ExitCode {
     let wall = std::time::Instant::now();
     testbed.mcu.paint_stack();
     if usb {
-        return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, touch, wall);
+        return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, touch, wall, board_name);
     }
     println!(
         "[demo] power on (seed {seed}); the button is pressed at 2 s{}",
@@ -218,16 +225,16 @@ fn main() -> ExitCode {
             println!("[demo]   {l}");
         }
         println!("[demo] watchdog resets: {}", testbed.mcu.watchdog_resets);
-        println!("RESULT max_scale_error_pct={err:.4} stored={ok} probe=none");
+        println!("RESULT max_scale_error_pct={err:.4} stored={ok} probe=none board={board_name}");
         if testbed.mcu.watchdog_resets > 0 {
             return ExitCode::from(1);
         }
     } else if let Some((scale, cross)) = full_err {
-        println!("RESULT max_scale_error_pct={scale:.4} max_cross_axis_error_pct={cross:.4} stored={ok}");
+        println!("RESULT max_scale_error_pct={scale:.4} max_cross_axis_error_pct={cross:.4} stored={ok} board={board_name}");
     } else if tilt {
-        println!("RESULT max_scale_error_pct=NaN max_cross_axis_error_pct=NaN stored=false");
+        println!("RESULT max_scale_error_pct=NaN max_cross_axis_error_pct=NaN stored=false board={board_name}");
     } else {
-        println!("RESULT max_scale_error_pct={err:.4} stored={ok}");
+        println!("RESULT max_scale_error_pct={err:.4} stored={ok} board={board_name}");
     }
     ExitCode::SUCCESS
 }
@@ -240,14 +247,21 @@ fn print_speed(testbed: &Testbed, wall: std::time::Instant) {
 }
 
 /// `--usb`: the board on a USB cable only, driven by `calib --port` through a pseudo-terminal.
-fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, touch: bool, wall: std::time::Instant) -> ExitCode {
+fn demo_usb(
+    testbed: &mut Testbed,
+    log: &std::path::Path,
+    quiet: bool,
+    touch: bool,
+    wall: std::time::Instant,
+    board_name: &str,
+) -> ExitCode {
     println!("[demo] USB cable plugged in (VBUS); no probe, no button: everything through calib --port (log: {})", log.display());
     let ui: Box<dyn std::io::Write + Send> = if quiet { Box::new(std::io::sink()) } else { Box::new(std::io::stdout()) };
     let (outcome, session) = match testbed.calibrate_over_usb(log, ui) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("[demo] {e}");
-            println!("RESULT max_scale_error_pct=NaN stored=false via=usb");
+            println!("RESULT max_scale_error_pct=NaN stored=false via=usb board={board_name}");
             return ExitCode::from(1);
         }
     };
@@ -256,7 +270,7 @@ fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, touch: bo
         Ok(o) => o,
         Err(e) => {
             eprintln!("[demo] calib --port: {e}");
-            println!("RESULT max_scale_error_pct=NaN stored=false via=usb");
+            println!("RESULT max_scale_error_pct=NaN stored=false via=usb board={board_name}");
             return ExitCode::from(1);
         }
     };
@@ -271,7 +285,7 @@ fn demo_usb(testbed: &mut Testbed, log: &std::path::Path, quiet: bool, touch: bo
     let ok = same && outcome == Outcome::Done;
     println!("[demo] the record in flash is the one reported over USB: {same}");
     print_speed(testbed, wall);
-    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb", testbed.max_scale_error_pct(&out.record));
+    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb board={board_name}", testbed.max_scale_error_pct(&out.record));
     let ok = ok && (!touch || demo_touch(testbed));
     if ok {
         ExitCode::SUCCESS
