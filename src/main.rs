@@ -206,6 +206,7 @@ impl Sensing {
                         }
                         self.stamper.restart();
                         self.sensor = Some(s);
+                        self.say_applied(io);
                     }
                     // A Rev2 board: its BMI270, at its own setup.
                     Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
@@ -220,6 +221,7 @@ impl Sensing {
                             }
                             self.stamper = Stamper::new(setup.odr_hz);
                             self.rev2 = Some(s);
+                            self.say_applied(io);
                         }
                         Err((e, i2c)) => {
                             io.console.say(Log::Error, format_args!("Nano 33 BLE Rev2: {e}; retrying"));
@@ -289,6 +291,14 @@ impl Sensing {
     /// The setup the sensor runs at (the Rev2's BMI270, or the LSM9DS1's).
     fn setup(&self) -> SensorSetup {
         self.rev2.as_ref().map_or(self.config.setup(), |b| b.config().setup())
+    }
+
+    /// Says when the stored record was made at another setup than the sensor now runs (it is
+    /// then not applied).
+    fn say_applied(&self, io: &mut Io) {
+        if io.applied.is_some_and(|r| r.setup != self.setup()) {
+            io.console.send(Log::Warn, "the stored record was made at another sensor setup: not applied");
+        }
     }
 
     /// A Rev2 board's FIFO drained into the procedure (as the LSM9DS1's: timestamps by the MCU
@@ -502,11 +512,7 @@ fn main() -> ! {
             let mut line = heapless::String::<LINE>::new();
             let _ = protocol::record(&mut line, RecordLine::Loaded, &rec);
             console.send(Log::Info, &line);
-            if rec.setup == SENSOR.setup() {
-                console.say(Log::Info, format_args!("record read from slot {slot}; applied"));
-            } else {
-                console.say(Log::Warn, format_args!("record read from slot {slot}; made at another sensor setup: not applied"));
-            }
+            console.say(Log::Info, format_args!("record read from slot {slot}; applied at the sensor setup it was made at"));
             applied = Some(rec);
         }
         Some(Ok(None)) => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),

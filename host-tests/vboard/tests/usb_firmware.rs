@@ -195,6 +195,7 @@ fn p_runs_the_sensor_at_arduino_lsm9ds1s_setup_and_the_calibration_is_made_and_s
     assert!(before > 0, "rate lines while the record applied");
     b.run_for(3.0);
     assert_eq!(rate_lines(&b), before, "a record from another setup is not applied");
+    assert!(b.mcu.log.iter().any(|l| l.contains("the stored record was made at another sensor setup: not applied")));
 }
 
 #[test]
