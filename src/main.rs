@@ -247,7 +247,7 @@ impl Sensing {
             return self.service_rev2(now, clock, procedure, io);
         }
         let Some(s) = self.sensor.as_mut() else { return };
-        let (stamper, raw, rate) = (&mut self.stamper, self.raw, &mut self.rate);
+        let (stamper, raw, rate, setup) = (&mut self.stamper, self.raw, &mut self.rate, self.config.setup());
         let result = s.fifo_status().and_then(|st| {
             if st.overrun {
                 io.console.send(Log::Warn, "FIFO overrun: samples lost");
@@ -263,17 +263,8 @@ impl Sensing {
             for i in 0..n {
                 let raw_slot = s.read_slot()?;
                 let (accel_g, gyro_dps) = s.convert(&raw_slot);
-                // As the raw log holds them: a replay of the log sees what the procedure saw.
-                let (accel_g, gyro_dps) = calib_core::log::as_logged(accel_g, gyro_dps);
                 let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                if raw {
-                    io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
-                }
-                if let Some(rec) = io.applied.filter(|r| r.setup == self.config.setup()) {
-                    rate.add(rec.apply_gyro(gyro_dps));
-                }
-                procedure.handle_sample(&sample);
-                procedure.drive(sample.t_s, io);
+                feed(sample, setup, raw, rate, procedure, io);
             }
             Ok(())
         });
@@ -318,16 +309,8 @@ impl Sensing {
                 }
                 let batch = self.stamper.batch(clock.now_s(), got.len());
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
-                    let (accel_g, gyro_dps) = calib_core::log::as_logged(accel_g, gyro_dps);
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
-                    if self.raw {
-                        io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
-                    }
-                    if let Some(rec) = io.applied.filter(|r| r.setup == b.config().setup()) {
-                        self.rate.add(rec.apply_gyro(gyro_dps));
-                    }
-                    procedure.handle_sample(&sample);
-                    procedure.drive(sample.t_s, io);
+                    feed(sample, b.config().setup(), self.raw, &mut self.rate, procedure, io);
                 }
             }
             Err(e) => {
@@ -350,6 +333,22 @@ impl Sensing {
         }
         self.next_try_s = now;
     }
+}
+
+/// One reading into the procedure, as the raw log holds it (a replay of the log sees what the
+/// procedure saw); its row in raw-log mode; the calibrated rate when the stored record was made
+/// at `setup`, the sensor's.
+fn feed(sample: Sample, setup: SensorSetup, raw: bool, rate: &mut Welford3, procedure: &mut Procedure, io: &mut Io) {
+    let (accel_g, gyro_dps) = calib_core::log::as_logged(sample.accel_g, sample.gyro_dps);
+    let sample = Sample { accel_g, gyro_dps, ..sample };
+    if raw {
+        io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
+    }
+    if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
+        rate.add(rec.apply_gyro(gyro_dps));
+    }
+    procedure.handle_sample(&sample);
+    procedure.drive(sample.t_s, io);
 }
 
 /// This tick's commands, the button's first (a full tick of USB commands never hides a press),
