@@ -23,7 +23,7 @@
 //! THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF SUCH DAMAGE.
 
 use crate::lsm9ds1::BusFault;
-use calib_core::record::SensorSetup;
+use calib_core::record::{Sensor, SensorSetup};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -47,6 +47,12 @@ pub mod reg {
     pub const EVENT: u8 = 0x1B;
     /// INTERNAL_STATUS: bits 3:0 the initialisation's message.
     pub const INTERNAL_STATUS: u8 = 0x21;
+    /// FEAT_PAGE: the feature page the 16-byte window at FEATURES shows.
+    pub const FEAT_PAGE: u8 = 0x2F;
+    /// FEATURES: a 16-byte window on the selected feature page (page 0 offset 0x0C: GYR_CAS).
+    pub const FEATURES: u8 = 0x30;
+    /// GYR_OFF_COMP_6: bit 7 the gyro user gain (GYR_USR_GAIN 0x78–0x7A) is applied.
+    pub const GYR_OFF_COMP_6: u8 = 0x77;
     /// FIFO_LENGTH_0 (byte count bits 7:0); FIFO_LENGTH_1 (bits 13:8) follows.
     pub const FIFO_LENGTH_0: u8 = 0x24;
     /// FIFO_DATA (the address does not increment: one burst reads the bytes in order).
@@ -186,11 +192,6 @@ impl Config {
         }
     }
 
-    /// The setup a record states.
-    pub fn setup(&self) -> SensorSetup {
-        SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro_range_dps as f32, accel_range_g: self.accel_range_g as f32 }
-    }
-
     /// Sensitivities: (°/s per LSB, g per LSB) = range / 32768.
     pub fn per_lsb(&self) -> (f32, f32) {
         (self.gyro_range_dps as f32 / 32768.0, self.accel_range_g as f32 / 32768.0)
@@ -238,10 +239,27 @@ impl core::fmt::Display for Bmi270Error {
     }
 }
 
+/// Offset of GYR_CAS in feature page 0 (Bosch's `BMI270_GYRO_CROSS_SENSE_STRT_ADDR`).
+const GYR_CAS_OFFSET: usize = 0x0C;
+
+/// GYR_CAS from its feature byte: 7-bit two's complement (Bosch's `get_gyro_cross_sense`).
+pub const fn gyr_cas(byte: u8) -> i8 {
+    let v = byte & 0x7F;
+    if v & 0x40 != 0 {
+        (v as i16 - 128) as i8
+    } else {
+        v as i8
+    }
+}
+
 /// An initialised BMI270.
 pub struct Bmi270<I> {
     i2c: I,
     cfg: Config,
+    /// The part's factory z→x trim (read once after the configuration load, as Bosch does).
+    gyr_cas: i8,
+    /// Its gyro user gain was enabled.
+    user_gain: bool,
 }
 
 impl<I: I2c> Bmi270<I> {
@@ -249,7 +267,7 @@ impl<I: I2c> Bmi270<I> {
     /// as Bosch's API has it. Bounded: a fixed number of transfers and at most
     /// [`INIT_TIMEOUT_MS`] of polling.
     pub fn init(i2c: I, cfg: Config, delay: &mut impl DelayNs) -> Result<Self, (Bmi270Error, I)> {
-        let mut s = Self { i2c, cfg };
+        let mut s = Self { i2c, cfg, gyr_cas: 0, user_gain: false };
         match s.bring_up(delay) {
             Ok(()) => Ok(s),
             Err(e) => Err((e, s.i2c)),
@@ -264,6 +282,17 @@ impl<I: I2c> Bmi270<I> {
     /// The settings it runs at.
     pub fn config(&self) -> Config {
         self.cfg
+    }
+
+    /// The setup a record states: the settings and the part with its GYR_CAS and user gain.
+    pub fn setup(&self) -> SensorSetup {
+        let c = self.cfg;
+        SensorSetup {
+            odr_hz: c.odr.hz(),
+            gyro_range_dps: c.gyro_range_dps as f32,
+            accel_range_g: c.accel_range_g as f32,
+            sensor: Sensor::Bmi270 { gyr_cas: self.gyr_cas, user_gain: self.user_gain },
+        }
     }
 
     fn write(&mut self, reg: u8, data: &[u8]) -> Result<(), Bmi270Error> {
@@ -317,6 +346,13 @@ impl<I: I2c> Bmi270<I> {
         if status != INIT_OK {
             return Err(Bmi270Error::Init(status));
         }
+        // GYR_CAS from feature page 0 (a 16-byte window read as Bosch's bmi2_get_feat_config),
+        // and whether the user gain is on: the raw data's terms the record states.
+        self.write(reg::FEAT_PAGE, &[0])?;
+        let mut page = [0u8; 16];
+        self.read(reg::FEATURES, &mut page)?;
+        self.gyr_cas = gyr_cas(page[GYR_CAS_OFFSET]);
+        self.user_gain = self.read1(reg::GYR_OFF_COMP_6)? & 0x80 != 0;
         let c = self.cfg;
         for (r, v) in
             [(reg::ACC_CONF, c.acc_conf()), (reg::ACC_RANGE, acc_range), (reg::GYR_CONF, c.gyr_conf()), (reg::GYR_RANGE, gyr_range)]

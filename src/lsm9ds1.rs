@@ -5,7 +5,7 @@
 //! and owns the bus, while this driver needs the FIFO at 952 Hz and runs on the host against a
 //! simulated register map through the same `I2c` trait.
 
-use calib_core::record::SensorSetup;
+use calib_core::record::{Sensor, SensorSetup};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::{ErrorKind, I2c};
 
@@ -226,7 +226,12 @@ impl SensorConfig {
 
     /// The setup a record states.
     pub const fn setup(&self) -> SensorSetup {
-        SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro.range_dps(), accel_range_g: self.accel.range_g() }
+        SensorSetup {
+            odr_hz: self.odr.hz(),
+            gyro_range_dps: self.gyro.range_dps(),
+            accel_range_g: self.accel.range_g(),
+            sensor: Sensor::Lsm9ds1,
+        }
     }
 
     /// CTRL_REG1_G value (gyro bandwidth BW_G = 00).

@@ -19,7 +19,7 @@ use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, 
 
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use calib_core::protocol::{self, RecordLine};
-use calib_core::record::{Record, SensorSetup};
+use calib_core::record::{Record, Sensor, SensorSetup};
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
 use embedded_hal::digital::InputPin;
@@ -35,9 +35,6 @@ use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
 use nrf52840_hal as hal;
 use panic_probe as _;
-
-/// Said once a Rev2 board's BMI270 is up.
-const REV2_READY: &str = "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): 100 Hz, +-500 dps, +-2 g";
 
 /// Loop period (µs): the FIFO (32 slots) lasts 33 ms at 952 Hz.
 const TICK_US: u32 = 2_000;
@@ -211,8 +208,21 @@ impl Sensing {
                     // A Rev2 board: its BMI270, at its own setup.
                     Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
                         Ok(s) => {
-                            let setup = s.config().setup();
-                            io.console.send(Log::Info, REV2_READY);
+                            let setup = s.setup();
+                            let c = s.config();
+                            let (cas, gain) = match setup.sensor {
+                                Sensor::Bmi270 { gyr_cas, user_gain } => (gyr_cas, if user_gain { "on" } else { "off" }),
+                                Sensor::Lsm9ds1 => (0, "-"),
+                            };
+                            io.console.say(
+                                Log::Info,
+                                format_args!(
+                                    "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): {} Hz, +-{} dps, +-{} g; GYR_CAS {cas} (not applied), user gain {gain}",
+                                    c.odr.hz() as u32,
+                                    c.gyro_range_dps,
+                                    c.accel_range_g
+                                ),
+                            );
                             // Idle at boot (and after a re-initialisation): refused only mid-run,
                             // which the fault that re-initialised it has ended.
                             let _ = procedure.handle_setup(setup);
@@ -281,7 +291,7 @@ impl Sensing {
 impl Sensing {
     /// The setup the sensor runs at (the Rev2's BMI270, or the LSM9DS1's).
     fn setup(&self) -> SensorSetup {
-        self.rev2.as_ref().map_or(self.config.setup(), |b| b.config().setup())
+        self.rev2.as_ref().map_or(self.config.setup(), |b| b.setup())
     }
 
     /// Says when the stored record was made at another setup than the sensor now runs (it is
@@ -310,7 +320,7 @@ impl Sensing {
                 let batch = self.stamper.batch(clock.now_s(), got.len());
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
-                    feed(sample, b.config().setup(), self.raw, &mut self.rate, procedure, io);
+                    feed(sample, b.setup(), self.raw, &mut self.rate, procedure, io);
                 }
             }
             Err(e) => {

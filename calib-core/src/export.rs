@@ -23,8 +23,9 @@
 //! each at most [`MAX_LINE`] bytes.
 
 use crate::bias::TempCo;
+use crate::frame::DataFrame;
 use crate::log::fixed;
-use crate::record::Record;
+use crate::record::{Record, Sensor};
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Write};
 
@@ -99,12 +100,25 @@ fn temp_c(rec: &Record) -> f32 {
     rec.temp_c.unwrap_or(f32::NAN)
 }
 
-/// Writes `rec` in `format`.
+/// Writes `rec` in `format` (its raw frame).
 pub fn write(w: &mut impl Write, rec: &Record, format: Format) -> fmt::Result {
     match format {
         Format::Json => json(w, rec),
-        Format::C => c(w, rec),
-        Format::Rust => rust(w, rec),
+        Format::C => c(w, rec, DataFrame::Raw),
+        Format::Rust => rust(w, rec, DataFrame::Raw),
+    }
+}
+
+/// Writes `rec`'s calibration for data read as `frame` in C or Rust (its header says which);
+/// `fmt::Error` for a frame the record's part has not ([`Record::in_frame`]) or for JSON, which
+/// is always the raw record.
+pub fn write_in(w: &mut impl Write, rec: &Record, format: Format, frame: DataFrame) -> fmt::Result {
+    let r = rec.in_frame(frame).map_err(|_| fmt::Error)?;
+    match format {
+        Format::Json if frame == DataFrame::Raw => json(w, &r),
+        Format::Json => Err(fmt::Error),
+        Format::C => c(w, &r, frame),
+        Format::Rust => rust(w, &r, frame),
     }
 }
 
@@ -175,6 +189,12 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     json_num(w, r.setup.gyro_range_dps, D_SETUP)?;
     w.write_str(",\"accel_range_g\":")?;
     json_num(w, r.setup.accel_range_g, D_SETUP)?;
+    match r.setup.sensor {
+        Sensor::Lsm9ds1 => w.write_str(",\"sensor\":\"lsm9ds1\"")?,
+        Sensor::Bmi270 { gyr_cas, user_gain } => {
+            write!(w, ",\"sensor\":{{\"bmi270\":{{\"gyr_cas\":{gyr_cas},\"user_gain\":{user_gain}}}}}")?
+        }
+    }
     w.write_str("},\"tempco\":")?;
     match r.tempco {
         None => w.write_str("null")?,
@@ -223,14 +243,22 @@ fn matrix(w: &mut impl Write, s: &Syntax, decl: &str, m: &Mat3) -> fmt::Result {
     writeln!(w, "{};", s.close)
 }
 
-/// The header comment lines, each between `open` and `close`: what the record is and the two
-/// models with their units.
-fn header(w: &mut impl Write, r: &Record, open: &str, close: &str) -> fmt::Result {
+/// The header comment lines, each between `open` and `close`: what the record is, the part and
+/// the data `frame` it applies to, and the two models with their units.
+fn header(w: &mut impl Write, r: &Record, frame: DataFrame, open: &str, close: &str) -> fmt::Result {
     write!(w, "{open}gyrocal calibration record {}, {} K, accelerometer model {}, sensor ", r.seq, r.method.name(), r.accel_model.name())?;
     num(w, temp_c(r), 1, "temperature unknown", " degC")?;
     writeln!(w, "{close}")?;
-    writeln!(w, "{open}Gyro:  omega = K (g - b): g raw gyro (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
-    writeln!(w, "{open}Accel: f = M (a - o): a raw accel (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
+    match r.setup.sensor {
+        Sensor::Lsm9ds1 => write!(w, "{open}Part: LSM9DS1")?,
+        Sensor::Bmi270 { gyr_cas, user_gain } => {
+            write!(w, "{open}Part: BMI270, GYR_CAS {gyr_cas}, user gain {}", if user_gain { "on" } else { "off" })?
+        }
+    }
+    writeln!(w, "{close}")?;
+    writeln!(w, "{open}Data: {}{close}", frame.describe())?;
+    writeln!(w, "{open}Gyro:  omega = K (g - b): g gyro reading (deg/s), b = GYRO_BIAS_DPS (deg/s), omega (deg/s){close}")?;
+    writeln!(w, "{open}Accel: f = M (a - o): a accel reading (g), o = ACCEL_OFFSET_G (g), f calibrated (g){close}")?;
     writeln!(w, "{open}K maps the gyro into the calibrated accelerometer's frame; both matrices row-major.{close}")?;
     w.write_str(open)?;
     w.write_str("Holds for the sensor at ")?;
@@ -258,9 +286,9 @@ fn tempco_comment(w: &mut impl Write, t: &TempCo, open: &str, close: &str) -> fm
     writeln!(w, "{close}")
 }
 
-fn c(w: &mut impl Write, r: &Record) -> fmt::Result {
+fn c(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
     let s = &C_SYNTAX;
-    header(w, r, "/* ", " */")?;
+    header(w, r, frame, "/* ", " */")?;
     matrix(w, s, "static const float GYRO_K[3][3]", &r.gyro_k)?;
     w.write_str("static const float GYRO_BIAS_DPS[3] = ")?;
     array(w, s, &r.gyro_bias_dps, D_BIAS)?;
@@ -270,7 +298,7 @@ fn c(w: &mut impl Write, r: &Record) -> fmt::Result {
     array(w, s, &r.accel_offset_g, D_OFFSET)?;
     w.write_str(";\n")?;
     w.write_str(concat!(
-        "/* Calibrated rate out_dps = K (g_dps - b) (deg/s) from a raw gyro reading g_dps (deg/s). */\n",
+        "/* Calibrated rate out_dps = K (g_dps - b) (deg/s) from a gyro reading g_dps (deg/s). */\n",
         "static inline void gyrocal_apply(const float g_dps[3], float out_dps[3]) {\n",
         "    const float d[3] = {g_dps[0] - GYRO_BIAS_DPS[0], g_dps[1] - GYRO_BIAS_DPS[1], g_dps[2] - GYRO_BIAS_DPS[2]};\n",
         "    for (int i = 0; i < 3; i++) {\n",
@@ -280,9 +308,9 @@ fn c(w: &mut impl Write, r: &Record) -> fmt::Result {
     ))
 }
 
-fn rust(w: &mut impl Write, r: &Record) -> fmt::Result {
+fn rust(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
     let s = &RUST_SYNTAX;
-    header(w, r, "// ", "")?;
+    header(w, r, frame, "// ", "")?;
     w.write_str("/// Gyro scale matrix K (row-major, dimensionless): omega = K (g - b).\n")?;
     matrix(w, s, "pub const GYRO_K: [[f32; 3]; 3]", &r.gyro_k)?;
     w.write_str("/// Gyro bias b (deg/s).\npub const GYRO_BIAS_DPS: [f32; 3] = ")?;
@@ -510,6 +538,7 @@ mod tests {
     use super::*;
     use crate::gyro::Method;
     use crate::record::tests::sample;
+    use crate::record::SensorSetup;
     extern crate std;
     use std::string::String;
 
@@ -528,9 +557,13 @@ mod tests {
         assert!(s.contains("\"offset_g\":[0.010000,-0.020000,0.015000]}"), "{s}");
         assert!(s.contains("\"quality\":{\"source\":\"board\",\"seq\":7,\"temp_c\":24.50,\"sigma_K\":[[0.000100000,"), "{s}");
         assert!(s.contains("\"accel_model\":\"nine_param\",\"accel_rms_g\":0.0004000,"), "{s}");
-        assert!(s.ends_with(",\"setup\":{\"odr_hz\":119.0,\"gyro_range_dps\":500.0,\"accel_range_g\":2.0},\"tempco\":{\"dps_per_c\":[0.030000,-0.045000,0.010000],\"sigma_dps_per_c\":[0.002000,0.003000,0.002500],\"range_c\":[24.00,27.50]}}}"), "{s}");
+        assert!(s.ends_with(",\"setup\":{\"odr_hz\":119.0,\"gyro_range_dps\":500.0,\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":{\"dps_per_c\":[0.030000,-0.045000,0.010000],\"sigma_dps_per_c\":[0.002000,0.003000,0.002500],\"range_c\":[24.00,27.50]}}}"), "{s}");
         let unknown = text(&Record { tempco: None, ..sample() }, Format::Json);
-        assert!(unknown.ends_with("\"accel_range_g\":2.0},\"tempco\":null}}"), "{unknown}");
+        assert!(unknown.ends_with("\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":null}}"), "{unknown}");
+        let bmi =
+            Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: true }, ..SensorSetup::DEFAULT }, ..sample() };
+        let b = text(&bmi, Format::Json);
+        assert!(b.contains("\"accel_range_g\":2.0,\"sensor\":{\"bmi270\":{\"gyr_cas\":-7,\"user_gain\":true}}},\"tempco\":"), "{b}");
     }
 
     #[test]
@@ -568,7 +601,18 @@ mod tests {
         let r = text(&rec, Format::Rust);
         assert!(r.contains("pub const GYRO_K: [[f32; 3]; 3] = [\n    [1.0123457, -0.0023456, 0.0001000],\n"), "{r}");
         assert!(r.contains("pub const ACCEL_OFFSET_G: [f32; 3] = [0.010000, -0.020000, 0.015000];"), "{r}");
-        for s in [&c, &r] {
+        assert!(c.contains("/* Part: LSM9DS1 */\n/* Data: raw sensor axes, datasheet units (nothing applied) */"), "{c}");
+        let bmi = Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: false }, ..SensorSetup::DEFAULT }, ..rec };
+        let mut ard = String::new();
+        write_in(&mut ard, &bmi, Format::C, DataFrame::ArduinoBmi270).unwrap();
+        let k = bmi.in_frame(DataFrame::ArduinoBmi270).unwrap().gyro_k;
+        assert!(ard.contains("/* Part: BMI270, GYR_CAS -7, user gain off */\n/* Data: Arduino_BMI270_BMM150's readings"), "{ard}");
+        let mut row = String::new();
+        fixed(&mut row, k[0][0] as f64, D_MATRIX).unwrap();
+        assert!(ard.contains(&std::format!("static const float GYRO_K[3][3] = {{\n    {{{row}f, ")), "{row} {ard}");
+        assert_eq!(write_in(&mut String::new(), &rec, Format::C, DataFrame::BoschApi), Err(fmt::Error), "an LSM9DS1's record");
+        assert_eq!(write_in(&mut String::new(), &bmi, Format::Json, DataFrame::BoschApi), Err(fmt::Error), "JSON is raw");
+        for s in [&c, &r, &ard] {
             assert!(!s.ends_with('\n'));
             assert!(s.lines().all(|l| l.len() <= MAX_LINE && l.is_ascii()), "{s}");
         }

@@ -53,6 +53,7 @@ pub mod axis;
 pub mod bias;
 mod error;
 pub mod export;
+pub mod frame;
 pub mod full;
 pub mod gyro;
 mod linalg;

@@ -14,7 +14,7 @@
 //! Numbers are written with fixed decimals (µs, µg, 10 µ°/s, 0.01°) by integer arithmetic, so
 //! the firmware needs no float-formatting code.
 
-use crate::record::SensorSetup;
+use crate::record::{Sensor, SensorSetup};
 use core::fmt::{self, Write};
 
 /// The header line.
@@ -118,26 +118,46 @@ pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
 }
 
 /// Writes the setup comment (no newline): `# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0
-/// accel_range_g=4.0`. The firmware writes it after the header and again when the setup changes.
+/// accel_range_g=4.0 sensor=lsm9ds1`, or for a BMI270 `… sensor=bmi270 gyr_cas=-3 user_gain=0`.
+/// The firmware writes it after the header and again when the setup changes.
 pub fn write_setup(w: &mut impl Write, s: &SensorSetup) -> fmt::Result {
     w.write_str(SETUP)?;
     for (name, v) in [(" odr_hz=", s.odr_hz), (" gyro_range_dps=", s.gyro_range_dps), (" accel_range_g=", s.accel_range_g)] {
         w.write_str(name)?;
         fixed(w, v as f64, 1)?;
     }
-    Ok(())
+    match s.sensor {
+        Sensor::Lsm9ds1 => w.write_str(" sensor=lsm9ds1"),
+        Sensor::Bmi270 { gyr_cas, user_gain } => write!(w, " sensor=bmi270 gyr_cas={gyr_cas} user_gain={}", u8::from(user_gain)),
+    }
 }
 
-/// Reads a setup comment ([`write_setup`]); `None` for any other line or a value that is not a
-/// positive number.
+/// Reads a setup comment ([`write_setup`]; without `sensor=` an LSM9DS1's, as logs before the
+/// Rev2 support); `None` for any other line, a value that is not a positive number, or a part
+/// field out of its range.
 pub fn parse_setup(line: &str) -> Option<SensorSetup> {
     let mut it = line.trim().strip_prefix(SETUP)?.split_whitespace();
+    let mut value = |name: &str| -> Option<&str> { it.next()?.strip_prefix(name)?.strip_prefix('=') };
     let mut field = |name: &str| -> Option<f32> {
-        let v: f32 = it.next()?.strip_prefix(name)?.strip_prefix('=')?.parse().ok()?;
+        let v: f32 = value(name)?.parse().ok()?;
         (v.is_finite() && v > 0.0).then_some(v)
     };
-    let s = SensorSetup { odr_hz: field("odr_hz")?, gyro_range_dps: field("gyro_range_dps")?, accel_range_g: field("accel_range_g")? };
-    it.next().is_none().then_some(s)
+    let (odr_hz, gyro_range_dps, accel_range_g) = (field("odr_hz")?, field("gyro_range_dps")?, field("accel_range_g")?);
+    let sensor = match it.next() {
+        None | Some("sensor=lsm9ds1") => Sensor::Lsm9ds1,
+        Some("sensor=bmi270") => {
+            let mut value = |name: &str| -> Option<&str> { it.next()?.strip_prefix(name)?.strip_prefix('=') };
+            let gyr_cas: i8 = value("gyr_cas")?.parse().ok().filter(|c| (-64..64).contains(c))?;
+            let user_gain = match value("user_gain")? {
+                "0" => false,
+                "1" => true,
+                _ => return None,
+            };
+            Sensor::Bmi270 { gyr_cas, user_gain }
+        }
+        Some(_) => return None,
+    };
+    it.next().is_none().then_some(SensorSetup { odr_hz, gyro_range_dps, accel_range_g, sensor })
 }
 
 /// Why a log line cannot be read. Lines are 1-based.

@@ -1,6 +1,11 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
-//! Layout v3 (`LEN` = 232 bytes): the v2 layout up to the angle from coplanar, then the sensor
+//! Layout v4 (`LEN` = 236 bytes): the v3 layout, then before the CRC the part the calibration was
+//! made with (`u8`: 0 LSM9DS1, 1 BMI270), the BMI270's GYR_CAS (`i8`, 0 for an LSM9DS1), its
+//! flags (`u8`: bit 0 the BMI270's gyro user gain was enabled) and a reserved 0.
+//!
+//! Layout v3 (`LEN_V3` = 232 bytes, written before the Rev2 support; loads as an LSM9DS1's): the
+//! v2 layout up to the angle from coplanar, then the sensor
 //! setup the calibration was made at (ODR Hz, gyro full scale °/s, accelerometer full scale g)
 //! and the gyro bias's temperature coefficient (3, °/s per °C), its 1σ (3) and the temperature
 //! range over which it was fitted (2, °C), all `f32` (zeros with flags bit 1 when it is unknown),
@@ -28,9 +33,11 @@ use crate::gyro::{GyroCal, Method};
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
-pub const VERSION: u8 = 3;
-/// Encoded length (bytes) of a version-3 record (the longest a reader needs).
-pub const LEN: usize = 232;
+pub const VERSION: u8 = 4;
+/// Encoded length (bytes) of a version-4 record (the longest a reader needs).
+pub const LEN: usize = 236;
+/// Encoded length (bytes) of a version-3 record.
+pub const LEN_V3: usize = 232;
 /// Encoded length (bytes) of a version-2 record.
 pub const LEN_V2: usize = 188;
 /// Encoded length (bytes) of a version-1 record.
@@ -86,7 +93,39 @@ const TEMP_UNKNOWN: u16 = 1;
 /// Flags bit: the bias's temperature coefficient is unknown.
 const TEMPCO_UNKNOWN: u16 = 2;
 
-/// The sensor settings a calibration was made at: a `K` holds for its full scale and ODR.
+/// The part a calibration was made with. `K`, `b`, `M` and `o` are in that part's raw sensor
+/// axes, in its datasheet units (nothing else applied).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "lowercase"))]
+pub enum Sensor {
+    /// ST LSM9DS1 (Nano 33 BLE Rev1).
+    #[default]
+    Lsm9ds1,
+    /// Bosch BMI270 (Rev2), read raw: its factory z→x cross-axis trim GYR_CAS is not applied
+    /// (Bosch's API subtracts `gyr_cas · z / 512` from x; [`crate::frame`] gives the `K` for such
+    /// data).
+    Bmi270 {
+        /// GYR_CAS (7-bit two's complement, −64..63; counts per 512 counts of z).
+        gyr_cas: i8,
+        /// The gyro user gain (GYR_USR_GAIN, set by the part's CRT) was enabled (0x77 bit 7):
+        /// the raw data then holds it, and a `K` made without it does not apply.
+        user_gain: bool,
+    },
+}
+
+impl Sensor {
+    /// The part's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Sensor::Lsm9ds1 => "LSM9DS1",
+            Sensor::Bmi270 { .. } => "BMI270",
+        }
+    }
+}
+
+/// The sensor settings a calibration was made at: a `K` holds for its part, full scale and ODR.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
@@ -97,15 +136,18 @@ pub struct SensorSetup {
     pub gyro_range_dps: f32,
     /// Accelerometer full scale (g).
     pub accel_range_g: f32,
+    /// The part (an LSM9DS1 where a log or a JSON line does not say).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub sensor: Sensor,
 }
 
 impl SensorSetup {
     /// The firmware's default (LSM9DS1 at 119 Hz, ±500 °/s, ±2 g): the only setup of the
     /// firmware that wrote version-1 and -2 records.
-    pub const DEFAULT: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 500.0, accel_range_g: 2.0 };
+    pub const DEFAULT: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 500.0, accel_range_g: 2.0, sensor: Sensor::Lsm9ds1 };
     /// What Arduino's Arduino_LSM9DS1 library sets in `IMU.begin()` (CTRL_REG1_G 0x78,
     /// CTRL_REG6_XL 0x70): 119 Hz, ±2000 °/s, ±4 g.
-    pub const ARDUINO_LSM9DS1: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 };
+    pub const ARDUINO_LSM9DS1: SensorSetup = SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, ..Self::DEFAULT };
 }
 
 impl core::fmt::Display for StoreError {
@@ -315,7 +357,7 @@ impl Record {
         v
     }
 
-    /// Encodes to the version-3 layout; a record with a NaN or infinite field is refused.
+    /// Encodes to the version-4 layout; a record with a NaN or infinite field is refused.
     pub fn encode(&self) -> Result<[u8; LEN], NotFinite> {
         self.check_finite()?;
         let mut w = Writer { buf: [0; LEN], at: 0 };
@@ -348,12 +390,16 @@ impl Record {
         w.f32s(&[self.residual_rms, self.non_coplanar_deg]);
         w.f32s(&[self.setup.odr_hz, self.setup.gyro_range_dps, self.setup.accel_range_g]);
         w.f32s(&self.tempco_f32s());
+        w.bytes(&match self.setup.sensor {
+            Sensor::Lsm9ds1 => [0, 0, 0, 0],
+            Sensor::Bmi270 { gyr_cas, user_gain } => [1, gyr_cas as u8, u8::from(user_gain), 0],
+        });
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
         Ok(w.buf)
     }
 
-    /// Decodes and validates bytes of a version-3, -2 or -1 record (extra bytes after the
+    /// Decodes and validates bytes of a version-4, -3, -2 or -1 record (extra bytes after the
     /// record are ignored).
     pub fn decode(bytes: &[u8]) -> Result<Record, DecodeError> {
         let truncated = |need: usize| DecodeError::Truncated { len: bytes.len().min(u16::MAX as usize) as u16, need: need as u16 };
@@ -366,7 +412,8 @@ impl Record {
         let len = match bytes[4] {
             1 => LEN_V1,
             2 => LEN_V2,
-            3 => LEN,
+            3 => LEN_V3,
+            4 => LEN,
             v => return Err(DecodeError::UnsupportedVersion(v)),
         };
         if bytes.len() < len {
@@ -391,7 +438,7 @@ impl Record {
             _ => return Err(DecodeError::InvalidField),
         };
         let flags = u16::from_le_bytes([b[14], b[15]]);
-        let known = if len == LEN { TEMP_UNKNOWN | TEMPCO_UNKNOWN } else { TEMP_UNKNOWN };
+        let known = if len >= LEN_V3 { TEMP_UNKNOWN | TEMPCO_UNKNOWN } else { TEMP_UNKNOWN };
         if flags & !known != 0 {
             return Err(DecodeError::InvalidField);
         }
@@ -434,12 +481,21 @@ impl Record {
             rec.residual_rms = r.f32();
             rec.non_coplanar_deg = r.f32();
         }
-        if len == LEN {
-            rec.setup = SensorSetup { odr_hz: r.f32(), gyro_range_dps: r.f32(), accel_range_g: r.f32() };
+        if len >= LEN_V3 {
+            rec.setup = SensorSetup { odr_hz: r.f32(), gyro_range_dps: r.f32(), accel_range_g: r.f32(), sensor: Sensor::Lsm9ds1 };
             let (c, sigma, range) = (r.vec3(), r.vec3(), [r.f32(), r.f32()]);
             if flags & TEMPCO_UNKNOWN == 0 {
                 rec.tempco = Some(TempCo { dps_per_c: c, sigma_dps_per_c: sigma, range_c: range });
             }
+        }
+        if len == LEN {
+            rec.setup.sensor = match b[LEN_V3 - 4..LEN - 4] {
+                [0, 0, 0, 0] => Sensor::Lsm9ds1,
+                [1, cas, f, 0] if (-64..64).contains(&(cas as i8)) && f & !1 == 0 => {
+                    Sensor::Bmi270 { gyr_cas: cas as i8, user_gain: f == 1 }
+                }
+                _ => return Err(DecodeError::InvalidField),
+            };
         }
         if !r.all_finite {
             return Err(DecodeError::InvalidField);
@@ -542,11 +598,11 @@ pub(crate) mod tests {
         let r = sample();
         let bytes = r.encode().unwrap();
         assert_eq!(Record::decode(&bytes), Ok(r));
-        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 232 })));
+        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 236 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
         let mut v = bytes;
-        v[4] = 4;
-        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(4)));
+        v[4] = 5;
+        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(5)));
         let mut c = bytes;
         c[40] ^= 0x10;
         assert!(matches!(Record::decode(&c), Err(DecodeError::BadCrc { .. })));
@@ -596,7 +652,7 @@ pub(crate) mod tests {
         let bytes = r.encode().unwrap();
         assert_eq!((bytes[14], &bytes[200..228]), (0b10, &[0u8; 28][..]), "flag set, tempco zeros");
         assert_eq!(Record::decode(&bytes), Ok(r));
-        let setup = SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 };
+        let setup = SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, sensor: Sensor::Lsm9ds1 };
         let r = Record { setup, ..sample() };
         assert_eq!(Record::decode(&r.encode().unwrap()), Ok(r));
         let mut t = sample();
@@ -639,5 +695,41 @@ pub(crate) mod tests {
         let mut other = bytes;
         other[14] = 0b100;
         assert_eq!(Record::decode(&re_crc(other)), Err(DecodeError::InvalidField));
+    }
+
+    /// `sample()` as the version-3 encoder of the release before the Rev2's sensor field (commit
+    /// 4c8113f) wrote it.
+    const GOLDEN_V3: &str = "475952430301020d070000000c0000000000c441ae47813f000000000000000000000000a4707d3f0000000000000000000000005c8f823f0000003f0000a0bf00000040c520803f6f12033b0000000000000000ee7c7f3f6f1283ba00000000000000004e62803f0ad7233c0ad7a3bc8fc2753c17b7d13882a8fb37000000000000000017b7513900000000000000000000000052491d390ad7a33c6f12833a00006040000034420000344317b7d1390ad7a33c000058420000ee420000fa43000000408fc2f53cec5138bd0ad7233c6f12033ba69b443b0ad7233b0000c0410000dc4116b84922";
+
+    #[test]
+    fn version_3_records_still_load_as_an_lsm9ds1_s() {
+        let mut v3 = [0xFFu8; LEN];
+        for i in 0..LEN_V3 {
+            v3[i] = u8::from_str_radix(&GOLDEN_V3[2 * i..2 * i + 2], 16).unwrap();
+        }
+        assert_eq!(Record::decode(&v3), Ok(sample()));
+        assert!(matches!(Record::decode(&v3[..231]), Err(DecodeError::Truncated { len: 231, need: 232 })));
+    }
+
+    #[test]
+    fn the_part_round_trips_and_a_bad_part_field_is_invalid() {
+        for sensor in [Sensor::Bmi270 { gyr_cas: -64, user_gain: true }, Sensor::Bmi270 { gyr_cas: 63, user_gain: false }] {
+            let r = Record { setup: SensorSetup { sensor, ..SensorSetup::DEFAULT }, ..sample() };
+            let bytes = r.encode().unwrap();
+            assert_eq!(bytes[228], 1);
+            assert_eq!(Record::decode(&bytes), Ok(r));
+        }
+        assert_eq!(&sample().encode().unwrap()[228..232], &[0, 0, 0, 0]);
+        let bmi =
+            Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: 5, user_gain: false }, ..SensorSetup::DEFAULT }, ..sample() };
+        // An unknown part, a CAS beyond 7 bits, an unknown flag, a reserved byte, an LSM9DS1 with a CAS.
+        for (at, v) in [(228, 2u8), (229, 64), (229, 0xBF), (230, 2), (231, 1)] {
+            let mut bytes = bmi.encode().unwrap();
+            bytes[at] = v;
+            assert_eq!(Record::decode(&re_crc(bytes)), Err(DecodeError::InvalidField), "byte {at} = {v}");
+        }
+        let mut lsm = sample().encode().unwrap();
+        lsm[229] = 3;
+        assert_eq!(Record::decode(&re_crc(lsm)), Err(DecodeError::InvalidField));
     }
 }

@@ -135,6 +135,7 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use calib_core::record::Sensor;
 
     #[test]
     fn parses_by_column_name_with_comments_preamble_and_empty_servo() {
@@ -171,13 +172,22 @@ mod tests {
             l
         };
         let a = line(&SensorSetup::ARDUINO_LSM9DS1);
-        assert_eq!(a, "# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0 accel_range_g=4.0");
-        for s in [SensorSetup::DEFAULT, SensorSetup::ARDUINO_LSM9DS1, SensorSetup { odr_hz: 952.0, ..SensorSetup::DEFAULT }] {
+        assert_eq!(a, "# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0 accel_range_g=4.0 sensor=lsm9ds1");
+        let bmi = SensorSetup { odr_hz: 100.0, sensor: Sensor::Bmi270 { gyr_cas: -3, user_gain: true }, ..SensorSetup::DEFAULT };
+        assert_eq!(line(&bmi), "# sensor setup: odr_hz=100.0 gyro_range_dps=500.0 accel_range_g=2.0 sensor=bmi270 gyr_cas=-3 user_gain=1");
+        for s in [SensorSetup::DEFAULT, SensorSetup::ARDUINO_LSM9DS1, SensorSetup { odr_hz: 952.0, ..SensorSetup::DEFAULT }, bmi] {
             assert_eq!(log::parse_setup(&line(&s)), Some(s));
         }
-        for bad in
-            ["# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0", "# sensor setup: odr_hz=-1.0 gyro_range_dps=2000.0 accel_range_g=4.0"]
-        {
+        // A log from before the Rev2 support: an LSM9DS1's.
+        let old = "# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0 accel_range_g=4.0";
+        assert_eq!(log::parse_setup(old), Some(SensorSetup::ARDUINO_LSM9DS1));
+        for bad in [
+            "# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0",
+            "# sensor setup: odr_hz=-1.0 gyro_range_dps=2000.0 accel_range_g=4.0",
+            "# sensor setup: odr_hz=100.0 gyro_range_dps=500.0 accel_range_g=2.0 sensor=bmi270 gyr_cas=64 user_gain=0",
+            "# sensor setup: odr_hz=100.0 gyro_range_dps=500.0 accel_range_g=2.0 sensor=bmi270 gyr_cas=1",
+            "# sensor setup: odr_hz=100.0 gyro_range_dps=500.0 accel_range_g=2.0 sensor=bmi160",
+        ] {
             assert_eq!(log::parse_setup(bad), None, "{bad}");
         }
         let row = "0.0,0,0,1,0,0,0,,\n";

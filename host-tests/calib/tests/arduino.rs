@@ -3,7 +3,7 @@
 //! `calib_core::region` loads (the same page, every field, calibrated outputs to 1e-6), refuses
 //! what it refuses, and `calib LOG --export record` writes a region it reads.
 
-use calib_core::record::{crc32, Record, SensorSetup, LEN};
+use calib_core::record::{crc32, Record, Sensor, SensorSetup, LEN};
 use calib_core::region::{self, PAGE, SLOTS};
 use common::{calib, simulated_log};
 use rig_sim::variant::Variant;
@@ -15,7 +15,8 @@ use std::sync::OnceLock;
 mod common;
 
 const LIB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../calib-core/arduino/GyroCal");
-const ARDUINO_LSM9DS1: [f32; 3] = [119.0, 2000.0, 4.0];
+const ARDUINO_LSM9DS1: [f32; 4] = [119.0, 2000.0, 4.0, 0.0];
+const ARDUINO_BMI270: [f32; 4] = [100.0, 2000.0, 4.0, 1.0];
 
 fn dir() -> PathBuf {
     let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("arduino");
@@ -63,7 +64,7 @@ struct Loaded {
 
 /// Runs the library on `region` (with `setup`: refusing another), then on each input line
 /// (`raw` or `lib`, gyro then accel).
-fn load(region: &[u8], setup: Option<[f32; 3]>, inputs: &[(&str, [f32; 6])]) -> Loaded {
+fn load(region: &[u8], setup: Option<[f32; 4]>, inputs: &[(&str, [f32; 6])]) -> Loaded {
     static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
     let file = dir().join(format!("region{}.bin", N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)));
     std::fs::write(&file, region).unwrap();
@@ -114,6 +115,11 @@ fn same_as_calib_core(l: &Loaded, rec: &Record, page: usize, inputs: &[[f32; 6]]
     close(v("offset"), &rec.accel_offset_g, "offset");
     let s = rec.setup;
     close(&[v("setup")[0], v("gyro_range")[0], v("accel_range")[0]], &[s.odr_hz, s.gyro_range_dps, s.accel_range_g], "setup");
+    let (sensor, cas, gain) = match s.sensor {
+        Sensor::Lsm9ds1 => (0.0, 0.0, 0.0),
+        Sensor::Bmi270 { gyr_cas, user_gain } => (1.0, gyr_cas as f32, f32::from(u8::from(user_gain))),
+    };
+    assert_eq!([v("sensor")[0], v("gyr_cas")[0], v("user_gain")[0]], [sensor, cas, gain], "the part");
     assert_eq!(v("temp_known")[0] == 1.0, rec.temp_c.is_some());
     close(v("temp"), &[rec.temp_c.unwrap_or(0.0)], "temp");
     assert_eq!(v("tempco_known")[0] == 1.0, rec.tempco.is_some());
@@ -180,17 +186,18 @@ fn calibs_exported_region_loads_as_calib_core_loads_it_and_another_setup_is_refu
     assert_eq!(rec.setup, SensorSetup::DEFAULT);
     same_as_calib_core(&load(&region, None, &raw(&samples())), rec, 0, &samples());
     let s = rec.setup;
-    same_as_calib_core(&load(&region, Some([s.odr_hz, s.gyro_range_dps, s.accel_range_g]), &raw(&samples())), rec, 0, &samples());
+    same_as_calib_core(&load(&region, Some([s.odr_hz, s.gyro_range_dps, s.accel_range_g, 0.0]), &raw(&samples())), rec, 0, &samples());
     // Made at ±500 °/s, asked for by a program that runs Arduino_LSM9DS1 (±2000 °/s): refused, and
     // nothing applied.
     let l = load(&region, Some(ARDUINO_LSM9DS1), &raw(&samples()));
-    assert!(!l.ok && l.status == 2 && l.said.contains("another ODR or full scale"), "{l:?}");
+    assert!(!l.ok && l.status == 2 && l.said.contains("another sensor, ODR or full scale"), "{l:?}");
     assert_eq!(l.values["gyro_range"], [500.0], "the refusal says what the record was made at");
     for (out, i) in l.outs.iter().zip(samples()) {
         assert_eq!(*out, i, "a refused record is never applied");
     }
     // A record made at the preset loads for it.
-    let preset = Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 }, ..*rec };
+    let preset =
+        Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, ..SensorSetup::DEFAULT }, ..*rec };
     same_as_calib_core(&load(&region::image(&preset).unwrap(), Some(ARDUINO_LSM9DS1), &[]), &preset, 0, &[]);
 }
 
@@ -198,9 +205,13 @@ fn calibs_exported_region_loads_as_calib_core_loads_it_and_another_setup_is_refu
 fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
     let rec = |seq: u32| Record { seq, temp_c: Some(31.5), ..*record() };
     let enc = |r: &Record| r.encode().unwrap().to_vec();
-    // Versions 1 and 2 (as older firmware wrote them) from the v3 bytes: v2 is v3 up to the
+    // Versions 1, 2 and 3 (as older firmware wrote them) from the v4 bytes: v3 is v4 without
+    // the part; v2 is v3 up to the
     // angle from coplanar; v1 up to the accel offset, the diagonal of σK, the six quality fields.
-    let v3 = enc(&rec(7));
+    let v4 = enc(&rec(7));
+    let mut v3 = [&v4[..228], &[0; 4]].concat();
+    v3[4] = 3;
+    let v3 = with_crc(v3);
     let mut v2 = [&v3[..184], &[0; 4]].concat();
     v2[4] = 2;
     v2[14] &= 1;
@@ -216,7 +227,7 @@ fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
     let mut flipped = enc(&rec(9));
     flipped[40] ^= 1;
     let mut future = enc(&rec(9));
-    future[4] = 4;
+    future[4] = 5;
     let future = with_crc(future);
     let sketch_data: Vec<u8> = (0..PAGE).map(|i| (i * 7 + 3) as u8).collect();
     let cases: Vec<(&str, Vec<u8>)> = vec![
@@ -226,7 +237,8 @@ fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
         ("A a NaN with a good CRC", region_of(Some(&nan), None)),
         ("A an unknown version", region_of(Some(&future), Some(&enc(&rec(2))))),
         ("v2 in B", region_of(None, Some(&v2))),
-        ("v1 in A, v3 older in B", region_of(Some(&v1), Some(&enc(&rec(6))))),
+        ("v1 in A, v4 older in B", region_of(Some(&v1), Some(&enc(&rec(6))))),
+        ("v3 in B, v4 older in A", region_of(Some(&enc(&rec(5))), Some(&v3))),
         ("both erased", region_of(None, None)),
         ("a sketch's data over both", [&sketch_data[..], &sketch_data[..]].concat()),
     ];
@@ -267,7 +279,43 @@ fn arduino_lsm9ds1_readings_are_put_back_in_datasheet_units() {
     }
     assert!((l.outs[0][0] / (1000.0 * 2000.0 / 32768.0) - 1.0 - 0.146_88).abs() < 1e-5, "its gyro reads 12.8 % low");
     // With a record made at its configuration: calibrated as calib-core calibrates the datasheet units.
-    let preset = Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 }, ..*record() };
+    let preset =
+        Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, ..SensorSetup::DEFAULT }, ..*record() };
     let l = load(&region::image(&preset).unwrap(), Some(ARDUINO_LSM9DS1), &lib);
     same_as_calib_core(&l, &preset, 0, &datasheet);
+}
+
+#[test]
+fn a_rev2_record_applies_to_arduino_bmi270_readings_and_never_to_an_lsm9ds1_s() {
+    // A record made on a Rev2 at Arduino_BMI270_BMM150's setup, with a factory trim of -23/512.
+    let sensor = Sensor::Bmi270 { gyr_cas: -23, user_gain: false };
+    let mut rec = Record { setup: SensorSetup { odr_hz: 100.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, sensor }, ..*record() };
+    rec.gyro_k[0][2] = 0.004;
+    let region = region::image(&rec).unwrap();
+    // What that library returns for raw readings: Bosch's CAS on counts (C's truncating division),
+    // then x = -y, y = -x; in its units (2000/32768 dps, 4/32768 g per count). (Where Bosch's x
+    // saturates at ±32768 counts no loader can undo it.)
+    let counts = [[1000i32, -2000, 32767, 8192, -16384, 4096], [-30000, 5, -517, 1, -1, 30000]];
+    let (dps, g) = (2000.0f32 / 32768.0, 4.0f32 / 32768.0);
+    let datasheet: Vec<[f32; 6]> = counts.iter().map(|c| std::array::from_fn(|i| c[i] as f32 * if i < 3 { dps } else { g })).collect();
+    let lib: Vec<(&str, [f32; 6])> = counts
+        .iter()
+        .map(|c| {
+            let x = (c[0] - (-23 * c[2]) / 512).clamp(-32768, 32767);
+            ("bmi", [-c[1] as f32 * dps, -x as f32 * dps, c[2] as f32 * dps, -c[4] as f32 * g, -c[3] as f32 * g, c[5] as f32 * g])
+        })
+        .collect();
+    let l = load(&region, Some(ARDUINO_BMI270), &lib);
+    // Calibrated as calib-core calibrates the raw readings, to CAS's truncation (< 1 count of x).
+    assert!(l.ok, "{l:?}");
+    for (out, r) in l.outs.iter().zip(&datasheet) {
+        let want = [rec.apply_gyro([r[0], r[1], r[2]]), rec.accel().apply([r[3], r[4], r[5]])].concat();
+        for i in 0..6 {
+            assert!((out[i] - want[i]).abs() <= 1.5 * dps, "{out:?} vs {want:?}");
+        }
+    }
+    same_as_calib_core(&load(&region, Some(ARDUINO_BMI270), &raw(&datasheet)), &rec, 0, &datasheet);
+    // The same numbers on an LSM9DS1 (a program for a Rev1 board): refused.
+    let l = load(&region, Some([100.0, 2000.0, 4.0, 0.0]), &[]);
+    assert!(!l.ok && l.status == 2, "{l:?}");
 }

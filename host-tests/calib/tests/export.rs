@@ -98,7 +98,7 @@ fn exact_record() -> Record {
         accel_rms_g: 0.0078125,
         residual_rms: 0.015625,
         non_coplanar_deg: 54.125,
-        setup: SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0 },
+        setup: SensorSetup { odr_hz: 952.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, ..SensorSetup::DEFAULT },
         tempco: Some(TempCo {
             dps_per_c: [0.03125, -0.046875, 0.015625],
             sigma_dps_per_c: [0.015625, 0.03125, 0.0625],

@@ -2,6 +2,7 @@
 //! absence, the power-save access gap, the configuration upload and its check, invalid
 //! configurations), and the configuration file against Bosch's published array.
 
+use calib_core::record::{Sensor, SensorSetup};
 use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
 use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG};
 use sha2::{Digest, Sha256};
@@ -65,6 +66,21 @@ fn the_driver_brings_the_bmi270_up_as_boschs_api_does_and_reads_the_rig() {
     assert_eq!(accel, [0.0, 0.0, 1.0]);
     assert!((gyro[0] - 0.3).abs() <= 0.5 / 65.536 && gyro[1] == 0.0, "{gyro:?}");
     assert_eq!(s.config(), Config::DEFAULT);
+    // The part's GYR_CAS and user gain, as the record states them.
+    let sensor = Sensor::Bmi270 { gyr_cas: rig_sim::bmi_model::GYR_CAS, user_gain: false };
+    assert_eq!(s.setup(), SensorSetup { odr_hz: 100.0, gyro_range_dps: 500.0, accel_range_g: 2.0, sensor });
+}
+
+#[test]
+fn gyr_cas_is_read_from_feature_page_0_as_seven_bit_twos_complement() {
+    assert_eq!([bmi270::gyr_cas(0x3F), bmi270::gyr_cas(0x40), bmi270::gyr_cas(0x7F), bmi270::gyr_cas(0xC1)], [63, -64, -1, -63]);
+    for (cas, gain) in [(-64, true), (63, false), (0, true)] {
+        let b = bus();
+        b.0.borrow_mut().gyr_cas = cas;
+        b.0.borrow_mut().user_gain_after_reset = gain;
+        let s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+        assert_eq!(s.setup().sensor, Sensor::Bmi270 { gyr_cas: cas, user_gain: gain }, "{cas}");
+    }
 }
 
 #[test]

@@ -30,7 +30,7 @@ prop_compose! {
             poses, rows, sigma_k: [[s[0], s[1], s[2]], [s[3], s[4], s[5]], [s[6], s[7], s[8]]],
             invariant_before_rel: q[0], invariant_after_rel: q[1], condition: q[2],
             tilt_deg: q[3], span_deg: q[4], accel_rms_g: q[5], residual_rms: q[6], non_coplanar_deg: q[7],
-            setup: SensorSetup { odr_hz: setup[0], gyro_range_dps: setup[1], accel_range_g: setup[2] },
+            setup: SensorSetup { odr_hz: setup[0], gyro_range_dps: setup[1], accel_range_g: setup[2], ..SensorSetup::DEFAULT },
             tempco: tempco.map(|t| TempCo { dps_per_c: [t[0], t[1], t[2]], sigma_dps_per_c: [t[3], t[4], t[5]], range_c: [t[6], t[7]] }),
         }
     }

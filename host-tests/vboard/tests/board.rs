@@ -1,5 +1,6 @@
 //! The real firmware ELF on the emulated board: calibration end to end, reboot, and faults.
 
+use calib_core::record::Sensor;
 use gyrocal_fw::lsm9ds1::SensorError;
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
@@ -65,6 +66,8 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
     assert_eq!(b.run_for(5.0), Stop::Time);
     let ready = b.mcu.log.iter().filter(|l| l.contains("Nano 33 BLE Rev2: BMI270 ready")).count();
     assert_eq!(ready, 1, "{:?}", b.mcu.log);
+    // Its GYR_CAS read from feature page 0 (the model's part: -7) and the user gain off.
+    assert!(b.mcu.log.iter().any(|l| l.contains("GYR_CAS -7 (not applied), user gain off")), "{:?}", b.mcu.log);
     assert_eq!(b.mcu.resets, 0);
     assert!(!b.leds().red, "{:?}", b.mcu.log);
 }
@@ -77,6 +80,8 @@ fn a_rev2_board_calibrates_with_its_bmi270() {
     assert_eq!(b.calibrate(600.0), Outcome::Done, "{:?}", b.mcu.log.iter().rev().take(8).collect::<Vec<_>>());
     let rec = b.stored().expect("a record");
     assert_eq!((rec.setup.odr_hz, rec.setup.gyro_range_dps, rec.setup.accel_range_g), (100.0, 500.0, 2.0));
+    // The record names its part (a record of the other part is never applied: its setup differs).
+    assert_eq!(rec.setup.sensor, Sensor::Bmi270 { gyr_cas: rig_sim::bmi_model::GYR_CAS, user_gain: false });
     let (scale, cross) = b.k_errors_pct(&rec);
     println!("MEASURED rev2 max_scale_error_pct={scale:.4} max_cross_axis_pct={cross:.4}");
     assert!(scale < 0.1 && cross < 0.1, "{scale} % {cross} %");

@@ -1,17 +1,20 @@
-/* GyroCal: the record layout of calib-core's record.rs (versions 1-3) and the page choice of its
+/* GyroCal: the record layout of calib-core's record.rs (versions 1-4) and the page choice of its
  * region.rs, in C99 with no heap and no libm. See gyrocal.h. */
 #include "gyrocal.h"
 
 #include <stddef.h>
 #include <string.h>
 
-const struct gyrocal_setup GYROCAL_SETUP_DEFAULT = {119.0f, 500.0f, 2.0f};
-const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_LSM9DS1 = {119.0f, 2000.0f, 4.0f};
+const struct gyrocal_setup GYROCAL_SETUP_DEFAULT = {119.0f, 500.0f, 2.0f, GYROCAL_LSM9DS1};
+const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_LSM9DS1 = {119.0f, 2000.0f, 4.0f, GYROCAL_LSM9DS1};
+const struct gyrocal_setup GYROCAL_SETUP_BMI270_DEFAULT = {100.0f, 500.0f, 2.0f, GYROCAL_BMI270};
+const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_BMI270 = {100.0f, 2000.0f, 4.0f, GYROCAL_BMI270};
 
 /* Record lengths (bytes) by version; the CRC-32 is the last 4 bytes. */
 #define LEN_V1 156u
 #define LEN_V2 188u
 #define LEN_V3 232u
+#define LEN_V4 236u
 /* Flags: bit 0 the temperature is unknown, bit 1 (v3) the tempco is unknown. */
 #define TEMP_UNKNOWN 1u
 #define TEMPCO_UNKNOWN 2u
@@ -75,13 +78,14 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
     case 1: len = LEN_V1; break;
     case 2: len = LEN_V2; break;
     case 3: len = LEN_V3; break;
+    case 4: len = LEN_V4; break;
     default: return false;
     }
     if (u32_le(b + len - 4) != crc32(b, len - 4) || b[5] > 2 || b[6] > 2) {
         return false;
     }
     uint16_t flags = (uint16_t)(b[14] | b[15] << 8);
-    uint16_t known = len == LEN_V3 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN) : TEMP_UNKNOWN;
+    uint16_t known = len >= LEN_V3 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN) : TEMP_UNKNOWN;
     if (flags & ~known) {
         return false;
     }
@@ -105,7 +109,7 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
     if (len >= LEN_V2) {
         next_f32s(&r, skip, 2);
     }
-    if (len == LEN_V3) {
+    if (len >= LEN_V3) {
         cal->setup.odr_hz = next_f32(&r);
         cal->setup.gyro_range_dps = next_f32(&r);
         cal->setup.accel_range_g = next_f32(&r);
@@ -116,11 +120,25 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
             memset(cal->tempco_dps_per_c, 0, sizeof cal->tempco_dps_per_c);
         }
     }
+    if (len == LEN_V4) {
+        /* The part, GYR_CAS (7-bit range), flags (bit 0 user gain), a reserved 0. */
+        const uint8_t *p = b + LEN_V3 - 4;
+        int8_t cas = (int8_t)p[1];
+        if (p[0] == 0 && p[1] == 0 && p[2] == 0 && p[3] == 0) {
+            cal->setup.sensor = GYROCAL_LSM9DS1;
+        } else if (p[0] == 1 && cas >= -64 && cas <= 63 && (p[2] & ~1u) == 0 && p[3] == 0) {
+            cal->setup.sensor = GYROCAL_BMI270;
+            cal->gyr_cas = cas;
+            cal->user_gain = p[2] == 1;
+        } else {
+            return false;
+        }
+    }
     return r.finite;
 }
 
 static bool erased(const uint8_t *b) {
-    for (uint32_t i = 0; i < LEN_V3; i++) {
+    for (uint32_t i = 0; i < LEN_V4; i++) {
         if (b[i] != 0xFF) {
             return false;
         }
@@ -146,7 +164,8 @@ bool gyrocal_load(const void *region, struct gyrocal *cal) {
 }
 
 static bool same_setup(const struct gyrocal_setup *a, const struct gyrocal_setup *b) {
-    return a->odr_hz == b->odr_hz && a->gyro_range_dps == b->gyro_range_dps && a->accel_range_g == b->accel_range_g;
+    return a->odr_hz == b->odr_hz && a->gyro_range_dps == b->gyro_range_dps && a->accel_range_g == b->accel_range_g &&
+           a->sensor == b->sensor;
 }
 
 bool gyrocal_load_for(const void *region, const struct gyrocal_setup *runs_at, struct gyrocal *cal) {
@@ -204,7 +223,7 @@ const char *gyrocal_status_str(enum gyrocal_status status) {
     switch (status) {
     case GYROCAL_OK: return "calibration loaded";
     case GYROCAL_NO_RECORD: return "no valid record (never calibrated, or the pages at 0xF8000 were overwritten)";
-    case GYROCAL_OTHER_SETUP: return "the record was made at another ODR or full scale: recalibrate at this one";
+    case GYROCAL_OTHER_SETUP: return "the record was made with another sensor, ODR or full scale: recalibrate at this one";
     }
     return "unknown status";
 }
@@ -220,5 +239,20 @@ void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]) {
         if (accel_g) {
             accel_g[i] *= accel;
         }
+    }
+}
+
+void gyrocal_from_arduino_bmi270(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]) {
+    float *v[2] = {gyro_dps, accel_g};
+    for (int k = 0; k < 2; k++) {
+        if (v[k]) {
+            /* Its x = -y, y = -x is its own inverse. */
+            float x = -v[k][1];
+            v[k][1] = -v[k][0];
+            v[k][0] = x;
+        }
+    }
+    if (gyro_dps) {
+        gyro_dps[0] += (float)cal->gyr_cas * gyro_dps[2] / 512.0f;
     }
 }

@@ -9,9 +9,13 @@
  * Model and units (the same as the firmware and every export):
  *   gyro   out_dps = K (raw_dps - bias_dps)        K row-major, raw in the datasheet's units
  *   accel  out_g   = M (raw_g - offset_g)
- * "raw" is the sensor's counts times the LSM9DS1 datasheet sensitivity at the range the record
- * was made at (e.g. 70 mdps/LSB at +-2000 dps). Arduino_LSM9DS1 returns other units: pass its
- * readings through gyrocal_from_arduino_lsm9ds1() first.
+ * "raw" is the sensor's counts times its datasheet sensitivity at the range the record was made
+ * at, in the sensor's own axes: on a Rev1 board the LSM9DS1's (e.g. 70 mdps/LSB at +-2000 dps),
+ * on a Rev2 the BMI270's (range/32768 per LSB) with its GYR_CAS trim NOT applied.
+ * Arduino_LSM9DS1 returns other units: pass its readings through gyrocal_from_arduino_lsm9ds1()
+ * first; Arduino_BMI270_BMM150 applies GYR_CAS and remaps the axes (x = -y, y = -x): pass its
+ * readings through gyrocal_from_arduino_bmi270() first (the outputs are then in the sensor's axes:
+ * remap them as that library does if your program works in its axes).
  *
  * A K holds for the configuration it was measured at (the gyro's sensitivity is trimmed per full
  * scale), so load with the configuration your program runs the sensor at: a record made at
@@ -34,11 +38,18 @@ extern "C" {
 /** The region gyrocal_load() reads: both pages. */
 #define GYROCAL_REGION_SIZE (2u * GYROCAL_PAGE_SIZE)
 
+/** The part a calibration was made with. */
+enum gyrocal_sensor {
+    GYROCAL_LSM9DS1 = 0, /**< Nano 33 BLE (Rev1) */
+    GYROCAL_BMI270 = 1   /**< Nano 33 BLE Rev2 */
+};
+
 /** The sensor configuration a calibration was made at. */
 struct gyrocal_setup {
-    float odr_hz;         /**< output data rate (Hz) */
-    float gyro_range_dps; /**< gyro full scale (dps) */
-    float accel_range_g;  /**< accelerometer full scale (g) */
+    float odr_hz;                /**< output data rate (Hz) */
+    float gyro_range_dps;        /**< gyro full scale (dps) */
+    float accel_range_g;         /**< accelerometer full scale (g) */
+    enum gyrocal_sensor sensor;  /**< the part */
 };
 
 /** The firmware's default: LSM9DS1 at 119 Hz, +-500 dps, +-2 g. */
@@ -47,6 +58,11 @@ extern const struct gyrocal_setup GYROCAL_SETUP_DEFAULT;
  *  +-2000 dps, +-4 g. The firmware calibrates at it when built with `--features arduino-lsm9ds1`
  *  or after the console command `p`. */
 extern const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_LSM9DS1;
+/** The Rev2 firmware's own: BMI270 at 100 Hz, +-500 dps, +-2 g. */
+extern const struct gyrocal_setup GYROCAL_SETUP_BMI270_DEFAULT;
+/** What Arduino_BMI270_BMM150's IMU.begin() sets: BMI270 at 100 Hz, +-2000 dps, +-4 g. The
+ *  firmware calibrates a Rev2 at it after the console command `p`. */
+extern const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_BMI270;
 
 /** Why a load gave no calibration. */
 enum gyrocal_status {
@@ -61,9 +77,11 @@ struct gyrocal {
     enum gyrocal_status status;
     uint32_t seq;               /**< the record's sequence number */
     uint8_t page;               /**< which page it came from (0 = A at 0xF8000, 1 = B) */
-    uint8_t version;            /**< record format version (1..3) */
+    uint8_t version;            /**< record format version (1..4) */
     uint8_t method;             /**< gyro estimator: 0 paper, 1 sweep, 2 full 3x3 K */
     struct gyrocal_setup setup; /**< the configuration it was made at */
+    int8_t gyr_cas;             /**< a BMI270's GYR_CAS (z to x trim, per 512), 0 for an LSM9DS1 */
+    bool user_gain;             /**< a BMI270's gyro user gain (CRT) was on when it was made */
     float gyro_k[3][3];         /**< K, row-major (unitless) */
     float gyro_bias_dps[3];     /**< gyro bias (dps) at temp_c */
     float accel_m[3][3];        /**< M, row-major (unitless) */
@@ -99,6 +117,12 @@ const char *gyrocal_status_str(enum gyrocal_status status);
  *  in the datasheet's units at its +-2000 dps / +-4 g (70 mdps and 0.122 mg per LSB): the library's
  *  gyro reads 12.8 % low. Either pointer may be NULL; arrays are converted in place. */
 void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]);
+
+/** Arduino_BMI270_BMM150's readGyroscope() and readAcceleration() (its units are the datasheet's:
+ *  counts * range/32768) back in the BMI270's raw axes: its remap x = -y, y = -x undone, then the
+ *  GYR_CAS it applied (x - cas z / 512) undone with the record's `cal->gyr_cas`. Either pointer
+ *  may be NULL; arrays are converted in place. */
+void gyrocal_from_arduino_bmi270(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]);
 
 #ifdef __cplusplus
 }

@@ -13,6 +13,7 @@ use calib::port::{self, Options};
 use calib::{csvlog, offline};
 use calib_core::accel::AccelModel;
 use calib_core::export::{self, Format, RecordJson};
+use calib_core::frame::DataFrame;
 use calib_core::gyro::Method;
 use calib_core::record::Record;
 use calib_core::region;
@@ -82,6 +83,28 @@ struct Args {
     /// With --export: the file to write it to (the usual output stays on stdout).
     #[arg(long, value_name = "FILE", requires = "export")]
     out: Option<PathBuf>,
+    /// With --export c|rust: the calibration for data read another way than raw, for a BMI270
+    /// (Rev2) record: `bosch` as Bosch's BMI270_SensorAPI returns them (GYR_CAS applied),
+    /// `arduino` as Arduino_BMI270_BMM150 does (CAS applied, then x = -y, y = -x).
+    #[arg(long, value_enum, default_value_t = FrameArg::Raw, requires = "export")]
+    frame: FrameArg,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
+enum FrameArg {
+    Raw,
+    Bosch,
+    Arduino,
+}
+
+impl FrameArg {
+    fn frame(self) -> DataFrame {
+        match self {
+            FrameArg::Raw => DataFrame::Raw,
+            FrameArg::Bosch => DataFrame::BoschApi,
+            FrameArg::Arduino => DataFrame::ArduinoBmi270,
+        }
+    }
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -124,9 +147,19 @@ enum ExportArg {
 /// The export of `rec`: JSON through its serde schema ([`RecordJson`], the one the board writes
 /// by hand), C and Rust by `calib_core::export` (text, ending in a newline), the record pages by
 /// `calib_core::region::image`.
-fn export_bytes(rec: &Record, format: ExportArg) -> Result<Vec<u8>, String> {
+fn export_bytes(rec: &Record, format: ExportArg, frame: FrameArg) -> Result<Vec<u8>, String> {
     let failed = |e: &dyn std::fmt::Display| format!("--export: the record could not be written: {e}");
     let mut text = String::new();
+    if frame != FrameArg::Raw {
+        rec.in_frame(frame.frame()).map_err(|e| format!("--frame: {e}"))?;
+        let f = match format {
+            ExportArg::C => Format::C,
+            ExportArg::Rust => Format::Rust,
+            ExportArg::Json | ExportArg::Record => return Err("--frame: JSON and the record are always the raw record".into()),
+        };
+        export::write_in(&mut text, rec, f, frame.frame()).map_err(|e| failed(&e))?;
+        return Ok((text + "\n").into_bytes());
+    }
     match format {
         ExportArg::Record => return region::image(rec).map(|r| r.to_vec()).map_err(|e| failed(&e)),
         ExportArg::Json => text = serde_json::to_string(&RecordJson::from(rec)).map_err(|e| failed(&e))?,
@@ -137,12 +170,12 @@ fn export_bytes(rec: &Record, format: ExportArg) -> Result<Vec<u8>, String> {
 }
 
 /// Prints `usual` on stdout unless the export goes there instead; writes the export.
-fn output(usual: &str, export: Option<(&Record, ExportArg)>, out: Option<&Path>) -> Result<(), String> {
-    let Some((rec, format)) = export else {
+fn output(usual: &str, export: Option<(&Record, ExportArg, FrameArg)>, out: Option<&Path>) -> Result<(), String> {
+    let Some((rec, format, frame)) = export else {
         println!("{usual}");
         return Ok(());
     };
-    let bytes = export_bytes(rec, format)?;
+    let bytes = export_bytes(rec, format, frame)?;
     match out {
         Some(path) => {
             println!("{usual}");
@@ -176,7 +209,7 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     match result {
         Ok(o) => {
             eprintln!("calib: the board's log is in {} ({} lines)", opts.log.display(), o.lines);
-            if let Err(e) = output(&o.json, args.export.map(|f| (&o.record, f)), args.out.as_deref()) {
+            if let Err(e) = output(&o.json, args.export.map(|f| (&o.record, f, args.frame)), args.out.as_deref()) {
                 return fail(2, e);
             }
             // The report of the saved log, replayed from the record the board started with.
@@ -278,7 +311,7 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
     if args.export.is_some() && record.is_none() {
         return fail(4, format!("{path}: --export: no gyro calibration to export (partial: {})", missing.join("; ")));
     }
-    if let Err(e) = output(&c.json(log.messages), args.export.zip(record.as_ref()).map(|(f, r)| (r, f)), args.out.as_deref()) {
+    if let Err(e) = output(&c.json(log.messages), args.export.zip(record.as_ref()).map(|(f, r)| (r, f, args.frame)), args.out.as_deref()) {
         return fail(2, e);
     }
     for m in &missing {

@@ -1,7 +1,8 @@
 /* The GyroCal Arduino library on the host, for tests/arduino.rs.
- * gyrocal_check REGION [ODR GYRO_RANGE ACCEL_RANGE]: loads the 8 KiB region (with the setup: as
- * gyrocal_load_for) and prints what it loaded; then each stdin line `raw g0 g1 g2 a0 a1 a2`
- * (datasheet units) or `lib ...` (Arduino_LSM9DS1's units) is printed calibrated. */
+ * gyrocal_check REGION [ODR GYRO_RANGE ACCEL_RANGE SENSOR]: loads the 8 KiB region (with the
+ * setup, SENSOR 0 LSM9DS1 or 1 BMI270: as gyrocal_load_for) and prints what it loaded; then each
+ * stdin line `raw g0 g1 g2 a0 a1 a2` (datasheet units), `lib ...` (Arduino_LSM9DS1's readings) or
+ * `bmi ...` (Arduino_BMI270_BMM150's) is printed calibrated. */
 #include "gyrocal.h"
 
 #include <stdio.h>
@@ -20,8 +21,8 @@ int main(int argc, char **argv) {
     static unsigned char region[GYROCAL_REGION_SIZE + 1];
     struct gyrocal cal;
     bool ok;
-    if (argc != 2 && argc != 5) {
-        fprintf(stderr, "usage: gyrocal_check REGION [ODR GYRO_RANGE ACCEL_RANGE]\n");
+    if (argc != 2 && argc != 6) {
+        fprintf(stderr, "usage: gyrocal_check REGION [ODR GYRO_RANGE ACCEL_RANGE SENSOR]\n");
         return 2;
     }
     FILE *f = fopen(argv[1], "rb");
@@ -30,8 +31,9 @@ int main(int argc, char **argv) {
         return 2;
     }
     fclose(f);
-    if (argc == 5) {
-        struct gyrocal_setup s = {strtof(argv[2], NULL), strtof(argv[3], NULL), strtof(argv[4], NULL)};
+    if (argc == 6) {
+        struct gyrocal_setup s = {strtof(argv[2], NULL), strtof(argv[3], NULL), strtof(argv[4], NULL),
+                                  atoi(argv[5]) == 1 ? GYROCAL_BMI270 : GYROCAL_LSM9DS1};
         ok = gyrocal_load_for(region, &s, &cal);
     } else {
         ok = gyrocal_load(region, &cal);
@@ -42,6 +44,9 @@ int main(int argc, char **argv) {
     floats("setup", &cal.setup.odr_hz, 1);
     floats("gyro_range", &cal.setup.gyro_range_dps, 1);
     floats("accel_range", &cal.setup.accel_range_g, 1);
+    printf("sensor %d\n", (int)cal.setup.sensor);
+    printf("gyr_cas %d\n", (int)cal.gyr_cas);
+    printf("user_gain %d\n", cal.user_gain);
     printf("temp_known %d\n", cal.temp_known);
     floats("temp", &cal.temp_c, 1);
     printf("tempco_known %d\n", cal.tempco_known);
@@ -55,6 +60,8 @@ int main(int argc, char **argv) {
     while (scanf("%7s %f %f %f %f %f %f", kind, &in[0], &in[1], &in[2], &in[3], &in[4], &in[5]) == 7) {
         if (strcmp(kind, "lib") == 0) {
             gyrocal_from_arduino_lsm9ds1(in, in + 3);
+        } else if (strcmp(kind, "bmi") == 0) {
+            gyrocal_from_arduino_bmi270(&cal, in, in + 3);
         }
         gyrocal_gyro_dps(&cal, in, in);
         gyrocal_accel_g(&cal, in + 3, in + 3);

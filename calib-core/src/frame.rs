@@ -1,0 +1,146 @@
+//! A record's calibration for data read another way than raw. A record maps its part's raw
+//! sensor axes in datasheet units ([`crate::record::Sensor`]); a BMI270 read through Bosch's
+//! BMI270_SensorAPI has its factory z→x trim applied (`x − GYR_CAS · z / 512`, gyro only), and
+//! through Arduino_BMI270_BMM150 (1.2.3 on the Nano 33 BLE) that and then its axis remap
+//! `x = −y, y = −x` (a reflection, gyro and accelerometer alike).
+//!
+//! With the data `g' = A g`, `a' = B a` and the outputs in the same axes as the data (`ω' = T ω`,
+//! `f' = T f`): `K' = T K A⁻¹`, `b' = A b`, `M' = T M B⁻¹`, `o' = B o`, the bias tempco `A c`;
+//! each element's 1σ is propagated as from independent elements. Sources: `docs/rev2-sources.md`
+//! §2.9 (CAS) and §4 (the remap).
+
+use crate::record::{Record, Sensor};
+use crate::{Mat3, Vec3};
+
+/// How the data a calibration is applied to were read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DataFrame {
+    /// Raw sensor axes, datasheet units: what the record holds.
+    Raw,
+    /// A BMI270 through Bosch's API: GYR_CAS applied, sensor axes.
+    BoschApi,
+    /// A BMI270 through Arduino_BMI270_BMM150: GYR_CAS applied, then `x = −y, y = −x`.
+    ArduinoBmi270,
+}
+
+impl DataFrame {
+    /// What the data are, for an export's header.
+    pub fn describe(self) -> &'static str {
+        match self {
+            DataFrame::Raw => "raw sensor axes, datasheet units (nothing applied)",
+            DataFrame::BoschApi => "BMI270 as Bosch's API returns it: GYR_CAS applied (x - cas z / 512), sensor axes",
+            DataFrame::ArduinoBmi270 => "Arduino_BMI270_BMM150's readings: GYR_CAS applied, then its axes x = -y, y = -x",
+        }
+    }
+}
+
+/// A frame the record's part has no such reading for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NotThisPart;
+
+impl core::fmt::Display for NotThisPart {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("that data frame is a BMI270's; the record was made with an LSM9DS1")
+    }
+}
+
+/// Arduino_BMI270_BMM150's remap (its own inverse).
+const REMAP: Mat3 = [[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
+const I: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+fn mul(a: &Mat3, b: &Mat3) -> Mat3 {
+    core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+}
+
+fn mul_v(a: &Mat3, v: &Vec3) -> Vec3 {
+    core::array::from_fn(|i| (0..3).map(|k| a[i][k] * v[k]).sum())
+}
+
+/// `T X U` for every element's 1σ: `σ'ᵢⱼ² = Σ Tᵢₖ² σₖₗ² Uₗⱼ²`.
+fn sigma(t: &Mat3, s: &Mat3, u: &Mat3) -> Mat3 {
+    let sq = |m: &Mat3| m.map(|r| r.map(|x| x * x));
+    mul(&mul(&sq(t), &sq(s)), &sq(u)).map(|r| r.map(libm::sqrtf))
+}
+
+impl Record {
+    /// This record's calibration for data read as `frame`.
+    pub fn in_frame(&self, frame: DataFrame) -> Result<Record, NotThisPart> {
+        let cas = match (frame, self.setup.sensor) {
+            (DataFrame::Raw, _) => return Ok(*self),
+            (_, Sensor::Lsm9ds1) => return Err(NotThisPart),
+            (_, Sensor::Bmi270 { gyr_cas, .. }) => gyr_cas as f32 / 512.0,
+        };
+        // Bosch's correction C (x −= cas z) and its inverse.
+        let c = [[1.0, 0.0, -cas], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let c_inv = [[1.0, 0.0, cas], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let t = if frame == DataFrame::ArduinoBmi270 { REMAP } else { I };
+        // Gyro data A = T C (A⁻¹ = C⁻¹ T), accelerometer data B = T (B⁻¹ = T).
+        let (a, a_inv) = (mul(&t, &c), mul(&c_inv, &t));
+        Ok(Record {
+            gyro_k: mul(&mul(&t, &self.gyro_k), &a_inv),
+            gyro_bias_dps: mul_v(&a, &self.gyro_bias_dps),
+            sigma_k: sigma(&t, &self.sigma_k, &a_inv),
+            accel_m: mul(&mul(&t, &self.accel_m), &t),
+            accel_offset_g: mul_v(&t, &self.accel_offset_g),
+            tempco: self.tempco.map(|mut tc| {
+                tc.dps_per_c = mul_v(&a, &tc.dps_per_c);
+                tc.sigma_dps_per_c = mul_v(&a.map(|r| r.map(f32::abs)), &tc.sigma_dps_per_c);
+                tc
+            }),
+            ..*self
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::tests::sample;
+    use crate::record::SensorSetup;
+
+    /// Bosch's CAS on raw counts, then Arduino's remap (`bmi2.c`'s `comp_gyro_cross_axis_sensitivity`,
+    /// `BMI270.cpp`'s readGyroscope) — in °/s, without the integer truncation.
+    fn arduino_reading(g: Vec3, cas: i8) -> Vec3 {
+        let x = g[0] - cas as f32 * g[2] / 512.0;
+        [-g[1], -x, g[2]]
+    }
+
+    #[test]
+    fn the_calibration_in_another_frame_gives_the_same_rate_in_its_axes() {
+        let sensor = Sensor::Bmi270 { gyr_cas: -23, user_gain: false };
+        let mut rec = Record { setup: SensorSetup { sensor, ..SensorSetup::DEFAULT }, ..sample() };
+        rec.gyro_k[0][2] = 0.004;
+        rec.gyro_k[2][1] = -0.003;
+        let raw = [12.0, -40.0, 75.0];
+        let omega = rec.apply_gyro(raw);
+        let bosch = rec.in_frame(DataFrame::BoschApi).unwrap();
+        let via_bosch = bosch.apply_gyro([raw[0] + 23.0 * raw[2] / 512.0, raw[1], raw[2]]);
+        let ard = rec.in_frame(DataFrame::ArduinoBmi270).unwrap();
+        let via_ard = ard.apply_gyro(arduino_reading(raw, -23));
+        for i in 0..3 {
+            assert!((via_bosch[i] - omega[i]).abs() < 1e-4, "{via_bosch:?} {omega:?}");
+        }
+        // Arduino's axes: x = −y, y = −x.
+        let expect = [-omega[1], -omega[0], omega[2]];
+        for i in 0..3 {
+            assert!((via_ard[i] - expect[i]).abs() < 1e-4, "{via_ard:?} {expect:?}");
+        }
+        // The accelerometer likewise (no CAS on it).
+        let a = [0.3, -0.5, 0.8];
+        let f = mul_v(&rec.accel_m, &core::array::from_fn(|i| a[i] - rec.accel_offset_g[i]));
+        let a_ard = [-a[1], -a[0], a[2]];
+        let f_ard = mul_v(&ard.accel_m, &core::array::from_fn(|i| a_ard[i] - ard.accel_offset_g[i]));
+        for i in 0..3 {
+            assert!((f_ard[i] - [-f[1], -f[0], f[2]][i]).abs() < 1e-6);
+        }
+        // The remap moves the 1σ with the elements.
+        assert!((ard.sigma_k[0][0] - rec.sigma_k[1][1]).abs() < 1e-9 && (ard.sigma_k[1][0] - rec.sigma_k[0][1]).abs() < 1e-9);
+        assert_eq!(rec.in_frame(DataFrame::Raw), Ok(rec));
+    }
+
+    #[test]
+    fn an_lsm9ds1_record_has_no_bmi270_frame() {
+        assert_eq!(sample().in_frame(DataFrame::BoschApi), Err(NotThisPart));
+        assert_eq!(sample().in_frame(DataFrame::ArduinoBmi270), Err(NotThisPart));
+    }
+}
