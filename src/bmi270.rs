@@ -153,20 +153,34 @@ pub struct Config {
     pub gyro_range_dps: u16,
     /// Accelerometer full scale (g): 2, 4, 8 or 16.
     pub accel_range_g: u8,
+    /// Arduino_BMI270_BMM150's filter settings (bwp OSR2 for both sensors, gyro noise_perf
+    /// off, ois_range 2000) instead of the normal bandwidth with both performance modes.
+    pub arduino_filters: bool,
 }
 
 impl Config {
     /// 100 Hz, ±500 °/s, ±2 g: as close to the LSM9DS1 default as the BMI270 goes.
-    pub const DEFAULT: Config = Config { odr: Odr::Hz100, gyro_range_dps: 500, accel_range_g: 2 };
+    pub const DEFAULT: Config = Config { odr: Odr::Hz100, gyro_range_dps: 500, accel_range_g: 2, arduino_filters: false };
+    /// What Arduino_BMI270_BMM150 1.2.3's `IMU.begin()` sets (its `configure_sensor`): 100 Hz,
+    /// ±2000 °/s, ±4 g, ACC_CONF 0x98, GYR_CONF 0x98 (its noise_perf is an uninitialised field;
+    /// 0 taken), GYR_RANGE 0x08.
+    pub const ARDUINO: Config = Config { odr: Odr::Hz100, gyro_range_dps: 2000, accel_range_g: 4, arduino_filters: true };
 
-    /// ACC_CONF: the ODR, the normal bandwidth (bwp 2, NORMAL_AVG4), performance mode.
+    /// ACC_CONF: the ODR, performance mode, the normal bandwidth (bwp 2, NORMAL_AVG4) or
+    /// Arduino's (bwp 1, OSR2_AVG2).
     pub const fn acc_conf(&self) -> u8 {
-        0x80 | (2 << 4) | self.odr.code()
+        let bwp = if self.arduino_filters { 1 } else { 2 };
+        0x80 | (bwp << 4) | self.odr.code()
     }
 
-    /// GYR_CONF: the ODR, normal bandwidth (code 2), noise and filter performance modes.
+    /// GYR_CONF: the ODR, filter performance mode, and the normal bandwidth (code 2) with noise
+    /// performance mode, or Arduino's OSR2 (code 1) without.
     pub const fn gyr_conf(&self) -> u8 {
-        0x80 | 0x40 | (2 << 4) | self.odr.code()
+        if self.arduino_filters {
+            0x80 | (1 << 4) | self.odr.code()
+        } else {
+            0x80 | 0x40 | (2 << 4) | self.odr.code()
+        }
     }
 
     /// ACC_RANGE, or `None` for a full scale the part does not have.
@@ -180,14 +194,16 @@ impl Config {
         }
     }
 
-    /// GYR_RANGE, or `None` for a full scale the part does not have.
+    /// GYR_RANGE (with Arduino's filters its ois_range bit 3, ±2000 °/s, as it writes it), or
+    /// `None` for a full scale the part does not have.
     pub const fn gyr_range(&self) -> Option<u8> {
+        let ois = if self.arduino_filters { 0x08 } else { 0 };
         match self.gyro_range_dps {
-            2000 => Some(0),
-            1000 => Some(1),
-            500 => Some(2),
-            250 => Some(3),
-            125 => Some(4),
+            2000 => Some(ois),
+            1000 => Some(1 | ois),
+            500 => Some(2 | ois),
+            250 => Some(3 | ois),
+            125 => Some(4 | ois),
             _ => None,
         }
     }

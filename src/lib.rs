@@ -3,7 +3,8 @@
 //!
 //! - [`bootloader`]: which Arduino bootloader, and whether the record pages are safe to write.
 //! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C;
-//!   [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it.
+//!   [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it; [`bmm150`]: its
+//!   magnetometer, found and left in suspend.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
@@ -16,6 +17,7 @@
 #![deny(missing_docs)]
 
 pub mod bmi270;
+pub mod bmm150;
 #[cfg(target_os = "none")]
 pub mod board;
 pub mod bootloader;

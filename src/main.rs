@@ -160,10 +160,12 @@ impl Shell for Io {
 struct Sensing {
     bus: Option<Bus>,
     sensor: Option<Lsm9ds1<Bus>>,
-    /// A Rev2 board's BMI270, brought up (it holds the bus; nothing is sampled yet).
+    /// A Rev2 board's BMI270, brought up.
     rev2: Option<Bmi270<Bus>>,
-    /// The settings it runs (or is to run) at.
+    /// The settings the LSM9DS1 runs (or is to run) at.
     config: SensorConfig,
+    /// The settings a Rev2's BMI270 runs (or is to run) at.
+    bmi: bmi270::Config,
     stamper: Stamper,
     next_try_s: f64,
     last_poll_s: f64,
@@ -180,6 +182,7 @@ impl Sensing {
             sensor: None,
             rev2: None,
             config: SENSOR,
+            bmi: bmi270::Config::DEFAULT,
             stamper: Stamper::new(SENSOR.odr.hz()),
             next_try_s: 0.0,
             last_poll_s: 0.0,
@@ -205,8 +208,8 @@ impl Sensing {
                         self.sensor = Some(s);
                         self.say_applied(io);
                     }
-                    // A Rev2 board: its BMI270, at its own setup.
-                    Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(i2c, bmi270::Config::DEFAULT, &mut Wait(clock)) {
+                    // A Rev2 board: its BMM150 left in suspend (not used), its BMI270 at its setup.
+                    Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(suspend_bmm150(i2c, clock, io), self.bmi, &mut Wait(clock)) {
                         Ok(s) => {
                             let setup = s.setup();
                             let c = s.config();
@@ -333,16 +336,30 @@ impl Sensing {
         }
     }
 
-    /// Runs the sensor at `config` from the next tick on: re-initialised (its ready line and, in
-    /// raw-log mode, the log's setup comment say the new settings).
-    fn reconfigure(&mut self, config: SensorConfig, now: f64) {
-        self.config = config;
+    /// Runs the sensor at `config` (a Rev2's BMI270 at `bmi`) from the next tick on:
+    /// re-initialised (its ready line and, in raw-log mode, the log's setup comment say the new
+    /// settings).
+    fn reconfigure(&mut self, config: SensorConfig, bmi: bmi270::Config, now: f64) {
+        (self.config, self.bmi) = (config, bmi);
         self.stamper = Stamper::new(config.odr.hz());
         if let Some(s) = self.sensor.take() {
             self.bus = Some(s.release());
         }
+        if let Some(s) = self.rev2.take() {
+            self.bus = Some(s.release());
+        }
         self.next_try_s = now;
     }
+}
+
+/// A Rev2 board's BMM150 found and left in suspend, its lowest-power state (the magnetometer is
+/// not used); said either way, never fatal. The bus back.
+fn suspend_bmm150(mut i2c: Bus, clock: &mut Clock, io: &mut Io) -> Bus {
+    match gyrocal_fw::bmm150::detect_and_suspend(&mut i2c, &mut Wait(clock)) {
+        Ok(()) => io.console.send(Log::Info, "Nano 33 BLE Rev2: BMM150 found (CHIP_ID 0x32) and left in suspend"),
+        Err(e) => io.console.say(Log::Warn, format_args!("Nano 33 BLE Rev2: {e}")),
+    }
+    i2c
 }
 
 /// One reading into the procedure, as the raw log holds it (a replay of the log sees what the
@@ -393,13 +410,26 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
                 sensing.raw = !sensing.raw;
                 io.console.set_raw_log(sensing.raw, &sensing.setup());
             }
-            Command::Setup if sensing.rev2.is_some() => {
-                io.console.send(Log::Warn, "p: the Rev2's BMI270 runs at 100 Hz, +-500 dps, +-2 g only")
-            }
             Command::Setup => {
-                let next = if sensing.config == SensorConfig::ARDUINO_LSM9DS1 { OWN } else { SensorConfig::ARDUINO_LSM9DS1 };
-                match procedure.handle_setup(next.setup()) {
-                    Ok(()) => sensing.reconfigure(next, now),
+                let (mut next, mut bmi) = (sensing.config, sensing.bmi);
+                let setup = match sensing.rev2.as_ref() {
+                    // A Rev2: its BMI270 at this firmware's or Arduino_BMI270_BMM150's settings.
+                    Some(b) => {
+                        bmi = if bmi == bmi270::Config::ARDUINO { bmi270::Config::DEFAULT } else { bmi270::Config::ARDUINO };
+                        SensorSetup {
+                            odr_hz: bmi.odr.hz(),
+                            gyro_range_dps: bmi.gyro_range_dps as f32,
+                            accel_range_g: bmi.accel_range_g as f32,
+                            ..b.setup()
+                        }
+                    }
+                    None => {
+                        next = if next == SensorConfig::ARDUINO_LSM9DS1 { OWN } else { SensorConfig::ARDUINO_LSM9DS1 };
+                        next.setup()
+                    }
+                };
+                match procedure.handle_setup(setup) {
+                    Ok(()) => sensing.reconfigure(next, bmi, now),
                     Err(Running) => io.console.send(Log::Warn, "p: the sensor setup cannot change while a calibration runs"),
                 }
             }

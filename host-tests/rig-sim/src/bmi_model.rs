@@ -142,6 +142,11 @@ impl Bmi270Model {
         self.skipped = 0;
     }
 
+    /// A register as written (no read side effects).
+    pub fn reg(&self, r: u8) -> u8 {
+        self.regs[r as usize & 0x7F]
+    }
+
     /// True time (s).
     pub fn now_s(&self) -> f64 {
         self.now_s

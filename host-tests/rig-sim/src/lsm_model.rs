@@ -22,6 +22,7 @@
 //! it).
 
 use crate::bmi_model::Bmi270Model;
+use crate::bmm_model::{self, Bmm150Model};
 use crate::sim::{AccelRange, GyroRange, Rig};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, FIFO_DEPTH, WHO_AM_I_AG};
@@ -42,7 +43,7 @@ impl embedded_hal::i2c::Error for BusError {
 pub enum Board {
     /// Nano 33 BLE Rev1: LSM9DS1.
     Rev1,
-    /// Nano 33 BLE Rev2: BMI270 at 0x68, nothing at 0x6B.
+    /// Nano 33 BLE Rev2: BMI270 at 0x68, BMM150 at 0x10, nothing at 0x6B.
     Rev2,
     /// No sensor (unpowered or not fitted).
     Missing,
@@ -90,6 +91,8 @@ pub struct Lsm9ds1Model {
     pub clock: Option<std::rc::Rc<std::cell::Cell<f64>>>,
     /// On a Rev2 board: the BMI270 that answers at 0x68, fed the rig's samples.
     bmi: Option<Bmi270Model>,
+    /// On a Rev2 board: the BMM150 magnetometer that answers at 0x10.
+    bmm: Option<Bmm150Model>,
 }
 
 const DEFAULT_CTRL_REG8: u8 = 0x04;
@@ -130,6 +133,7 @@ impl Lsm9ds1Model {
             bus_hz: None,
             clock: None,
             bmi: (board == Board::Rev2).then(|| Bmi270Model::new(0.0)),
+            bmm: (board == Board::Rev2).then(|| Bmm150Model::new(0.0)),
         };
         m.reset_registers();
         m
@@ -147,6 +151,7 @@ impl Lsm9ds1Model {
             self.busy_until = self.now_s + BOOT_S;
             if self.board == Board::Rev2 {
                 self.bmi = Some(Bmi270Model::new(self.now_s));
+                self.bmm = Some(Bmm150Model::new(self.now_s));
             }
         }
     }
@@ -154,6 +159,16 @@ impl Lsm9ds1Model {
     /// Powered.
     pub fn powered(&self) -> bool {
         self.powered
+    }
+
+    /// On a Rev2 board: the BMI270 at 0x68.
+    pub fn bmi(&self) -> Option<&Bmi270Model> {
+        self.bmi.as_ref()
+    }
+
+    /// On a Rev2 board: the BMM150 at 0x10 (to check the power mode the firmware left it in).
+    pub fn bmm(&self) -> Option<&Bmm150Model> {
+        self.bmm.as_ref()
     }
 
     /// Junk first slots produced (after each FIFO enable).
@@ -165,10 +180,11 @@ impl Lsm9ds1Model {
     pub fn acks(&self, address: u8) -> bool {
         let present = match self.board {
             Board::Rev1 | Board::OtherChip(_) => address == ADDR_AG,
-            Board::Rev2 => address == ADDR_BMI270,
+            Board::Rev2 => address == ADDR_BMI270 || address == bmm_model::ADDR,
             Board::Missing => false,
         };
-        present && self.powered && self.now_s >= self.busy_until && self.nack_from.is_none_or(|n| self.transactions < n)
+        let bmm_answers = address != bmm_model::ADDR || self.bmm.as_ref().is_some_and(|m| m.acks_at(self.now_s));
+        present && bmm_answers && self.powered && self.now_s >= self.busy_until && self.nack_from.is_none_or(|n| self.transactions < n)
     }
 
     fn fifo_on(&self) -> bool {
@@ -405,6 +421,12 @@ impl I2c for Lsm9ds1Model {
         self.transactions += 1;
         if !acked {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
+        }
+        if address == bmm_model::ADDR {
+            if let Some(m) = self.bmm.as_mut() {
+                m.advance_to(self.now_s);
+                return m.transaction(address, operations);
+            }
         }
         if let Some(b) = self.bmi.as_mut() {
             b.advance_to(self.now_s);

@@ -66,6 +66,19 @@ fn missing_foreign_and_rev2_sensors_are_reported_without_hanging() {
     assert_eq!(b.run_for(5.0), Stop::Time);
     let ready = b.mcu.log.iter().filter(|l| l.contains("Nano 33 BLE Rev2: BMI270 ready")).count();
     assert_eq!(ready, 1, "{:?}", b.mcu.log);
+    // Its BMM150 found and left in suspend (woken once to read its CHIP_ID, as Bosch's API does).
+    assert!(b.mcu.log.iter().any(|l| l.contains("BMM150 found (CHIP_ID 0x32) and left in suspend")), "{:?}", b.mcu.log);
+    {
+        let p = b.mcu.periph.borrow();
+        let bmm = p.sensor.bmm().expect("a Rev2's BMM150");
+        assert!(
+            bmm.suspended() && bmm.wakes == 1 && bmm.suspends == 1,
+            "suspended {} wakes {} suspends {}",
+            bmm.suspended(),
+            bmm.wakes,
+            bmm.suspends
+        );
+    }
     // Its GYR_CAS read from feature page 0 (the model's part: -7) and the user gain off.
     assert!(b.mcu.log.iter().any(|l| l.contains("GYR_CAS -7 (not applied), user gain off")), "{:?}", b.mcu.log);
     assert_eq!(b.mcu.resets, 0);

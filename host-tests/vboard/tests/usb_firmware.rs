@@ -6,7 +6,7 @@ use calib_core::export::{self, Format};
 use calib_core::gyro::Method;
 use calib_core::procedure::Phase;
 use calib_core::protocol::{self, Command, Event, RecordLine};
-use calib_core::record::SensorSetup;
+use calib_core::record::{Sensor, SensorSetup};
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;
@@ -29,8 +29,12 @@ fn logged(b: &Testbed, want: impl Fn(&Event) -> bool) -> bool {
 }
 
 fn usb_bench() -> (Testbed, UsbHost) {
+    usb_bench_on(Board::Rev1)
+}
+
+fn usb_bench_on(board: Board) -> (Testbed, UsbHost) {
     let elf = build_firmware(&[]).unwrap();
-    let b = Testbed::new(elf, Variant::Hobby.config(3, 0), 3, Board::Rev1, NorSim::new(8, 3), false).unwrap();
+    let b = Testbed::new(elf, Variant::Hobby.config(3, 0), 3, board, NorSim::new(8, 3), false).unwrap();
     let host = UsbHost::new(&b.mcu);
     host.attach();
     (b, host)
@@ -196,6 +200,41 @@ fn p_runs_the_sensor_at_arduino_lsm9ds1s_setup_and_the_calibration_is_made_and_s
     b.run_for(3.0);
     assert_eq!(rate_lines(&b), before, "a record from another setup is not applied");
     assert!(b.mcu.log.iter().any(|l| l.contains("the stored record was made at another sensor setup: not applied")));
+}
+
+#[test]
+fn p_on_a_rev2_runs_the_bmi270_at_arduino_bmi270s_setup_and_the_record_says_so() {
+    let (mut b, host) = usb_bench_on(Board::Rev2);
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    b.run_for(0.5);
+    host.read();
+    host.write(&[Command::Setup.byte()]);
+    let text = read_for(&mut b, &host, 1.0);
+    assert!(text.contains("BMI270 ready (Bosch's configuration loaded): 100 Hz, +-2000 dps, +-4 g; GYR_CAS -7"), "{text}");
+    // Its registers as Arduino_BMI270_BMM150 writes them.
+    {
+        let p = b.mcu.periph.borrow();
+        let bmi = p.sensor.bmi().expect("a Rev2's BMI270");
+        assert_eq!([bmi.reg(0x40), bmi.reg(0x41), bmi.reg(0x42), bmi.reg(0x43)], [0x98, 0x01, 0x98, 0x08]);
+    }
+    // The raw log states the part and the setup; its gyro counts are 2000/32768 °/s.
+    host.write(&[Command::RawLog.byte()]);
+    let text = read_for(&mut b, &host, 1.0);
+    host.write(&[Command::RawLog.byte()]);
+    let text = text + &read_for(&mut b, &host, 0.3);
+    let log = calib::csvlog::parse(&text.replace("\r\n", "\n")).unwrap();
+    let arduino =
+        SensorSetup { odr_hz: 100.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: false } };
+    assert_eq!(log.setup, Some(arduino));
+    let lsb = 2000.0 / 32768.0;
+    let off_lsb = |v: f32| ((v / lsb) - (v / lsb).round()).abs();
+    assert!(log.rows.len() > 50 && log.rows.iter().all(|r| r.gyro_dps.iter().all(|v| off_lsb(*v) < 1e-3)), "not 2000/32768 counts");
+    assert_eq!(b.calibrate(600.0), vboard::testbed::Outcome::Done, "{:#?}", b.mcu.log.iter().rev().take(12).collect::<Vec<_>>());
+    let stored = b.stored().expect("a record in flash");
+    assert_eq!(stored.setup, arduino);
+    let (scale, cross) = b.k_errors_pct(&stored);
+    println!("MEASURED rev2 at Arduino_BMI270_BMM150's setup: max scale error {scale:.4} %, max cross-axis {cross:.4} %");
+    assert!(scale < 0.1 && cross < 0.1, "{scale} % {cross} %");
 }
 
 #[test]

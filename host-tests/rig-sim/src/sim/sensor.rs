@@ -1,10 +1,11 @@
-//! LSM9DS1-like gyroscope and accelerometer: linear error model, white noise, 16-bit output.
+//! MEMS gyroscope and accelerometer (the LSM9DS1's or the BMI270's full scales): linear error
+//! model, white noise, 16-bit output.
 
 use nalgebra::{Matrix3, Vector3};
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-/// Gyro full scale; sensitivities from the LSM9DS1 datasheet (8.75 / 17.50 / 70 mdps/LSB).
+/// Gyro full scale; the LSM9DS1's sensitivities from its datasheet (8.75 / 17.50 / 70 mdps/LSB).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GyroRange {
     /// ±245 °/s.
@@ -13,6 +14,8 @@ pub enum GyroRange {
     Dps500,
     /// ±2000 °/s.
     Dps2000,
+    /// A BMI270 at ±this °/s: range/32768 °/s per LSB (Bosch's API and examples).
+    Bmi270(u16),
 }
 
 impl GyroRange {
@@ -22,6 +25,7 @@ impl GyroRange {
             Self::Dps245 => 8.75e-3,
             Self::Dps500 => 17.5e-3,
             Self::Dps2000 => 70e-3,
+            Self::Bmi270(dps) => dps as f64 / 32768.0,
         }
     }
 }
@@ -37,6 +41,8 @@ pub enum AccelRange {
     G8,
     /// ±16 g.
     G16,
+    /// A BMI270 at ±this g: range/32768 g per LSB.
+    Bmi270(u8),
 }
 
 impl AccelRange {
@@ -47,6 +53,7 @@ impl AccelRange {
             Self::G4 => 0.122e-3,
             Self::G8 => 0.244e-3,
             Self::G16 => 0.732e-3,
+            Self::Bmi270(g) => g as f64 / 32768.0,
         }
     }
 }
