@@ -3,7 +3,7 @@
 use calib_core::accel::AccelModel;
 use calib_core::bias::TempCo;
 use calib_core::gyro::Method;
-use calib_core::record::{DecodeError, Record, SensorSetup, LEN};
+use calib_core::record::{DecodeError, Record, Sensor, SensorSetup, LEN};
 use proptest::prelude::*;
 
 fn finite() -> impl Strategy<Value = f32> {
@@ -18,6 +18,7 @@ prop_compose! {
         q in prop::array::uniform8(finite()), method in 0u8..3, model in 0u8..3,
         poses in any::<u8>(), rows in any::<u16>(), setup in prop::array::uniform3(finite()),
         tempco in prop::option::of(prop::array::uniform8(finite())),
+        part in prop::option::of((-64i8..64, any::<bool>())),
     ) -> Record {
         Record {
             seq, temp_c,
@@ -30,7 +31,8 @@ prop_compose! {
             poses, rows, sigma_k: [[s[0], s[1], s[2]], [s[3], s[4], s[5]], [s[6], s[7], s[8]]],
             invariant_before_rel: q[0], invariant_after_rel: q[1], condition: q[2],
             tilt_deg: q[3], span_deg: q[4], accel_rms_g: q[5], residual_rms: q[6], non_coplanar_deg: q[7],
-            setup: SensorSetup { odr_hz: setup[0], gyro_range_dps: setup[1], accel_range_g: setup[2], ..SensorSetup::DEFAULT },
+            setup: SensorSetup { odr_hz: setup[0], gyro_range_dps: setup[1], accel_range_g: setup[2],
+                sensor: part.map_or(Sensor::Lsm9ds1, |(gyr_cas, user_gain)| Sensor::Bmi270 { gyr_cas, user_gain }) },
             tempco: tempco.map(|t| TempCo { dps_per_c: [t[0], t[1], t[2]], sigma_dps_per_c: [t[3], t[4], t[5]], range_c: [t[6], t[7]] }),
         }
     }
