@@ -117,8 +117,9 @@ fn count(v: &Value) -> usize {
     v.as_array().map_or(0, Vec::len)
 }
 
-fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, budgets: &[(String, String)]) -> Result<String, String> {
+fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, budgets: &[(String, String)]) -> Result<String, String> {
     let r = fields(plain, "RESULT")?;
+    let r2 = fields(rev2, "RESULT")?;
     let t = fields(tilt, "RESULT")?;
     let rt = fields(raw, "ROUNDTRIP")?;
     let np = fields(no_probe, "RESULT")?;
@@ -142,9 +143,15 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, budgets: &[(
         field(&rt, "calib_scale_error_pct")
     );
     s += &format!(
-        "| `cargo demo -- --no-probe` | max scale error {} %, stored {} |\n\n",
+        "| `cargo demo -- --no-probe` | max scale error {} %, stored {} |\n",
         field(&np, "max_scale_error_pct"),
         field(&np, "stored")
+    );
+    s += &format!(
+        "| `cargo demo -- --rev2` (Rev2: BMI270, BMM150 suspended) | max scale error {} %, stored {}, board {} |\n\n",
+        field(&r2, "max_scale_error_pct"),
+        field(&r2, "stored"),
+        field(&r2, "board")
     );
     s += &format!(
         "Cost on the MCU (`cargo demo`): `Procedure::handle_sample` {} instructions per sample on average; its longest call \
@@ -280,12 +287,17 @@ fn drift_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
         "## {heading}
 
-`drift-bench` (seed {}, {} rigs per row, the sensor at {} Hz, ±{} °/s, ±{} g): the firmware's procedure with the gyro bias constant, drifting as on a \
+`drift-bench` (seed {}, {} rigs per row, the {} at {} Hz, ±{} °/s, ±{} g): the firmware's procedure with the gyro bias constant, drifting as on a \
          board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from the button to the store plus the wait; the bias's temperature coefficient: the runs \
          that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth.\n\n\
          | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ |\n|---|---|---|---|---|---|---|---|---|\n",
-        j["seed"], j["rigs"], f(&setup["odr_hz"]), f(&setup["gyro_range_dps"]), f(&setup["accel_range_g"])
+        j["seed"],
+        j["rigs"],
+        setup["sensor"].as_str().unwrap_or("LSM9DS1"),
+        f(&setup["odr_hz"]),
+        f(&setup["gyro_range_dps"]),
+        f(&setup["accel_range_g"])
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -326,6 +338,8 @@ fn page() -> Result<String, String> {
         Run { bin: "demo", args: a(&["--quiet", "--no-probe"]) },
         Run { bin: "drift-bench", args: a(&["--rigs", "20", "--json"]) },
         Run { bin: "drift-bench", args: a(&["--rigs", "20", "--setup", "arduino-lsm9ds1", "--json"]) },
+        Run { bin: "drift-bench", args: a(&["--rigs", "20", "--setup", "bmi270", "--json"]) },
+        Run { bin: "demo", args: a(&["--quiet", "--rev2"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -349,7 +363,7 @@ fn page() -> Result<String, String> {
          emulated board, the benchmarks run calib-core on simulated rigs ([the virtual board](../host-tests/vboard/README.md), \
          [testing](testing.md)).\n\n",
     );
-    s += &demo_section(&out[4], &out[5], &out[6], &out[7], &budgets)?;
+    s += &demo_section(&out[4], &out[5], &out[6], &out[7], &out[11], &budgets)?;
     s += "\n";
     s += &paper_section(&json(&out[1])?);
     s += "\n";
@@ -362,6 +376,8 @@ fn page() -> Result<String, String> {
     s += &drift_section("Drift", &json(&out[8])?);
     s += "\n";
     s += &drift_section("At Arduino_LSM9DS1's setup", &json(&out[9])?);
+    s += "\n";
+    s += &drift_section("Rev2: the BMI270", &json(&out[10])?);
     Ok(s)
 }
 
