@@ -208,6 +208,11 @@ impl Config {
         }
     }
 
+    /// The setup a record states for these settings on the part `sensor`.
+    pub fn setup(&self, sensor: Sensor) -> SensorSetup {
+        SensorSetup { odr_hz: self.odr.hz(), gyro_range_dps: self.gyro_range_dps as f32, accel_range_g: self.accel_range_g as f32, sensor }
+    }
+
     /// Sensitivities: (°/s per LSB, g per LSB) = range / 32768.
     pub fn per_lsb(&self) -> (f32, f32) {
         (self.gyro_range_dps as f32 / 32768.0, self.accel_range_g as f32 / 32768.0)
@@ -300,15 +305,19 @@ impl<I: I2c> Bmi270<I> {
         self.cfg
     }
 
+    /// The part's GYR_CAS (z→x, per 512), read at the bring-up.
+    pub fn gyr_cas(&self) -> i8 {
+        self.gyr_cas
+    }
+
+    /// The part's gyro user gain was on at the bring-up.
+    pub fn user_gain(&self) -> bool {
+        self.user_gain
+    }
+
     /// The setup a record states: the settings and the part with its GYR_CAS and user gain.
     pub fn setup(&self) -> SensorSetup {
-        let c = self.cfg;
-        SensorSetup {
-            odr_hz: c.odr.hz(),
-            gyro_range_dps: c.gyro_range_dps as f32,
-            accel_range_g: c.accel_range_g as f32,
-            sensor: Sensor::Bmi270 { gyr_cas: self.gyr_cas, user_gain: self.user_gain },
-        }
+        self.cfg.setup(Sensor::Bmi270 { gyr_cas: self.gyr_cas, user_gain: self.user_gain })
     }
 
     fn write(&mut self, reg: u8, data: &[u8]) -> Result<(), Bmi270Error> {

@@ -19,7 +19,7 @@ use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, 
 
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use calib_core::protocol::{self, RecordLine};
-use calib_core::record::{Record, Sensor, SensorSetup};
+use calib_core::record::{Record, SensorSetup};
 use calib_core::stats::Welford3;
 use calib_core::text::{Level as Log, V3};
 use embedded_hal::digital::InputPin;
@@ -213,17 +213,15 @@ impl Sensing {
                         Ok(s) => {
                             let setup = s.setup();
                             let c = s.config();
-                            let (cas, gain) = match setup.sensor {
-                                Sensor::Bmi270 { gyr_cas, user_gain } => (gyr_cas, if user_gain { "on" } else { "off" }),
-                                Sensor::Lsm9ds1 => (0, "-"),
-                            };
                             io.console.say(
                                 Log::Info,
                                 format_args!(
-                                    "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): {} Hz, +-{} dps, +-{} g; GYR_CAS {cas} (not applied), user gain {gain}",
+                                    "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): {} Hz, +-{} dps, +-{} g; GYR_CAS {} (not applied), user gain {}",
                                     c.odr.hz() as u32,
                                     c.gyro_range_dps,
-                                    c.accel_range_g
+                                    c.accel_range_g,
+                                    s.gyr_cas(),
+                                    if s.user_gain() { "on" } else { "off" }
                                 ),
                             );
                             // Idle at boot (and after a re-initialisation): refused only mid-run,
@@ -416,12 +414,7 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
                     // A Rev2: its BMI270 at this firmware's or Arduino_BMI270_BMM150's settings.
                     Some(b) => {
                         bmi = if bmi == bmi270::Config::ARDUINO { bmi270::Config::DEFAULT } else { bmi270::Config::ARDUINO };
-                        SensorSetup {
-                            odr_hz: bmi.odr.hz(),
-                            gyro_range_dps: bmi.gyro_range_dps as f32,
-                            accel_range_g: bmi.accel_range_g as f32,
-                            ..b.setup()
-                        }
+                        bmi.setup(b.setup().sensor)
                     }
                     None => {
                         next = if next == SensorConfig::ARDUINO_LSM9DS1 { OWN } else { SensorConfig::ARDUINO_LSM9DS1 };

@@ -44,22 +44,29 @@ impl core::fmt::Display for NotThisPart {
     }
 }
 
+type M3 = nalgebra::Matrix3<f32>;
+
 /// Arduino_BMI270_BMM150's remap (its own inverse).
-const REMAP: Mat3 = [[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
-const I: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
-fn mul(a: &Mat3, b: &Mat3) -> Mat3 {
-    core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+fn remap() -> M3 {
+    M3::new(0.0, -1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 }
 
-fn mul_v(a: &Mat3, v: &Vec3) -> Vec3 {
-    core::array::from_fn(|i| (0..3).map(|k| a[i][k] * v[k]).sum())
+fn m3(m: &Mat3) -> M3 {
+    M3::from_fn(|r, c| m[r][c])
 }
 
-/// `T X U` for every element's 1σ: `σ'ᵢⱼ² = Σ Tᵢₖ² σₖₗ² Uₗⱼ²`.
-fn sigma(t: &Mat3, s: &Mat3, u: &Mat3) -> Mat3 {
-    let sq = |m: &Mat3| m.map(|r| r.map(|x| x * x));
-    mul(&mul(&sq(t), &sq(s)), &sq(u)).map(|r| r.map(libm::sqrtf))
+fn mat(m: &M3) -> Mat3 {
+    core::array::from_fn(|r| core::array::from_fn(|c| m[(r, c)]))
+}
+
+fn vec(a: &M3, v: &Vec3) -> Vec3 {
+    (a * nalgebra::Vector3::from(*v)).into()
+}
+
+/// The 1σ of `T X U` from independent elements' 1σ `s`: `σ'ᵢⱼ² = Σ Tᵢₖ² σₖₗ² Uₗⱼ²`.
+fn sigma(t: &M3, s: &Mat3, u: &M3) -> Mat3 {
+    let sq = |m: &M3| m.component_mul(m);
+    mat(&(sq(t) * sq(&m3(s)) * sq(u)).map(libm::sqrtf))
 }
 
 impl Record {
@@ -71,20 +78,24 @@ impl Record {
             (_, Sensor::Bmi270 { gyr_cas, .. }) => gyr_cas as f32 / 512.0,
         };
         // Bosch's correction C (x −= cas z) and its inverse.
-        let c = [[1.0, 0.0, -cas], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let c_inv = [[1.0, 0.0, cas], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let t = if frame == DataFrame::ArduinoBmi270 { REMAP } else { I };
+        let mut c = M3::identity();
+        c[(0, 2)] = -cas;
+        let mut c_inv = M3::identity();
+        c_inv[(0, 2)] = cas;
+        let t = if frame == DataFrame::ArduinoBmi270 { remap() } else { M3::identity() };
         // Gyro data A = T C (A⁻¹ = C⁻¹ T), accelerometer data B = T (B⁻¹ = T).
-        let (a, a_inv) = (mul(&t, &c), mul(&c_inv, &t));
+        let (a, a_inv) = (t * c, c_inv * t);
         Ok(Record {
-            gyro_k: mul(&mul(&t, &self.gyro_k), &a_inv),
-            gyro_bias_dps: mul_v(&a, &self.gyro_bias_dps),
+            gyro_k: mat(&(t * m3(&self.gyro_k) * a_inv)),
+            gyro_bias_dps: vec(&a, &self.gyro_bias_dps),
             sigma_k: sigma(&t, &self.sigma_k, &a_inv),
-            accel_m: mul(&mul(&t, &self.accel_m), &t),
-            accel_offset_g: mul_v(&t, &self.accel_offset_g),
+            accel_m: mat(&(t * m3(&self.accel_m) * t)),
+            accel_offset_g: vec(&t, &self.accel_offset_g),
             tempco: self.tempco.map(|mut tc| {
-                tc.dps_per_c = mul_v(&a, &tc.dps_per_c);
-                tc.sigma_dps_per_c = mul_v(&a.map(|r| r.map(f32::abs)), &tc.sigma_dps_per_c);
+                tc.dps_per_c = vec(&a, &tc.dps_per_c);
+                // As for independent elements: σ'ᵢ² = Σ Aᵢₖ² σₖ².
+                let s2 = vec(&a.component_mul(&a), &tc.sigma_dps_per_c.map(|x| x * x));
+                tc.sigma_dps_per_c = s2.map(libm::sqrtf);
                 tc
             }),
             ..*self
@@ -127,9 +138,8 @@ mod tests {
         }
         // The accelerometer likewise (no CAS on it).
         let a = [0.3, -0.5, 0.8];
-        let f = mul_v(&rec.accel_m, &core::array::from_fn(|i| a[i] - rec.accel_offset_g[i]));
-        let a_ard = [-a[1], -a[0], a[2]];
-        let f_ard = mul_v(&ard.accel_m, &core::array::from_fn(|i| a_ard[i] - ard.accel_offset_g[i]));
+        let f = rec.accel().apply(a);
+        let f_ard = ard.accel().apply([-a[1], -a[0], a[2]]);
         for i in 0..3 {
             assert!((f_ard[i] - [-f[1], -f[0], f[2]][i]).abs() < 1e-6);
         }

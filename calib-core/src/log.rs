@@ -137,18 +137,16 @@ pub fn write_setup(w: &mut impl Write, s: &SensorSetup) -> fmt::Result {
 /// field out of its range.
 pub fn parse_setup(line: &str) -> Option<SensorSetup> {
     let mut it = line.trim().strip_prefix(SETUP)?.split_whitespace();
-    let mut value = |name: &str| -> Option<&str> { it.next()?.strip_prefix(name)?.strip_prefix('=') };
     let mut field = |name: &str| -> Option<f32> {
-        let v: f32 = value(name)?.parse().ok()?;
+        let v: f32 = value(&mut it, name)?.parse().ok()?;
         (v.is_finite() && v > 0.0).then_some(v)
     };
     let (odr_hz, gyro_range_dps, accel_range_g) = (field("odr_hz")?, field("gyro_range_dps")?, field("accel_range_g")?);
     let sensor = match it.next() {
         None | Some("sensor=lsm9ds1") => Sensor::Lsm9ds1,
         Some("sensor=bmi270") => {
-            let mut value = |name: &str| -> Option<&str> { it.next()?.strip_prefix(name)?.strip_prefix('=') };
-            let gyr_cas: i8 = value("gyr_cas")?.parse().ok().filter(|c| (-64..64).contains(c))?;
-            let user_gain = match value("user_gain")? {
+            let gyr_cas: i8 = value(&mut it, "gyr_cas")?.parse().ok().filter(|c| (-64..64).contains(c))?;
+            let user_gain = match value(&mut it, "user_gain")? {
                 "0" => false,
                 "1" => true,
                 _ => return None,
@@ -158,6 +156,11 @@ pub fn parse_setup(line: &str) -> Option<SensorSetup> {
         Some(_) => return None,
     };
     it.next().is_none().then_some(SensorSetup { odr_hz, gyro_range_dps, accel_range_g, sensor })
+}
+
+/// The value of the next `name=value` word, if it is `name`'s.
+fn value<'a>(it: &mut impl Iterator<Item = &'a str>, name: &str) -> Option<&'a str> {
+    it.next()?.strip_prefix(name)?.strip_prefix('=')
 }
 
 /// Why a log line cannot be read. Lines are 1-based.
