@@ -114,6 +114,14 @@ pub const FRAME_CONFIG: u8 = 0x48;
 pub const FRAME_OVER_READ: u8 = 0x80;
 /// The FIFO's size (bytes): a read takes all of it, so that no frame is ever cut.
 pub const FIFO_BYTES: usize = 2048;
+/// What a FIFO read takes beyond FIFO_LENGTH: a frame that arrives during the burst (13 bytes)
+/// and the sensortime frame (4), which the part sends only once a burst has read the FIFO empty
+/// (Bosch's FIFO over-read; its BMI160 application note reads watermark + two frames + 4 bytes).
+pub const FIFO_OVER_READ: usize = 13 + 4;
+/// FIFO_CONFIG_0: sensortime frames on (fifo_time_en, bit 1).
+pub const FIFO_TIME_EN: u8 = 0x02;
+/// Sensortime resolution (s): 39.0625 µs per count (Bosch's `BMI2_SENSORTIME_RESOLUTION`).
+pub const SENSORTIME_S: f64 = 39.0625e-6;
 
 /// Output data rate of both sensors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,6 +134,16 @@ pub enum Odr {
 }
 
 impl Odr {
+    /// Sensortime counts per sample: a sample is produced each time the count crosses a
+    /// multiple of this (BMI160 datasheet Table 11: sensor_time bit 8 updates at 100 Hz, bit 7 at
+    /// 200 Hz; the BMI270 keeps the family's hardware-synchronised sensortime).
+    pub const fn ticks_per_sample(self) -> u32 {
+        match self {
+            Odr::Hz100 => 256,
+            Odr::Hz200 => 128,
+        }
+    }
+
     /// Nominal rate (Hz).
     pub const fn hz(self) -> f32 {
         match self {
@@ -395,7 +413,7 @@ impl<I: I2c> Bmi270<I> {
         // Advanced power save stays off (Bosch turns it back on; then every access would need
         // its 450 µs gap).
         self.write(reg::PWR_CTRL, &[PWR_CTRL_ON])?;
-        for (r, v) in [(reg::FIFO_CONFIG_0, 0x00), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)] {
+        for (r, v) in [(reg::FIFO_CONFIG_0, FIFO_TIME_EN), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)] {
             self.write(r, &[v])?;
             let read = self.read1(r)?;
             if read != v {
@@ -405,16 +423,19 @@ impl<I: I2c> Bmi270<I> {
         Ok(())
     }
 
-    /// Reads the whole FIFO (one burst) and hands each sample to `each` as (accelerometer g,
-    /// gyro °/s), oldest first: how many, and how many were lost (dropped by a full FIFO).
+    /// Reads the whole FIFO and the sensortime frame after it (one burst, [`FIFO_OVER_READ`]
+    /// bytes past FIFO_LENGTH) and hands each sample to `each` as (accelerometer g, gyro °/s),
+    /// oldest first: how many, how many were lost (dropped by a full FIFO), and the sensortime.
     pub fn read_fifo(&mut self, each: impl FnMut([f32; 3], [f32; 3])) -> Result<FifoRead, Bmi270Error> {
         let mut len = [0u8; 2];
         self.read(reg::FIFO_LENGTH_0, &mut len)?;
         let n = (u16::from_le_bytes([len[0], len[1] & 0x3F]) as usize).min(FIFO_BYTES);
-        let mut buf = [0u8; FIFO_BYTES];
-        if n > 0 {
-            self.read(reg::FIFO_DATA, &mut buf[..n])?;
+        let mut buf = [0u8; FIFO_BYTES + FIFO_OVER_READ];
+        if n == 0 {
+            return Ok(FifoRead::default());
         }
+        let n = n + FIFO_OVER_READ;
+        self.read(reg::FIFO_DATA, &mut buf[..n])?;
         Ok(parse_fifo(&buf[..n], self.cfg.per_lsb(), each))
     }
 
@@ -436,6 +457,18 @@ pub struct FifoRead {
     pub samples: usize,
     /// Samples lost.
     pub lost: usize,
+    /// The sensortime frame's count (24 bit, [`SENSORTIME_S`] each): the part's time when the
+    /// burst had read the FIFO empty; `None` without one.
+    pub sensortime: Option<u32>,
+}
+
+impl FifoRead {
+    /// How long before the sensortime frame the newest sample was produced (s, at the nominal
+    /// count rate; its ≤ 2 % error is ≤ 0.2 ms of a 10 ms sample period), `None` without a
+    /// sensortime frame: the read's time minus this is the newest sample's.
+    pub fn newest_age_s(&self, odr: Odr) -> Option<f64> {
+        self.sensortime.map(|t| (t % odr.ticks_per_sample()) as f64 * SENSORTIME_S)
+    }
 }
 
 /// Parses header-mode FIFO bytes (Bosch's frame layout) with the sensitivities `(°/s, g)` per
@@ -465,6 +498,7 @@ pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32;
                 r.samples += 1;
             }
             FRAME_SKIP => r.lost += rest[0] as usize,
+            FRAME_SENSORTIME => r.sensortime = Some(u32::from_le_bytes([rest[0], rest[1], rest[2], 0])),
             _ => {}
         }
         i += 1 + payload;

@@ -304,7 +304,8 @@ impl Sensing {
     }
 
     /// A Rev2 board's FIFO drained into the procedure (as the LSM9DS1's: timestamps by the MCU
-    /// clock, lost samples and failed reads enter the procedure).
+    /// clock, each batch's newest sample dated by the sensortime frame after it; lost samples and
+    /// failed reads enter the procedure).
     fn service_rev2(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
         let Some(b) = self.rev2.as_mut() else { return };
         let mut got = heapless::Vec::<([f32; 3], [f32; 3]), { bmi270::FIFO_BYTES / 13 + 1 }>::new();
@@ -318,7 +319,9 @@ impl Sensing {
                     procedure.handle_samples_lost(r.lost.min(u16::MAX as usize) as u16);
                     procedure.drive(now, io);
                 }
-                let batch = self.stamper.batch(clock.now_s(), got.len());
+                // The newest sample's time: the read's, less its age by the part's sensortime.
+                let age = r.newest_age_s(b.config().odr).unwrap_or(0.0);
+                let batch = self.stamper.batch(clock.now_s() - age, got.len());
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
                     feed(sample, b.setup(), self.raw, &mut self.rate, procedure, io);

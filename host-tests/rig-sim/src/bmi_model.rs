@@ -19,6 +19,14 @@
 //!   byte count (14 bits), FIFO_DATA 0x26 its bytes in one burst (a read past the data gives
 //!   0x80, "over-read"). Full, it drops its oldest frames and the next read starts with a skip
 //!   frame (0x40 and the frames lost, at most 255).
+//! - Sensortime (SENSORTIME 0x18–0x1A, 24 bit, 39.0625 µs a count) runs on the part's own
+//!   oscillator, the one its ODR divides: sample n of the rig is produced at count
+//!   n · 25 600 / ODR (BMI160 datasheet Table 11: sensor_time bit 8 updates at 100 Hz; the
+//!   BMI270 keeps the family's hardware-synchronised sensortime); between samples the count
+//!   runs at the rate of the last two. With FIFO_CONFIG_0 bit 1 (fifo_time_en), a burst that has
+//!   read the FIFO empty gets one sensortime frame (0x44 and the count when it starts), then 0x80
+//!   (Bosch's FIFO over-read rule, as the BMA400 datasheet states it; a burst that stops at
+//!   FIFO_LENGTH gets none).
 //! - The feature pages (FEAT_PAGE 0x2F selects one, 0x30–0x3F is its 16-byte window, read in one
 //!   burst as Bosch's `bmi2_get_feat_config` does): page 0 offset 0x0C holds GYR_CAS (7-bit two's
 //!   complement) once the configuration is loaded (0 before). The part's raw data are the rig's
@@ -63,7 +71,9 @@ const PWR_CTRL: u8 = 0x7D;
 const CMD: u8 = 0x7E;
 const FIFO_LENGTH_0: u8 = 0x24;
 const FIFO_DATA: u8 = 0x26;
+const FIFO_CONFIG_0: u8 = 0x48;
 const FIFO_CONFIG_1: u8 = 0x49;
+const SENSORTIME_0: u8 = 0x18;
 /// FIFO size (bytes).
 pub const FIFO_BYTES: usize = 2048;
 /// A gyro + accelerometer frame: header and 12 bytes.
@@ -98,6 +108,14 @@ pub struct Bmi270Model {
     pub bus_hz: Option<f64>,
     /// The part's GYR_CAS (−64..63), reported on feature page 0.
     pub gyr_cas: i8,
+    /// Samples produced since power-on, the true time of the last one and the interval before it
+    /// (s): the sensortime clock.
+    produced: u64,
+    last_sample_s: Option<f64>,
+    sample_interval_s: f64,
+    /// The sensortime frame's bytes still to send in this burst; whether this burst sent one.
+    time_frame: std::collections::VecDeque<u8>,
+    time_sent: bool,
     /// GYR_OFF_COMP_6 bit 7 (user gain on) after a reset.
     pub user_gain_after_reset: bool,
 }
@@ -124,6 +142,11 @@ impl Bmi270Model {
             bus_hz: None,
             gyr_cas: GYR_CAS,
             user_gain_after_reset: false,
+            produced: 0,
+            last_sample_s: None,
+            sample_interval_s: 0.01,
+            time_frame: std::collections::VecDeque::new(),
+            time_sent: false,
         };
         m.reset();
         m
@@ -159,9 +182,14 @@ impl Bmi270Model {
         }
     }
 
-    /// The sensor's latest reading: specific force (g) and rate (°/s), sensor axes; into the
-    /// FIFO when it takes both sensors in header mode and they are on.
-    pub fn set_sample(&mut self, accel_g: [f32; 3], gyro_dps: [f32; 3]) {
+    /// The sensor's reading produced at true time `t_s`: specific force (g) and rate (°/s),
+    /// sensor axes; into the FIFO when it takes both sensors in header mode and they are on.
+    pub fn set_sample(&mut self, t_s: f64, accel_g: [f32; 3], gyro_dps: [f32; 3]) {
+        if let Some(t0) = self.last_sample_s.filter(|&t0| t_s > t0) {
+            self.sample_interval_s = t_s - t0;
+        }
+        self.last_sample_s = Some(t_s);
+        self.produced += 1;
         self.last = (accel_g, gyro_dps);
         let on = self.regs[PWR_CTRL as usize] & 0x06 == 0x06;
         if !(self.initialised() && on && self.regs[FIFO_CONFIG_1 as usize] & 0xD0 == 0xD0) {
@@ -189,7 +217,21 @@ impl Bmi270Model {
         (a == g && (0x06..=0x0C).contains(&a)).then(|| 25.0 * 2f64.powi(a as i32 - 6))
     }
 
-    /// The FIFO's next byte (a skip frame first after frames were dropped; 0x80 past the data).
+    /// Sensortime counts per sample at the configured ODR (25 600 / ODR; 256 unconfigured).
+    fn ticks_per_sample(&self) -> f64 {
+        self.odr_hz().map_or(256.0, |hz| 25_600.0 / hz)
+    }
+
+    /// The sensortime count now (24 bit): sample n at n · ticks per sample.
+    pub fn sensortime(&self) -> u32 {
+        let tps = self.ticks_per_sample();
+        let Some(t0) = self.last_sample_s else { return 0 };
+        let since = ((self.now_s - t0) / self.sample_interval_s * tps).clamp(0.0, tps - 1.0);
+        (((self.produced - 1) as f64 * tps + since.floor()) as u64 % (1 << 24)) as u32
+    }
+
+    /// The FIFO's next byte (a skip frame first after frames were dropped; once a burst has read
+    /// it empty, a sensortime frame if enabled; 0x80 past the data).
     fn fifo_byte(&mut self) -> u8 {
         if self.skipped > 0 {
             let n = self.skipped.min(255) as u8;
@@ -198,7 +240,15 @@ impl Bmi270Model {
             self.fifo.push_front(n);
             return 0x40;
         }
-        self.fifo.pop_front().unwrap_or(0x80)
+        if let Some(b) = self.fifo.pop_front().or_else(|| self.time_frame.pop_front()) {
+            return b;
+        }
+        if self.regs[FIFO_CONFIG_0 as usize] & 0x02 != 0 && !self.time_sent {
+            self.time_sent = true;
+            self.time_frame.extend(&self.sensortime().to_le_bytes()[..3]);
+            return 0x44;
+        }
+        0x80
     }
 
     fn aps(&self) -> bool {
@@ -233,6 +283,7 @@ impl Bmi270Model {
             FIFO_LENGTH_0 => (self.fifo.len() + 2 * usize::from(self.skipped > 0)) as u8,
             0x25 => ((self.fifo.len() + 2 * usize::from(self.skipped > 0)) >> 8) as u8 & 0x3F,
             FIFO_DATA => self.fifo_byte(),
+            SENSORTIME_0..=0x1A => self.sensortime().to_le_bytes()[(r - SENSORTIME_0) as usize],
             EVENT => self.config_error() << 2,
             // Feature page 0, offset 0x0C: GYR_CAS, 7 bits.
             0x3C if self.regs[FEAT_PAGE as usize] == 0 && self.initialised() => self.gyr_cas as u8 & 0x7F,
@@ -306,6 +357,8 @@ impl I2c for Bmi270Model {
         if lost {
             self.lost_accesses += 1;
         }
+        // A sensortime frame is sent once per burst, and what a burst left of one is gone.
+        (self.time_sent, self.time_frame) = (false, std::collections::VecDeque::new());
         let mut ptr = 0u8;
         for op in operations.iter_mut() {
             match op {

@@ -293,7 +293,7 @@ impl Lsm9ds1Model {
             }
             self.pending = None;
             if let Some(b) = self.bmi.as_mut() {
-                b.set_sample(accel, gyro);
+                b.set_sample(t, accel, gyro);
             }
             if !self.running() || !self.powered {
                 continue;

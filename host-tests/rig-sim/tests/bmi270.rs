@@ -38,7 +38,7 @@ impl embedded_hal::delay::DelayNs for ModelDelay {
 fn bus() -> Bus {
     let mut m = Bmi270Model::new(0.0);
     m.bus_hz = Some(400e3);
-    m.set_sample([0.0, 0.0, 1.0], [0.3, 0.0, 0.0]);
+    m.set_sample(0.0, [0.0, 0.0, 1.0], [0.3, 0.0, 0.0]);
     Bus(Rc::new(RefCell::new(m)))
 }
 
@@ -141,26 +141,98 @@ fn the_model_keeps_boschs_rules() {
 fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     let b = bus();
     let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
-    // Three samples in, three out, in order, in g and °/s.
+    // Three samples in, 10 ms apart, three out, in order, in g and °/s.
+    let t0 = b.0.borrow().now_s();
     for k in 0..3 {
-        b.0.borrow_mut().set_sample([0.0, 0.0, 1.0], [k as f32, 0.0, 0.0]);
+        b.0.borrow_mut().set_sample(t0 + 0.01 * k as f64, [0.0, 0.0, 1.0], [k as f32, 0.0, 0.0]);
     }
+    // Read 4 ms after the newest (plus the bus time of the reads).
+    b.0.borrow_mut().advance_to(t0 + 0.024);
     let mut got = vec![];
     let r = s.read_fifo(|a, g| got.push((a, g))).unwrap();
     assert_eq!((r.samples, r.lost), (3, 0));
+    // The sensortime frame after the data: the newest sample's age from it, to a count.
+    let age = r.newest_age_s(bmi270::Odr::Hz100).expect("a sensortime frame");
+    let true_age = b.0.borrow().now_s() - (t0 + 0.02);
+    assert!((age - true_age).abs() <= bmi270::SENSORTIME_S, "age {age} s, truly {true_age} s");
+    assert_eq!(r.sensortime.map(|t| t / 256), Some(b.0.borrow().sensortime() / 256), "the newest sample's count");
     assert!(got.iter().enumerate().all(|(k, (a, g))| *a == [0.0, 0.0, 1.0] && (g[0] - k as f32).abs() < 0.01), "{got:?}");
     // Empty: nothing (the over-read header ends the data).
     assert_eq!(s.read_fifo(|_, _| {}).unwrap(), bmi270::FifoRead::default());
     // 2 KiB hold 157 frames: 200 samples lose 43, said by a skip frame at the head.
-    for _ in 0..200 {
-        b.0.borrow_mut().set_sample([0.0, 0.0, 1.0], [0.0; 3]);
+    for k in 0..200 {
+        b.0.borrow_mut().set_sample(t0 + 0.03 + 0.01 * k as f64, [0.0, 0.0, 1.0], [0.0; 3]);
     }
     let r = s.read_fifo(|_, _| {}).unwrap();
     assert_eq!((r.samples, r.lost), (157, 43));
-    // The parser on its own: tag bits ignored, a sensortime frame skipped, a cut frame lost.
+    // The parser on its own: tag bits ignored, a sensortime frame read, a cut frame lost.
     let mut bytes = vec![0x44, 1, 2, 3, 0x8D];
     bytes.extend_from_slice(&[0; 12]);
     bytes.extend_from_slice(&[0x8C, 0, 0]);
     let r = bmi270::parse_fifo(&bytes, Config::DEFAULT.per_lsb(), |_, _| {});
-    assert_eq!((r.samples, r.lost), (1, 1));
+    assert_eq!((r.samples, r.lost, r.sensortime), (1, 1, Some(0x030201)));
+    // A burst that stops at FIFO_LENGTH gets no sensortime frame; one that reads on gets one,
+    // once, then the over-read pattern.
+    use embedded_hal::i2c::I2c;
+    let mut m = b.0.borrow_mut();
+    let t = m.now_s();
+    m.set_sample(t, [0.0, 0.0, 1.0], [0.0; 3]);
+    let mut exact = [0u8; 13];
+    m.write_read(bmi270::ADDR, &[bmi270::reg::FIFO_DATA], &mut exact).unwrap();
+    assert_eq!(exact[0], 0x8C);
+    let mut over = [0u8; 8];
+    m.write_read(bmi270::ADDR, &[bmi270::reg::FIFO_DATA], &mut over).unwrap();
+    assert_eq!((over[0], over[4], over[7]), (0x44, 0x80, 0x80), "{over:?}");
+}
+
+/// The sensortime frame dates each batch's newest sample to a count (39 µs), where the read's own
+/// time is up to a sample period late: the Stamper's line through those times is then as good
+/// after 2 s as through the read times after a minute.
+#[test]
+fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_sooner() {
+    use gyrocal_fw::stamp::Stamper;
+    use rand::{Rng, SeedableRng};
+    let b = bus();
+    let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+    // The reads take no bus time here: the samples below are all the part produces.
+    b.0.borrow_mut().bus_hz = None;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    // The part's oscillator 1.7 % fast: a sample every 9.833 ms of true time.
+    let period = 0.01 / 1.017;
+    let t0 = b.0.borrow().now_s();
+    let (mut next, mut newest) = (t0, t0);
+    let (mut by_sensortime, mut by_read) = (Stamper::new(100.0), Stamper::new(100.0));
+    let (mut worst_st, mut worst_read) = (0.0f64, 0.0f64);
+    let mut read_at = t0;
+    for batch in 0..300 {
+        // Reads every 10 ms with up to 3 ms of jitter (the loop's other work).
+        read_at += 0.01 + rng.random_range(0.0..0.003);
+        while next <= read_at {
+            b.0.borrow_mut().set_sample(next, [0.0, 0.0, 1.0], [0.0; 3]);
+            newest = next;
+            next += period;
+        }
+        b.0.borrow_mut().advance_to(read_at);
+        let r = s.read_fifo(|_, _| {}).unwrap();
+        let t_read = b.0.borrow().now_s();
+        let t_st = t_read - r.newest_age_s(bmi270::Odr::Hz100).expect("a sensortime frame");
+        worst_st = worst_st.max((t_st - newest).abs());
+        worst_read = worst_read.max(t_read - newest);
+        by_sensortime.batch(t_st, r.samples);
+        by_read.batch(t_read, r.samples);
+        if batch == 200 {
+            let err = |p: f64| (p / period - 1.0).abs();
+            println!(
+                "period error after 2 s: sensortime {:.2e}, read times {:.2e}",
+                err(by_sensortime.period_s()),
+                err(by_read.period_s())
+            );
+            assert!(err(by_sensortime.period_s()) < 1e-4, "{}", err(by_sensortime.period_s()));
+            assert!(err(by_sensortime.period_s()) < err(by_read.period_s()) / 5.0);
+        }
+    }
+    println!("newest sample's time: sensortime off by <= {:.3} ms, the read by <= {:.3} ms", worst_st * 1e3, worst_read * 1e3);
+    // The nominal count rate's 1.7 % error over at most one period, and one count.
+    assert!(worst_st < 0.02 * period + bmi270::SENSORTIME_S, "{worst_st}");
+    assert!(worst_read > 0.5 * period, "the read time alone is up to a period late: {worst_read}");
 }
