@@ -30,8 +30,8 @@
 //! - The feature pages (FEAT_PAGE 0x2F selects one, 0x30–0x3F is its 16-byte window, read in one
 //!   burst as Bosch's `bmi2_get_feat_config` does): page 0 offset 0x0C holds GYR_CAS (7-bit two's
 //!   complement) once the configuration is loaded (0 before). The part's raw data are the rig's
-//!   readings: the rig's cross-axis draw stands for the part's whole raw coupling, of which
-//!   GYR_CAS is the factory-measured z→x share; the model reports it and applies nothing.
+//!   readings; a rig made for it (`RigConfig::on_bmi270`) has the raw z→x coupling GYR_CAS/512
+//!   on top of its cross-axis draw, as the part whose factory trim GYR_CAS measures it.
 //! - GYR_OFF_COMP_6 0x77 bit 7 (user gain enable) after a reset: [`Bmi270Model::user_gain_after_reset`]
 //!   (the datasheet's reset value was not available; a part whose NVM holds a CRT result may
 //!   come up with it on); writable.

@@ -23,7 +23,7 @@
 
 use crate::bmi_model::Bmi270Model;
 use crate::bmm_model::{self, Bmm150Model};
-use crate::sim::{AccelRange, GyroRange, Rig};
+use crate::sim::{AccelRange, GyroRange, Rig, RigConfig};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, FIFO_DEPTH, WHO_AM_I_AG};
 use std::collections::VecDeque;
@@ -49,6 +49,17 @@ pub enum Board {
     Missing,
     /// A chip at 0x6B with this WHO_AM_I.
     OtherChip(u8),
+}
+
+impl Board {
+    /// `cfg` with the physics of this board's sensor: a Rev2's BMI270 (`RigConfig::on_bmi270`,
+    /// its ODR error drawn from `seed`; the full scales follow the registers), else as it is.
+    pub fn physics(self, cfg: RigConfig, seed: u64) -> RigConfig {
+        match self {
+            Board::Rev2 => cfg.on_bmi270(500, 2, &mut <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed)),
+            _ => cfg,
+        }
+    }
 }
 
 /// A produced sample waiting for its time: true time, FIFO slot, temperature, rig readings.

@@ -83,7 +83,7 @@ impl Testbed {
     /// Powers up `elf` on a rig, with `board`'s sensor and this flash.
     pub fn new(elf: Vec<u8>, rig: RigConfig, seed: u64, board: Board, flash: NorSim, echo: bool) -> Result<Self, String> {
         let fw = Firmware::load(elf)?;
-        let sensor = Lsm9ds1Model::new(Rig::new(rig, seed), board);
+        let sensor = Lsm9ds1Model::new(Rig::new(board.physics(rig, seed), seed), board);
         let mcu = Mcu::new(fw, Periph::new(sensor, flash, Rc::new(Cell::new(0))))?;
         Ok(Self { mcu, printed: 0, echo, usb: None, go: Go::Button })
     }

@@ -16,14 +16,12 @@
 //! `cargo run --profile host -p benchmarks --target host-tuple --bin drift-bench [--rigs N] [--setup S] [--json]`
 
 use benchmarks::moments::Moments;
+use benchmarks::setup::Setup;
 use calib_core::procedure::{Config, Procedure, Report};
-use calib_core::record::{Sensor, SensorSetup};
 use clap::Parser;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
-use rig_sim::sim::{AccelRange, GyroRange, Rig, RigConfig};
+use rig_sim::sim::{Rig, RigConfig};
 use rig_sim::variant::Variant;
 use serde_json::json;
 
@@ -46,48 +44,6 @@ struct Args {
     /// Print a JSON summary as the last line.
     #[arg(long)]
     json: bool,
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum Setup {
-    /// The firmware's: 119 Hz, ±500 °/s, ±2 g.
-    Default,
-    /// Arduino_LSM9DS1's: 119 Hz, ±2000 °/s, ±4 g.
-    ArduinoLsm9ds1,
-    /// The Rev2's BMI270 at the firmware's Rev2 setup: 100 Hz, ±500 °/s, ±2 g.
-    Bmi270,
-    /// The BMI270 at Arduino_BMI270_BMM150's: 100 Hz, ±2000 °/s, ±4 g.
-    ArduinoBmi270,
-}
-
-impl Setup {
-    /// The procedure's setup.
-    fn setup(self) -> SensorSetup {
-        let bmi = |gyro_range_dps, accel_range_g| SensorSetup {
-            odr_hz: 100.0,
-            gyro_range_dps,
-            accel_range_g,
-            sensor: Sensor::Bmi270 { gyr_cas: 0, user_gain: false },
-        };
-        match self {
-            Setup::Default => SensorSetup::DEFAULT,
-            Setup::ArduinoLsm9ds1 => SensorSetup::ARDUINO_LSM9DS1,
-            Setup::Bmi270 => bmi(500.0, 2.0),
-            Setup::ArduinoBmi270 => bmi(2000.0, 4.0),
-        }
-    }
-
-    /// The rig's sensor to match (`seed`: its draw of a BMI270's ODR error).
-    fn sensor(self, mut cfg: RigConfig, seed: u64) -> RigConfig {
-        let rng = &mut ChaCha8Rng::seed_from_u64(seed);
-        match self {
-            Setup::Default => (cfg.gyro.range, cfg.accel.range) = (GyroRange::Dps500, AccelRange::G2),
-            Setup::ArduinoLsm9ds1 => (cfg.gyro.range, cfg.accel.range) = (GyroRange::Dps2000, AccelRange::G4),
-            Setup::Bmi270 => cfg = cfg.on_bmi270(500, 2, rng),
-            Setup::ArduinoBmi270 => cfg = cfg.on_bmi270(2000, 4, rng),
-        }
-        cfg
-    }
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -118,7 +74,7 @@ fn main() {
                     "one-servo" => (Variant::Hobby.config(args.seed, i), Config { setup, ..Config::DEFAULT }),
                     _ => (pan_tilt::rig_config(args.seed, i), Config { setup, ..Config::PAN_TILT }),
                 };
-                base = args.setup.sensor(base, args.seed.wrapping_mul(31).wrapping_add(i as u64));
+                base = args.setup.rig(base, args.seed.wrapping_mul(31).wrapping_add(i as u64));
                 let mut rig_cfg = if bias == Bias::Constant { base.constant_bias() } else { base };
                 let wait = if bias == Bias::Waited { args.wait_s } else { 0.0 };
                 if let Some(w) = rig_cfg.warmup.as_mut() {
@@ -170,8 +126,6 @@ fn main() {
         }
     }
     if args.json {
-        let setup = json!({"odr_hz": setup.odr_hz, "gyro_range_dps": setup.gyro_range_dps, "accel_range_g": setup.accel_range_g,
-            "sensor": setup.sensor.name()});
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": setup, "rows": rows}));
+        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": rows}));
     }
 }

@@ -11,6 +11,7 @@
 //! from one axis (sweep) of the same run. `--json`: the last line is a JSON summary.
 
 use benchmarks::moments::Moments;
+use benchmarks::setup::Setup;
 use calib::{csvlog, offline};
 use calib_core::gyro::Method;
 use calib_core::procedure::{Config, Procedure, Report};
@@ -30,6 +31,9 @@ struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 2026)]
     seed: u64,
+    /// The simulated sensor and its settings (the Rev2's: `bmi270`).
+    #[arg(long, value_enum, default_value = "default")]
+    setup: Setup,
     /// Print a JSON summary as the last line.
     #[arg(long)]
     json: bool,
@@ -41,8 +45,9 @@ fn main() {
     let (mut fw_full, mut fw_diag, mut fw_failed, mut rig_s) = ((vec![], vec![]), (vec![], vec![]), vec![], vec![]);
     for run_idx in 0..args.rigs {
         // The firmware's plan: from the press to the stored record.
-        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
-        let mut p = Procedure::new(Config::PAN_TILT, None);
+        let cfg = args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
+        let mut p = Procedure::new(Config { setup: args.setup.setup(), ..Config::PAN_TILT }, None);
         let mut pressed = None;
         let out = run(&mut rig, &mut p, Faults::default(), 900.0, |s, servo, _| {
             if servo.is_some() {
@@ -67,7 +72,7 @@ fn main() {
             }
             (None, e) => fw_failed.push(format!("{e:?}")),
         }
-        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
         let log = pan_tilt::log(&mut rig, true);
         let c =
             match csvlog::parse(&log).map_err(|e| e.to_string()).and_then(|l| offline::calibrate(&l.rows, None).map_err(|e| e.to_string()))
@@ -98,7 +103,10 @@ fn main() {
         println!("{name:<40}{r:>14.2e}{m:>14.2e}{:>8}", rms.len());
         json!({"method": name, "rms_mean": r, "max": m, "rigs": rms.len()})
     };
-    println!("full-k-bench: {} simulated pan/tilt rigs (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %)", args.rigs);
+    println!(
+        "full-k-bench: {} simulated pan/tilt rigs (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %), the {:?} setup",
+        args.rigs, args.setup
+    );
     println!("{:<40}{:>14}{:>14}{:>8}", "K", "RMS of E", "largest |E|", "rigs");
     let j = [
         row("full 3x3, firmware pan/tilt plan", &fw_full),
@@ -117,7 +125,7 @@ fn main() {
     if args.json {
         println!(
             "{}",
-            json!({"rigs": args.rigs, "seed": args.seed, "rows": j, "rig_time_s": {"mean": rig_time.mean, "max": rig_max},
+            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": j, "rig_time_s": {"mean": rig_time.mean, "max": rig_max},
                    "firmware_failed": fw_failed, "failed": failed})
         );
     }

@@ -246,12 +246,25 @@ fn calib_bench_section(j: &Value) -> String {
     s
 }
 
-fn full_k_section(j: &Value) -> String {
+/// The sensor a benchmark's JSON says it simulated: `the LSM9DS1 at 119 Hz, ±500 °/s, ±2 g`.
+fn sensor_of(j: &Value) -> String {
+    let setup = &j["setup"];
+    format!(
+        "the {} at {} Hz, ±{} °/s, ±{} g",
+        setup["sensor"].as_str().unwrap_or("LSM9DS1"),
+        f(&setup["odr_hz"]),
+        f(&setup["gyro_range_dps"]),
+        f(&setup["accel_range_g"])
+    )
+}
+
+fn full_k_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
-        "## Full-K bench\n\n`full-k-bench` (seed {}, {} pan/tilt rigs): every element of `E = Qᵀ K̂ K⁻¹ − I`; rig time {:.1} s mean, {:.1} s max.\n\n\
+        "## {heading}\n\n`full-k-bench` (seed {}, {} pan/tilt rigs, {}): every element of `E = Qᵀ K̂ K⁻¹ − I`; rig time {:.1} s mean, {:.1} s max.\n\n\
          | method | RMS of E (mean over rigs) | largest | rigs |\n|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
+        sensor_of(j),
         f(&j["rig_time_s"]["mean"]),
         f(&j["rig_time_s"]["max"])
     );
@@ -261,11 +274,13 @@ fn full_k_section(j: &Value) -> String {
     s
 }
 
-fn rotation_section(j: &Value) -> String {
+fn rotation_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
-        "## Rotation bench\n\n`rotation-bench` (seed {}, {} rigs per row): the full K with and without the rotation constraints of the moves \
+        "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}): the full K with and without the rotation constraints of the moves \
          between static poses; E as above.\n\n| rig | rotations | RMS of E | largest | rigs | failed |\n|---|---|---|---|---|---|\n",
-        j["seed"], j["rigs"]
+        j["seed"],
+        j["rigs"],
+        sensor_of(j)
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -283,21 +298,17 @@ fn rotation_section(j: &Value) -> String {
 
 /// A drift-bench table under `heading` (its sensor setup said).
 fn drift_section(heading: &str, j: &Value) -> String {
-    let setup = &j["setup"];
     let mut s = format!(
         "## {heading}
 
-`drift-bench` (seed {}, {} rigs per row, the {} at {} Hz, ±{} °/s, ±{} g): the firmware's procedure with the gyro bias constant, drifting as on a \
+`drift-bench` (seed {}, {} rigs per row, {}): the firmware's procedure with the gyro bias constant, drifting as on a \
          board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from the button to the store plus the wait; the bias's temperature coefficient: the runs \
          that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth.\n\n\
          | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ |\n|---|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
-        setup["sensor"].as_str().unwrap_or("LSM9DS1"),
-        f(&setup["odr_hz"]),
-        f(&setup["gyro_range_dps"]),
-        f(&setup["accel_range_g"])
+        sensor_of(j)
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -340,6 +351,8 @@ fn page() -> Result<String, String> {
         Run { bin: "drift-bench", args: a(&["--rigs", "20", "--setup", "arduino-lsm9ds1", "--json"]) },
         Run { bin: "drift-bench", args: a(&["--rigs", "20", "--setup", "bmi270", "--json"]) },
         Run { bin: "demo", args: a(&["--quiet", "--rev2"]) },
+        Run { bin: "full-k-bench", args: a(&["--setup", "bmi270", "--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--setup", "bmi270", "--json"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -369,15 +382,19 @@ fn page() -> Result<String, String> {
     s += "\n";
     s += &calib_bench_section(&json(&out[3])?);
     s += "\n";
-    s += &full_k_section(&json(&out[2])?);
+    s += &full_k_section("Full-K bench", &json(&out[2])?);
     s += "\n";
-    s += &rotation_section(&json(&out[0])?);
+    s += &rotation_section("Rotation bench", &json(&out[0])?);
     s += "\n";
     s += &drift_section("Drift", &json(&out[8])?);
     s += "\n";
     s += &drift_section("At Arduino_LSM9DS1's setup", &json(&out[9])?);
     s += "\n";
     s += &drift_section("Rev2: the BMI270", &json(&out[10])?);
+    s += "\n";
+    s += &full_k_section("Rev2: full-K bench", &json(&out[12])?);
+    s += "\n";
+    s += &rotation_section("Rev2: rotation bench", &json(&out[13])?);
     Ok(s)
 }
 

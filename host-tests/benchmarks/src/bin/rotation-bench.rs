@@ -8,6 +8,7 @@
 //! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
 
 use benchmarks::moments::Moments;
+use benchmarks::setup::Setup;
 use calib::{csvlog, offline};
 use calib_core::procedure::{Config, Procedure};
 use clap::Parser;
@@ -26,6 +27,9 @@ struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 2027)]
     seed: u64,
+    /// The simulated sensor and its settings (the Rev2's: `bmi270`).
+    #[arg(long, value_enum, default_value = "default")]
+    setup: Setup,
     /// Print a JSON summary as the last line.
     #[arg(long)]
     json: bool,
@@ -45,13 +49,17 @@ fn main() {
     let args = Args::parse_from(calib::cli_args());
     let names = ["one servo + 12 hand-held poses", "pan/tilt + 12 hand-held poses", "12 hand-held poses, no servo"];
     let mut table = vec![];
-    println!("rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %)", args.rigs);
+    println!(
+        "rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %), the {:?} setup",
+        args.rigs, args.setup
+    );
     println!("{:<38}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
             let (mut rms, mut max, mut failed) = (vec![], 0.0f64, vec![]);
             for run in 0..args.rigs {
-                let mut rig = Rig::new(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64);
+                let cfg = args.setup.rig(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64);
+                let mut rig = Rig::new(cfg, args.seed + run as u64);
                 let log = log_of(kind, &mut rig);
                 let c = csvlog::parse(&log)
                     .map_err(|e| e.to_string())
@@ -93,8 +101,9 @@ fn main() {
     // stores, and the diagonal sweep K it reports beside it.
     let (mut full, mut diag, mut max, mut dmax, mut failed) = (vec![], vec![], 0.0f64, 0.0f64, vec![]);
     for run_idx in 0..args.rigs {
-        let mut rig = Rig::new(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
-        let mut p = Procedure::new(Config::DEFAULT, None);
+        let cfg = args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
+        let mut p = Procedure::new(Config { setup: args.setup.setup(), ..Config::DEFAULT }, None);
         let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
         let Some(rec) = out.stored.first() else {
             failed.push(format!("{:?}", out.error));
@@ -120,6 +129,6 @@ fn main() {
         println!("    failed {}: {failed:?}", failed.len());
     }
     if args.json {
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "rows": table}));
+        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": table}));
     }
 }

@@ -184,9 +184,13 @@ impl RigConfig {
     /// The same rig with a Nano 33 BLE Rev2's BMI270 instead of the LSM9DS1, drawn from `rng`:
     /// 100 Hz with an ODR error U(−2 %, 2 %) (its own oscillator; the datasheet excerpts read
     /// give no figure), gyro noise 0.007 °/s/√Hz (performance mode) and accelerometer
-    /// 160 µg/√Hz (BST-BMI270-DS000), counts of range/32768 at `gyro_dps` and `accel_g`. The
-    /// rest (scale, misalignment, bias, its drift) as drawn for the rig.
+    /// 160 µg/√Hz (BST-BMI270-DS000), counts of range/32768 at `gyro_dps` and `accel_g`, and the
+    /// part's raw z→x gyro coupling that its factory trim GYR_CAS measures (the register model's
+    /// part, [`crate::bmi_model::GYR_CAS`]/512, which Bosch's API subtracts): the rig's own
+    /// cross-axis draw is what that correction leaves. The rest (scale, bias, its drift) as drawn
+    /// for the rig.
     pub fn on_bmi270(mut self, gyro_dps: u16, accel_g: u8, rng: &mut impl Rng) -> Self {
+        self.gyro.misalignment[(0, 2)] += crate::bmi_model::GYR_CAS as f64 / 512.0;
         self.odr_hz = 100.0;
         self.odr_error = rng.random_range(-0.02..0.02);
         self.gyro.noise_dps_rthz = 0.007;
