@@ -59,6 +59,8 @@ pub enum Error {
     Saturated,
     /// The calibration result failed validation (scale out of range or too uncertain).
     ResultRejected { axis: u8, k: f32, sigma: f32 },
+    /// A scale factor is known only to `sigma` (1σ), above the accepted `limit`.
+    TooUncertain { axis: u8, k: f32, sigma: f32, limit: f32 },
     /// The record could not be stored; the previous one is kept.
     Storage(StoreError),
     /// The shell did not drain the command queue: a command would have been lost.
@@ -92,6 +94,10 @@ pub enum Error {
     /// rests by more than the limit that too few are left (`off_trend_dps` the largest change).
     /// `dps_per_min`: the drift over the calibration, or across the largest change.
     BiasDrifting { off_trend_dps: f32, limit_dps: f32, dps_per_min: f32 },
+    /// The moves between poses do not determine `K` because `dropped` of the `total` were
+    /// dropped, most of them for `reason`: its worst value `value` (a step or turn in °) against
+    /// `limit`.
+    MovesDropped { dropped: u8, total: u8, reason: crate::rotation::Rejected, value: f32, limit: f32 },
 }
 
 impl fmt::Display for Error {
@@ -152,6 +158,10 @@ impl fmt::Display for Error {
                 f,
                 "result rejected: axis {} scale {k} (1 sigma {sigma}) outside the accepted range",
                 ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4)),
+            Error::TooUncertain { axis, k, sigma, limit } => write!(
+                f,
+                "result rejected: axis {} scale {k} is known only to 1 sigma {sigma} (limit {limit}): the moves disagree by more than their noise; make more moves, about varied axes, and hold each pose still",
+                ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4), limit = Fixed(limit as f64, 4)),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::SamplesLost { count } => write!(
@@ -182,6 +192,19 @@ impl fmt::Display for Error {
             Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => write!(
                 f,
                 "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
+            Error::MovesDropped { dropped, total, reason, value, limit } => {
+                use crate::rotation::Rejected;
+                let (value, limit) = (Fixed(value as f64, 1), Fixed(limit as f64, 1));
+                write!(f, "{dropped} of {total} moves between poses were dropped: ")?;
+                match reason {
+                    Rejected::Saturated => f.write_str("they reached the gyro's full scale; turn more slowly or use a larger full scale"),
+                    Rejected::TooFast => write!(f, "they turned up to {value} deg between two samples (limit {limit} deg); turn more slowly or log at a higher rate"),
+                    Rejected::TooShort => write!(f, "they turned less than {limit} deg (at most {value} deg); turn the board further between poses"),
+                    Rejected::BiasDrifted => write!(f, "the gyro bias changed between their poses by up to {value} deg/s (limit {limit}); keep the board still longer at each pose"),
+                    Rejected::Full => write!(f, "no room for more (at most {limit} moves)"),
+                    Rejected::Unseen => write!(f, "gravity turned up to {value} deg between their poses while the gyro turned far less; the log was cut between its poses (sections glued together?) or the gyro and accelerometer columns are not one sensor's: record the whole session, moves included"),
+                }
+            }
         }
     }
 }

@@ -27,16 +27,21 @@ pub struct Acceptance {
     pub max_accel_rms_g: f32,
 }
 
-/// Poses the 6-parameter accelerometer fit needs; from [`NINE_PARAM_POSES`] on, the 9-parameter
-/// fit is tried first.
-pub const SIX_PARAM_POSES: usize = 6;
+/// Poses the 6-parameter accelerometer fit needs: one more than its unknowns, since a fit with
+/// as many unknowns as poses interpolates them (residual 0, 1σ 0) and determines nothing; from
+/// [`NINE_PARAM_POSES`] on, the 9-parameter fit is tried first.
+pub const SIX_PARAM_POSES: usize = 7;
 /// See [`SIX_PARAM_POSES`].
-pub const NINE_PARAM_POSES: usize = 9;
+pub const NINE_PARAM_POSES: usize = 10;
 
 /// The accelerometer fit: 9 parameters when there are enough poses and it succeeds, else 6;
 /// rejected if its residual exceeds the acceptance.
 pub fn fit_accel(poses: &AccelCalibrator, acc: &Acceptance) -> Result<AccelCal, Error> {
-    let fit = if poses.len() >= NINE_PARAM_POSES { poses.solve9().or_else(|_| poses.solve6()) } else { poses.solve6() }?;
+    let fit = match poses.len() {
+        n if n >= NINE_PARAM_POSES => poses.solve9().or_else(|_| poses.solve6()),
+        n if n >= SIX_PARAM_POSES => poses.solve6(),
+        n => Err(Error::TooFewPoses { have: n as u8, need: SIX_PARAM_POSES as u8 }),
+    }?;
     if !(fit.rms_after_g <= acc.max_accel_rms_g) {
         return Err(Error::AccelFitFailed);
     }
@@ -51,13 +56,22 @@ pub fn choose(sweep: Result<GyroCal, Error>, paper: Option<Result<GyroCal, Error
     }
 }
 
+/// A scale factor `k` of axis `i` with its 1σ: outside the accepted range it is
+/// [`Error::ResultRejected`], too uncertain [`Error::TooUncertain`].
+fn check_scale(i: usize, k: f32, sigma: f32, acc: &Acceptance) -> Result<(), Error> {
+    if !(k >= acc.k_min && k <= acc.k_max) {
+        return Err(Error::ResultRejected { axis: i as u8, k, sigma });
+    }
+    if !(sigma <= acc.max_sigma_k) {
+        return Err(Error::TooUncertain { axis: i as u8, k, sigma, limit: acc.max_sigma_k });
+    }
+    Ok(())
+}
+
 /// Rejects a result whose scale factors are implausible or too uncertain.
 pub fn validate(cal: &GyroCal, acc: &Acceptance) -> Result<(), Error> {
     for i in 0..3 {
-        let (k, sigma) = (cal.k[i][i], cal.quality.sigma_k[i]);
-        if !(k >= acc.k_min && k <= acc.k_max && sigma <= acc.max_sigma_k) {
-            return Err(Error::ResultRejected { axis: i as u8, k, sigma });
-        }
+        check_scale(i, cal.k[i][i], cal.quality.sigma_k[i], acc)?;
     }
     Ok(())
 }
@@ -118,10 +132,7 @@ pub const MAX_CROSS_AXIS: f32 = 0.1;
 /// terms are implausible.
 pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
     for i in 0..3 {
-        let (k, sigma) = (cal.k[i][i], cal.sigma_k[i][i]);
-        if !(k >= acc.k_min && k <= acc.k_max && sigma <= acc.max_sigma_k) {
-            return Err(Error::ResultRejected { axis: i as u8, k, sigma });
-        }
+        check_scale(i, cal.k[i][i], cal.sigma_k[i][i], acc)?;
         for j in (0..3).filter(|&j| j != i) {
             if !(cal.k[i][j].abs() <= MAX_CROSS_AXIS) {
                 return Err(Error::ResultRejected { axis: i as u8, k: cal.k[i][j], sigma: cal.sigma_k[i][j] });
@@ -140,15 +151,19 @@ pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 
 /// A solve's error as the user must read it: [`Error::MovesInconsistent`] becomes
 /// [`Error::BiasDrifting`] when a rest's bias left the trend of its neighbours by more than
-/// [`MAX_OFF_TREND_DPS`], and [`Error::RotationAxesCoplanar`] does when the hand-held moves
-/// dropped for a changing bias are why too few are left ([`Rotations::drift_error`]). A slip
+/// [`MAX_OFF_TREND_DPS`]; a full `K` the moves between poses do not determine
+/// ([`Error::RotationAxesCoplanar`], a singular or unobservable normal matrix) is blamed on the
+/// moves dropped when they are why too few are left ([`Rotations::drop_error`]: the most common
+/// reason with its numbers, [`Error::BiasDrifting`] for a changing bias). A slip
 /// moves the board, not the bias: it stays `MovesInconsistent` (or `AxisNotFixed`).
-pub fn blame(e: Error, drift: &Drift, rotations: Option<&Rotations>) -> Error {
+pub fn blame(e: Error, drift: &Drift, rotations: Option<(&Rotations, &RotationLimits)>) -> Error {
     match e {
         Error::MovesInconsistent { .. } if drift.off_trend_dps() > MAX_OFF_TREND_DPS => {
             Error::BiasDrifting { off_trend_dps: drift.off_trend_dps(), limit_dps: MAX_OFF_TREND_DPS, dps_per_min: drift.dps_per_min() }
         }
-        Error::RotationAxesCoplanar { .. } => rotations.and_then(Rotations::drift_error).unwrap_or(e),
+        Error::RotationAxesCoplanar { .. } | Error::Singular | Error::FullKUnobservable { .. } | Error::TooFewRows { .. } => {
+            rotations.and_then(|(r, limits)| r.drop_error(limits)).unwrap_or(e)
+        }
         e => e,
     }
 }

@@ -27,6 +27,7 @@
 use crate::accel::AccelCal;
 use crate::axis::{Poses, MAX_POSES};
 use crate::bias::RestBias;
+use crate::gyro::SCALE_RANGE;
 use crate::linalg::sym_eigen;
 use crate::lsq::NormalEquations;
 use crate::vec3::{tangent_basis, to_f64 as v64};
@@ -47,7 +48,9 @@ pub const CHUNK_DEG: f64 = 5.0;
 pub struct RotationLimits {
     /// Moves that turn less than this (°, raw `|Σ Γ_c|` or the gravity angle) are not used.
     pub min_move_deg: f32,
-    /// Largest raw turn between two samples (°): beyond it the move is too fast for the log's rate.
+    /// Largest raw turn between two samples (°): beyond it (fewer than 3 samples per radian) the
+    /// rate between two samples is not known well enough to integrate. Below it a fast move is
+    /// integrated, its third-order error carried in its weight ([`RotationMove::int_sigma_rad`]).
     pub max_step_deg: f32,
     /// Largest change of the bias-free gyro mean between the two poses of a move (°/s): beyond it
     /// the bias drifted over the move.
@@ -59,20 +62,36 @@ pub struct RotationLimits {
     pub gamma_sigma_deg: f32,
     /// Floor of a pose's direction noise (rad).
     pub min_direction_sigma: f32,
-    /// Largest RMS residual of the rotation rows (°).
+    /// Largest RMS residual of the rotation rows (°): a slip, a pose that moved, a wrong
+    /// column. Real hand-held sessions leave 0.2–0.4° (an accelerometer misalignment that poses
+    /// on six faces cannot show, a hand's sway); their scatter widens `K`'s 1σ, which the
+    /// acceptance bounds.
     pub max_residual_rms_deg: f32,
+    /// A move whose end poses see gravity within this angle (°) of each other and whose raw turn
+    /// lies within it of gravity is a turn about the vertical (e.g. on a table): the
+    /// accelerometer cannot see its angle, only its axis.
+    pub vertical_deg: f32,
+    /// 1σ of a vertical turn's axis against the gravity of its poses (°): a table's tilt, a
+    /// hand's wobble.
+    pub vertical_axis_sigma_deg: f32,
+    /// The user says every vertical turn is a whole number of revolutions (the Ferraris
+    /// protocol's 360° turns): its angle is known too, `N · 360°` with `N` the raw turn rounded.
+    pub whole_turns: bool,
 }
 
 impl RotationLimits {
     /// The defaults (also as `Default`).
     pub const DEFAULT: RotationLimits = RotationLimits {
         min_move_deg: 15.0,
-        max_step_deg: 4.0,
+        max_step_deg: 20.0,
         max_bias_change_dps: 0.2,
         min_axis_spread: 0.02,
         gamma_sigma_deg: 0.02,
         min_direction_sigma: 1e-5,
-        max_residual_rms_deg: 0.2,
+        max_residual_rms_deg: 1.0,
+        vertical_deg: 15.0,
+        vertical_axis_sigma_deg: 1.0,
+        whole_turns: false,
     };
 }
 
@@ -96,6 +115,42 @@ pub enum Rejected {
     BiasDrifted,
     /// No room for its chunks or for one more move.
     Full,
+    /// Gravity turned between its two poses by far more than the gyro did (the log was cut
+    /// between the poses, or the columns are not one sensor's).
+    Unseen,
+}
+
+/// The number of [`Rejected`] reasons.
+pub const REJECTED_REASONS: usize = 6;
+
+impl Rejected {
+    /// Every reason, in index order.
+    pub const ALL: [Rejected; REJECTED_REASONS] =
+        [Rejected::Saturated, Rejected::TooFast, Rejected::TooShort, Rejected::BiasDrifted, Rejected::Full, Rejected::Unseen];
+
+    /// Its name in reports and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Rejected::Saturated => "saturated",
+            Rejected::TooFast => "too_fast",
+            Rejected::TooShort => "too_short",
+            Rejected::BiasDrifted => "bias_drifted",
+            Rejected::Full => "no_room",
+            Rejected::Unseen => "unseen",
+        }
+    }
+
+    /// What it means, for a person.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Rejected::Saturated => "the gyro reached its full scale",
+            Rejected::TooFast => "it turned too far between two samples",
+            Rejected::TooShort => "it turned too little",
+            Rejected::BiasDrifted => "the gyro bias changed between its two poses",
+            Rejected::Full => "no room for it",
+            Rejected::Unseen => "gravity turned more than the gyro did",
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -120,6 +175,12 @@ pub struct RotationMove {
     pub duration_s: f32,
     /// Raw gyro turn `|Σ Γ_c|` (°).
     pub turn_deg: f32,
+    /// A turn about the vertical ([`RotationLimits::vertical_deg`]): its rows constrain `K Γ`
+    /// to gravity's direction (and with [`RotationLimits::whole_turns`] its length).
+    pub vertical: bool,
+    /// Estimated integration error of the move (rad): the third-order terms of the two-sample
+    /// scheme, `Σ |d_{k−1} × d_k| |d_k| / 12` over its sample increments `d` (0 about a fixed axis).
+    pub int_sigma_rad: f32,
 }
 
 /// The move being integrated.
@@ -134,6 +195,9 @@ struct Open {
     chunk_t0: f64,
     total: [f64; 3],
     max_step_deg: f64,
+    /// The previous sample increment (°) and the integration error so far (rad).
+    step: [f64; 3],
+    int_err: f64,
     why: Option<Rejected>,
 }
 
@@ -147,7 +211,9 @@ pub struct Rotations {
     chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
     moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
-    rejected: [u16; 5],
+    rejected: [u16; REJECTED_REASONS],
+    /// Per reason, the largest offending value (see [`Rotations::worst`]).
+    worst: [f32; REJECTED_REASONS],
     bias_jump: Option<BiasJump>,
 }
 
@@ -167,6 +233,21 @@ impl Default for Rotations {
     fn default() -> Self {
         Self::new()
     }
+}
+
+/// The angle between two vectors (°).
+fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    libm::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
+}
+
+fn sq(x: f64) -> f64 {
+    x * x
+}
+
+/// The whole number of revolutions nearest to a turn (rad), in rad (at least one).
+fn whole_turn_rad(turn_rad: f64) -> f64 {
+    let rev = 2.0 * core::f64::consts::PI;
+    libm::round(turn_rad / rev).max(1.0) * rev
 }
 
 /// `[v]×`.
@@ -209,7 +290,8 @@ impl Rotations {
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
-            rejected: [0; 5],
+            rejected: [0; REJECTED_REASONS],
+            worst: [0.0; REJECTED_REASONS],
             bias_jump: None,
         }
     }
@@ -240,6 +322,8 @@ impl Rotations {
             chunk_t0: 0.0,
             total: [0.0; 3],
             max_step_deg: 0.0,
+            step: [0.0; 3],
+            int_err: 0.0,
             why: None,
         });
     }
@@ -270,6 +354,9 @@ impl Rotations {
                     o.gamma[i] += d[i];
                     o.total[i] += d[i];
                 }
+                let (dv, prev) = (Vector3::from(d).map(f64::to_radians), Vector3::from(o.step).map(f64::to_radians));
+                o.int_err += prev.cross(&dv).norm() * dv.norm() / 12.0;
+                o.step = d;
                 o.max_step_deg = o.max_step_deg.max(Vector3::from(d).norm());
                 if Vector3::from(o.gamma).norm() >= CHUNK_DEG {
                     self.flush(&mut o, t_s);
@@ -300,17 +387,36 @@ impl Rotations {
             let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
             self.flush(&mut o, t_end);
         }
-        let turn = Vector3::from(o.total).norm();
+        let total = Vector3::from(o.total);
+        let turn = total.norm();
         let (ra, rb) = (self.rest[o.from as usize % MAX_POSES], self.rest[to as usize % MAX_POSES]);
         let (a, b) = (v64(ra.residual_dps), v64(rb.residual_dps));
-        let why = o
-            .why
-            .or((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast))
-            .or((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort))
-            .or(((a - b).amax() > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted));
+        let (gi, gj) = (self.poses.get(o.from as usize).normalize(), self.poses.get(to as usize).normalize());
+        let gravity_deg = angle_deg(&gi, &gj);
+        let bias_change = (a - b).amax();
+        let candidates = [
+            (o.why, 0.0),
+            ((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast), o.max_step_deg),
+            // Gravity turned more than any plausible scale lets the gyro's turn explain.
+            ((gravity_deg > SCALE_RANGE.1 * turn + 5.0).then_some(Rejected::Unseen), gravity_deg),
+            ((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort), turn),
+            ((bias_change > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted), bias_change),
+        ];
+        let (why, worst) = candidates.into_iter().find_map(|(w, v)| w.map(|w| (w, v))).map_or((None, 0.0), |(w, v)| (Some(w), v));
+        let off_gravity = angle_deg(&total, &gi);
+        let vertical = gravity_deg < limits.vertical_deg as f64 && off_gravity.min(180.0 - off_gravity) < limits.vertical_deg as f64;
         let duration_s = o.last.map_or(0.0, |(t, _)| (t - o.t0) as f32);
         let n = (self.chunks.len() - o.first) as u16;
-        let kept = RotationMove { from: o.from, to, first: o.first as u16, n, duration_s, turn_deg: turn as f32 };
+        let kept = RotationMove {
+            from: o.from,
+            to,
+            first: o.first as u16,
+            n,
+            duration_s,
+            turn_deg: turn as f32,
+            vertical,
+            int_sigma_rad: o.int_err as f32,
+        };
         let result = match why {
             None => {
                 for c in &mut self.chunks[o.first..] {
@@ -323,7 +429,7 @@ impl Rotations {
         };
         if let Err(why) = result {
             if why == Rejected::BiasDrifted {
-                let dps = (a - b).amax() as f32;
+                let dps = bias_change as f32;
                 let dt_s = (rb.t_s - ra.t_s).abs().max(1e-3) as f32;
                 if self.bias_jump.is_none_or(|j| dps > j.dps) {
                     self.bias_jump = Some(BiasJump { dps, dps_per_min: 60.0 * dps / dt_s, limit_dps: limits.max_bias_change_dps });
@@ -331,13 +437,22 @@ impl Rotations {
             }
             self.chunks.truncate(o.first);
             self.rejected[why as usize] = self.rejected[why as usize].saturating_add(1);
+            self.worst[why as usize] = self.worst[why as usize].max(worst as f32);
         }
         result
     }
 
-    /// Moves rejected, by reason (in the order of [`Rejected`]).
-    pub fn rejected(&self) -> [u16; 5] {
+    /// Moves rejected, by reason (in the order of [`Rejected::ALL`]).
+    pub fn rejected(&self) -> [u16; REJECTED_REASONS] {
         self.rejected
+    }
+
+    /// Per reason (in the order of [`Rejected::ALL`]), the largest offending value among the
+    /// moves rejected for it: the step (°) of [`Rejected::TooFast`], the turn (°) of
+    /// [`Rejected::TooShort`], the bias change (°/s) of [`Rejected::BiasDrifted`], gravity's
+    /// turn (°) of [`Rejected::Unseen`]; 0 for the others.
+    pub fn worst(&self) -> [f32; REJECTED_REASONS] {
+        self.worst
     }
 
     /// Moves kept plus those dropped for a changing bias ([`Rejected::BiasDrifted`]).
@@ -354,6 +469,32 @@ impl Rotations {
             limit_dps: j.limit_dps,
             dps_per_min: j.dps_per_min,
         })
+    }
+
+    /// Why the moves do not determine `K`, when the dropped ones are at least as many as the
+    /// kept: [`Error::MovesDropped`] naming the most common reason with its worst value (or
+    /// [`Error::BiasDrifting`], [`Self::drift_error`], when that reason is the bias).
+    pub fn drop_error(&self, limits: &RotationLimits) -> Option<Error> {
+        let dropped: u32 = self.rejected.iter().map(|&n| n as u32).sum();
+        if dropped == 0 || (dropped as usize) < self.moves.len() {
+            return None;
+        }
+        let (i, _) = self.rejected.iter().enumerate().max_by_key(|(i, n)| (**n, core::cmp::Reverse(*i)))?;
+        let reason = Rejected::ALL[i];
+        if reason == Rejected::BiasDrifted {
+            if let Some(e) = self.drift_error() {
+                return Some(e);
+            }
+        }
+        let limit = match reason {
+            Rejected::TooFast => limits.max_step_deg,
+            Rejected::TooShort => limits.min_move_deg,
+            Rejected::BiasDrifted => limits.max_bias_change_dps,
+            Rejected::Full => MAX_ROTATION_MOVES as f32,
+            Rejected::Saturated | Rejected::Unseen => 0.0,
+        };
+        let total = (dropped as usize + self.moves.len()).min(u8::MAX as usize) as u8;
+        Some(Error::MovesDropped { dropped: dropped.min(u8::MAX as u32) as u8, total, reason, value: self.worst[i], limit })
     }
 
     /// The kept moves.
@@ -408,18 +549,45 @@ impl Rotations {
     }
 
     /// Adds the rows of every kept move, linearised at `k` (vec `K`), as rows linear in vec `K`:
-    /// `H·k' ≈ H·k − r`. Returns the weighted and the unweighted (rad²) residual sums at `k`.
-    pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64), Error> {
+    /// `H·k' ≈ H·k − r`. Returns the weighted residual sum at `k`, and the unweighted one (rad²)
+    /// of the rotation rows with their count (a vertical turn's rows are in the weighted sum only).
+    pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64, usize), Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
-        let (mut wrss, mut rss) = (0.0, 0.0);
+        let (mut wrss, mut rss, mut n) = (0.0, 0.0, 0);
         for m in self.moves() {
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
             let (gi, gj) = (pi.normalize(), pj.normalize());
             let dir = |p: &Vector3<f64>, i: u8| (self.sigma_g[i as usize] as f64 / p.norm()).max(limits.min_direction_sigma as f64);
             let (di, dj) = (dir(&pi, m.from), dir(&pj, m.to));
-            let w = 1.0 / (di * di + dj * dj + sg * sg);
+            let s2 = di * di + dj * dj + sg * sg + sq(m.int_sigma_rad as f64);
+            if m.vertical {
+                // Linear rows in `K Γ̂` (Γ̂ = Γ/|Γ|, so that a residual is an angle): no part
+                // across gravity (1σ the axis' tilt), and with whole turns `N·360°/|Γ|` along it
+                // (1σ the hand's realignment of the start attitude, as an angle over the turn).
+                let gamma = self.total_rad(m);
+                let (len, unit) = (gamma.norm(), gamma.normalize());
+                let up = if unit.dot(&gi) >= 0.0 { gi } else { -gi };
+                let tilt = (limits.vertical_axis_sigma_deg as f64).to_radians();
+                let noise = (sg * sg + sq(m.int_sigma_rad as f64)) / (len * len);
+                let mut row = |e: Vector3<f64>, target: f64, s2: f64| -> Result<(), Error> {
+                    let h: [f64; 9] = core::array::from_fn(|c| unit[c / 3] * e[c % 3]);
+                    let res = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - target;
+                    ne.add_row(&h, target, 1.0 / s2)?;
+                    wrss += res * res / s2;
+                    Ok(())
+                };
+                for e in tangent_basis(&up) {
+                    row(e, 0.0, di * di + dj * dj + tilt * tilt + noise)?;
+                }
+                if limits.whole_turns {
+                    row(up, whole_turn_rad(len) / len, sq(tilt / len) + noise)?;
+                }
+                continue;
+            }
+            n += 2;
+            let w = 1.0 / s2;
             let (r, j) = self.compose(m, &km, &cof);
             let rg = r * gj;
             let a = -(r * skew(&gj)); // ∂(R g_j)/∂(J δk) = −R [g_j]×
@@ -433,20 +601,33 @@ impl Rotations {
                 rss += res * res;
             }
         }
-        Ok((wrss, rss))
+        Ok((wrss, rss, n))
     }
 
-    /// The misfit of every kept move at `K` (row-major): the angle (°) between `R g_j` and `g_i`.
-    pub fn residuals_deg(&self, k: &Mat3) -> [f32; MAX_ROTATION_MOVES] {
+    /// The misfit of every kept move at `K` (row-major): the angle (°) between `R g_j` and `g_i`;
+    /// for a vertical turn, between `K Γ` and gravity (with whole turns, or the turn's distance
+    /// from its whole revolutions if larger).
+    pub fn residuals_deg(&self, k: &Mat3, limits: &RotationLimits) -> [f32; MAX_ROTATION_MOVES] {
         let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
         let mut out = [0.0; MAX_ROTATION_MOVES];
         let Some(cof) = cofactor(&km) else { return out };
         for (o, m) in out.iter_mut().zip(self.moves()) {
             let (gi, gj) = (self.poses.get(m.from as usize).normalize(), self.poses.get(m.to as usize).normalize());
-            let rg = self.compose(m, &km, &cof).0 * gj;
-            *o = libm::atan2(rg.cross(&gi).norm(), rg.dot(&gi)).to_degrees() as f32;
+            *o = if m.vertical {
+                let turn = km * self.total_rad(m);
+                let off = angle_deg(&turn, &gi);
+                let excess = if limits.whole_turns { (turn.norm() - whole_turn_rad(turn.norm())).abs().to_degrees() } else { 0.0 };
+                off.min(180.0 - off).max(excess) as f32
+            } else {
+                angle_deg(&(self.compose(m, &km, &cof).0 * gj), &gi) as f32
+            };
         }
         out
+    }
+
+    /// The bias-free gyro integral of kept move `m` (rad): `Σ Γ_c`.
+    fn total_rad(&self, m: &RotationMove) -> Vector3<f64> {
+        self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<f64>>().map(f64::to_radians)
     }
 
     /// Smallest eigenvalue (of 1) of the mean `n nᵀ` over the kept moves' raw rotation axes:

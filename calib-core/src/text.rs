@@ -9,6 +9,7 @@
 use crate::log::fixed;
 use crate::procedure::{Phase, Report};
 use crate::protocol::{self, RecordLine};
+use crate::rotation::Rejected;
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Display, Write};
 
@@ -60,7 +61,7 @@ pub enum Level {
 /// The level of a report's line.
 pub fn level(r: &Report) -> Level {
     match r {
-        Report::Retake { .. } | Report::HandMove { kept: false, .. } | Report::EstimatorFailed { .. } => Level::Warn,
+        Report::Retake { .. } | Report::HandMove { rejected: Some(_), .. } | Report::EstimatorFailed { .. } => Level::Warn,
         Report::Failed(_) => Level::Error,
         _ => Level::Info,
     }
@@ -112,22 +113,24 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             Fixed(*residual_rms_deg as f64, 4),
             Fixed(*condition as f64, 0)
         ),
-        Report::HandMove { from, to, kept: true, turn_deg, spread, need } => write!(
+        Report::HandMove { from, to, rejected: None, turn_deg, spread, need } => write!(
             w,
             "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
             Fixed(*turn_deg as f64, 1),
             Fixed(*spread as f64, 3),
             Fixed(*need as f64, 3)
         ),
-        Report::HandMove { from, to, .. } => {
-            write!(w, "hand-held move {from} -> {to} not used (too fast, too short, saturated or the bias drifted)")
-        }
+        Report::HandMove { from, to, rejected: Some(why), .. } => write!(w, "hand-held move {from} -> {to} not used: {}", why.describe()),
         Report::Rotations { moves, rejected: r, residual_deg } => {
             write!(w, "rotation constraints: {moves} moves, misfit [")?;
             for (i, m) in residual_deg[..(*moves as usize).min(residual_deg.len())].iter().enumerate() {
                 write!(w, "{}{}", if i == 0 { "" } else { " " }, Fixed(*m as f64, 3))?;
             }
-            write!(w, "] deg; rejected: {} saturated, {} too fast, {} too short, {} bias drifted, {} no room", r[0], r[1], r[2], r[3], r[4])
+            write!(w, "] deg; rejected:")?;
+            for (why, n) in Rejected::ALL.iter().zip(r) {
+                write!(w, " {n} {},", why.name())?;
+            }
+            Ok(())
         }
         Report::TempCo(Some(c)) => write!(
             w,

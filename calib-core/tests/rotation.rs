@@ -3,7 +3,8 @@
 //! moves about one axis named, and bad moves rejected and counted.
 //!
 //! World frame W: z up; at rest the accelerometer measures `R_WBᵀ z` (1 g). A move slerps the
-//! board between two attitudes with smooth-step timing; the raw gyro is `K⁻¹ ω_B`.
+//! board between two attitudes with smooth-step timing; the raw gyro is `K⁻¹ ω_B`, `ω_B` the mean
+//! rate over each sample interval (a MEMS gyro's decimated output).
 
 use calib_core::bias::RestBias;
 use calib_core::full::{Axes, FullLimits};
@@ -69,13 +70,11 @@ fn record_drifting(
         let n = (dur * hz) as usize;
         r.begin(prev);
         let att = |x: f64| qa.slerp(&qb, x * x * (3.0 - 2.0 * x));
-        for s in 0..=n {
-            let x = s as f64 / n as f64;
-            // Body rate from the attitude's derivative (central difference).
-            let h = 1e-6;
-            let (q0, q1) = (att((x - h).max(0.0)), att((x + h).min(1.0)));
-            let dq = q0.inverse() * q1;
-            let omega = dq.scaled_axis() / ((x + h).min(1.0) - (x - h).max(0.0)) / dur;
+        for s in 0..=n + 1 {
+            // The mean body rate over the sample interval, as a MEMS gyro's decimation filter
+            // outputs it (0 at the move's first and last samples: the board rests at its poses).
+            let (x0, x) = ((s.max(1) - 1).min(n) as f64 / n as f64, s.min(n) as f64 / n as f64);
+            let omega = (att(x0).inverse() * att(x)).scaled_axis() * hz;
             let g = kinv * omega.map(f64::to_degrees) + V3::repeat(drift * t);
             r.add(t, [g[0] as f32, g[1] as f32, g[2] as f32], false);
             t += 1.0 / hz;
@@ -136,12 +135,23 @@ fn moves_about_one_axis_are_named() {
 }
 
 #[test]
-fn moves_too_fast_for_the_rate_or_with_a_drifting_bias_are_rejected_and_counted() {
-    // 10× the rate at 59.5 Hz: steps of several degrees per sample.
+fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
+    // 10× the rate at 59.5 Hz: 0.15 s moves of up to ~1000 °/s, ~17° between two samples (a
+    // brisk hand at a low rate): kept, and the full K as accurate as from slow moves.
     let mut r = Rotations::new();
     let out = record(&mut r, &attitudes(false), 59.5, 10.0, None);
+    assert!(out.iter().all(|m| m.is_ok()), "{out:?}");
+    let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
+    let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+    let e = (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax();
+    assert!(e < 1e-4, "brisk moves: E {e:.2e}");
+    // 15× at 59.5 Hz: steps beyond 20° per sample (fewer than 3 samples per radian): rejected,
+    // counted, and the worst step named.
+    let mut r = Rotations::new();
+    let out = record(&mut r, &attitudes(false), 59.5, 15.0, None);
     assert!(out.contains(&Err(Rejected::TooFast)), "{out:?}");
     assert_eq!(r.rejected()[Rejected::TooFast as usize] as usize, out.iter().filter(|m| m.is_err()).count());
+    assert!(r.worst()[Rejected::TooFast as usize] > 20.0);
     // A pose whose still gyro mean is off by 0.5 °/s: both of its moves are rejected.
     let mut r = Rotations::new();
     let out = record(&mut r, &attitudes(false), 238.0, 1.0, Some(4));

@@ -34,7 +34,7 @@ pub(super) fn with_rotations(
         None => identity,
     };
     let mut iterations = 0u8;
-    let (total, rss) = loop {
+    let total = loop {
         let mut total = *rig;
         r.add_rows(&mut total, &k, rl)?;
         iterations += 1;
@@ -44,11 +44,12 @@ pub(super) fn with_rotations(
         if step < GAUSS_NEWTON_STEP || iterations == GAUSS_NEWTON_ITERATIONS {
             // The rows at the solution, for its covariance and residual.
             let mut at = *rig;
-            let (_, rss) = r.add_rows(&mut at, &k, rl)?;
-            break (at, rss);
+            let (_, rss, n) = r.add_rows(&mut at, &k, rl)?;
+            break (at, rss, n);
         }
     };
-    let rms_deg = libm::sqrt(rss / (2 * r.moves().len()) as f64).to_degrees();
+    let (total, rss, n) = total;
+    let rms_deg = libm::sqrt(rss / n.max(1) as f64).to_degrees();
     if !(rms_deg <= rl.max_residual_rms_deg as f64) {
         return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
     }

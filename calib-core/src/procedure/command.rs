@@ -65,6 +65,7 @@ impl ErrorClass {
             | Error::AxisUndetermined { .. }
             | Error::FullKUnobservable { .. }
             | Error::RotationAxesCoplanar { .. } => ErrorClass::Geometry,
+            Error::MovesDropped { .. } => ErrorClass::Motion,
             Error::PhaseTimeout { .. } => ErrorClass::Timeout,
             Error::Storage(_) => ErrorClass::Storage,
             Error::SamplesLost { .. } | Error::SensorFault => ErrorClass::Sensor,
@@ -76,6 +77,7 @@ impl ErrorClass {
             | Error::TooFewSamples { .. }
             | Error::AccelFitFailed
             | Error::ResultRejected { .. }
+            | Error::TooUncertain { .. }
             | Error::CommandQueueFull
             | Error::ResultNotFinite
             | Error::MovesInconsistent { .. } => ErrorClass::Result,
@@ -110,12 +112,12 @@ pub enum Report {
     FullK { k: Mat3, sigma_k: Mat3, condition: f32, non_coplanar_deg: f32, residual_rms_deg: f32, axes: u8, moves: u16 },
     /// A hand-held move was kept for the rotation constraints: its raw turn (°) and the spread
     /// of the kept moves' axes so far (smallest eigenvalue of their mean `n nᵀ`, 1/3 at best;
-    /// `need` is the least accepted), or rejected (`kept == false`, the reason counted).
-    HandMove { from: u8, to: u8, kept: bool, turn_deg: f32, spread: f32, need: f32 },
+    /// `need` is the least accepted), or rejected (`rejected` says why; counted).
+    HandMove { from: u8, to: u8, rejected: Option<crate::rotation::Rejected>, turn_deg: f32, spread: f32, need: f32 },
     /// The rotation constraints used in the full `K`: the misfit (°) of each of the `moves`
     /// kept moves at the solution (0 when none was solved), and the moves rejected by reason
     /// ([`crate::rotation::Rejected`]).
-    Rotations { moves: u8, rejected: [u16; 5], residual_deg: [f32; MAX_ROTATION_MOVES] },
+    Rotations { moves: u8, rejected: [u16; crate::rotation::REJECTED_REASONS], residual_deg: [f32; MAX_ROTATION_MOVES] },
     /// The gyro bias's temperature coefficient over the rests, or `None` when their
     /// temperatures spanned too little to determine it ([`crate::bias::MIN_TEMP_SPAN_C`]).
     TempCo(Option<TempCo>),

@@ -50,10 +50,10 @@ impl Procedure {
         self.note_rest(capture, rest);
         match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) if to > 0 => {
-                let kept = self.rotations.end(to, &self.cfg.rotation).is_ok();
-                let turn_deg = self.rotations.moves().last().filter(|_| kept).map_or(0.0, |m| m.turn_deg);
+                let rejected = self.rotations.end(to, &self.cfg.rotation).err();
+                let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
                 let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
-                self.push(Command::Report(Report::HandMove { from: to - 1, to, kept, turn_deg, spread, need }));
+                self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need }));
                 self.rotations.begin(to);
             }
             Ok(to) => self.rotations.begin(to),

@@ -605,7 +605,7 @@ impl Procedure {
     }
 
     fn fail(&mut self, e: Error) {
-        let e = pipeline::blame(e, &self.drift, Some(&self.rotations));
+        let e = pipeline::blame(e, &self.drift, Some((&self.rotations, &self.cfg.rotation)));
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });

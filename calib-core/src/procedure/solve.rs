@@ -100,7 +100,7 @@ impl Procedure {
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
         if let Some(full) = solved.full {
             // Each move's misfit at the solution (none without one).
-            let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k));
+            let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
             let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
             self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
             return self.store_full(full, t_s);

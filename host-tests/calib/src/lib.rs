@@ -4,7 +4,8 @@
 //! calibrated over its USB serial port, its log saved and cross-checked ([`port`]). The
 //! binaries `gyrocal-calib` and `gyrocal-flash` are what a user installs (`cargo install --locked
 //! --path host-tests/calib --target host-tuple --profile host`); [`firmware`] builds the firmware
-//! they flash; [`allan`] the noise figures of a long static log. Nothing here depends on the
+//! they flash; [`allan`] the noise figures of a long static log; [`real`] the public sessions of
+//! real IMUs that tests and benchmarks read. Nothing here depends on the
 //! simulator.
 #![deny(missing_docs)]
 
@@ -13,6 +14,7 @@ pub mod csvlog;
 pub mod firmware;
 pub mod offline;
 pub mod port;
+pub mod real;
 pub mod replay;
 pub mod report;
 

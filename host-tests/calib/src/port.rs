@@ -598,7 +598,7 @@ pub fn lost_rows(rows: &[Row]) -> usize {
 /// likely cause (rows lost on USB, with their number). `dropped_bytes`: the board's own count.
 pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64, stored: Option<&Record>) -> Result<CrossCheck, SessionError> {
     let log = csvlog::parse(log_text).map_err(SessionError::Log)?;
-    let c = offline::calibrate_log(&log, None, true, stored).map_err(|e| SessionError::Offline(e.to_string()))?;
+    let c = offline::calibrate_log(&log, &offline::Options::default(), stored).map_err(|e| SessionError::Offline(e.to_string()))?;
     let calib = c.record().ok_or_else(|| SessionError::Offline(format!("no gyro calibration: {}", c.missing().join("; "))))?;
     let (mut max_diff, mut at) = (0.0f32, (0, 0));
     for i in 0..3 {

@@ -105,7 +105,7 @@ fn drawn_as_placed(img: &(usize, Vec<[u8; 4]>), c: RGBColor, centres: &[(i32, i3
 fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calibration() {
     let text = simulated_log(Variant::Hobby.config(9, 0)).0;
     let log = csvlog::parse(&text).unwrap();
-    let c = calibrate_log(&log, None, true, None).unwrap();
+    let c = calibrate_log(&log, &Default::default(), None).unwrap();
     let Plots { sphere, invariant, residuals, bias } = report::plots(&log.rows, &c).unwrap();
     // A marker per pose, where the data puts it.
     let rig = c.phases.segments.iter().filter(|s| s.is_rig_pose()).count();

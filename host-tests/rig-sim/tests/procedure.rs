@@ -161,7 +161,7 @@ fn hand_held_moves_about_one_axis_are_named_while_the_user_holds_the_board() {
     });
     assert!(matches!(out.error, Some(Error::RotationAxesCoplanar { .. })), "{:?}", out.error);
     assert!(!out.reports.contains(&Report::Phase(Phase::Reattach)) && out.stored.is_empty());
-    assert!(out.reports.iter().any(|r| matches!(r, Report::HandMove { kept: true, .. })));
+    assert!(out.reports.iter().any(|r| matches!(r, Report::HandMove { rejected: None, .. })));
 }
 
 #[test]

@@ -331,6 +331,46 @@ fn drift_section(heading: &str, j: &Value) -> String {
     s
 }
 
+fn real_section(j: &Value) -> String {
+    let mut s = String::from(
+        "## Real recordings\n\n`real-bench`: `gyrocal-calib`'s code on public sessions recorded on real IMUs by other projects \
+         (`../shared/data/real/`: sources, licences and conversions in its README), hand-held, beside imucal 2.6.0's \
+         `FerrarisCalibration` (its own section list of the session) where it gives one. z: (ours − peer) / our 1σ.\n\n\
+         | session | options | K diagonal (1σ) | peer | z | moves between poses |\n|---|---|---|---|---|---|\n",
+    );
+    for r in j["sessions"].as_array().into_iter().flatten() {
+        let three = |v: &Value, d: usize| (0..3).map(|i| format!("{:.*}", d, f(&v[i]))).collect::<Vec<_>>().join(", ");
+        let result = match r["k"].as_array() {
+            Some(_) => (0..3).map(|i| format!("{:.4} ({:.4})", f(&r["k"][i]), f(&r["sigma_k"][i]))).collect::<Vec<_>>().join(", "),
+            None => format!("none: {}", r["error"].as_str().unwrap_or("?")),
+        };
+        let peer = if r["peer_k"].is_null() { "–".to_string() } else { three(&r["peer_k"], 4) };
+        let z = if r["z"].is_null() { "–".to_string() } else { three(&r["z"], 1) };
+        let m = &r["hand_moves"];
+        let moves = if m.is_null() {
+            "–".to_string()
+        } else {
+            let dropped = m["dropped"].as_object().map_or(String::new(), |d| {
+                d.iter().filter(|(_, n)| n.as_u64() != Some(0)).map(|(k, n)| format!("{n} {k}")).collect::<Vec<_>>().join(", ")
+            });
+            format!(
+                "{} of {} kept ({} vertical, {}); dropped: {}",
+                m["kept"],
+                m["total"],
+                m["vertical"],
+                m["vertical_turns"].as_str().unwrap_or("?"),
+                if dropped.is_empty() { "none".into() } else { dropped }
+            )
+        };
+        s += &format!(
+            "| `{}` | `{}` | {result} | {peer} | {z} | {moves} |\n",
+            r["session"].as_str().unwrap_or("?"),
+            r["options"].as_str().unwrap_or("?")
+        );
+    }
+    s
+}
+
 fn page() -> Result<String, String> {
     build()?;
     let raw = calib::firmware::target_dir().join("results/raw.csv");
@@ -353,6 +393,7 @@ fn page() -> Result<String, String> {
         Run { bin: "demo", args: a(&["--quiet", "--rev2"]) },
         Run { bin: "full-k-bench", args: a(&["--setup", "bmi270", "--json"]) },
         Run { bin: "rotation-bench", args: a(&["--setup", "bmi270", "--json"]) },
+        Run { bin: "real-bench", args: a(&["--json"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -395,6 +436,8 @@ fn page() -> Result<String, String> {
     s += &full_k_section("Rev2: full-K bench", &json(&out[12])?);
     s += "\n";
     s += &rotation_section("Rev2: rotation bench", &json(&out[13])?);
+    s += "\n";
+    s += &real_section(&json(&out[14])?);
     Ok(s)
 }
 

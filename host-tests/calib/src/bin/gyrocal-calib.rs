@@ -57,6 +57,16 @@ struct Args {
     /// they add to the full K).
     #[arg(long, conflicts_with = "port")]
     no_rotations: bool,
+    /// Every turn about the vertical in the log (the board turned flat on a table, as in the
+    /// Ferraris protocol) is a whole number of revolutions: its angle constrains the scale too.
+    /// Without it such a turn constrains its axis only.
+    #[arg(long, conflicts_with = "port")]
+    whole_turns: bool,
+    /// The gyro's full scale (°/s) when the log does not state it: readings at it are clipped
+    /// and the moves holding them are not used. Without it: the log's setup comment, else runs
+    /// of equal extreme readings.
+    #[arg(long, value_name = "DPS", conflicts_with = "port")]
+    range: Option<f32>,
     /// Calibrate the board on this USB serial port (Linux /dev/ttyACM0, macOS
     /// /dev/cu.usbmodemXXXX, Windows COM5): follow the phases shown, press Enter when asked.
     /// Its result (JSON) is printed, its log saved and calibrated by calib too: the two K must
@@ -218,7 +228,7 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
                     .map_err(|e| e.to_string())
                     .and_then(|t| csvlog::parse(&t).map_err(|e| e.to_string()));
                 let written = log.and_then(|l| {
-                    let c = offline::calibrate_log(&l, None, true, o.stored.as_ref()).map_err(|e| e.to_string())?;
+                    let c = offline::calibrate_log(&l, &offline::Options::default(), o.stored.as_ref()).map_err(|e| e.to_string())?;
                     write_report(file, &opts.log.display().to_string(), &l, &c)
                 });
                 if let Err(e) = written {
@@ -292,7 +302,8 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
         Ok(l) => l,
         Err(code) => return code,
     };
-    let c = match offline::calibrate_log(&log, method, !args.no_rotations, None) {
+    let options = offline::Options { method, no_rotations: args.no_rotations, whole_turns: args.whole_turns, range_dps: args.range };
+    let c = match offline::calibrate_log(&log, &options, None) {
         Ok(c) => c,
         Err(e) => return fail(1, format!("{path}: {e}")),
     };

@@ -77,6 +77,8 @@ pub(super) fn check_accel_units(ph: &Phases) -> Result<(), OfflineError> {
         "the accelerometer columns look like m/s²: they must be in g (divide by 9.80665, or --columns ax_g=NAME/9.80665 …)"
     } else if (800.0..=1250.0).contains(&norm) {
         "the accelerometer columns look like mg: divide by 1000"
+    } else if ph.segments.iter().all(|s| s.accel.mean().iter().all(|v| (16_384.0..=49_152.0).contains(v))) {
+        "raw counts of an unsigned 16-bit part (every axis near 32768 at rest): subtract 32768 and apply the sensitivity of the sensor's datasheet; the log holds g and deg/s"
     } else {
         "raw counts? apply the sensitivity (e.g. 0.061 mg/LSB at ±2 g: --columns ax_g=NAME*0.000061 …)"
     };

@@ -57,12 +57,13 @@ fn settings(log: &Log) -> Vec<(i32, usize)> {
 /// Calibrates a log from its phases.
 pub(super) fn calibrate(
     rows: &[Row],
-    method: Option<Method>,
-    rotations_on: bool,
+    options: &Options,
+    range_dps: Option<f32>,
     time_base: TimeBase,
     ph: Phases,
 ) -> Result<Calibration, OfflineError> {
-    let cfg = &CONFIG;
+    let (method, rotations_on) = (options.method, !options.no_rotations);
+    let cfg = &Config { rotation: RotationLimits { whole_turns: options.whole_turns, ..CONFIG.rotation }, ..CONFIG };
     // Bias: every still segment pooled, against the log's own noise floor.
     let mut b = BiasEstimator::new();
     for s in &ph.segments {
@@ -77,7 +78,7 @@ pub(super) fn calibrate(
     let (accel, handheld_poses) = accel(&log, pan_tilt)?;
     let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
     let (poses, moves) = one_axis_rig(&log, main_setting, &accel)?;
-    let rotations = rotations(&log, &accel);
+    let rotations = rotations(&log, &accel, range_dps, &cfg.rotation);
     let spin = spin(&log, &poses, &accel);
 
     // `--method paper|sweep` asks for that one-axis estimator alone; `--no-rotations` leaves the
@@ -95,7 +96,8 @@ pub(super) fn calibrate(
     };
     let drift = log.drift();
     let full = full.map(|f| {
-        f.and_then(|f| pipeline::validate_full(&f, &cfg.acceptance).map(|_| f)).map_err(|e| pipeline::blame(e, &drift, Some(&rotations)))
+        f.and_then(|f| pipeline::validate_full(&f, &cfg.acceptance).map(|_| f))
+            .map_err(|e| pipeline::blame(e, &drift, Some((&rotations, &cfg.rotation))))
     });
     let chosen = match method {
         Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
@@ -115,6 +117,12 @@ pub(super) fn calibrate(
     if let Err(e @ OfflineError::GyroUnits { .. }) = gyro {
         return Err(e);
     }
+    // A log of hand-held poses only: its gyro result is the full K of their moves, and so is
+    // its error (never the servo sweep's "too few static poses: 0").
+    let gyro = match (&full, gyro) {
+        (Some(Err(error)), Err(_)) if poses.is_empty() => Err(OfflineError::Calib { stage: HAND_HELD_STAGE, error: *error }),
+        (_, g) => g,
+    };
     Ok(Calibration {
         gyro,
         full,
@@ -128,11 +136,15 @@ pub(super) fn calibrate(
         handheld_poses,
         replayed: None,
         replayed_record: None,
+        hand_moves: Some(HandMoves::of(&rotations, &cfg.rotation)),
         time_base,
         phases: ph,
         setup: None,
     })
 }
+
+/// The stage that names a hand-held log's gyro error.
+pub(super) const HAND_HELD_STAGE: &str = "full K from the moves between hand-held poses";
 
 /// The accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
 /// (spread over pan × tilt, they are no cone); identity below the six poses a fit needs. Also
@@ -176,11 +188,17 @@ fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Po
 }
 
 /// Rotation constraints: every move between two consecutive hand-held poses (calibrated gravity
-/// directions at both ends, the gyro integrated between them in chunks). A rejected move is
-/// counted, not an error.
-fn rotations(log: &Log, accel: &AccelCal) -> Rotations {
+/// directions at both ends, the gyro integrated between them in chunks). A pose's gravity is its
+/// mean over the pose, the mean attitude of a board that sways: so the gyro is integrated from
+/// the mean instant of one pose to that of the next (DESIGN §4.7), i.e. over both poses too,
+/// weighted by a ramp that rises over the first pose and falls over the second (to first order
+/// in the sway, the mean over all start and end instants). A rejected move is counted, not an
+/// error.
+fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Rotations {
     let mut rotations = Rotations::new();
-    let mut prev: Option<(u8, usize)> = None;
+    let mut prev: Option<(u8, &Segment)> = None;
+    let rows = log.rows;
+    let ramp = |s: &Segment, t: f64| ((t - rows[s.first].t_s) / (rows[s.last].t_s - rows[s.first].t_s).max(1e-9)).clamp(0.0, 1.0);
     for s in &log.ph.segments {
         if s.is_rig_pose() {
             prev = None;
@@ -188,14 +206,22 @@ fn rotations(log: &Log, accel: &AccelCal) -> Rotations {
         }
         let sigma = s.accel.max_std_of_mean();
         let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, log.rest(s)) else { break };
-        if let Some((from, end)) = prev {
+        if let Some((from, p)) = prev {
             rotations.begin(from);
-            for r in &log.rows[end..=s.last] {
-                rotations.add(r.t_s, sub(r.gyro_dps, log.bias.bias_dps), r.gyro_dps.iter().any(|v| clipped(*v)));
+            for (i, r) in rows.iter().enumerate().take(s.last + 1).skip(p.first) {
+                let weight = if i <= p.last {
+                    ramp(p, r.t_s)
+                } else if i >= s.first {
+                    1.0 - ramp(s, r.t_s)
+                } else {
+                    1.0
+                } as f32;
+                let w = sub(r.gyro_dps, log.bias.bias_dps).map(|v| v * weight);
+                rotations.add(r.t_s, w, r.gyro_dps.iter().any(|v| clipped(*v, range_dps)));
             }
-            let _ = rotations.end(idx, &CONFIG.rotation);
+            let _ = rotations.end(idx, limits);
         }
-        prev = Some((idx, s.last));
+        prev = Some((idx, s));
     }
     rotations.calibrate_poses(accel);
     rotations

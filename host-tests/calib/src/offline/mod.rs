@@ -32,7 +32,7 @@ mod phases;
 
 use checks::{check_accel_units, gyro_units, implied_scale};
 pub use checks::{check_time_base, TimeBase};
-pub use output::{EstimatorOut, Estimators, FullOut, Output, QualityOut, Segments};
+pub use output::{EstimatorOut, Estimators, FullOut, HandMoves, Output, QualityOut, Segments};
 pub use phases::{phases, steady_spin, Phases, Segment, SteadySpin};
 
 /// Why a log could not be calibrated.
@@ -125,6 +125,8 @@ pub struct Calibration {
     pub time_base: TimeBase,
     /// The sensor setup the log states (the firmware's raw log does), if it states one.
     pub setup: Option<SensorSetup>,
+    /// The moves between hand-held poses (the data-driven path).
+    pub hand_moves: Option<HandMoves>,
 }
 
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
@@ -135,6 +137,21 @@ pub fn calibrate(rows: &[Row], method: Option<Method>) -> Result<Calibration, Of
     calibrate_with(rows, method, true)
 }
 
+/// How a log is calibrated (the tool's options).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Options {
+    /// Force one estimator; `None` picks the best the log supports.
+    pub method: Option<Method>,
+    /// Leave out the rotation constraints of the moves between hand-held poses.
+    pub no_rotations: bool,
+    /// Every turn about the vertical is a whole number of revolutions (`--whole-turns`: the
+    /// Ferraris protocol); else such a turn constrains its axis only.
+    pub whole_turns: bool,
+    /// The gyro's full scale (°/s, `--range`): readings at it are clipped. Without it, the
+    /// log's stated setup, else runs of equal extreme readings ([`full_scale`]).
+    pub range_dps: Option<f32>,
+}
+
 /// The one configuration of the data-driven path: the firmware's defaults (acceptance, limits,
 /// the paper's spin window).
 const CONFIG: Config = Config::DEFAULT;
@@ -142,23 +159,23 @@ const CONFIG: Config = Config::DEFAULT;
 /// [`calibrate`], with the rotation constraints of the moves between hand-held poses on or off
 /// (`calib --no-rotations`: to see what they add).
 pub fn calibrate_with(rows: &[Row], method: Option<Method>, rotations_on: bool) -> Result<Calibration, OfflineError> {
-    calibrate_from(rows, method, rotations_on, None, None)
+    calibrate_from(rows, &Options { method, no_rotations: !rotations_on, ..Options::default() }, None, None)
 }
 
 /// [`calibrate_with`] of a whole log, at the sensor setup it states (else the firmware's
 /// default full scales); a run of the firmware that started with `stored` in its flash (the
 /// board's `s` answer) is replayed from it, as the board did.
-pub fn calibrate_log(log: &Log, method: Option<Method>, rotations_on: bool, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
-    calibrate_from(&log.rows, method, rotations_on, stored, log.setup)
+pub fn calibrate_log(log: &Log, options: &Options, stored: Option<&Record>) -> Result<Calibration, OfflineError> {
+    calibrate_from(&log.rows, options, stored, log.setup)
 }
 
 fn calibrate_from(
     rows: &[Row],
-    method: Option<Method>,
-    rotations_on: bool,
+    options: &Options,
     stored: Option<&Record>,
     setup: Option<SensorSetup>,
 ) -> Result<Calibration, OfflineError> {
+    let (method, rotations_on) = (options.method, !options.no_rotations);
     let time_base = check_time_base(rows)?;
     let ph = phases(rows);
     if ph.segments.is_empty() {
@@ -172,7 +189,8 @@ fn calibrate_from(
             return Ok(Calibration { setup, ..replayed(r, time_base, setup, ph)? });
         }
     }
-    Ok(Calibration { setup, ..driven::calibrate(rows, method, rotations_on, time_base, ph)? })
+    let range = options.range_dps.or(setup.map(|s| s.gyro_range_dps)).or_else(|| full_scale(rows));
+    Ok(Calibration { setup, ..driven::calibrate(rows, options, range, time_base, ph)? })
 }
 
 /// The calibration of a replayed run of the firmware: its procedure's results. Its rate must
@@ -208,17 +226,47 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         handheld_poses: r.accel.poses as usize,
         replayed: Some(r.config),
         replayed_record: r.record,
+        hand_moves: None,
         time_base,
         phases: ph,
         setup: None,
     })
 }
 
-/// A gyro reading at an LSM9DS1 full scale (±245, ±500 or ±2000 °/s: 32 767 counts of 8.75,
-/// 17.5 or 70 m°/s): the sample is clipped.
-fn clipped(v: f32) -> bool {
-    [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3)
+/// A gyro reading is clipped: at (or beyond, within 0.1 %) the full scale `range_dps` when it is
+/// known, else at an LSM9DS1 full scale (±245, ±500 or ±2000 °/s: 32 767 counts of 8.75, 17.5
+/// or 70 m°/s).
+fn clipped(v: f32, range_dps: Option<f32>) -> bool {
+    match range_dps {
+        Some(r) => v.abs() >= 0.999 * r,
+        None => [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3),
+    }
 }
+
+/// The gyro's full scale (°/s) read off a log that does not state it: the largest |reading| of
+/// an axis, when at least [`CLIP_RUN`] consecutive samples hold exactly that value (a clipped
+/// sensor repeats its limit; a turning one never does) and it is above 100 °/s.
+pub fn full_scale(rows: &[Row]) -> Option<f32> {
+    let mut found: Option<f32> = None;
+    for axis in 0..3 {
+        let peak = rows.iter().map(|r| r.gyro_dps[axis].abs()).fold(0.0f32, f32::max);
+        if peak < 100.0 {
+            continue;
+        }
+        let mut run = 0;
+        for r in rows {
+            run = if r.gyro_dps[axis].abs() == peak { run + 1 } else { 0 };
+            if run >= CLIP_RUN {
+                found = Some(found.map_or(peak, |f| f.min(peak)));
+                break;
+            }
+        }
+    }
+    found
+}
+
+/// Consecutive samples at one extreme value that mark a clipped gyro axis.
+const CLIP_RUN: usize = 3;
 
 /// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS)
 /// faster than `min_dps`.

@@ -72,6 +72,40 @@ pub struct Segments {
     pub moves: usize,
 }
 
+/// The moves between consecutive hand-held poses (the rotation constraints): how many were used,
+/// and why the others were not.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HandMoves {
+    /// Moves between consecutive hand-held poses.
+    pub total: usize,
+    /// Used.
+    pub kept: usize,
+    /// Of those, turns about the vertical: they constrain their axis only, or with
+    /// `--whole-turns` their angle too (`vertical_turns` says which).
+    pub vertical: usize,
+    /// `axis only` or `whole turns`.
+    pub vertical_turns: &'static str,
+    /// Dropped, by reason (`saturated`, `too_fast`, `too_short`, `bias_drifted`, `no_room`,
+    /// `unseen`): every reason with its count.
+    pub dropped: std::collections::BTreeMap<&'static str, u16>,
+}
+
+impl HandMoves {
+    /// The summary of `rotations`, recorded under `limits`.
+    pub fn of(rotations: &Rotations, limits: &RotationLimits) -> Self {
+        let dropped: std::collections::BTreeMap<_, _> =
+            calib_core::rotation::Rejected::ALL.iter().zip(rotations.rejected()).map(|(r, n)| (r.name(), n)).collect();
+        let kept = rotations.moves().len();
+        HandMoves {
+            total: kept + dropped.values().map(|&n| n as usize).sum::<usize>(),
+            kept,
+            vertical: rotations.moves().iter().filter(|m| m.vertical).count(),
+            vertical_turns: if limits.whole_turns { "whole turns" } else { "axis only" },
+            dropped,
+        }
+    }
+}
+
 /// Quality of every part of the calibration.
 #[derive(Debug, Clone, Serialize)]
 pub struct QualityOut<'a> {
@@ -87,6 +121,9 @@ pub struct QualityOut<'a> {
     pub estimators: Estimators<'a>,
     /// On a pan/tilt log, the full `K`'s quality (or its error).
     pub full: Option<FullOut<'a>>,
+    /// The moves between hand-held poses (`null` for a replayed run of the firmware: its log
+    /// says it).
+    pub hand_moves: Option<&'a HandMoves>,
     /// The spin rate the paper estimator used (°/s).
     pub spin_rate_dps: Option<f32>,
     /// Where it came from (`servo column` or `accelerometer`).
@@ -112,6 +149,7 @@ impl Calibration {
         let mut m = vec![];
         match (&self.gyro, &self.full) {
             (_, Some(Ok(_))) => {}
+            (Err(e @ OfflineError::Calib { stage: driven::HAND_HELD_STAGE, .. }), _) => m.push(format!("gyro: {e}")),
             (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
             (Err(e), None) => m.push(format!("gyro: {e}")),
             (Ok(_), Some(Err(f))) => m.push(format!("full K (the diagonal K of one axis is given): {f}")),
@@ -120,12 +158,30 @@ impl Calibration {
 
         if self.accel.model == AccelModel::None {
             m.push(format!(
-                "accelerometer: {} accelerometer poses, need {} (hand-held or tilt-servo poses; the identity is used)",
+                "accelerometer: {} accelerometer poses, need {} (one more than the 6 unknowns of the smallest fit: as many poses as unknowns interpolate them and determine nothing); {}; the identity is used",
                 self.handheld_poses,
-                pipeline::SIX_PARAM_POSES
+                pipeline::SIX_PARAM_POSES,
+                self.pose_directions()
             ));
         }
         m
+    }
+
+    /// Which of the six axis directions (±x, ±y, ±z: the sensor axis gravity is nearest to) the
+    /// accelerometer poses cover, and which they miss.
+    pub fn pose_directions(&self) -> String {
+        let mut seen = [false; 6];
+        for s in self.phases.segments.iter().filter(|s| !s.is_rig_pose()) {
+            let a = s.accel.mean();
+            let axis = (0..3).max_by(|&i, &j| a[i].abs().total_cmp(&a[j].abs())).unwrap_or(0);
+            seen[2 * axis + usize::from(a[axis] < 0.0)] = true;
+        }
+        let names = ["+x", "-x", "+y", "-y", "+z", "-z"];
+        let list = |want: bool| names.iter().zip(seen).filter(|(_, s)| *s == want).map(|(n, _)| *n).collect::<Vec<_>>().join(" ");
+        match list(false) {
+            missing if missing.is_empty() => format!("poses up along every axis ({}); add poses between the faces", list(true)),
+            missing => format!("no pose with {missing} up (poses with {} up); add them", list(true)),
+        }
     }
 
     /// The tool's output; `log_messages` lines of the log were skipped as messages.
@@ -161,6 +217,7 @@ impl Calibration {
                     Ok(f) => FullOut::Ok(f),
                     Err(e) => FullOut::Failed { error: e.to_string() },
                 }),
+                hand_moves: self.hand_moves.as_ref(),
                 rest_thresholds: &self.phases.rest,
                 log_messages,
                 replayed: self.replayed,

@@ -1,0 +1,80 @@
+//! `gyrocal-calib` on public sessions recorded on real IMUs by other projects, read from
+//! `../shared/data/real/` beside the repository (sources, licences and conversions in its README;
+//! never copied into the project). Each case of issue 31's table gets the result or the message
+//! it now gets.
+//!
+//! The peer: imucal 2.6.0 (PyPI), `FerrarisCalibration` with its own section list
+//! (`example_data/example_ferraris_session_list.json`) on the continuous session at 102.4 Hz,
+//! converted to `ω = K (g − b)` as `K = (K_g R_g)⁻¹`: diagonal 0.972794, 1.01787, 1.00169.
+
+use calib::real::{self, IMUCAL_FERRARIS_K};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// A session decompressed into the test's scratch directory, as a log.
+fn session(name: &str) -> PathBuf {
+    let text = real::session(name).unwrap_or_else(|e| panic!("the shared real recordings: {e}"));
+    let path = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name.replace(".txt", ".csv"));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Runs the tool: exit code, stdout's JSON (if any), stderr.
+fn calib(log: &Path, args: &[&str]) -> (i32, Option<serde_json::Value>, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_gyrocal-calib")).arg(log).args(args).output().unwrap();
+    let json = serde_json::from_slice(&out.stdout).ok();
+    (out.status.code().unwrap_or(-1), json, String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+#[test]
+fn ferraris_session_with_whole_turns_agrees_with_imucal_within_three_sigma() {
+    let log = session("imucal_ferraris_session.csv");
+    let (code, json, err) = calib(&log, &["--whole-turns"]);
+    assert_eq!(code, 0, "{err}");
+    let j = json.unwrap();
+    assert_eq!(j["gyro"]["method"], "full");
+    let full = &j["quality"]["full"];
+    // Fast turns are integrated: 13 moves, the 2 short ones dropped, none for speed (up to 8.9°
+    // between two samples at 102.4 Hz); the three 360° turns on the table are vertical.
+    let moves = &j["quality"]["hand_moves"];
+    assert_eq!((moves["total"].as_u64(), moves["kept"].as_u64(), moves["vertical"].as_u64()), (Some(13), Some(11), Some(3)), "{moves}");
+    assert_eq!((moves["dropped"]["too_fast"].as_u64(), moves["dropped"]["too_short"].as_u64()), (Some(0), Some(2)));
+    assert_eq!(moves["vertical_turns"], "whole turns");
+    for i in 0..3 {
+        let k = j["gyro"]["K"][i][i].as_f64().unwrap();
+        let sigma = full["sigma_k"][i][i].as_f64().unwrap();
+        let z = (k - IMUCAL_FERRARIS_K[i]) / sigma;
+        println!("MEASURED ferraris axis {i}: K {k:.5} imucal {:.5} 1sigma {sigma:.5} ({z:+.2} sigma)", IMUCAL_FERRARIS_K[i]);
+        assert!(sigma > 0.0 && sigma <= 0.005, "axis {i}: 1 sigma {sigma}");
+        assert!(z.abs() <= 3.0, "axis {i}: K {k} vs imucal {} is {z:.2} sigma off", IMUCAL_FERRARIS_K[i]);
+    }
+}
+
+#[test]
+fn ferraris_session_without_whole_turns_names_why_it_is_refused() {
+    // The turns on the table then only constrain their axes: the y scale comes out at 0.51 %
+    // 1σ, above the acceptance's 0.5 %, and the message says so with its numbers.
+    let (code, _, err) = calib(&session("imucal_ferraris_session.csv"), &[]);
+    assert_eq!(code, 4, "{err}");
+    assert!(err.contains("full K from the moves between hand-held poses: result rejected: axis y scale"), "{err}");
+    assert!(err.contains("is known only to 1 sigma") && err.contains("(limit 0.0050)"), "{err}");
+    assert!(!err.contains("too few static poses"), "hand-held log, servo wording: {err}");
+}
+
+#[test]
+fn annotated_session_is_named_as_cut_between_its_poses() {
+    // Nine sections glued in file order: gravity jumps between poses where the gyro saw nothing,
+    // and its six poses determine no accelerometer fit.
+    let (code, _, err) = calib(&session("imucal_annotated_session.csv"), &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("3 of 5 moves between poses were dropped: gravity turned up to 178."), "{err}");
+    assert!(err.contains("the log was cut between its poses"), "{err}");
+}
+
+#[test]
+fn raw_counts_are_named_as_such() {
+    // imu_tk's Xsens session as its files hold it: unsigned 16-bit counts.
+    let (code, _, err) = calib(&session("imu_tk_xsens.txt"), &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("raw counts"), "{err}");
+}
