@@ -85,6 +85,14 @@ impl RestBias {
         })
     }
 
+    /// The bias at time `t_s` on the line from `self` to `to` (`self`'s when both are at one
+    /// time).
+    pub fn between(&self, to: &RestBias, t_s: f64) -> RestBias {
+        let span = to.t_s - self.t_s;
+        let f = if span > 0.0 { ((t_s - self.t_s) / span) as f32 } else { 0.0 };
+        RestBias { t_s, residual_dps: core::array::from_fn(|k| self.residual_dps[k] + (to.residual_dps[k] - self.residual_dps[k]) * f) }
+    }
+
     /// The bias's largest rate of change from `self` to a later rest `to` (°/s per minute, ≥ 0;
     /// 0 for rests at one time).
     pub fn drift_dps_per_min(&self, to: &RestBias) -> f32 {
@@ -110,16 +118,58 @@ pub struct Drift {
     before: Option<RestBias>,
     last: Option<RestBias>,
     off_trend_dps: f32,
+    line: Line,
+}
+
+/// A hand-held pose measures the bias when its gyro scatter is within this factor of the bias
+/// rest's noise (per axis, largest): [`Drift::shaky`].
+pub const HAND_STILL_NOISE: f32 = 1.2;
+
+/// Memory of [`Drift::at`]'s line (s): older rests fade by `e^(−Δt/τ)`, so a warm-up's curve
+/// (τ ≥ 1 min) is followed and rest noise is still averaged over several rests.
+pub const TREND_MEMORY_S: f64 = 30.0;
+
+/// A line through the rests' biases, least squares with fading weights (sums of `w`, `w t`,
+/// `w t²`, `w b`, `w t b`; `t` from the first rest).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Line {
+    t0: f64,
+    t_last: f64,
+    s: [f64; 3],
+    b: [f64; 3],
+    tb: [f64; 3],
 }
 
 impl Drift {
     /// No rest yet.
     pub const fn new() -> Self {
-        Self { first: None, before: None, last: None, off_trend_dps: 0.0 }
+        Self {
+            first: None,
+            before: None,
+            last: None,
+            off_trend_dps: 0.0,
+            line: Line { t0: 0.0, t_last: 0.0, s: [0.0; 3], b: [0.0; 3], tb: [0.0; 3] },
+        }
     }
 
     /// A rest, in time order.
     pub fn add(&mut self, rest: RestBias) {
+        let l = &mut self.line;
+        if self.first.is_none() {
+            l.t0 = rest.t_s;
+        } else {
+            let fade = libm::exp(-(rest.t_s - l.t_last).max(0.0) / TREND_MEMORY_S);
+            for v in l.s.iter_mut().chain(l.b.iter_mut()).chain(l.tb.iter_mut()) {
+                *v *= fade;
+            }
+        }
+        let t = rest.t_s - l.t0;
+        l.t_last = rest.t_s;
+        l.s = [l.s[0] + 1.0, l.s[1] + t, l.s[2] + t * t];
+        for k in 0..3 {
+            l.b[k] += rest.residual_dps[k] as f64;
+            l.tb[k] += t * rest.residual_dps[k] as f64;
+        }
         self.first.get_or_insert(rest);
         if let (Some(a), Some(m)) = (self.before, self.last) {
             if m.t_s - a.t_s <= MAX_TREND_GAP_S && rest.t_s - m.t_s <= MAX_TREND_GAP_S && rest.t_s > a.t_s {
@@ -140,9 +190,38 @@ impl Drift {
         self.off_trend_dps
     }
 
+    /// A hand-held pose: its rest `measured` (its gyro mean), its largest per-axis gyro
+    /// standard deviation and the bias rest's noise (°/s). As still as the bias rest (within
+    /// [`HAND_STILL_NOISE`] times its noise: the board laid down) it is a rest and `None` is
+    /// returned; otherwise the bias [`Self::at`] the pose's time, a prediction until the next
+    /// rest (`Rotations::settle_bias`): a hand's sway turns the board by tenths of a degree
+    /// within a pose, so its gyro mean is not the bias.
+    pub fn shaky(&self, measured: RestBias, gyro_std_dps: f32, noise_dps: f32) -> Option<RestBias> {
+        (gyro_std_dps > HAND_STILL_NOISE * noise_dps).then(|| self.at(measured.t_s).unwrap_or(measured))
+    }
+
     /// The latest rest.
     pub fn last(&self) -> Option<RestBias> {
         self.last
+    }
+
+    /// The bias at MCU time `t_s` as the rests so far give it (their line, recent rests weighted
+    /// most: [`TREND_MEMORY_S`]; one rest or rests at one time: their mean): what a pose too
+    /// shaky to measure it (a hand's sway) uses. `None` before the first rest.
+    pub fn at(&self, t_s: f64) -> Option<RestBias> {
+        self.last?;
+        let l = &self.line;
+        let det = l.s[0] * l.s[2] - l.s[1] * l.s[1];
+        let t = t_s - l.t0;
+        let residual_dps = core::array::from_fn(|k| {
+            if det > 1e-6 * l.s[0] * l.s[2] {
+                let slope = (l.s[0] * l.tb[k] - l.s[1] * l.b[k]) / det;
+                ((l.b[k] - slope * l.s[1]) / l.s[0] + slope * t) as f32
+            } else {
+                (l.b[k] / l.s[0]) as f32
+            }
+        });
+        Some(RestBias { t_s, residual_dps })
     }
 
     /// The bias's largest rate of change from the first rest to the latest (°/s per minute).
@@ -311,6 +390,26 @@ impl BiasEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_shaky_pose_takes_the_bias_from_the_rests_line_and_a_still_one_measures_it() {
+        let mut d = Drift::new();
+        let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, -b, 0.0] };
+        assert_eq!(d.at(5.0), None);
+        // Rests on the line 0.01 t (°/s): the line is followed, recent rests weighted most.
+        for t in [0.0, 4.0, 8.0, 12.0] {
+            d.add(rest(t, 0.01 * t as f32));
+        }
+        let p = d.at(20.0).unwrap();
+        assert!((p.residual_dps[0] - 0.2).abs() < 1e-5 && (p.residual_dps[1] + 0.2).abs() < 1e-5, "{p:?}");
+        // Shaky (gyro scatter 0.5 °/s against a rest noise of 0.2): the prediction; still: none.
+        let measured = rest(20.0, 0.9);
+        assert_eq!(d.shaky(measured, 0.5, 0.2), Some(p));
+        assert_eq!(d.shaky(measured, 0.2, 0.2), None);
+        // Settled later between two rests: the line between them.
+        let between = rest(12.0, 0.12).between(&rest(32.0, 0.52), 20.0);
+        assert!((between.residual_dps[0] - 0.28).abs() < 1e-6);
+    }
 
     #[test]
     fn bias_is_the_rest_mean_and_checks_apply() {

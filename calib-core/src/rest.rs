@@ -29,6 +29,13 @@ impl RestConfig {
     /// The defaults (also as `Default`).
     pub const DEFAULT: RestConfig =
         RestConfig { window_s: 0.25, hold_s: 0.5, accel_std_max_g: 0.006, gyro_std_max_dps: 0.8, accel_drift_max_g: 0.004 };
+
+    /// A person's hand (DESIGN §4.7): quasi-static, not still. Held in the air a board sways
+    /// 0.1–0.3° at 0.3–1.5 Hz under 8–12 Hz tremor: gyro rate RMS up to ≈ 2 °/s, linear
+    /// accelerations up to ≈ 0.01 g, the mean tilting by up to ≈ 0.005 g per window. A move (tens
+    /// of °/s and more) or a slow turn (10 °/s tilts gravity 0.04 g per window) stays out.
+    pub const HAND: RestConfig =
+        RestConfig { window_s: 0.25, hold_s: 0.5, accel_std_max_g: 0.015, gyro_std_max_dps: 3.0, accel_drift_max_g: 0.01 };
 }
 
 impl Default for RestConfig {

@@ -181,6 +181,56 @@ pub struct RotationMove {
     /// Estimated integration error of the move (rad): the third-order terms of the two-sample
     /// scheme, `Σ |d_{k−1} × d_k| |d_k| / 12` over its sample increments `d` (0 about a fixed axis).
     pub int_sigma_rad: f32,
+    /// MCU time of its first sample (s): its chunks' spans count from it.
+    t0_s: f64,
+}
+
+/// The bias-free gyro turn inside a pose, `A = Σ ω Δt` and `C = Σ t ω Δt` (° and °·s, sensor
+/// frame, MCU time), for the mean-instant integration of DESIGN §4.7: a pose's attitude is the
+/// mean over its samples, so a move is integrated from the mean instant of one pose to that of
+/// the next, i.e. over both poses weighted by a ramp. [`PoseTurn::rise_deg`] is the part inside
+/// the pose (bounded sums, no buffer).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PoseTurn {
+    a: [f64; 3],
+    c: [f64; 3],
+}
+
+impl PoseTurn {
+    /// Nothing turned.
+    pub const fn new() -> Self {
+        Self { a: [0.0; 3], c: [0.0; 3] }
+    }
+
+    /// A sample at MCU time `t_s` (s), `dt_s` after the previous one, bias-free gyro (°/s).
+    pub fn add(&mut self, t_s: f64, dt_s: f64, w_dps: Vec3) {
+        if dt_s > 0.0 && dt_s.is_finite() {
+            for k in 0..3 {
+                let d = w_dps[k] as f64 * dt_s;
+                self.a[k] += d;
+                self.c[k] += t_s * d;
+            }
+        }
+    }
+
+    /// The turn of a later stretch added.
+    pub fn merge(&mut self, o: &PoseTurn) {
+        for k in 0..3 {
+            self.a[k] += o.a[k];
+            self.c[k] += o.c[k];
+        }
+    }
+
+    /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first_s` to `t_last_s`, less a residual
+    /// bias `residual_dps` (°/s) weighted alike (`T/2`): the turn from the pose's mean instant to
+    /// its end. 0 for a pose of no length.
+    pub fn rise_deg(&self, t_first_s: f64, t_last_s: f64, residual_dps: Vec3) -> Vec3 {
+        let span = t_last_s - t_first_s;
+        if !(span > 0.0) {
+            return [0.0; 3];
+        }
+        core::array::from_fn(|k| ((self.c[k] - t_first_s * self.a[k]) / span - residual_dps[k] as f64 * span / 2.0) as f32)
+    }
 }
 
 /// The move being integrated.
@@ -205,9 +255,14 @@ struct Open {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rotations {
     poses: Poses,
-    /// Per pose (same index): the noise of its mean (g) and its rest's bias.
+    /// Per pose (same index): the noise of its mean (g), its rest's bias and its turn from its
+    /// mean instant to its end ([`PoseTurn::rise_deg`], °).
     sigma_g: [f32; MAX_POSES],
     rest: [RestBias; MAX_POSES],
+    rise: [Vec3; MAX_POSES],
+    /// Per pose: its length (s) and whether its bias is a prediction ([`Self::settle_bias`]).
+    span_s: [f32; MAX_POSES],
+    predicted: [bool; MAX_POSES],
     chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
     moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
@@ -287,6 +342,9 @@ impl Rotations {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
             rest: [RestBias { t_s: 0.0, residual_dps: [0.0; 3] }; MAX_POSES],
+            rise: [[0.0; 3]; MAX_POSES],
+            span_s: [0.0; MAX_POSES],
+            predicted: [false; MAX_POSES],
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
@@ -302,17 +360,81 @@ impl Rotations {
     }
 
     /// Adds a static pose: its mean specific force (raw until [`Self::calibrate_poses`], g), the
-    /// noise of that mean per component (g) and its rest's bias; returns its index.
-    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: RestBias) -> Result<u8, Error> {
+    /// noise of that mean per component (g), its rest's bias and its turn from its mean instant
+    /// to its end (°; zero when the moves are integrated from the mean instants by their
+    /// samples' weights); returns its index. The move into it ends at its mean instant, the move
+    /// out of it starts there. `predicted`: its bias is a prediction, its length `span_s` (s),
+    /// for [`Self::settle_bias`].
+    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: RestBias, rise_deg: Vec3, predicted: Option<f32>) -> Result<u8, Error> {
         let i = self.poses.push(accel_g)?;
-        self.sigma_g[i as usize] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
-        self.rest[i as usize] = rest;
+        let p = i as usize;
+        self.sigma_g[p] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
+        self.rest[p] = rest;
+        self.rise[p] = if rise_deg.iter().all(|v| v.is_finite()) { rise_deg } else { [0.0; 3] };
+        self.predicted[p] = predicted.is_some();
+        self.span_s[p] = predicted.unwrap_or(0.0);
         Ok(i)
     }
 
-    /// Starts integrating a move from pose `from` (a move still open is dropped).
+    /// Two measured rests `before` and `after` bound poses whose bias was predicted: their bias
+    /// becomes the line between the two at their times, and the kept moves into and out of them
+    /// lose the difference (the bias integrals are linear in it; the turn inside a pose loses it
+    /// over half the pose, [`PoseTurn::rise_deg`]).
+    pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias) {
+        for p in 0..self.poses.len().min(MAX_POSES) {
+            let old = self.rest[p];
+            if !self.predicted[p] || old.t_s < before.t_s || old.t_s > after.t_s {
+                continue;
+            }
+            let new = before.between(after, old.t_s);
+            let delta = RestBias { t_s: old.t_s, residual_dps: core::array::from_fn(|k| new.residual_dps[k] - old.residual_dps[k]) };
+            let zero = RestBias { t_s: old.t_s, residual_dps: [0.0; 3] };
+            let half = self.span_s[p] / 2.0;
+            for m in self.moves.iter() {
+                let (from, to) = (m.from as usize == p, m.to as usize == p);
+                if !(from || to) {
+                    continue;
+                }
+                let (da, db) = if from { (delta, zero) } else { (zero, delta) };
+                let (da, db) =
+                    (RestBias { t_s: self.rest[m.from as usize].t_s, ..da }, RestBias { t_s: self.rest[m.to as usize].t_s, ..db });
+                let last = m.first as usize + m.n as usize - 1;
+                for (c, chunk) in self.chunks[m.first as usize..=last].iter_mut().enumerate() {
+                    let [s0, s1] = chunk.span_s;
+                    let lost = if s0 == s1 {
+                        // The turn inside a pose: out of `from` at the move's start, back into `to` at its end.
+                        let inside = (from && c == 0 && s0 == 0.0) || (to && c + m.first as usize == last && s0 > 0.0);
+                        let sign = if from && c == 0 && s0 == 0.0 { 1.0 } else { -1.0 };
+                        core::array::from_fn(|k| if inside { (sign * delta.residual_dps[k] * half) as f64 } else { 0.0 })
+                    } else {
+                        da.integral_deg(&db, m.t0_s + s0 as f64, m.t0_s + s1 as f64)
+                    };
+                    chunk.gamma = core::array::from_fn(|k| (chunk.gamma[k] as f64 - lost[k]) as f32);
+                }
+            }
+            self.rest[p] = new;
+            self.predicted[p] = false;
+        }
+    }
+
+    /// A turn known as a whole (°, sensor frame, bias-free) as a chunk of the open move at
+    /// `at_s` from its start (no time span: no bias to lose).
+    fn push_turn(&mut self, o: &mut Open, turn_deg: Vec3, at_s: f32) {
+        if turn_deg.iter().all(|v| *v == 0.0) {
+            return;
+        }
+        for k in 0..3 {
+            o.total[k] += turn_deg[k] as f64;
+        }
+        if self.chunks.push(Chunk { gamma: turn_deg, coning: [0.0; 3], span_s: [at_s; 2] }).is_err() {
+            o.why.get_or_insert(Rejected::Full);
+        }
+    }
+
+    /// Starts integrating a move from pose `from`'s end (a move still open is dropped); the
+    /// turn from its mean instant to its end is the move's first chunk.
     pub fn begin(&mut self, from: u8) {
-        self.open = Some(Open {
+        let mut o = Open {
             from,
             first: self.chunks.len(),
             gamma: [0.0; 3],
@@ -325,7 +447,9 @@ impl Rotations {
             step: [0.0; 3],
             int_err: 0.0,
             why: None,
-        });
+        };
+        self.push_turn(&mut o, self.rise[from as usize % MAX_POSES], 0.0);
+        self.open = Some(o);
     }
 
     /// Adds a sample of the open move: MCU time (s) and bias-free gyro (°/s); `saturated` if it
@@ -383,10 +507,13 @@ impl Rotations {
     /// the two poses' rests), or counts why not.
     pub fn end(&mut self, to: u8, limits: &RotationLimits) -> Result<(), Rejected> {
         let Some(mut o) = self.open.take() else { return Ok(()) };
+        let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
         if Vector3::from(o.gamma).norm() > 0.0 {
-            let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
             self.flush(&mut o, t_end);
         }
+        let back = self.rise[to as usize % MAX_POSES].map(|v| -v);
+        let at_s = (t_end - o.t0) as f32;
+        self.push_turn(&mut o, back, at_s);
         let total = Vector3::from(o.total);
         let turn = total.norm();
         let (ra, rb) = (self.rest[o.from as usize % MAX_POSES], self.rest[to as usize % MAX_POSES]);
@@ -416,6 +543,7 @@ impl Rotations {
             turn_deg: turn as f32,
             vertical,
             int_sigma_rad: o.int_err as f32,
+            t0_s: o.t0,
         };
         let result = match why {
             None => {
@@ -660,7 +788,7 @@ mod tests {
         let mut r = Rotations::new();
         for i in 0..4u8 {
             let t0 = 10.0 * f64::from(i);
-            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }, [0.0; 3], None).unwrap();
             if i > 0 {
                 r.begin(i - 1);
                 for k in 0..100 {
@@ -709,8 +837,8 @@ mod tests {
     #[test]
     fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
         let mut r = Rotations::new();
-        r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
-        r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
+        r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
+        r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
         r.begin(0);
         for i in 0..=900 {
             r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);

@@ -61,7 +61,7 @@ fn record_drifting(
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
         let b = (drift * t) as f32;
         let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
-        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest).unwrap()
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest, [0.0; 3], None).unwrap()
     };
     let mut prev = pose(r, &atts[0], 0, t);
     for (i, w) in atts.windows(2).enumerate() {
@@ -159,8 +159,8 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     assert_eq!(r.moves().len(), 7);
     // A saturated sample.
     let mut r = Rotations::new();
-    r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
-    r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
+    r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
+    r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
     r.begin(0);
     r.add(0.0, [90.0, 0.0, 0.0], false);
     r.add(0.01, [90.0, 0.0, 0.0], true);

@@ -90,8 +90,10 @@ pub struct Config {
     pub full: FullLimits,
     /// The rotation constraints of the moves between hand-held poses.
     pub rotation: RotationLimits,
-    /// Stillness thresholds.
+    /// Stillness thresholds of the rig's rests (a servo holding still) and the bias.
     pub rest: RestConfig,
+    /// Stillness thresholds of the hand-held poses (a person's hand sways and trembles).
+    pub hand_rest: RestConfig,
     /// Bias limits.
     pub bias: BiasLimits,
     /// Rig geometry requirements.
@@ -142,6 +144,7 @@ impl Config {
         full: FullLimits::DEFAULT,
         rotation: RotationLimits::DEFAULT,
         rest: RestConfig::DEFAULT,
+        hand_rest: RestConfig::HAND,
         bias: BiasLimits::DEFAULT,
         geometry: GeometryLimits::DEFAULT,
         pose_retries: 3,

@@ -46,9 +46,10 @@ impl Procedure {
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let sigma = capture.accel.max_std_of_mean() as f32;
-        let rest = capture.rest(self.bias);
-        self.note_rest(capture, rest);
-        match self.rotations.push_pose(a, sigma, rest) {
+        let (rest, predicted) = self.hand_rest(capture);
+        let rise = capture.turn.rise_deg(capture.t_first, capture.t_last, rest.residual_dps);
+        let span = predicted.then_some((capture.t_last - capture.t_first) as f32);
+        match self.rotations.push_pose(a, sigma, rest, rise, span) {
             Ok(to) if to > 0 => {
                 let rejected = self.rotations.end(to, &self.cfg.rotation).err();
                 let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
@@ -77,8 +78,26 @@ impl Procedure {
         }
     }
 
-    /// A rest of the calibration: its bias joins the drift and the temperature fit.
+    /// A hand-held pose's bias and whether it is a prediction ([`Drift::hand_rest`]); a
+    /// measured one is a rest of the calibration.
+    fn hand_rest(&mut self, capture: &Capture) -> (RestBias, bool) {
+        let measured = capture.rest(self.bias);
+        let noise = self.bias.map_or(0.0, |b| b.noise_dps.iter().fold(0.0f32, |m, v| m.max(*v)));
+        match self.drift.shaky(measured, capture.gyro.max_std() as f32, noise) {
+            Some(predicted) => (predicted, true),
+            None => {
+                self.note_rest(capture, measured);
+                (measured, false)
+            }
+        }
+    }
+
+    /// A rest of the calibration: its bias joins the drift and the temperature fit, and settles
+    /// the predicted bias of the hand-held poses since the previous rest.
     pub(super) fn note_rest(&mut self, capture: &Capture, rest: RestBias) {
+        if let Some(before) = self.drift.last() {
+            self.rotations.settle_bias(&before, &rest);
+        }
         self.drift.add(rest);
         self.temp_fit.add(capture.temp_c(), &rest);
     }

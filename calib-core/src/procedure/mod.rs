@@ -40,7 +40,7 @@ use crate::gyro::Method;
 use crate::pipeline::{GravityTurn, OneAxis};
 use crate::record::{self, Record, SensorSetup, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
-use crate::rotation::{Rotations, MAX_ROTATION_MOVES};
+use crate::rotation::{PoseTurn, Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
@@ -117,6 +117,8 @@ struct Capture {
     gyro: Welford3,
     /// Temperature (°C, first component) of the samples of its windows that had one.
     temp: Welford3,
+    /// The bias-free gyro turn over its windows (hand-held poses: the sway inside the pose).
+    turn: PoseTurn,
     t_first: f64,
     t_last: f64,
     retries: u8,
@@ -129,8 +131,8 @@ enum CaptureStep {
 }
 
 impl Capture {
-    /// A closed window and the temperatures read during it.
-    fn feed(&mut self, w: &Window, temp: &Welford3, tainted: bool, need_s: f32) -> CaptureStep {
+    /// A closed window, the temperatures read during it and the gyro's turn over it.
+    fn feed(&mut self, w: &Window, temp: &Welford3, turn: &PoseTurn, tainted: bool, need_s: f32) -> CaptureStep {
         if w.still && w.state == RestState::Still && !tainted {
             if self.accel.count() == 0 {
                 self.t_first = w.t_start_s;
@@ -138,6 +140,7 @@ impl Capture {
             self.accel.merge(&w.accel);
             self.gyro.merge(&w.gyro);
             self.temp.merge(temp);
+            self.turn.merge(turn);
             self.t_last = w.t_end_s;
             return if self.t_last - self.t_first >= need_s as f64 { CaptureStep::Done } else { CaptureStep::Pending };
         }
@@ -258,6 +261,8 @@ pub struct Procedure {
     temp_fit: TempFit,
     /// Temperatures read since the rest detector's last window closed.
     window_temp: Welford3,
+    /// The bias-free gyro turn since then (hand-held phase only).
+    window_turn: PoseTurn,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
@@ -293,6 +298,7 @@ impl Procedure {
             drift: Drift::new(),
             temp_fit: TempFit::new(),
             window_temp: Welford3::new(),
+            window_turn: PoseTurn::new(),
             gbar: None,
             temp: Welford3::new(),
             overflow: false,
@@ -452,6 +458,7 @@ impl Procedure {
                 return; // duplicate or out-of-order timestamp: dropped
             }
         }
+        let dt = self.last_sample_t.map_or(0.0, |last| s.t_s - last);
         self.last_sample_t = Some(s.t_s);
         let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g)
             || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
@@ -462,11 +469,15 @@ impl Procedure {
         }
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
+        let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
+        if matches!(self.step, Step::HandHeld { .. }) {
+            self.window_turn.add(s.t_s, dt, g);
+        }
         let wt = if window.is_some() { core::mem::take(&mut self.window_temp) } else { Welford3::new() };
+        let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
         if window.is_some() {
             self.tainted = false;
         }
-        let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
         match self.step {
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
@@ -480,7 +491,7 @@ impl Procedure {
             }
             Step::Bias { mut capture } => {
                 if let Some(w) = window {
-                    match capture.feed(&w, &wt, tainted, self.cfg.bias_s) {
+                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.bias_s) {
                         CaptureStep::Pending => self.step = Step::Bias { capture },
                         CaptureStep::Disturbed => self.retake(0, capture, |c| Step::Bias { capture: c }),
                         CaptureStep::Done => self.finish_bias(&capture, s.t_s),
@@ -490,7 +501,7 @@ impl Procedure {
             Step::HandHeld { mut capture } => {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
-                    match capture.feed(&w, &wt, tainted, self.cfg.pose_average_s) {
+                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Done => self.finish_accel_pose(&capture, s.t_s),
                         // A disturbed hand-held pose is simply taken again: the user is moving it.
                         CaptureStep::Pending | CaptureStep::Disturbed => self.step = Step::HandHeld { capture },
@@ -522,7 +533,7 @@ impl Procedure {
                 }
                 self.integ.add(s.t_s, g);
                 if let Some(w) = window {
-                    match capture.feed(&w, &wt, tainted, self.cfg.pose_average_s) {
+                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Pending => self.step = Step::Pose { k, capture, since },
                         CaptureStep::Disturbed => self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since }),
                         CaptureStep::Done => self.finish_pose(k, &capture, s),
@@ -583,6 +594,7 @@ impl Procedure {
         self.drift = Drift::new();
         self.temp_fit = TempFit::new();
         self.window_temp = Welford3::new();
+        self.window_turn = PoseTurn::new();
         self.gbar = None;
         self.temp = Welford3::new();
         if let Some(acc) = self.stored_accel() {
@@ -593,6 +605,10 @@ impl Procedure {
     }
 
     fn enter(&mut self, step: Step, t_s: f64) {
+        let rest = if matches!(step, Step::HandHeld { .. }) { self.cfg.hand_rest } else { self.cfg.rest };
+        if *self.rest.config() != rest {
+            self.rest = RestDetector::new(rest);
+        }
         self.step = step;
         self.phase_t0 = t_s;
         let phase = self.phase();

@@ -55,7 +55,8 @@ pub struct Plots {
     pub invariant: Option<Plot>,
     /// Each rig move's axis residual (°): the angle of its `K γ` from the mean axis.
     pub residuals: Option<Plot>,
-    /// Each rest's gyro bias minus the calibration's (°/s; x, y, z) over time (s).
+    /// Each rest's gyro bias minus the calibration's (°/s; x, y, z) over time (s): the rests as
+    /// still as the rig's thresholds.
     pub bias: Plot,
 }
 
@@ -210,8 +211,10 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
     let t0 = rows.first().map_or(0.0, |r| r.t_s);
     let series: Vec<Series> = (0..3)
         .map(|a| {
+            // The rests that measure the bias: a hand's shaky pose does not.
             let pts = seg
                 .iter()
+                .filter(|s| s.gyro.max_std() <= c.phases.rest.gyro_std_max_dps as f64)
                 .map(|s| ((rows[s.first].t_s + rows[s.last].t_s) / 2.0 - t0, s.gyro.mean()[a] - c.bias.bias_dps[a] as f64))
                 .collect();
             (AXES[a], ["x", "y", "z"][a], pts)

@@ -10,13 +10,45 @@ struct Log<'a> {
     rows: &'a [Row],
     ph: &'a Phases,
     bias: Bias,
+    /// Per segment (same index): its rest's bias, and whether it measured it.
+    rests: Vec<(RestBias, bool)>,
 }
 
-impl Log<'_> {
-    /// Every still segment measures the bias anew: a move loses the bias tracked between the
-    /// rests that bound it.
+impl<'a> Log<'a> {
+    /// Every still segment measures the bias anew (a move loses the bias tracked between the
+    /// rests that bound it), but for a hand's shaky pose ([`Drift::shaky`]), which takes it
+    /// from the line between the rests before and after it (the drift's line through those
+    /// before when none follows), as the firmware settles it.
+    fn new(rows: &'a [Row], ph: &'a Phases, bias: Bias) -> Self {
+        let noise = bias.noise_dps.iter().fold(0.0f32, |m, v| m.max(*v));
+        let mut drift = Drift::new();
+        let mut rests: Vec<(RestBias, bool)> = ph
+            .segments
+            .iter()
+            .map(|s| {
+                let measured = RestBias::new(rows[s.first].t_s, rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), bias.bias_dps);
+                let predicted = if s.is_rig_pose() { None } else { drift.shaky(measured, s.gyro.max_std() as f32, noise) };
+                match predicted {
+                    Some(p) => (p, false),
+                    None => {
+                        drift.add(measured);
+                        (measured, true)
+                    }
+                }
+            })
+            .collect();
+        for i in 0..rests.len() {
+            let before = rests[..i].iter().rev().find(|r| r.1);
+            let after = rests[i + 1..].iter().find(|r| r.1);
+            if let (false, Some((a, _)), Some((b, _))) = (rests[i].1, before, after) {
+                rests[i].0 = a.between(b, rests[i].0.t_s);
+            }
+        }
+        Log { rows, ph, bias, rests }
+    }
+
     fn rest(&self, s: &Segment) -> RestBias {
-        RestBias::new(self.rows[s.first].t_s, self.rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), self.bias.bias_dps)
+        self.ph.segments.iter().position(|x| x.first == s.first).map_or(RestBias::default(), |i| self.rests[i].0)
     }
 
     /// The bias-corrected gyro integrated from the end of `from` to the end of `to` (°, sensor
@@ -31,8 +63,8 @@ impl Log<'_> {
 
     fn drift(&self) -> Drift {
         let mut drift = Drift::new();
-        for s in &self.ph.segments {
-            drift.add(self.rest(s));
+        for (r, _) in self.rests.iter().filter(|(_, measured)| *measured) {
+            drift.add(*r);
         }
         drift
     }
@@ -64,14 +96,17 @@ pub(super) fn calibrate(
 ) -> Result<Calibration, OfflineError> {
     let (method, rotations_on) = (options.method, !options.no_rotations);
     let cfg = &Config { rotation: RotationLimits { whole_turns: options.whole_turns, ..CONFIG.rotation }, ..CONFIG };
-    // Bias: every still segment pooled, against the log's own noise floor.
+    // Bias: the still segments pooled, against the log's own noise floor (a hand's shaky poses
+    // only when there is nothing else).
     let mut b = BiasEstimator::new();
-    for s in &ph.segments {
+    let steady = |s: &&Segment| s.gyro.max_std() <= ph.rest.gyro_std_max_dps as f64;
+    let any_steady = ph.segments.iter().any(|s| steady(&s));
+    for s in ph.segments.iter().filter(|s| !any_steady || steady(s)) {
         b.add_window(&s.gyro, &s.accel);
     }
     let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
     let bias = b.finish(&limits).map_err(stage("gyro bias"))?;
-    let log = Log { rows, ph: &ph, bias };
+    let log = Log::new(rows, &ph, bias);
     let settings = settings(&log);
     let pan_tilt = settings.len() >= 2;
 
@@ -205,7 +240,7 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
             continue;
         }
         let sigma = s.accel.max_std_of_mean();
-        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, log.rest(s)) else { break };
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, log.rest(s), [0.0; 3], None) else { break };
         if let Some((from, p)) = prev {
             rotations.begin(from);
             for (i, r) in rows.iter().enumerate().take(s.last + 1).skip(p.first) {

@@ -45,8 +45,10 @@ pub struct SteadySpin {
 /// The phases found in a log.
 #[derive(Debug, Clone)]
 pub struct Phases {
-    /// Thresholds used (raised to the log's noise floor).
+    /// Thresholds used for the rig's poses and the bias (raised to the log's noise floor).
     pub rest: RestConfig,
+    /// Thresholds used for hand-held poses (a hand's, at least the rig's).
+    pub hand_rest: RestConfig,
     /// Still segments in time order.
     pub segments: Vec<Segment>,
 }
@@ -106,15 +108,27 @@ pub fn phases(rows: &[Row]) -> Phases {
         ..defaults
     };
 
-    let mut det = RestDetector::new(rest);
+    let hand = CONFIG.hand_rest;
+    let hand_rest = RestConfig {
+        accel_std_max_g: hand.accel_std_max_g.max(rest.accel_std_max_g),
+        gyro_std_max_dps: hand.gyro_std_max_dps.max(rest.gyro_std_max_dps),
+        accel_drift_max_g: hand.accel_drift_max_g.max(rest.accel_drift_max_g),
+        ..hand
+    };
+
+    // Both detectors close their windows at the same rows: a window with no servo commanded is
+    // judged by the hand's thresholds.
+    let (mut det, mut hand_det) = (RestDetector::new(rest), RestDetector::new(hand_rest));
     let mut segments: Vec<Segment> = vec![];
     let mut open: Option<Segment> = None;
     let mut start = 0;
     for (i, r) in rows.iter().enumerate() {
-        let Some(w) = det.update(r.t_s, r.accel_g, r.gyro_dps) else { continue };
+        let (w, hw) = (det.update(r.t_s, r.accel_g, r.gyro_dps), hand_det.update(r.t_s, r.accel_g, r.gyro_dps));
+        let (Some(w), Some(hw)) = (w, hw) else { continue };
         let span = &rows[start..=i];
         start = i + 1;
         let (servo, tilt) = (column_of(span, |r| r.servo_deg), column_of(span, |r| r.tilt_deg));
+        let w = if servo == Some(None) { hw } else { w };
         let still = w.still && w.state == RestState::Still && servo.is_some() && tilt.is_some();
         let (servo, tilt) = (servo.flatten(), tilt.flatten());
         let same = |a: Option<f32>, b: Option<f32>| match (a, b) {
@@ -137,7 +151,7 @@ pub fn phases(rows: &[Row]) -> Phases {
         }
     }
     close(&mut open, &mut segments, rows);
-    Phases { rest, segments }
+    Phases { rest, hand_rest, segments }
 }
 
 /// A command column over a window: `Some(None)` all empty, `Some(Some(mean))` all set and

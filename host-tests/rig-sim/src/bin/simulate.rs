@@ -1,4 +1,5 @@
-//! `simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous | --tilt]`: writes the
+//! `simulate OUT.csv [--seed N] [--odr HZ] [--servo positional|continuous | --tilt] [--hand
+//! braced|free|none]`: writes the
 //! log of a simulated calibration run (the firmware's procedure on the rig simulator, with a
 //! simulated operator), in the format `calib` reads; the true K in a closing comment.
 
@@ -8,7 +9,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rig_sim::harness::{record_log, Faults};
 use rig_sim::pan_tilt;
-use rig_sim::sim::{ContinuousServo, Rig, ServoModel};
+use rig_sim::sim::{ContinuousServo, HandLevel, Rig, ServoModel};
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
 
@@ -31,6 +32,17 @@ struct Args {
     /// vertical, gyro cross-axis ±1 %, accelerometer misalignment ±0.3 %.
     #[arg(long, conflicts_with = "servo")]
     tilt: bool,
+    /// The hand that holds the board for the hand-held poses: resting on a table, in the air, or
+    /// perfectly still (no real hand is).
+    #[arg(long, value_enum, default_value_t = HandArg::Braced)]
+    hand: HandArg,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
+enum HandArg {
+    Braced,
+    Free,
+    None,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
@@ -47,12 +59,18 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
 fn main() -> ExitCode {
     let a = Args::parse();
     let odr: f64 = a.odr.parse().unwrap_or(119.0);
-    simulate(&a.out, a.seed, odr, a.servo == ServoArg::Continuous, a.tilt)
+    let hand = match a.hand {
+        HandArg::Braced => Some(HandLevel::Braced),
+        HandArg::Free => Some(HandLevel::Free),
+        HandArg::None => None,
+    };
+    simulate(&a.out, a.seed, odr, a.servo == ServoArg::Continuous, a.tilt, hand)
 }
 
-fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> ExitCode {
+fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool, hand: Option<HandLevel>) -> ExitCode {
     let mut cfg = if tilt { pan_tilt::rig_config(seed, 0) } else { Variant::Hobby.config(seed, 0) };
     cfg.odr_hz = odr;
+    cfg.hand = hand;
     let mut pcfg = if tilt { Config::PAN_TILT } else { Config::DEFAULT };
     if continuous {
         cfg.servo = ServoModel::Continuous(ContinuousServo::realistic(&mut ChaCha8Rng::seed_from_u64(seed)));
@@ -60,7 +78,7 @@ fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool) -> Ex
     }
     let mut rig = Rig::new(cfg, seed);
     let mut p = Procedure::new(pcfg, None);
-    let header = format!("# simulated by simulate, seed {seed}, ODR {odr} Hz\n");
+    let header = format!("# simulated by simulate, seed {seed}, ODR {odr} Hz, hand {}\n", hand.map_or("none", HandLevel::name));
     let (mut out, outcome) = record_log(&mut rig, &mut p, Faults::default(), &header);
     let k = rig.truth().gyro_k;
     out.push_str(&format!("# true K diagonal: {:.6} {:.6} {:.6}\n", k[(0, 0)], k[(1, 1)], k[(2, 2)]));

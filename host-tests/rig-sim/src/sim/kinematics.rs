@@ -48,7 +48,7 @@ pub(crate) fn rotation_vector_between(a: &UnitQuaternion<f64>, b: &UnitQuaternio
 }
 
 /// Smooth-step 3x² − 2x³ of x clamped to [0, 1]: zero slope at both ends.
-fn smoothstep(x: f64) -> f64 {
+pub(crate) fn smoothstep(x: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
     x * x * (3.0 - 2.0 * x)
 }

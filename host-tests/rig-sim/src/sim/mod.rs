@@ -12,12 +12,14 @@
 //! specific force.
 
 mod config;
+mod hand;
 mod kinematics;
 mod rig;
 mod sensor;
 mod servo;
 
 pub use config::{RigConfig, TiltStage, Warmup, EARTH_RATE_RAD_S};
+pub use hand::{Hand, HandLevel};
 pub use kinematics::{tilted_axis, G0};
 pub use rig::{Reading, Rig, Truth};
 pub use sensor::{AccelRange, AccelSensor, GyroRange, GyroSensor};

@@ -2,6 +2,7 @@
 //! timestamped by the MCU clock.
 
 use super::config::RigConfig;
+use super::hand::Hand;
 use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
 use super::sensor::{AccelRange, GyroRange};
 use super::servo::{Servo, ServoModel};
@@ -81,6 +82,9 @@ pub struct Rig {
     tilt: Option<(Servo, Unit<Vector3<f64>>)>,
     /// Some(resting attitude) while the board is off the shaft.
     hand: Option<UnitQuaternion<f64>>,
+    /// The hand's motion (`RigConfig::hand`) and when it took the board and let it go (true s).
+    tremor: Option<Hand>,
+    held: Option<(f64, Option<f64>)>,
     transition: Option<Transition>,
     wobbles: Vec<Wobble>,
     k: u64,
@@ -127,6 +131,8 @@ impl Rig {
                 (servo, Unit::new_normalize(hinge))
             }),
             hand: None,
+            tremor: cfg.hand.map(|level| Hand::new(level, &mut stream(7))),
+            held: None,
             transition: None,
             wobbles: Vec::new(),
             k: 0,
@@ -143,7 +149,7 @@ impl Rig {
             walk_rng: stream(6),
             temp_sum: (0.0, 0),
         };
-        rig.force_b = rig.specific_force(&rig.q_wb);
+        rig.force_b = rig.specific_force(&rig.q_wb, 0.0);
         rig
     }
 
@@ -205,9 +211,13 @@ impl Rig {
 
     /// Takes the board off the shaft and moves it smoothly (slerp, smooth-step timing) from its
     /// current attitude to `q_wb` (body → world) in `transition_s`, then holds it still. The
-    /// hand pivots the board about the sensor: no linear acceleration. The shaft keeps running.
+    /// hand pivots the board about the sensor; its sway and tremor (`RigConfig::hand`) set in
+    /// over 0.5 s on top. The shaft keeps running.
     pub fn detach_to(&mut self, q_wb: UnitQuaternion<f64>, transition_s: f64) {
         let from = self.base_attitude(self.t_s);
+        if self.hand.is_none() {
+            self.held = Some((self.t_s, None));
+        }
         self.hand = Some(q_wb);
         self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: transition_s });
     }
@@ -217,6 +227,9 @@ impl Rig {
         if self.hand.is_some() {
             let from = self.base_attitude(self.t_s);
             self.hand = None;
+            if let Some((_, until)) = &mut self.held {
+                *until = Some(self.t_s);
+            }
             self.transition = Some(Transition { from, t0_s: self.t_s, duration_s: self.cfg.attach_transition_s });
         }
     }
@@ -247,7 +260,7 @@ impl Rig {
         }
         self.wobbles.retain(|w| !w.is_over(t_s));
         self.rate_b = rotation_vector_between(&self.q_wb, &q_wb) / dt_s;
-        self.force_b = self.specific_force(&q_wb);
+        self.force_b = self.specific_force(&q_wb, t_s);
         self.q_wb = q_wb;
         self.t_s = t_s;
         self.dt_s = dt_s;
@@ -350,17 +363,30 @@ impl Rig {
     }
 
     fn attitude(&self, t_s: f64) -> UnitQuaternion<f64> {
-        self.wobbles.iter().fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s))
+        let held = self.wobbles.iter().fold(self.base_attitude(t_s), |q, w| q * w.rotation(t_s));
+        match self.hand_gain(t_s) {
+            Some((hand, gain)) => held * hand.rotation(t_s, gain),
+            None => held,
+        }
     }
 
-    /// Specific force (g, in B): gravity reaction `R_BW ẑ`, plus the lever-arm acceleration
-    /// while clamped on the shaft.
-    fn specific_force(&self, q_wb: &UnitQuaternion<f64>) -> Vector3<f64> {
+    /// The hand and how far its motion has set in at `t_s`, while it holds (or lets go of) the
+    /// board.
+    fn hand_gain(&self, t_s: f64) -> Option<(&Hand, f64)> {
+        let (hand, (since, until)) = (self.tremor.as_ref()?, self.held?);
+        let gain = Hand::envelope(t_s, since, until);
+        (gain > 0.0).then_some((hand, gain))
+    }
+
+    /// Specific force (g, in B) at true time `t_s`: gravity reaction `R_BW ẑ`, plus the lever-arm
+    /// acceleration while clamped on the shaft, or the hand's linear acceleration.
+    fn specific_force(&self, q_wb: &UnitQuaternion<f64>, t_s: f64) -> Vector3<f64> {
         let gravity = q_wb.inverse() * Vector3::z();
         if self.on_shaft() {
             gravity + lever_accel_g(&self.axis_b, &self.lever_b, self.servo.rate(), self.servo.accel())
         } else {
-            gravity
+            let hand = self.hand_gain(t_s).map_or(Vector3::zeros(), |(h, gain)| h.accel_g(t_s, gain));
+            q_wb.inverse() * (Vector3::z() + hand)
         }
     }
 }
