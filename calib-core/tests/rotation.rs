@@ -41,7 +41,7 @@ fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
 /// angular rate; pose `bad_bias` (if any) sees a gyro offset; the bias moves by `drift` (°/s per
 /// s, every axis) from t = 0, and each pose's rest measures it.
 fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, bad_bias: Option<usize>) -> Vec<Result<(), Rejected>> {
-    record_drifting(r, atts, hz, rate, bad_bias, 0.0)
+    record_drifting(r, atts, hz, rate, bad_bias, 0.0, false)
 }
 
 fn record_drifting(
@@ -51,6 +51,7 @@ fn record_drifting(
     rate: f64,
     bad_bias: Option<usize>,
     drift: f64,
+    predicted: bool,
 ) -> Vec<Result<(), Rejected>> {
     let kinv = k_true().try_inverse().unwrap();
     let lim = RotationLimits::DEFAULT;
@@ -59,9 +60,10 @@ fn record_drifting(
     let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize, t: f64| {
         let a = q.inverse() * V3::z();
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
-        let b = (drift * t) as f32;
+        // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled.
+        let b = if predicted { 0.0 } else { (drift * t) as f32 };
         let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
-        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest, [0.0; 3], None).unwrap()
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest, [0.0; 3], predicted.then_some(0.0)).unwrap()
     };
     let mut prev = pose(r, &atts[0], 0, t);
     for (i, w) in atts.windows(2).enumerate() {
@@ -117,7 +119,7 @@ fn a_bias_that_drifts_between_the_rests_is_tracked() {
     let truth = k_true();
     let solve = |drift: f64| {
         let mut r = Rotations::new();
-        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift).iter().all(|m| m.is_ok()));
+        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift, false).iter().all(|m| m.is_ok()));
         let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
         let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
         (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax()
@@ -165,4 +167,31 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     r.add(0.0, [90.0, 0.0, 0.0], false);
     r.add(0.01, [90.0, 0.0, 0.0], true);
     assert_eq!(r.end(1, &RotationLimits::DEFAULT), Err(Rejected::Saturated));
+}
+
+#[test]
+fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back() {
+    // The bias drifts 0.02 deg/s per s; every pose's bias is a stale prediction (that of t = 0)
+    // until two measured rests around them settle it on their line, which is the truth here.
+    let e_of = |r: &Rotations| {
+        let cal = Axes::new().solve_from(&FullLimits::DEFAULT, Some((r, &RotationLimits::DEFAULT)), None).expect("the full K");
+        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+        (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
+    };
+    let drift = 0.02;
+    let mut r = Rotations::new();
+    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift, true).iter().all(|m| m.is_ok()));
+    let stale = e_of(&r);
+    let t_end = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
+    let (before, after) = (
+        RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
+        RestBias { t_s: t_end + 1.0, residual_dps: [(drift * (t_end + 1.0)) as f32; 3] },
+    );
+    r.settle_bias(&before, &after);
+    let settled = e_of(&r);
+    println!("MEASURED stale predictions E {stale:.2e}, settled {settled:.2e}");
+    assert!(stale > 1e-3 && settled < 2e-5, "stale {stale:.2e}, settled {settled:.2e}");
+    // Settled once: a second pair of rests changes nothing.
+    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after);
+    assert_eq!(e_of(&r), settled);
 }
