@@ -95,7 +95,7 @@ pub enum Error {
     /// `dps_per_min`: the drift over the calibration, or across the largest change.
     BiasDrifting { off_trend_dps: f32, limit_dps: f32, dps_per_min: f32 },
     /// The moves between poses do not determine `K` because `dropped` of the `total` were
-    /// dropped, most of them for `reason`: its worst value `value` (a step or turn in °) against
+    /// dropped, most of them for `reason`: its worst value `value` (a step or turn in °, a bias change in °/s, a gap in s) against
     /// `limit`.
     MovesDropped { dropped: u8, total: u8, reason: crate::rotation::Rejected, value: f32, limit: f32 },
 }
@@ -194,7 +194,11 @@ impl fmt::Display for Error {
                 "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
             Error::MovesDropped { dropped, total, reason, value, limit } => {
                 use crate::rotation::Rejected;
-                let (value, limit) = (Fixed(value as f64, 1), Fixed(limit as f64, 1));
+                let (value, limit) = if reason == Rejected::Gap {
+                    (Fixed(value as f64, 3), Fixed(limit as f64, 3))
+                } else {
+                    (Fixed(value as f64, 1), Fixed(limit as f64, 1))
+                };
                 write!(f, "{dropped} of {total} moves between poses were dropped: ")?;
                 match reason {
                     Rejected::Saturated => f.write_str("they reached the gyro's full scale; turn more slowly or use a larger full scale"),
@@ -202,6 +206,7 @@ impl fmt::Display for Error {
                     Rejected::TooShort => write!(f, "they turned less than {limit} deg (at most {value} deg); turn the board further between poses"),
                     Rejected::BiasDrifted => write!(f, "the gyro bias changed between their poses by up to {value} deg/s (limit {limit}); keep the board still longer at each pose"),
                     Rejected::Full => write!(f, "no room for more (at most {limit} moves)"),
+                    Rejected::Gap => write!(f, "samples are missing from them (up to {value} s between two samples, limit {limit} s): the board may have turned unseen; record the whole session without gaps"),
                     Rejected::Unseen => write!(f, "gravity turned up to {value} deg between their poses while the gyro turned far less; the log was cut between its poses (sections glued together?) or the gyro and accelerometer columns are not one sensor's: record the whole session, moves included"),
                 }
             }

@@ -34,10 +34,11 @@ use crate::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
-/// Chunks of all moves together (32 B each).
-pub const MAX_CHUNKS: usize = 384;
 /// Rotation moves kept.
 pub const MAX_ROTATION_MOVES: usize = 32;
+/// Chunks of all moves together (32 B each): 384 of the gyro's, and each kept move's two turns
+/// inside its poses ([`PoseRest::rise_deg`]).
+pub const MAX_CHUNKS: usize = 384 + 2 * MAX_ROTATION_MOVES;
 /// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
 /// below 1e-5 rad per chunk.
 pub const CHUNK_DEG: f64 = 5.0;
@@ -77,6 +78,9 @@ pub struct RotationLimits {
     /// The user says every vertical turn is a whole number of revolutions (the Ferraris
     /// protocol's 360° turns): its angle is known too, `N · 360°` with `N` the raw turn rounded.
     pub whole_turns: bool,
+    /// Longest time between two samples of a move (s): over a longer hole the board may have
+    /// turned unseen.
+    pub max_gap_s: f32,
 }
 
 impl RotationLimits {
@@ -92,6 +96,7 @@ impl RotationLimits {
         vertical_deg: 15.0,
         vertical_axis_sigma_deg: 1.0,
         whole_turns: false,
+        max_gap_s: 0.1,
     };
 }
 
@@ -118,15 +123,25 @@ pub enum Rejected {
     /// Gravity turned between its two poses by far more than the gyro did (the log was cut
     /// between the poses, or the columns are not one sensor's).
     Unseen,
+    /// Samples are missing from it ([`RotationLimits::max_gap_s`]): the board may have turned
+    /// unseen (a log cut or a lost stretch of samples).
+    Gap,
 }
 
 /// The number of [`Rejected`] reasons.
-pub const REJECTED_REASONS: usize = 6;
+pub const REJECTED_REASONS: usize = 7;
 
 impl Rejected {
     /// Every reason, in index order.
-    pub const ALL: [Rejected; REJECTED_REASONS] =
-        [Rejected::Saturated, Rejected::TooFast, Rejected::TooShort, Rejected::BiasDrifted, Rejected::Full, Rejected::Unseen];
+    pub const ALL: [Rejected; REJECTED_REASONS] = [
+        Rejected::Saturated,
+        Rejected::TooFast,
+        Rejected::TooShort,
+        Rejected::BiasDrifted,
+        Rejected::Full,
+        Rejected::Unseen,
+        Rejected::Gap,
+    ];
 
     /// Its name in reports and JSON.
     pub fn name(self) -> &'static str {
@@ -137,6 +152,7 @@ impl Rejected {
             Rejected::BiasDrifted => "bias_drifted",
             Rejected::Full => "no_room",
             Rejected::Unseen => "unseen",
+            Rejected::Gap => "gap",
         }
     }
 
@@ -149,6 +165,7 @@ impl Rejected {
             Rejected::BiasDrifted => "the gyro bias changed between its two poses",
             Rejected::Full => "no room for it",
             Rejected::Unseen => "gravity turned more than the gyro did",
+            Rejected::Gap => "samples are missing from it",
         }
     }
 }
@@ -221,15 +238,35 @@ impl PoseTurn {
         }
     }
 
-    /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first_s` to `t_last_s`, less a residual
-    /// bias `residual_dps` (°/s) weighted alike (`T/2`): the turn from the pose's mean instant to
-    /// its end. 0 for a pose of no length.
-    pub fn rise_deg(&self, t_first_s: f64, t_last_s: f64, residual_dps: Vec3) -> Vec3 {
+    /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first_s` to `t_last_s`: the turn from
+    /// the pose's mean instant to its end. 0 for a pose of no length.
+    pub fn rise_deg(&self, t_first_s: f64, t_last_s: f64) -> Vec3 {
         let span = t_last_s - t_first_s;
         if !(span > 0.0) {
             return [0.0; 3];
         }
-        core::array::from_fn(|k| ((self.c[k] - t_first_s * self.a[k]) / span - residual_dps[k] as f64 * span / 2.0) as f32)
+        core::array::from_fn(|k| ((self.c[k] - t_first_s * self.a[k]) / span) as f32)
+    }
+}
+
+/// A pose's rest as the moves see it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PoseRest {
+    /// Its bias.
+    pub bias: RestBias,
+    /// The bias is a prediction until [`Rotations::settle_bias`].
+    pub predicted: bool,
+    /// Its turn from its mean instant to its end (°, sensor frame, less the reference bias:
+    /// [`PoseTurn::rise_deg`]); zero when the moves are integrated from the mean instants by
+    /// their samples' weights.
+    pub rise_deg: Vec3,
+    /// Its length (s).
+    pub span_s: f32,
+}
+
+impl From<RestBias> for PoseRest {
+    fn from(bias: RestBias) -> Self {
+        Self { bias, ..Self::default() }
     }
 }
 
@@ -245,6 +282,8 @@ struct Open {
     chunk_t0: f64,
     total: [f64; 3],
     max_step_deg: f64,
+    /// The longest time between two of its samples (s).
+    max_gap_s: f64,
     /// The previous sample increment (°) and the integration error so far (rad).
     step: [f64; 3],
     int_err: f64,
@@ -255,14 +294,9 @@ struct Open {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rotations {
     poses: Poses,
-    /// Per pose (same index): the noise of its mean (g), its rest's bias and its turn from its
-    /// mean instant to its end ([`PoseTurn::rise_deg`], °).
+    /// Per pose (same index): the noise of its mean (g) and its rest.
     sigma_g: [f32; MAX_POSES],
-    rest: [RestBias; MAX_POSES],
-    rise: [Vec3; MAX_POSES],
-    /// Per pose: its length (s) and whether its bias is a prediction ([`Self::settle_bias`]).
-    span_s: [f32; MAX_POSES],
-    predicted: [bool; MAX_POSES],
+    rest: [PoseRest; MAX_POSES],
     chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
     moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
     open: Option<Open>,
@@ -341,10 +375,8 @@ impl Rotations {
         Self {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
-            rest: [RestBias { t_s: 0.0, residual_dps: [0.0; 3] }; MAX_POSES],
-            rise: [[0.0; 3]; MAX_POSES],
-            span_s: [0.0; MAX_POSES],
-            predicted: [false; MAX_POSES],
+            rest: [PoseRest { bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] }, predicted: false, rise_deg: [0.0; 3], span_s: 0.0 };
+                MAX_POSES],
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
@@ -360,79 +392,62 @@ impl Rotations {
     }
 
     /// Adds a static pose: its mean specific force (raw until [`Self::calibrate_poses`], g), the
-    /// noise of that mean per component (g), its rest's bias and its turn from its mean instant
-    /// to its end (°; zero when the moves are integrated from the mean instants by their
-    /// samples' weights); returns its index. The move into it ends at its mean instant, the move
-    /// out of it starts there. `predicted`: its bias is a prediction, its length `span_s` (s),
-    /// for [`Self::settle_bias`].
-    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: RestBias, rise_deg: Vec3, predicted: Option<f32>) -> Result<u8, Error> {
+    /// noise of that mean per component (g) and its rest; returns its index. The move into it
+    /// ends at its mean instant, the move out of it starts there ([`PoseRest::rise_deg`]).
+    pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: impl Into<PoseRest>) -> Result<u8, Error> {
         let i = self.poses.push(accel_g)?;
-        let p = i as usize;
-        self.sigma_g[p] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
-        self.rest[p] = rest;
-        self.rise[p] = if rise_deg.iter().all(|v| v.is_finite()) { rise_deg } else { [0.0; 3] };
-        self.predicted[p] = predicted.is_some();
-        self.span_s[p] = predicted.unwrap_or(0.0);
+        let mut rest = rest.into();
+        if !rest.rise_deg.iter().all(|v| v.is_finite()) {
+            rest.rise_deg = [0.0; 3];
+        }
+        self.sigma_g[i as usize] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
+        self.rest[i as usize] = rest;
         Ok(i)
     }
 
     /// Two measured rests `before` and `after` bound poses whose bias was predicted: their bias
     /// becomes the line between the two at their times, and the kept moves into and out of them
-    /// lose the difference (the bias integrals are linear in it; the turn inside a pose loses it
-    /// over half the pose, [`PoseTurn::rise_deg`]).
+    /// lose the difference (the bias integrals are linear in it).
     pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias) {
         for p in 0..self.poses.len().min(MAX_POSES) {
-            let old = self.rest[p];
-            if !self.predicted[p] || old.t_s < before.t_s || old.t_s > after.t_s {
+            let old = self.rest[p].bias;
+            if !self.rest[p].predicted || old.t_s < before.t_s || old.t_s > after.t_s {
                 continue;
             }
             let new = before.between(after, old.t_s);
-            let delta = RestBias { t_s: old.t_s, residual_dps: core::array::from_fn(|k| new.residual_dps[k] - old.residual_dps[k]) };
-            let zero = RestBias { t_s: old.t_s, residual_dps: [0.0; 3] };
-            let half = self.span_s[p] / 2.0;
-            for m in self.moves.iter() {
-                let (from, to) = (m.from as usize == p, m.to as usize == p);
-                if !(from || to) {
-                    continue;
-                }
-                let (da, db) = if from { (delta, zero) } else { (zero, delta) };
-                let (da, db) =
-                    (RestBias { t_s: self.rest[m.from as usize].t_s, ..da }, RestBias { t_s: self.rest[m.to as usize].t_s, ..db });
-                let last = m.first as usize + m.n as usize - 1;
-                for (c, chunk) in self.chunks[m.first as usize..=last].iter_mut().enumerate() {
-                    let [s0, s1] = chunk.span_s;
-                    let lost = if s0 == s1 {
-                        // The turn inside a pose: out of `from` at the move's start, back into `to` at its end.
-                        let inside = (from && c == 0 && s0 == 0.0) || (to && c + m.first as usize == last && s0 > 0.0);
-                        let sign = if from && c == 0 && s0 == 0.0 { 1.0 } else { -1.0 };
-                        core::array::from_fn(|k| if inside { (sign * delta.residual_dps[k] * half) as f64 } else { 0.0 })
-                    } else {
-                        da.integral_deg(&db, m.t0_s + s0 as f64, m.t0_s + s1 as f64)
-                    };
-                    chunk.gamma = core::array::from_fn(|k| (chunk.gamma[k] as f64 - lost[k]) as f32);
+            let delta: Vec3 = core::array::from_fn(|k| new.residual_dps[k] - old.residual_dps[k]);
+            for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
+                let only =
+                    |q: u8| RestBias { t_s: self.rest[q as usize].bias.t_s, residual_dps: if q as usize == p { delta } else { [0.0; 3] } };
+                let (da, db) = (only(m.from), only(m.to));
+                for c in &mut self.chunks[m.first as usize..(m.first + m.n) as usize] {
+                    let lost = da.integral_deg(&db, m.t0_s + c.span_s[0] as f64, m.t0_s + c.span_s[1] as f64);
+                    c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - lost[k]) as f32);
                 }
             }
-            self.rest[p] = new;
-            self.predicted[p] = false;
+            self.rest[p].bias = new;
+            self.rest[p].predicted = false;
         }
     }
 
-    /// A turn known as a whole (°, sensor frame, bias-free) as a chunk of the open move at
-    /// `at_s` from its start (no time span: no bias to lose).
-    fn push_turn(&mut self, o: &mut Open, turn_deg: Vec3, at_s: f32) {
+    /// A turn known as a whole (°, sensor frame, less the reference bias) as a chunk of the open
+    /// move over `span_s` (s from the move's start; the bias tracked loses its integral over it,
+    /// negative for a span that runs backwards: a turn undone).
+    fn push_turn(&mut self, o: &mut Open, turn_deg: Vec3, span_s: [f32; 2]) {
         if turn_deg.iter().all(|v| *v == 0.0) {
             return;
         }
         for k in 0..3 {
             o.total[k] += turn_deg[k] as f64;
         }
-        if self.chunks.push(Chunk { gamma: turn_deg, coning: [0.0; 3], span_s: [at_s; 2] }).is_err() {
+        if self.chunks.push(Chunk { gamma: turn_deg, coning: [0.0; 3], span_s }).is_err() {
             o.why.get_or_insert(Rejected::Full);
         }
     }
 
     /// Starts integrating a move from pose `from`'s end (a move still open is dropped); the
-    /// turn from its mean instant to its end is the move's first chunk.
+    /// turn from its mean instant to its end is the move's first chunk (over the pose's last
+    /// half: a ramp's weight).
     pub fn begin(&mut self, from: u8) {
         let mut o = Open {
             from,
@@ -444,11 +459,13 @@ impl Rotations {
             chunk_t0: 0.0,
             total: [0.0; 3],
             max_step_deg: 0.0,
+            max_gap_s: 0.0,
             step: [0.0; 3],
             int_err: 0.0,
             why: None,
         };
-        self.push_turn(&mut o, self.rise[from as usize % MAX_POSES], 0.0);
+        let rest = self.rest[from as usize % MAX_POSES];
+        self.push_turn(&mut o, rest.rise_deg, [-rest.span_s / 2.0, 0.0]);
         self.open = Some(o);
     }
 
@@ -470,6 +487,7 @@ impl Rotations {
                 if !(dt > 0.0) {
                     return;
                 }
+                o.max_gap_s = o.max_gap_s.max(dt);
                 let d: [f64; 3] = core::array::from_fn(|i| 0.5 * (w_prev[i] + w[i]) * dt);
                 let g = Vector3::from(o.gamma);
                 let c = g.cross(&Vector3::from(d)) * 0.5;
@@ -511,18 +529,19 @@ impl Rotations {
         if Vector3::from(o.gamma).norm() > 0.0 {
             self.flush(&mut o, t_end);
         }
-        let back = self.rise[to as usize % MAX_POSES].map(|v| -v);
-        let at_s = (t_end - o.t0) as f32;
-        self.push_turn(&mut o, back, at_s);
+        // Back from the end of pose `to` to its mean instant: its turn undone.
+        let (end_s, rest) = ((t_end - o.t0) as f32, self.rest[to as usize % MAX_POSES]);
+        self.push_turn(&mut o, rest.rise_deg.map(|v| -v), [end_s + rest.span_s / 2.0, end_s]);
         let total = Vector3::from(o.total);
         let turn = total.norm();
-        let (ra, rb) = (self.rest[o.from as usize % MAX_POSES], self.rest[to as usize % MAX_POSES]);
+        let (ra, rb) = (self.rest[o.from as usize % MAX_POSES].bias, self.rest[to as usize % MAX_POSES].bias);
         let (a, b) = (v64(ra.residual_dps), v64(rb.residual_dps));
         let (gi, gj) = (self.poses.get(o.from as usize).normalize(), self.poses.get(to as usize).normalize());
         let gravity_deg = angle_deg(&gi, &gj);
         let bias_change = (a - b).amax();
         let candidates = [
             (o.why, 0.0),
+            ((o.max_gap_s > limits.max_gap_s as f64).then_some(Rejected::Gap), o.max_gap_s),
             ((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast), o.max_step_deg),
             // Gravity turned more than any plausible scale lets the gyro's turn explain.
             ((gravity_deg > SCALE_RANGE.1 * turn + 5.0).then_some(Rejected::Unseen), gravity_deg),
@@ -619,6 +638,7 @@ impl Rotations {
             Rejected::TooShort => limits.min_move_deg,
             Rejected::BiasDrifted => limits.max_bias_change_dps,
             Rejected::Full => MAX_ROTATION_MOVES as f32,
+            Rejected::Gap => limits.max_gap_s,
             Rejected::Saturated | Rejected::Unseen => 0.0,
         };
         let total = (dropped as usize + self.moves.len()).min(u8::MAX as usize) as u8;
@@ -788,7 +808,7 @@ mod tests {
         let mut r = Rotations::new();
         for i in 0..4u8 {
             let t0 = 10.0 * f64::from(i);
-            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }, [0.0; 3], None).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
             if i > 0 {
                 r.begin(i - 1);
                 for k in 0..100 {
@@ -837,8 +857,8 @@ mod tests {
     #[test]
     fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
         let mut r = Rotations::new();
-        r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
-        r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
+        r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
+        r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
         r.begin(0);
         for i in 0..=900 {
             r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);

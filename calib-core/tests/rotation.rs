@@ -8,7 +8,7 @@
 
 use calib_core::bias::RestBias;
 use calib_core::full::{Axes, FullLimits};
-use calib_core::rotation::{Rejected, RotationLimits, Rotations};
+use calib_core::rotation::{PoseRest, Rejected, RotationLimits, Rotations};
 use calib_core::Error;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -63,7 +63,7 @@ fn record_drifting(
         // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled.
         let b = if predicted { 0.0 } else { (drift * t) as f32 };
         let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
-        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, rest, [0.0; 3], predicted.then_some(0.0)).unwrap()
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, PoseRest { bias: rest, predicted, ..PoseRest::default() }).unwrap()
     };
     let mut prev = pose(r, &atts[0], 0, t);
     for (i, w) in atts.windows(2).enumerate() {
@@ -161,8 +161,8 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     assert_eq!(r.moves().len(), 7);
     // A saturated sample.
     let mut r = Rotations::new();
-    r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
-    r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default(), [0.0; 3], None).unwrap();
+    r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
+    r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
     r.begin(0);
     r.add(0.0, [90.0, 0.0, 0.0], false);
     r.add(0.01, [90.0, 0.0, 0.0], true);

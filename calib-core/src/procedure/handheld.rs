@@ -46,10 +46,10 @@ impl Procedure {
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let sigma = capture.accel.max_std_of_mean() as f32;
-        let (rest, predicted) = self.hand_rest(capture);
-        let rise = capture.turn.rise_deg(capture.t_first, capture.t_last, rest.residual_dps);
-        let span = predicted.then_some((capture.t_last - capture.t_first) as f32);
-        match self.rotations.push_pose(a, sigma, rest, rise, span) {
+        let (bias, predicted) = self.hand_rest(capture);
+        let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
+        let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32 };
+        match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) if to > 0 => {
                 let rejected = self.rotations.end(to, &self.cfg.rotation).err();
                 let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);

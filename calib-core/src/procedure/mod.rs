@@ -40,7 +40,7 @@ use crate::gyro::Method;
 use crate::pipeline::{GravityTurn, OneAxis};
 use crate::record::{self, Record, SensorSetup, StoreError};
 use crate::rest::{RestDetector, RestState, Window};
-use crate::rotation::{PoseTurn, Rotations, MAX_ROTATION_MOVES};
+use crate::rotation::{PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
 use crate::stats::Welford3;
 use crate::sweep::{Integrator, Moves};
 use crate::vec3::{sub, to_f64 as v64};
@@ -502,7 +502,11 @@ impl Procedure {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
                     match capture.feed(&w, &wt, &turn, tainted, self.cfg.pose_average_s) {
-                        CaptureStep::Done => self.finish_accel_pose(&capture, s.t_s),
+                        CaptureStep::Done => {
+                            self.finish_accel_pose(&capture, s.t_s);
+                            // The next move starts at this sample (its first interval is the next).
+                            self.rotations.add(s.t_s, g, saturated);
+                        }
                         // A disturbed hand-held pose is simply taken again: the user is moving it.
                         CaptureStep::Pending | CaptureStep::Disturbed => self.step = Step::HandHeld { capture },
                     }

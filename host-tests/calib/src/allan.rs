@@ -236,14 +236,15 @@ pub fn analyse(rows: &[Row]) -> Result<Allan, AllanError> {
     if still_s < MIN_STILL_SHARE * duration_s || still_s < MIN_DURATION_S {
         return Err(AllanError::NotStatic { still_s, duration_s });
     }
-    let span = &rows[first..=last];
-    let mut dt: Vec<f64> = span.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    // Holes anywhere in the log (a still stretch stops at one, so the longest would hide them).
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
     dt.sort_by(f64::total_cmp);
     let median = dt[dt.len() / 2];
     let missing: usize = dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum();
-    if missing as f64 > MAX_MISSING_SHARE * span.len() as f64 {
+    if missing as f64 > MAX_MISSING_SHARE * rows.len() as f64 {
         return Err(AllanError::Gaps { missing });
     }
+    let span = &rows[first..=last];
     let fs = 1.0 / median;
     let gyro: Vec<[f64; 3]> = span.iter().map(|r| r.gyro_dps.map(f64::from)).collect();
     let accel: Vec<[f64; 3]> = span.iter().map(|r| r.accel_g.map(f64::from)).collect();

@@ -214,7 +214,7 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
             // The rests that measure the bias: a hand's shaky pose does not.
             let pts = seg
                 .iter()
-                .filter(|s| s.gyro.max_std() <= c.phases.rest.gyro_std_max_dps as f64)
+                .filter(|s| c.phases.measures_bias(s))
                 .map(|s| ((rows[s.first].t_s + rows[s.last].t_s) / 2.0 - t0, s.gyro.mean()[a] - c.bias.bias_dps[a] as f64))
                 .collect();
             (AXES[a], ["x", "y", "z"][a], pts)

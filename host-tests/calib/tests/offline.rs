@@ -261,6 +261,8 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert_eq!((&v["gyro"]["method"], &v["quality"]["accel"]["model"]), (&"full".into(), &"nine_param".into()), "{v}");
+    // The rig's rows are cut out: the move across the hole (the shaft turned unseen) is dropped.
+    assert_eq!(v["quality"]["hand_moves"]["dropped"]["gap"], 1, "{v}");
     let (code, out, err) = calib(&[&hand, "--no-rotations"]);
     assert_eq!(code, 4, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();

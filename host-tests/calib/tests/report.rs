@@ -128,7 +128,7 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     drawn_as_placed(&render(&residuals.svg), report::RESIDUAL, &residuals.markers[0], &[], "move residuals");
     let img = render(&bias.svg);
     for (a, colour) in report::AXES.iter().enumerate() {
-        let rests = c.phases.segments.iter().filter(|s| s.gyro.max_std() <= c.phases.rest.gyro_std_max_dps as f64).count();
+        let rests = c.phases.segments.iter().filter(|s| c.phases.measures_bias(s)).count();
         assert!(rests >= rig && bias.markers[a].len() == rests);
         let later: Vec<(i32, i32)> = bias.markers[a + 1..].concat();
         drawn_as_placed(&img, *colour, &bias.markers[a], &later, "bias");

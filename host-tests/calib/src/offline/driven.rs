@@ -99,9 +99,8 @@ pub(super) fn calibrate(
     // Bias: the still segments pooled, against the log's own noise floor (a hand's shaky poses
     // only when there is nothing else).
     let mut b = BiasEstimator::new();
-    let steady = |s: &&Segment| s.gyro.max_std() <= ph.rest.gyro_std_max_dps as f64;
-    let any_steady = ph.segments.iter().any(|s| steady(&s));
-    for s in ph.segments.iter().filter(|s| !any_steady || steady(s)) {
+    let any_steady = ph.segments.iter().any(|s| ph.measures_bias(s));
+    for s in ph.segments.iter().filter(|s| !any_steady || ph.measures_bias(s)) {
         b.add_window(&s.gyro, &s.accel);
     }
     let limits = BiasLimits { min_samples: 20, max_std_dps: ph.rest.gyro_std_max_dps, max_accel_std_g: f32::INFINITY, ..cfg.bias };
@@ -224,35 +223,32 @@ fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Po
 
 /// Rotation constraints: every move between two consecutive hand-held poses (calibrated gravity
 /// directions at both ends, the gyro integrated between them in chunks). A pose's gravity is its
-/// mean over the pose, the mean attitude of a board that sways: so the gyro is integrated from
-/// the mean instant of one pose to that of the next (DESIGN §4.7), i.e. over both poses too,
-/// weighted by a ramp that rises over the first pose and falls over the second (to first order
-/// in the sway, the mean over all start and end instants). A rejected move is counted, not an
-/// error.
+/// mean over the pose, the mean attitude of a board that sways: each move runs from the mean
+/// instant of one pose to that of the next (DESIGN §4.7, [`PoseTurn`]), as in the firmware. A
+/// rejected move is counted, not an error.
 fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Rotations {
     let mut rotations = Rotations::new();
     let mut prev: Option<(u8, &Segment)> = None;
     let rows = log.rows;
-    let ramp = |s: &Segment, t: f64| ((t - rows[s.first].t_s) / (rows[s.last].t_s - rows[s.first].t_s).max(1e-9)).clamp(0.0, 1.0);
+    let gyro = |r: &Row| sub(r.gyro_dps, log.bias.bias_dps);
     for s in &log.ph.segments {
         if s.is_rig_pose() {
             prev = None;
             continue;
         }
+        let mut turn = PoseTurn::new();
+        for i in s.first.max(1)..=s.last {
+            turn.add(rows[i].t_s, rows[i].t_s - rows[i - 1].t_s, gyro(&rows[i]));
+        }
+        let (t_first, t_last) = (rows[s.first].t_s, rows[s.last].t_s);
+        let rest =
+            PoseRest { bias: log.rest(s), predicted: false, rise_deg: turn.rise_deg(t_first, t_last), span_s: (t_last - t_first) as f32 };
         let sigma = s.accel.max_std_of_mean();
-        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, log.rest(s), [0.0; 3], None) else { break };
+        let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, rest) else { break };
         if let Some((from, p)) = prev {
             rotations.begin(from);
-            for (i, r) in rows.iter().enumerate().take(s.last + 1).skip(p.first) {
-                let weight = if i <= p.last {
-                    ramp(p, r.t_s)
-                } else if i >= s.first {
-                    1.0 - ramp(s, r.t_s)
-                } else {
-                    1.0
-                } as f32;
-                let w = sub(r.gyro_dps, log.bias.bias_dps).map(|v| v * weight);
-                rotations.add(r.t_s, w, r.gyro_dps.iter().any(|v| clipped(*v, range_dps)));
+            for r in &rows[p.last..=s.last] {
+                rotations.add(r.t_s, gyro(r), r.gyro_dps.iter().any(|v| clipped(*v, range_dps)));
             }
             let _ = rotations.end(idx, limits);
         }

@@ -16,7 +16,7 @@ use calib_core::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
 use calib_core::record::{self, Record, SensorSetup};
 use calib_core::rest::{RestConfig, RestDetector, RestState};
-use calib_core::rotation::{RotationLimits, Rotations};
+use calib_core::rotation::{PoseRest, PoseTurn, RotationLimits, Rotations};
 use calib_core::stats::Welford3;
 use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::vec3::{sub, to_f64 as v64};

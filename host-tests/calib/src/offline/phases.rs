@@ -53,6 +53,14 @@ pub struct Phases {
     pub segments: Vec<Segment>,
 }
 
+impl Phases {
+    /// A segment as still as the rig's thresholds: it measures the gyro bias (a hand's shaky
+    /// pose does not).
+    pub fn measures_bias(&self, s: &Segment) -> bool {
+        s.gyro.max_std() <= self.rest.gyro_std_max_dps as f64
+    }
+}
+
 /// Shortest still segment used as a pose (s).
 const MIN_SEGMENT_S: f64 = 0.5;
 
@@ -123,6 +131,14 @@ pub fn phases(rows: &[Row]) -> Phases {
     let mut open: Option<Segment> = None;
     let mut start = 0;
     for (i, r) in rows.iter().enumerate() {
+        // A hole in the samples (a log cut, samples lost) ends the stillness: the board may have
+        // moved unseen, so no window or pose spans it.
+        if i > 0 && r.t_s - rows[i - 1].t_s > CONFIG.rotation.max_gap_s as f64 {
+            close(&mut open, &mut segments, rows);
+            det.reset();
+            hand_det.reset();
+            start = i;
+        }
         let (w, hw) = (det.update(r.t_s, r.accel_g, r.gyro_dps), hand_det.update(r.t_s, r.accel_g, r.gyro_dps));
         let (Some(w), Some(hw)) = (w, hw) else { continue };
         let span = &rows[start..=i];
