@@ -87,7 +87,10 @@ fn cli_calibrates_a_log_into_one_json_object_and_names_bad_input() {
     assert_eq!(v["gyro"]["K"].as_array().unwrap().len(), 3);
     assert_eq!(v["gyro"]["bias_dps"].as_array().unwrap().len(), 3);
     assert_eq!(v["accel"]["M"][2].as_array().unwrap().len(), 3);
-    assert!(v["quality"]["gyro"]["sigma_k"].is_array());
+    // The 1σ in quality.gyro is the reported K's (the full one's diagonal).
+    for i in 0..3 {
+        assert_eq!(v["quality"]["gyro"]["sigma_k"][i], v["quality"]["full"]["sigma_k"][i][i], "{v}");
+    }
     let (code, out, _) = calib(&[log, "--method", "paper"]);
     assert_eq!(code, 0);
     assert!(out.contains("\"method\":\"paper\""));

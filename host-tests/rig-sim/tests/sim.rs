@@ -600,7 +600,7 @@ fn a_hand_sways_and_trembles_as_the_literature_says_and_braced_a_quarter_of_it()
     for seed in 1..4 {
         let (rms, tilt, lin) = measure(HandLevel::Free, seed);
         println!("MEASURED free hand seed {seed}: gyro RMS {rms:.2} deg/s, largest turn {tilt:.3} deg, largest linear accel {lin:.4} g");
-        assert!((0.5..=2.5).contains(&rms) && (0.1..=0.6).contains(&tilt) && (0.003..=0.03).contains(&lin));
+        assert!((0.5..=2.5).contains(&rms) && (0.1..=0.6).contains(&tilt) && (0.003..=0.015).contains(&lin));
         let (b_rms, b_tilt, b_lin) = measure(HandLevel::Braced, seed);
         assert!((b_rms / rms - 0.25).abs() < 0.01 && (b_tilt / tilt - 0.25).abs() < 0.02 && (b_lin / lin - 0.25).abs() < 0.02);
     }

@@ -111,8 +111,9 @@ impl HandMoves {
 pub struct QualityOut<'a> {
     /// The parts of the calibration the log did not support, each with the reason.
     pub missing: Vec<String>,
-    /// The chosen gyro result's quality report.
-    pub gyro: Option<&'a GyroQuality>,
+    /// The one-axis gyro estimator's quality report; its `sigma_k` is the 1σ of the diagonal
+    /// of the `K` that is reported (the full `K`'s when it is the full one).
+    pub gyro: Option<GyroQuality>,
     /// The bias.
     pub bias: &'a Bias,
     /// The accelerometer fit.
@@ -197,7 +198,10 @@ impl Calibration {
             accel: AccelJson { m: self.accel.m, offset_g: self.accel.offset_g },
             quality: QualityOut {
                 missing: self.missing(),
-                gyro: gyro.map(|g| &g.quality),
+                gyro: gyro.map(|g| GyroQuality {
+                    sigma_k: full.map_or(g.quality.sigma_k, |f| core::array::from_fn(|i| f.sigma_k[i][i])),
+                    ..g.quality
+                }),
                 bias: &self.bias,
                 accel: &self.accel,
                 estimators: Estimators {

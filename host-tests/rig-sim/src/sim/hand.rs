@@ -78,23 +78,28 @@ pub struct Hand {
 
 impl Hand {
     /// A hand of `level` drawn from `rng`. Free hand: each sway component 0.06–0.17° (together
-    /// 0.1–0.3°), each tremor component 0.006–0.015° (≈ 0.4–0.9 °/s at 10 Hz); linear
-    /// accelerations from sway 1–2 mm (≈ 0.001–0.006 g) and tremor 0.01–0.02 mm (≈ 0.002–0.008
-    /// g). Braced: all of it × 0.25.
+    /// 0.1–0.3°), each tremor component 0.006–0.015° (≈ 0.4–0.9 °/s at 10 Hz); the hand's
+    /// position sways 0.3–0.6 mm per component at 1 Hz, falling as 1/f (a steady sway speed: 1–2
+    /// mm at 0.3 Hz), and trembles 5–10 µm, so linear accelerations reach ≈ 0.01 g, mostly the
+    /// tremor's. Braced: all of it × 0.25.
     pub fn new(level: HandLevel, rng: &mut impl Rng) -> Self {
         let k = level.gain();
-        let mut draw = |sway_deg: std::ops::Range<f64>, tremor_deg: std::ops::Range<f64>, to_amp: &dyn Fn(f64, f64) -> f64| {
+        let mut draw = |sway: std::ops::Range<f64>, tremor: std::ops::Range<f64>, to_amp: &dyn Fn(f64, f64, bool) -> f64| {
             core::array::from_fn(|i| {
-                let (range, hz) = if i < SWAY_PARTS { (sway_deg.clone(), 0.3..1.5) } else { (tremor_deg.clone(), 8.0..12.0) };
+                let is_sway = i < SWAY_PARTS;
+                let (range, hz) = if is_sway { (sway.clone(), 0.3..1.5) } else { (tremor.clone(), 8.0..12.0) };
                 let size = rng.random_range(range);
                 let mut p = Part::draw(rng, 0.0, hz);
-                p.amp = k * to_amp(size, p.w);
+                p.amp = k * to_amp(size, p.w, is_sway);
                 p
             })
         };
-        let turn = draw(0.06..0.17, 0.006..0.015, &|deg, _| deg.to_radians());
-        // Displacement amplitude (mm) → acceleration amplitude ω² x (g).
-        let accel = draw(1.0..2.0, 0.01..0.02, &|mm, w| w * w * mm * 1e-3 / super::G0);
+        let turn = draw(0.06..0.17, 0.006..0.015, &|deg, _, _| deg.to_radians());
+        // Displacement amplitude (mm; the sway's at 1 Hz, as 1/f) → acceleration amplitude ω² x (g).
+        let accel = draw(0.3..0.6, 0.005..0.01, &|mm, w, is_sway| {
+            let x_m = if is_sway { mm * 1e-3 * TAU / w } else { mm * 1e-3 };
+            w * w * x_m / super::G0
+        });
         Hand { turn, accel }
     }
 
