@@ -157,7 +157,7 @@ impl Phase {
         Some(match self {
             Phase::WaitRest | Phase::Bias => "keep the rig still",
             Phase::HandHeld => {
-                "unclamp the board; hold it still in a new orientation each time the LED blinks yellow, about 3 s each, turning it about varied axes in between"
+                "unclamp the board; hold it still in a new orientation each time the LED blinks yellow, about 4 s each, turning it about varied axes in between"
             }
             Phase::Reattach => "clamp the board back on the servo shaft, then press the button (or send c)",
             Phase::RigPoses | Phase::Spin => "hands off: the servos move the board",

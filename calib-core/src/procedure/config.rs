@@ -69,8 +69,11 @@ pub struct Config {
     pub steady: SteadyRate,
     /// Duration of the spin with a continuous servo (s).
     pub spin_s: f32,
-    /// Still time averaged per pose (s).
+    /// Still time averaged per rig pose (s).
     pub pose_average_s: f32,
+    /// Quasi-static time averaged per hand-held pose (s): longer than the rig's, since a hand's
+    /// sway (0.3–1.5 Hz) averages out of the pose's gravity only over a few of its periods.
+    pub hand_pose_s: f32,
     /// Still time averaged for the bias (s).
     pub bias_s: f32,
     /// Hand-held accelerometer poses to capture (≥ 6; ≥ 9 fits 9 parameters).
@@ -136,6 +139,7 @@ impl Config {
         steady: SteadyRate::DEFAULT,
         spin_s: 10.0,
         pose_average_s: 1.0,
+        hand_pose_s: 2.0,
         bias_s: 2.0,
         accel_poses: 12,
         accel_min_separation_deg: 30.0,

@@ -501,7 +501,7 @@ impl Procedure {
             Step::HandHeld { mut capture } => {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
-                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.pose_average_s) {
+                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.hand_pose_s) {
                         CaptureStep::Done => {
                             self.finish_accel_pose(&capture, s.t_s);
                             // The next move starts at this sample (its first interval is the next).

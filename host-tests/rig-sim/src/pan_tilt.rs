@@ -75,9 +75,11 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     s.rig.set_tilt_pulse_us(pulse(90.0));
     s.hold(3.0, true);
     if handheld {
+        // As the firmware asks (about 4 s a pose): 1 s to turn, 3 s held, of which a hand's
+        // pose averages 2 s once it has settled.
         for q in handheld_attitudes() {
             s.rig.detach_to(q, 1.0);
-            s.hold(2.5, false);
+            s.hold(4.0, false);
         }
         s.rig.attach();
         let settle = s.rig.config().attach_transition_s + 1.0;

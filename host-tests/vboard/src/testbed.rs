@@ -198,12 +198,12 @@ impl Testbed {
 
     /// Presses the button and plays an operator who goes by the LEDs only, never by the log:
     /// yellow blinking (red + green together) means "your turn": they hold the board in the
-    /// hand-held orientations one after the other, 3 s each (a pose is captured after 1 s of
+    /// hand-held orientations one after the other, 4 s each (a pose is captured after 2 s of
     /// stillness), then clamp it back and press the button until the yellow stops; green with
     /// D13 lit is done, red without green an error, its class the D13 flashes. `inject(event,
     /// periph)` sees what the operator does (fault injection).
     pub fn calibrate_with(&mut self, max_s: f64, mut inject: impl FnMut(Event, &mut Periph)) -> Outcome {
-        const HOLD_S: f64 = 3.0;
+        const HOLD_S: f64 = 4.0;
         let attitudes = handheld_attitudes();
         let t_end = self.mcu.now() + max_s;
         // With `calib --port`, calib starts the calibration itself.
