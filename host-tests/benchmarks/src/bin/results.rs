@@ -276,11 +276,12 @@ fn full_k_section(heading: &str, j: &Value) -> String {
 
 fn rotation_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
-        "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}): the full K with and without the rotation constraints of the moves \
-         between static poses; E as above.\n\n| rig | rotations | RMS of E | largest | rigs | failed |\n|---|---|---|---|---|---|\n",
+        "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}, the hand-held poses held by a {} hand): the full K with and without \
+         the rotation constraints of the moves between static poses; E as above.\n\n| rig | rotations | RMS of E | largest | rigs | failed |\n|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
-        sensor_of(j)
+        sensor_of(j),
+        j["hand"].as_str().unwrap_or("braced")
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -394,6 +395,7 @@ fn page() -> Result<String, String> {
         Run { bin: "full-k-bench", args: a(&["--setup", "bmi270", "--json"]) },
         Run { bin: "rotation-bench", args: a(&["--setup", "bmi270", "--json"]) },
         Run { bin: "real-bench", args: a(&["--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--hand", "free", "--json"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -436,6 +438,8 @@ fn page() -> Result<String, String> {
     s += &full_k_section("Rev2: full-K bench", &json(&out[12])?);
     s += "\n";
     s += &rotation_section("Rev2: rotation bench", &json(&out[13])?);
+    s += "\n";
+    s += &rotation_section("Rotation bench, held in the air", &json(&out[15])?);
     s += "\n";
     s += &real_section(&json(&out[14])?);
     Ok(s)

@@ -4,7 +4,8 @@
 //! U(±3 %), LSM9DS1 noise and ODR error): one servo + 12 hand-held poses, pan/tilt + 12
 //! hand-held poses, 12 hand-held poses and no servo; and the firmware's own procedure (default
 //! configuration, one servo, the simulated operator's 12 hand-held poses) on the same kind of
-//! rigs. Error `E = Qᵀ K̂ K⁻¹ − I` after aligning the
+//! rigs; the board held by a braced hand (`--hand free|none` for the others). Error
+//! `E = Qᵀ K̂ K⁻¹ − I` after aligning the
 //! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
 
 use benchmarks::moments::Moments;
@@ -14,7 +15,7 @@ use calib_core::procedure::{Config, Procedure};
 use clap::Parser;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
-use rig_sim::sim::Rig;
+use rig_sim::sim::{HandLevel, Rig, RigConfig};
 use serde_json::json;
 
 /// The full K from every rotation in a log.
@@ -30,6 +31,10 @@ struct Args {
     /// The simulated sensor and its settings (the Rev2's: `bmi270`).
     #[arg(long, value_enum, default_value = "default")]
     setup: Setup,
+    /// The hand that holds the board for the hand-held poses: braced (the realistic presets'),
+    /// free (in the air) or none (perfectly still).
+    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "none"])]
+    hand: String,
     /// Print a JSON summary as the last line.
     #[arg(long)]
     json: bool,
@@ -45,20 +50,27 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
     }
 }
 
+fn hand_name(hand: Option<HandLevel>) -> &'static str {
+    hand.map_or("none", HandLevel::name)
+}
+
 fn main() {
     let args = Args::parse_from(calib::cli_args());
+    let hand = HandLevel::parse(&args.hand).unwrap_or_default();
     let names = ["one servo + 12 hand-held poses", "pan/tilt + 12 hand-held poses", "12 hand-held poses, no servo"];
     let mut table = vec![];
     println!(
-        "rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %), the {:?} setup",
-        args.rigs, args.setup
+        "rotation-bench: {} simulated rigs per row (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %), the {:?} setup, hand {}",
+        args.rigs,
+        args.setup,
+        hand_name(hand)
     );
     println!("{:<38}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
             let (mut rms, mut max, mut failed) = (vec![], 0.0f64, vec![]);
             for run in 0..args.rigs {
-                let cfg = args.setup.rig(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64);
+                let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64) };
                 let mut rig = Rig::new(cfg, args.seed + run as u64);
                 let log = log_of(kind, &mut rig);
                 let c = csvlog::parse(&log)
@@ -101,7 +113,7 @@ fn main() {
     // stores, and the diagonal sweep K it reports beside it.
     let (mut full, mut diag, mut max, mut dmax, mut failed) = (vec![], vec![], 0.0f64, 0.0f64, vec![]);
     for run_idx in 0..args.rigs {
-        let cfg = args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
+        let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64) };
         let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
         let mut p = Procedure::new(Config { setup: args.setup.setup(), ..Config::DEFAULT }, None);
         let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
@@ -129,6 +141,6 @@ fn main() {
         println!("    failed {}: {failed:?}", failed.len());
     }
     if args.json {
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": table}));
+        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "hand": hand_name(hand), "rows": table}));
     }
 }

@@ -34,15 +34,8 @@ struct Args {
     tilt: bool,
     /// The hand that holds the board for the hand-held poses: resting on a table, in the air, or
     /// perfectly still (no real hand is).
-    #[arg(long, value_enum, default_value_t = HandArg::Braced)]
-    hand: HandArg,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
-enum HandArg {
-    Braced,
-    Free,
-    None,
+    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "none"])]
+    hand: String,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
@@ -59,12 +52,7 @@ fn fail(code: u8, msg: impl std::fmt::Display) -> ExitCode {
 fn main() -> ExitCode {
     let a = Args::parse();
     let odr: f64 = a.odr.parse().unwrap_or(119.0);
-    let hand = match a.hand {
-        HandArg::Braced => Some(HandLevel::Braced),
-        HandArg::Free => Some(HandLevel::Free),
-        HandArg::None => None,
-    };
-    simulate(&a.out, a.seed, odr, a.servo == ServoArg::Continuous, a.tilt, hand)
+    simulate(&a.out, a.seed, odr, a.servo == ServoArg::Continuous, a.tilt, HandLevel::parse(&a.hand).unwrap_or_default())
 }
 
 fn simulate(path: &str, seed: u64, odr: f64, continuous: bool, tilt: bool, hand: Option<HandLevel>) -> ExitCode {

@@ -32,6 +32,17 @@ impl HandLevel {
         }
     }
 
+    /// A hand by its name (`braced`, `free`), `none` for a perfectly still one: for command
+    /// lines (`simulate --hand`, `rotation-bench --hand`).
+    pub fn parse(name: &str) -> Result<Option<HandLevel>, String> {
+        match name {
+            "braced" => Ok(Some(HandLevel::Braced)),
+            "free" => Ok(Some(HandLevel::Free)),
+            "none" => Ok(None),
+            _ => Err(format!("{name:?}: one of braced, free, none")),
+        }
+    }
+
     fn gain(self) -> f64 {
         match self {
             HandLevel::Braced => 0.25,
