@@ -274,10 +274,16 @@ fn full_k_section(heading: &str, j: &Value) -> String {
     s
 }
 
+/// A share as a whole percentage, `–` when there is none.
+fn percent(v: &Value) -> String {
+    v.as_f64().map_or("–".into(), |x| format!("{:.0} %", 100.0 * x))
+}
+
 fn rotation_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
         "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}, the hand-held poses held by a {} hand): the full K with and without \
-         the rotation constraints of the moves between static poses; E as above.\n\n| rig | rotations | RMS of E | largest | rigs | failed |\n|---|---|---|---|---|---|\n",
+         the rotation constraints of the moves between static poses; E as above. Coverage: the share of the full K's elements whose error \
+         `E_ij` lies within their reported 1σ and 2σ (honest: 60–75 % and ≥ 92 %).\n\n| rig | rotations | RMS of E | largest | rigs | failed | within 1σ | within 2σ |\n|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
         sensor_of(j),
@@ -285,13 +291,15 @@ fn rotation_section(heading: &str, j: &Value) -> String {
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
-            "| {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r["rig"].as_str().unwrap_or("?"),
             if r["rotations"].as_bool() == Some(true) { "on" } else { "off" },
             e3(f(&r["rms_mean"])),
             e3(f(&r["max"])),
             r["rigs"],
-            count(&r["failed"])
+            count(&r["failed"]),
+            percent(&r["within_1sigma"]),
+            percent(&r["within_2sigma"])
         );
     }
     s
@@ -322,11 +330,7 @@ fn drift_section(heading: &str, j: &Value) -> String {
             r["stored"],
             count(&r["failed"]),
             r["tempco_runs"],
-            if r["tempco_runs"].as_u64() == Some(0) {
-                "–".to_string()
-            } else {
-                format!("{:.0} %", 100.0 * f(&r["tempco_within_2sigma"]))
-            }
+            if r["tempco_runs"].as_u64() == Some(0) { "–".to_string() } else { percent(&r["tempco_within_2sigma"]) }
         );
     }
     s

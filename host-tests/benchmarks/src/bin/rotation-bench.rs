@@ -50,6 +50,20 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
     }
 }
 
+/// How many of a full `K̂`'s 9 elements have their error `E_ij` ([`pan_tilt::k_error_matrix`])
+/// within 1σ and within 2σ of their reported 1σ (`E ≈ K̂ − K` for `K ≈ I`, so `σ(E_ij) ≈
+/// σ(K_ij)`).
+fn covered(k: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m: [[f32; 3]; 3], rig: &Rig) -> [usize; 2] {
+    let Some(e) = pan_tilt::k_error_matrix(k, m, rig) else { return [0; 2] };
+    let within = |n: f64| (0..9).filter(|&i| e[(i / 3, i % 3)].abs() <= n * sigma[i / 3][i % 3] as f64).count();
+    [within(1.0), within(2.0)]
+}
+
+/// The fractions of elements within 1σ and 2σ from the counts over `rigs` full `K`s.
+fn coverage(c: [usize; 2], rigs: usize) -> [f64; 2] {
+    c.map(|n| if rigs == 0 { 0.0 } else { n as f64 / (9 * rigs) as f64 })
+}
+
 fn hand_name(hand: Option<HandLevel>) -> &'static str {
     hand.map_or("none", HandLevel::name)
 }
@@ -68,7 +82,7 @@ fn main() {
     println!("{:<38}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
-            let (mut rms, mut max, mut failed) = (vec![], 0.0f64, vec![]);
+            let (mut rms, mut max, mut failed, mut cover) = (vec![], 0.0f64, vec![], [0usize; 2]);
             for run in 0..args.rigs {
                 let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64) };
                 let mut rig = Rig::new(cfg, args.seed + run as u64);
@@ -77,7 +91,11 @@ fn main() {
                     .map_err(|e| e.to_string())
                     .and_then(|l| offline::calibrate_with(&l.rows, None, on).map_err(|e| e.to_string()));
                 let k = match c.as_ref().map(|c| (c.full.as_ref(), &c.gyro, c.accel.m)) {
-                    Ok((Some(Ok(f)), _, m)) => Some((f.k, m)),
+                    Ok((Some(Ok(f)), _, m)) => {
+                        let [a, b] = covered(f.k, f.sigma_k, m, &rig);
+                        cover = [cover[0] + a, cover[1] + b];
+                        Some((f.k, m))
+                    }
                     Ok((_, Ok(g), m)) => Some((g.k, m)),
                     Ok((Some(Err(e)), _, _)) => {
                         failed.push(e.to_string());
@@ -106,12 +124,18 @@ fn main() {
                 kinds.dedup();
                 println!("    failed {}: {kinds:?}", failed.len());
             }
-            table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed}));
+            let full_rigs = if on { rms.len() } else { 0 };
+            let [c1, c2] = coverage(cover, full_rigs);
+            if on {
+                println!("    errors within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * c1, 100.0 * c2);
+            }
+            table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed,
+                "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2)}));
         }
     }
     // The firmware's own procedure (default configuration) on the one-servo rigs: the full K it
     // stores, and the diagonal sweep K it reports beside it.
-    let (mut full, mut diag, mut max, mut dmax, mut failed) = (vec![], vec![], 0.0f64, 0.0f64, vec![]);
+    let (mut full, mut diag, mut max, mut dmax, mut failed, mut cover) = (vec![], vec![], 0.0f64, 0.0f64, vec![], [0usize; 2]);
     for run_idx in 0..args.rigs {
         let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64) };
         let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
@@ -124,6 +148,8 @@ fn main() {
         if let Some((mx, r)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
             full.push(r);
             max = max.max(mx);
+            let [a, b] = covered(rec.gyro_k, rec.sigma_k, rec.accel_m, &rig);
+            cover = [cover[0] + a, cover[1] + b];
         }
         let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::gyro::Method::Sweep);
         if let Some((mx, r)) = sweep.and_then(|g| pan_tilt::k_error(g.k, rec.accel_m, &rig)) {
@@ -135,7 +161,13 @@ fn main() {
     for (label, rms, mx) in [("on", &full, max), ("off (its sweep)", &diag, dmax)] {
         let mean = Moments::of(rms).mean;
         println!("{name:<38}{label:<16}{mean:>12.2e}{mx:>12.2e}{:>7}", rms.len());
-        table.push(json!({"rig": name, "rotations": label == "on", "rms_mean": mean, "max": mx, "rigs": rms.len(), "failed": failed}));
+        let on = label == "on";
+        let [c1, c2] = coverage(cover, full.len());
+        if on {
+            println!("    errors within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * c1, 100.0 * c2);
+        }
+        table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": mx, "rigs": rms.len(), "failed": failed,
+            "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2)}));
     }
     if !failed.is_empty() {
         println!("    failed {}: {failed:?}", failed.len());
