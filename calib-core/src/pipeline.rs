@@ -262,6 +262,7 @@ pub fn spin_rate(commanded_dps: Option<f32>, gravity: &GravityTurn) -> (f32, Rat
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::AccelModel;
     use crate::bias::RestBias;
 
     #[test]
@@ -286,5 +287,29 @@ mod tests {
         }
         // Other errors are never renamed.
         assert_eq!(blame(Error::NoUsableMove, &uneven, None), Error::NoUsableMove);
+    }
+
+    #[test]
+    fn an_accelerometer_fit_needs_one_pose_more_than_its_unknowns() {
+        // Poses of a sensor with gains 1.01, 0.99, 1.02 and offsets 10, -20, 5 mg, with a little
+        // noise: a fit with as many unknowns as poses would pass through them (1σ 0).
+        let poses = |n: usize| {
+            let mut c = AccelCalibrator::new();
+            for k in 0..n {
+                let (th, ph) = (k as f64 * 2.4, libm::acos(1.0 - 2.0 * (k as f64 + 0.5) / n as f64));
+                let f = [libm::sin(ph) * libm::cos(th), libm::sin(ph) * libm::sin(th), libm::cos(ph)];
+                let noise = 1e-4 * libm::sin(7.3 * k as f64);
+                let a = [f[0] * 1.01 + 0.010 + noise, f[1] * 0.99 - 0.020 - noise, f[2] * 1.02 + 0.005 + noise];
+                c.add_pose(a.map(|v| v as f32)).unwrap();
+            }
+            c
+        };
+        let acc = crate::procedure::Config::DEFAULT.acceptance;
+        assert_eq!(fit_accel(&poses(6), &acc), Err(Error::TooFewPoses { have: 6, need: 7 }));
+        let six = fit_accel(&poses(9), &acc).unwrap();
+        assert_eq!(six.model, AccelModel::SixParam, "9 poses: 6 parameters, not 9");
+        let nine = fit_accel(&poses(10), &acc).unwrap();
+        assert_eq!(nine.model, AccelModel::NineParam);
+        assert!(six.sigma_gain.iter().chain(nine.sigma_gain.iter()).all(|s| *s > 0.0), "{six:?} {nine:?}");
     }
 }

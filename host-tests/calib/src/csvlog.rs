@@ -15,12 +15,17 @@ pub struct Log {
     /// The sensor setup the log states ([`log::write_setup`]; the firmware's raw log does), if
     /// it states one.
     pub setup: Option<SensorSetup>,
+    /// The line number of a last line cut mid-row (the text ends without a newline in a row
+    /// that does not parse: a recording stopped while writing), which was left out.
+    pub cut_line: Option<u32>,
 }
 
 /// Parses a whole log: lines before the header are skipped, comments skipped, log messages
 /// skipped and counted, the data end at the end marker or the end of the text; time must
-/// increase.
+/// increase. A last line cut mid-row is left out and named ([`Log::cut_line`]).
 pub fn parse(text: &str) -> Result<Log, LogError> {
+    let last = text.lines().count() as u32;
+    let unterminated = !text.is_empty() && !text.ends_with('\n');
     let mut lines = text.lines().enumerate().map(|(i, l)| (i as u32 + 1, l));
     let cols = loop {
         match lines.next() {
@@ -29,9 +34,16 @@ pub fn parse(text: &str) -> Result<Log, LogError> {
             None => return Err(LogError::NoHeader),
         }
     };
-    let (mut rows, mut messages, mut setup) = (Vec::<Row>::new(), 0, None);
+    let (mut rows, mut messages, mut setup, mut cut_line) = (Vec::<Row>::new(), 0, None, None);
     for (n, l) in lines {
-        match log::parse_line(l, &cols, n)? {
+        let line = match log::parse_line(l, &cols, n) {
+            Err(_) if unterminated && n == last && !rows.is_empty() => {
+                cut_line = Some(n);
+                break;
+            }
+            line => line?,
+        };
+        match line {
             Line::Skip => {}
             Line::Setup(s) => match setup {
                 Some(old) if old != s => return Err(LogError::SetupChanged { line: n }),
@@ -50,7 +62,7 @@ pub fn parse(text: &str) -> Result<Log, LogError> {
     if rows.is_empty() {
         return Err(LogError::Empty);
     }
-    Ok(Log { rows, messages, setup })
+    Ok(Log { rows, messages, setup, cut_line })
 }
 
 /// The header line, with its newline.

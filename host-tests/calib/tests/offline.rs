@@ -199,6 +199,12 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
         std::fs::write(&p, text).unwrap();
         p.to_str().unwrap().to_string()
     };
+    // The recording stopped while writing its last row: read up to it, with a warning.
+    let cut = write("cut.csv", &log[..log.trim_end().rfind('\n').unwrap() + 15]);
+    let (code, _, err) = calib(&[&cut]);
+    let last = log.trim_end().lines().count();
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains(&format!("line {last} was cut mid-row")) && err.contains(&format!("read up to line {}", last - 1)), "{err}");
     // Time in milliseconds: named, never a wrong K.
     let ms = write(
         "ms.csv",
@@ -266,6 +272,11 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     assert_eq!((&v["gyro"]["method"], &v["quality"]["accel"]["model"]), (&"full".into(), &"nine_param".into()), "{v}");
     // The rig's rows are cut out: the move across the hole (the shaft turned unseen) is dropped.
     assert_eq!(v["quality"]["hand_moves"]["dropped"]["gap"], 1, "{v}");
+    // A gyro whose full scale the user states (`--range`, any sensor): the moves that reach it
+    // are dropped, counted and named.
+    let (code, _, err) = calib(&[&hand, "--range", "60"]);
+    assert_eq!(code, 4, "{err}");
+    assert!(err.contains("moves between poses were dropped: they reached the gyro's full scale"), "{err}");
     let (code, out, err) = calib(&[&hand, "--no-rotations"]);
     assert_eq!(code, 4, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();

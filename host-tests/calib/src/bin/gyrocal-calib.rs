@@ -252,7 +252,11 @@ fn read_log(path: &str, columns: Option<&str>) -> Result<csvlog::Log, ExitCode> 
     if let Some(spec) = columns {
         text = csvlog::remap(&text, spec).map_err(|e| fail(3, format!("{path}: {e}")))?;
     }
-    csvlog::parse(&text).map_err(|e| fail(3, format!("{path}: {e}")))
+    let log = csvlog::parse(&text).map_err(|e| fail(3, format!("{path}: {e}")))?;
+    if let Some(n) = log.cut_line {
+        eprintln!("calib: warning: {path}: line {n} was cut mid-row (the recording stopped while writing it): read up to line {}", n - 1);
+    }
+    Ok(log)
 }
 
 fn allan(path: &str, columns: Option<&str>, yaml: Option<&Path>, topic: &str, report: Option<&Path>) -> ExitCode {

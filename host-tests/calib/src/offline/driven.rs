@@ -153,8 +153,13 @@ pub(super) fn calibrate(
     }
     // A log of hand-held poses only: its gyro result is the full K of their moves, and so is
     // its error (never the servo sweep's "too few static poses: 0").
+    let hand_held = |error: Error| OfflineError::Calib { stage: HAND_HELD_STAGE, error };
     let gyro = match (&full, gyro) {
-        (Some(Err(error)), Err(_)) if poses.is_empty() => Err(OfflineError::Calib { stage: HAND_HELD_STAGE, error: *error }),
+        (Some(Err(error)), Err(_)) if poses.is_empty() => Err(hand_held(*error)),
+        // No full K was tried: every move between the poses was dropped.
+        (None, Err(_)) if poses.is_empty() && with_rotations.is_some() && rotations.moves().is_empty() => {
+            Err(hand_held(rotations.drop_error(&cfg.rotation).unwrap_or(Error::NoUsableMove)))
+        }
         (_, g) => g,
     };
     Ok(Calibration {

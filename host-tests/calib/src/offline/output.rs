@@ -86,11 +86,17 @@ pub struct HandMoves {
     /// `axis only` or `whole turns`.
     pub vertical_turns: &'static str,
     /// Dropped, by reason (`saturated`, `too_fast`, `too_short`, `bias_drifted`, `no_room`,
-    /// `unseen`): every reason with its count.
+    /// `unseen`, `gap`): every reason with its count.
     pub dropped: std::collections::BTreeMap<&'static str, u16>,
 }
 
 impl HandMoves {
+    /// `"6 of 9 moves between poses used, dropped: 3 saturated"`, or `None` when none was dropped.
+    pub fn dropped_summary(&self) -> Option<String> {
+        let dropped: Vec<String> = self.dropped.iter().filter(|(_, n)| **n > 0).map(|(r, n)| format!("{n} {r}")).collect();
+        (!dropped.is_empty()).then(|| format!("{} of {} moves between poses used, dropped: {}", self.kept, self.total, dropped.join(", ")))
+    }
+
     /// The summary of `rotations`, recorded under `limits`.
     pub fn of(rotations: &Rotations, limits: &RotationLimits) -> Self {
         let dropped: std::collections::BTreeMap<_, _> =
@@ -150,7 +156,12 @@ impl Calibration {
         let mut m = vec![];
         match (&self.gyro, &self.full) {
             (_, Some(Ok(_))) => {}
-            (Err(e @ OfflineError::Calib { stage: driven::HAND_HELD_STAGE, .. }), _) => m.push(format!("gyro: {e}")),
+            (Err(e @ OfflineError::Calib { stage: driven::HAND_HELD_STAGE, error }), _) => {
+                // A result rejected after some moves were dropped: say which, with their count.
+                let summary =
+                    self.hand_moves.as_ref().and_then(HandMoves::dropped_summary).filter(|_| !matches!(error, Error::MovesDropped { .. }));
+                m.push(summary.map_or(format!("gyro: {e}"), |s| format!("gyro: {e}; {s}")));
+            }
             (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
             (Err(e), None) => m.push(format!("gyro: {e}")),
             (Ok(_), Some(Err(f))) => m.push(format!("full K (the diagonal K of one axis is given): {f}")),
