@@ -172,7 +172,8 @@ pub struct Record {
     pub temp_c: Option<f32>,
     /// Gyro scale matrix `K` (`ω = K (g − b)`).
     pub gyro_k: Mat3,
-    /// Gyro bias `b` (°/s).
+    /// Gyro bias `b` (°/s): at `temp_c` when the tempco is known, else the latest of the
+    /// calibration (the rests' line at its end).
     pub gyro_bias_dps: Vec3,
     /// Estimator that produced `K`.
     pub method: Method,

@@ -55,7 +55,7 @@ impl Procedure {
             return self.fail(e);
         }
         let poses = self.axes.poses().len() as u8;
-        let record = self.context().full(&full, poses);
+        let record = self.context(t_s).full(&full, poses);
         self.store(record, t_s);
     }
 
@@ -107,7 +107,7 @@ impl Procedure {
         }
         match solved.chosen(&self.cfg.acceptance) {
             Ok(c) => {
-                let record = self.context().one_axis(&c);
+                let record = self.context(t_s).one_axis(&c);
                 self.store(record, t_s);
             }
             Err(e) => self.fail(e),
@@ -149,12 +149,31 @@ impl Procedure {
         }
     }
 
-    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer).
-    pub(super) fn context(&self) -> record::Context {
+    /// The mean sensor temperature of the calibration so far (°C), if any was read.
+    fn temp_c(&self) -> Option<f32> {
+        (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32)
+    }
+
+    /// The gyro bias a record made at MCU time `t_s` holds, with its 1σ: the rests' at the
+    /// record's temperature when the tempco is known (`b(T) = b + c (T − temp_c)` then holds),
+    /// else their line's at `t_s` ([`Drift::at`]: over the rig's many short rests less noisy
+    /// than [`Drift::predict`]'s, measured by drift-bench); the 1σ [`Drift::predict`]'s. The
+    /// first rest's alone is minutes old on a warming board. `None` before the bias rest.
+    pub fn bias_at(&self, t_s: f64) -> Option<Bias> {
+        let first = self.bias?;
+        let residual = self.temp_c().and_then(|t| self.temp_fit.residual_at(t)).or_else(|| self.drift.at(t_s).map(|r| r.residual_dps));
+        let sigma = self.drift.predict(t_s, first.sigma_dps).map_or(first.sigma_dps, |(_, s)| s);
+        let bias_dps = residual.map_or(first.bias_dps, |r| core::array::from_fn(|k| first.bias_dps[k] + r[k]));
+        Some(Bias { bias_dps, sigma_dps: sigma, ..first })
+    }
+
+    /// The record's calibration-independent part (sequence, temperature, bias, accelerometer) at
+    /// MCU time `t_s` ([`Self::bias_at`]).
+    pub(super) fn context(&self, t_s: f64) -> record::Context {
         record::Context {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
-            temp_c: (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32),
-            gyro_bias_dps: self.bias.map_or([0.0; 3], |b| b.bias_dps),
+            temp_c: self.temp_c(),
+            gyro_bias_dps: self.bias_at(t_s).map_or([0.0; 3], |b| b.bias_dps),
             accel: self.accel_cal,
             setup: self.cfg.setup,
             tempco: self.temp_fit.finish(),

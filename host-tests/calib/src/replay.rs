@@ -27,7 +27,7 @@ use calib_core::{pipeline, Error};
 pub struct Replay {
     /// The configuration that replays the log.
     pub config: &'static str,
-    /// The gyro bias.
+    /// The gyro bias at the end of the run (the record's, [`Procedure::bias_at`]).
     pub bias: Bias,
     /// The accelerometer calibration.
     pub accel: AccelCal,
@@ -102,8 +102,9 @@ fn same(a: Option<f32>, b: Option<f32>) -> bool {
 }
 
 /// Replays `rows` under `cfg`; `None` at the first row whose logged angles differ from the
-/// procedure's, or if the run never ends. With the full `K`, if one was solved.
-fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, Option<FullCal>)> {
+/// procedure's, or if the run never ends. With the full `K`, if one was solved, and the bias
+/// at the end ([`Procedure::bias_at`]: the record's).
+fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, Option<FullCal>, Option<Bias>)> {
     let mut p = Procedure::new(cfg, stored.copied());
     let mut out = Collect::default();
     let mut prev_t = rows.first()?.t_s;
@@ -129,7 +130,7 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: None });
         p.drive(r.t_s, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
-            return Some((out, p.full().copied()));
+            return Some((out, p.full().copied(), p.bias_at(r.t_s)));
         }
         prev_t = r.t_s;
     }
@@ -141,7 +142,7 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
 /// setup the run was made at.
 pub fn replay(rows: &[Row], stored: Option<&Record>, setup: SensorSetup) -> Option<Replay> {
     configs(setup).into_iter().find_map(|(name, cfg)| {
-        let (c, full) = run(rows, cfg, stored)?;
+        let (c, full, bias) = run(rows, cfg, stored)?;
         let attempted = cfg.pan_tilt || c.rotations;
         let full = attempted.then_some(match (c.done, c.failed, full) {
             (Some(_), _, Some(f)) => Ok(f),
@@ -160,6 +161,6 @@ pub fn replay(rows: &[Row], stored: Option<&Record>, setup: SensorSetup) -> Opti
             (None, None) => return None,
         };
         let accel = c.accel.unwrap_or(AccelCal::IDENTITY);
-        Some(Replay { config: name, bias: c.bias?, accel, sweep: c.sweep, paper: c.paper, result, full, record: c.done })
+        Some(Replay { config: name, bias: bias.or(c.bias)?, accel, sweep: c.sweep, paper: c.paper, result, full, record: c.done })
     })
 }

@@ -54,13 +54,17 @@ fn ferraris_session_agrees_with_imucal_within_three_sigma_and_whole_turns_narrow
     assert_eq!((moves["total"].as_u64(), moves["kept"].as_u64(), moves["vertical"].as_u64()), (Some(12), Some(11), Some(3)), "{moves}");
     assert_eq!((moves["dropped"]["too_fast"].as_u64(), moves["dropped"]["too_short"].as_u64()), (Some(0), Some(1)));
     assert_eq!(moves["vertical_turns"], "whole turns");
-    // Without the option the turns on the table constrain their axes only: a wider 1σ (y just
-    // under the acceptance's 0.5 %), still within 3σ of the peer.
-    let (axis_only, moves) = ferraris(&[]);
-    assert_eq!(moves["vertical_turns"], "axis only");
-    for i in 0..3 {
-        assert!(axis_only[i] > whole[i], "axis {i}: 1 sigma {} axis only, {} whole turns", axis_only[i], whole[i]);
-    }
+    // Without the option the turns on the table constrain their axes only: y is known only to
+    // just over the acceptance's 0.5 % (its 1σ scaled for the fit's 24 degrees of freedom), so
+    // no gyro K; the message names the σ and the option.
+    let (code, json, err) = calib(&session("imucal_ferraris_session.csv"), &[]);
+    assert_eq!(code, 4, "{err}");
+    let j = json.unwrap();
+    assert_eq!(j["quality"]["hand_moves"]["vertical_turns"], "axis only");
+    println!("MEASURED ferraris axis only: {err}");
+    assert!(j["gyro"].is_null() && whole[1] < 0.005);
+    assert!(err.contains("axis y scale") && err.contains("(limit 0.0050)"), "{err}");
+    assert!(err.contains("3 of the moves used turn about the vertical") && err.contains("--whole-turns"), "{err}");
 }
 
 #[test]

@@ -69,6 +69,8 @@ fn main() {
         for bias in [Bias::Constant, Bias::Drifting, Bias::Waited] {
             let (mut rms, mut largest, mut times, mut failed) = (vec![], vec![], vec![], vec![]);
             let (mut tempco_runs, mut within, mut axes) = (0, 0, 0);
+            // Squared bias errors at the run's end (°/s, per axis): the record's, the first rest's.
+            let (mut bias_sq, mut first_sq) = (vec![], vec![]);
             for i in 0..args.rigs {
                 let (mut base, cfg): (RigConfig, Config) = match plan {
                     "one-servo" => (Variant::Hobby.config(args.seed, i), Config { setup, ..Config::DEFAULT }),
@@ -93,6 +95,20 @@ fn main() {
                         }
                     }
                 }
+                let t = rig.truth();
+                if let (Some(rec), Some(first)) =
+                    (out.stored.first(), out.reports.iter().find_map(|r| if let Report::Bias(b) = r { Some(b.bias_dps) } else { None }))
+                {
+                    // The record's bias applied at the end's temperature, as a sketch does.
+                    let shift = |k: usize| match (rec.tempco, rec.temp_c) {
+                        (Some(c), Some(t0)) => c.dps_per_c[k] as f64 * (t.temp_c - t0 as f64),
+                        _ => 0.0,
+                    };
+                    for k in 0..3 {
+                        bias_sq.push((rec.gyro_bias_dps[k] as f64 + shift(k) - t.gyro_bias_dps[k]).powi(2));
+                        first_sq.push((first[k] as f64 - t.gyro_bias_dps[k]).powi(2));
+                    }
+                }
                 match (out.stored.first(), out.error) {
                     (Some(rec), _) => match pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
                         Some((mx, r)) => {
@@ -112,17 +128,19 @@ fn main() {
             };
             let (r, m, t) = (Moments::of(&rms).mean, largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&times).mean);
             let cover = if axes > 0 { within as f64 / axes as f64 } else { 0.0 };
+            let (bias_rms, first_rms) = (Moments::of(&bias_sq).mean.sqrt(), Moments::of(&first_sq).mean.sqrt());
             println!(
                 "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
                 rms.len(),
                 failed.len(),
                 100.0 * cover
             );
+            println!("  bias error at the end {bias_rms:.4} dps RMS (the first rest's alone: {first_rms:.4})");
             for f in &failed {
                 println!("  failed: {f}");
             }
             rows.push(json!({"plan": plan, "bias": name, "rms_mean": r, "max": m, "time_s": t, "stored": rms.len(), "failed": failed,
-                "tempco_runs": tempco_runs, "tempco_within_2sigma": cover}));
+                "tempco_runs": tempco_runs, "tempco_within_2sigma": cover, "bias_rms_dps": bias_rms, "first_rest_bias_rms_dps": first_rms}));
         }
     }
     if args.json {

@@ -302,6 +302,19 @@ fn rotation_section(heading: &str, j: &Value) -> String {
             percent(&r["within_2sigma"])
         );
     }
+    s += "\nThe offline tool's other 1σ on the same logs (per axis, the rows with rotations): the gyro bias it gives for the log's end against \
+          the truth then, the accelerometer's offsets and diagonal gains (in the fit's upper-triangular gauge).\n\n\
+          | rig | bias within 1σ / 2σ | accel offset | accel gain |\n|---|---|---|---|\n";
+    for r in j["rows"].as_array().into_iter().flatten().filter(|r| r["bias_within"].is_array()) {
+        let pair = |v: &Value| format!("{} / {}", percent(&v[0]), percent(&v[1]));
+        s += &format!(
+            "| {} | {} | {} | {} |\n",
+            r["rig"].as_str().unwrap_or("?"),
+            pair(&r["bias_within"]),
+            pair(&r["accel_offset_within"]),
+            pair(&r["accel_gain_within"])
+        );
+    }
     s
 }
 
@@ -313,15 +326,17 @@ fn drift_section(heading: &str, j: &Value) -> String {
 `drift-bench` (seed {}, {} rigs per row, {}): the firmware's procedure with the gyro bias constant, drifting as on a \
          board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from the button to the store plus the wait; the bias's temperature coefficient: the runs \
-         that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth.\n\n\
-         | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ |\n|---|---|---|---|---|---|---|---|---|\n",
+         that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth; the stored \
+         bias (applied with the tempco at the run's last temperature, as a sketch does) against the truth at the run's end, RMS over \
+         axes, beside the first rest's alone (what records held before).\n\n\
+         | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ | bias error (°/s) | first rest's |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
         sensor_of(j)
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
-            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} | {:.4} | {:.4} |\n",
             r["plan"].as_str().unwrap_or("?"),
             r["bias"].as_str().unwrap_or("?"),
             e3(f(&r["rms_mean"])),
@@ -330,7 +345,9 @@ fn drift_section(heading: &str, j: &Value) -> String {
             r["stored"],
             count(&r["failed"]),
             r["tempco_runs"],
-            if r["tempco_runs"].as_u64() == Some(0) { "–".to_string() } else { percent(&r["tempco_within_2sigma"]) }
+            if r["tempco_runs"].as_u64() == Some(0) { "–".to_string() } else { percent(&r["tempco_within_2sigma"]) },
+            f(&r["bias_rms_dps"]),
+            f(&r["first_rest_bias_rms_dps"])
         );
     }
     s

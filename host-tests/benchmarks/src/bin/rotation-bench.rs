@@ -64,6 +64,28 @@ fn coverage(c: [usize; 2], rigs: usize) -> [f64; 2] {
     c.map(|n| if rigs == 0 { 0.0 } else { n as f64 / (9 * rigs) as f64 })
 }
 
+/// [within 1σ, within 2σ, count] of the offline tool's gyro bias (against the truth at the
+/// log's end, the instant it is given for), accelerometer offsets and diagonal gains (against
+/// the simulator's `M = C_a⁻¹` in the fit's upper-triangular gauge), per axis.
+fn covered_bias_accel(c: &offline::Calibration, rig: &Rig) -> [[usize; 3]; 3] {
+    let t = rig.truth();
+    let u = t.accel_c.try_inverse().and_then(|ca_inv| (ca_inv.transpose() * ca_inv).cholesky()).map(|ch| ch.l().transpose());
+    let mut out = [[0usize; 3]; 3];
+    for k in 0..3 {
+        let e = [
+            Some(((c.bias.bias_dps[k] as f64 - t.gyro_bias_dps[k]).abs(), c.bias.sigma_dps[k] as f64)),
+            Some(((c.accel.offset_g[k] as f64 - t.accel_offset_g[k]).abs(), c.accel.sigma_offset_g[k] as f64)),
+            u.map(|u| ((c.accel.m[k][k] as f64 - u[(k, k)]).abs(), c.accel.sigma_gain[k] as f64)),
+        ];
+        for (o, e) in out.iter_mut().zip(e) {
+            if let Some((e, s)) = e {
+                *o = [o[0] + (e <= s) as usize, o[1] + (e <= 2.0 * s) as usize, o[2] + 1];
+            }
+        }
+    }
+    out
+}
+
 fn hand_name(hand: Option<HandLevel>) -> &'static str {
     hand.map_or("none", HandLevel::name)
 }
@@ -83,6 +105,7 @@ fn main() {
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
             let (mut rms, mut max, mut failed, mut cover) = (vec![], 0.0f64, vec![], [0usize; 2]);
+            let mut ba = [[0usize; 3]; 3];
             for run in 0..args.rigs {
                 let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed + kind as u64, run), args.seed + run as u64) };
                 let mut rig = Rig::new(cfg, args.seed + run as u64);
@@ -90,6 +113,12 @@ fn main() {
                 let c = csvlog::parse(&log)
                     .map_err(|e| e.to_string())
                     .and_then(|l| offline::calibrate_with(&l.rows, None, on).map_err(|e| e.to_string()));
+                if let Ok(c) = c.as_ref() {
+                    let b = covered_bias_accel(c, &rig);
+                    for (x, y) in ba.iter_mut().zip(b) {
+                        *x = [x[0] + y[0], x[1] + y[1], x[2] + y[2]];
+                    }
+                }
                 let k = match c.as_ref().map(|c| (c.full.as_ref(), &c.gyro, c.accel.m)) {
                     Ok((Some(Ok(f)), _, m)) => {
                         let [a, b] = covered(f.k, f.sigma_k, m, &rig);
@@ -129,8 +158,15 @@ fn main() {
             if on {
                 println!("    errors within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * c1, 100.0 * c2);
             }
+            let other = ba.map(|[a, b, n]| [a, b].map(|x| if n == 0 { 0.0 } else { x as f64 / n as f64 }));
+            if on {
+                for (what, [a, b]) in ["bias", "accel offset", "accel gain"].iter().zip(other) {
+                    println!("    {what}: within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * a, 100.0 * b);
+                }
+            }
             table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed,
-                "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2)}));
+                "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2),
+                "bias_within": on.then_some(other[0]), "accel_offset_within": on.then_some(other[1]), "accel_gain_within": on.then_some(other[2])}));
         }
     }
     // The firmware's own procedure (default configuration) on the one-servo rigs: the full K it

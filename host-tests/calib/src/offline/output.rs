@@ -97,6 +97,17 @@ impl HandMoves {
         (!dropped.is_empty()).then(|| format!("{} of {} moves between poses used, dropped: {}", self.kept, self.total, dropped.join(", ")))
     }
 
+    /// When turns about the vertical constrained their axes only: how many, and that
+    /// `--whole-turns` would use their angle (a Ferraris session's 360° turns on a table).
+    pub fn vertical_hint(&self) -> Option<String> {
+        (self.vertical > 0 && self.vertical_turns == "axis only").then(|| {
+            format!(
+                "{} of the moves used turn about the vertical and constrain their axis only: if they were whole turns (360 deg), --whole-turns uses their angle too",
+                self.vertical
+            )
+        })
+    }
+
     /// The summary of `rotations`, recorded under `limits`.
     pub fn of(rotations: &Rotations, limits: &RotationLimits) -> Self {
         let dropped: std::collections::BTreeMap<_, _> =
@@ -158,9 +169,11 @@ impl Calibration {
             (_, Some(Ok(_))) => {}
             (Err(e @ OfflineError::Calib { stage: driven::HAND_HELD_STAGE, error }), _) => {
                 // A result rejected after some moves were dropped: say which, with their count.
+                // Turns about the vertical taken as axes only: the option that uses their angle.
                 let summary =
                     self.hand_moves.as_ref().and_then(HandMoves::dropped_summary).filter(|_| !matches!(error, Error::MovesDropped { .. }));
-                m.push(summary.map_or(format!("gyro: {e}"), |s| format!("gyro: {e}; {s}")));
+                let hint = self.hand_moves.as_ref().and_then(HandMoves::vertical_hint);
+                m.push([Some(format!("gyro: {e}")), summary, hint].into_iter().flatten().collect::<Vec<_>>().join("; "));
             }
             (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
             (Err(e), None) => m.push(format!("gyro: {e}")),
