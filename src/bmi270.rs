@@ -55,6 +55,8 @@ pub mod reg {
     pub const GYR_OFF_COMP_6: u8 = 0x77;
     /// FIFO_LENGTH_0 (byte count bits 7:0); FIFO_LENGTH_1 (bits 13:8) follows.
     pub const FIFO_LENGTH_0: u8 = 0x24;
+    /// Die temperature, LSB then MSB.
+    pub const TEMPERATURE_0: u8 = 0x22;
     /// FIFO_DATA (the address does not increment: one burst reads the bytes in order).
     pub const FIFO_DATA: u8 = 0x26;
     /// FIFO_CONFIG_0 (bit 0 stop on full, bit 1 sensortime frames).
@@ -439,6 +441,15 @@ impl<I: I2c> Bmi270<I> {
         Ok(parse_fifo(&buf[..n], self.cfg.per_lsb(), each))
     }
 
+    /// The die temperature (°C) from TEMPERATURE_0/1 (0x22/0x23: int16 little-endian, raw / 512
+    /// + 23 °C; Bosch's `bmi2_get_temperature_data`), `None` while the part reports 0x8000
+    /// (invalid: no conversion yet). New every 10 ms with the gyro on.
+    pub fn temperature_c(&mut self) -> Result<Option<f32>, Bmi270Error> {
+        let mut b = [0u8; 2];
+        self.read(reg::TEMPERATURE_0, &mut b)?;
+        Ok(temperature_c(i16::from_le_bytes(b)))
+    }
+
     /// The latest sample from the data registers: (accelerometer g, gyro °/s), sensor axes.
     pub fn read_sample(&mut self) -> Result<([f32; 3], [f32; 3]), Bmi270Error> {
         let mut b = [0u8; 12];
@@ -447,6 +458,11 @@ impl<I: I2c> Bmi270<I> {
         let (dps, g) = self.cfg.per_lsb();
         Ok(([v(0) * g, v(1) * g, v(2) * g], [v(3) * dps, v(4) * dps, v(5) * dps]))
     }
+}
+
+/// A TEMPERATURE_0/1 value in °C (raw / 512 + 23), `None` for 0x8000 (invalid).
+pub fn temperature_c(raw: i16) -> Option<f32> {
+    (raw != i16::MIN).then(|| raw as f32 / 512.0 + 23.0)
 }
 
 /// What one FIFO read gave.

@@ -304,8 +304,8 @@ impl Sensing {
     }
 
     /// A Rev2 board's FIFO drained into the procedure (as the LSM9DS1's: timestamps by the MCU
-    /// clock, each batch's newest sample dated by the sensortime frame after it; lost samples and
-    /// failed reads enter the procedure).
+    /// clock, each batch's newest sample dated by the sensortime frame after it, the die
+    /// temperature read once a batch; lost samples and failed reads enter the procedure).
     fn service_rev2(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
         let Some(b) = self.rev2.as_mut() else { return };
         let mut got = heapless::Vec::<([f32; 3], [f32; 3]), { bmi270::FIFO_BYTES / 13 + 1 }>::new();
@@ -322,8 +322,10 @@ impl Sensing {
                 // The newest sample's time: the read's, less its age by the part's sensortime.
                 let age = r.newest_age_s(b.config().odr).unwrap_or(0.0);
                 let batch = self.stamper.batch(clock.now_s() - age, got.len());
+                // One reading per batch; a failed or invalid one leaves the samples without it.
+                let temp_c = if got.is_empty() { None } else { b.temperature_c().ok().flatten() };
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
-                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c: None };
+                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                     feed(sample, b.setup(), self.raw, &mut self.rate, procedure, io);
                 }
             }

@@ -32,6 +32,11 @@
 //!   complement) once the configuration is loaded (0 before). The part's raw data are the rig's
 //!   readings; a rig made for it (`RigConfig::on_bmi270`) has the raw z→x coupling GYR_CAS/512
 //!   on top of its cross-axis draw, as the part whose factory trim GYR_CAS measures it.
+//! - TEMPERATURE_0/1 (0x22/0x23): int16 little-endian, °C = raw / 512 + 23 (Bosch's
+//!   `bmi2_get_temperature_data` and the temperature example; 0x8000 is invalid), the
+//!   temperature handed in ([`Bmi270Model::set_temperature`]) as of the latest sample while
+//!   PWR_CTRL's temp_en (bit 3) is set (the part converts every 10 ms with the gyro on); 0x8000
+//!   after a reset until then.
 //! - GYR_OFF_COMP_6 0x77 bit 7 (user gain enable) after a reset: [`Bmi270Model::user_gain_after_reset`]
 //!   (the datasheet's reset value was not available; a part whose NVM holds a CRT result may
 //!   come up with it on); writable.
@@ -74,6 +79,7 @@ const FIFO_DATA: u8 = 0x26;
 const FIFO_CONFIG_0: u8 = 0x48;
 const FIFO_CONFIG_1: u8 = 0x49;
 const SENSORTIME_0: u8 = 0x18;
+const TEMPERATURE_0: u8 = 0x22;
 /// FIFO size (bytes).
 pub const FIFO_BYTES: usize = 2048;
 /// A gyro + accelerometer frame: header and 12 bytes.
@@ -112,6 +118,9 @@ pub struct Bmi270Model {
     /// (s): the sensortime clock.
     produced: u64,
     last_sample_s: Option<f64>,
+    /// The die temperature handed in (°C), and the one the part last converted.
+    temp_c: Option<f64>,
+    converted_temp_c: Option<f64>,
     sample_interval_s: f64,
     /// The sensortime frame's bytes still to send in this burst; whether this burst sent one.
     time_frame: std::collections::VecDeque<u8>,
@@ -144,6 +153,8 @@ impl Bmi270Model {
             user_gain_after_reset: false,
             produced: 0,
             last_sample_s: None,
+            temp_c: None,
+            converted_temp_c: None,
             sample_interval_s: 0.01,
             time_frame: std::collections::VecDeque::new(),
             time_sent: false,
@@ -163,6 +174,7 @@ impl Bmi270Model {
         self.init_started = None;
         self.fifo.clear();
         self.skipped = 0;
+        self.converted_temp_c = None;
     }
 
     /// A register as written (no read side effects).
@@ -191,6 +203,9 @@ impl Bmi270Model {
         self.last_sample_s = Some(t_s);
         self.produced += 1;
         self.last = (accel_g, gyro_dps);
+        if self.regs[PWR_CTRL as usize] & 0x08 != 0 {
+            self.converted_temp_c = self.temp_c.or(self.converted_temp_c);
+        }
         let on = self.regs[PWR_CTRL as usize] & 0x06 == 0x06;
         if !(self.initialised() && on && self.regs[FIFO_CONFIG_1 as usize] & 0xD0 == 0xD0) {
             return;
@@ -208,6 +223,16 @@ impl Bmi270Model {
             let b = self.read_byte(r);
             self.fifo.push_back(b);
         }
+    }
+
+    /// The die temperature (°C) the next sample is produced at.
+    pub fn set_temperature(&mut self, temp_c: f64) {
+        self.temp_c = Some(temp_c);
+    }
+
+    /// TEMPERATURE_0/1: the latest conversion, 0x8000 (invalid) before the first.
+    fn temperature_raw(&self) -> i16 {
+        self.converted_temp_c.map_or(i16::MIN, |t| ((t - 23.0) * 512.0).round().clamp(-32767.0, 32767.0) as i16)
     }
 
     /// The nominal ODR the accelerometer and gyro are set to (Hz), if they agree and are valid.
@@ -284,6 +309,7 @@ impl Bmi270Model {
             0x25 => ((self.fifo.len() + 2 * usize::from(self.skipped > 0)) >> 8) as u8 & 0x3F,
             FIFO_DATA => self.fifo_byte(),
             SENSORTIME_0..=0x1A => self.sensortime().to_le_bytes()[(r - SENSORTIME_0) as usize],
+            TEMPERATURE_0 | 0x23 => self.temperature_raw().to_le_bytes()[(r - TEMPERATURE_0) as usize],
             EVENT => self.config_error() << 2,
             // Feature page 0, offset 0x0C: GYR_CAS, 7 bits.
             0x3C if self.regs[FEAT_PAGE as usize] == 0 && self.initialised() => self.gyr_cas as u8 & 0x7F,

@@ -63,7 +63,9 @@ impl Board {
 }
 
 /// A produced sample waiting for its time: true time, FIFO slot, temperature, rig readings.
-type Pending = (f64, Slot, f32, [f32; 3], [f32; 3]);
+/// (true time, the LSM9DS1's slot, its temperature reading (1/16 °C), accelerometer, gyro, the
+/// true temperature for the BMI270's finer register).
+type Pending = (f64, Slot, f32, [f32; 3], [f32; 3], f64);
 
 #[derive(Debug, Clone, Copy)]
 struct Slot {
@@ -286,7 +288,7 @@ impl Lsm9ds1Model {
     /// output registers when the FIFO is off).
     pub fn advance_to(&mut self, t_s: f64) {
         loop {
-            let (t, slot, temp, accel, gyro) = match self.pending {
+            let (t, slot, temp, accel, gyro, true_temp) = match self.pending {
                 Some(p) => p,
                 None => {
                     let s = self.rig.next_sample();
@@ -294,7 +296,8 @@ impl Lsm9ds1Model {
                         gyro: Self::counts_le(s.gyro_dps, self.gyro_range().lsb_dps()),
                         accel: Self::counts_le(s.accel_g, self.accel_range().lsb_g()),
                     };
-                    let p = (self.rig.truth().t_s, slot, s.temp_c, s.accel_g, s.gyro_dps);
+                    let truth = self.rig.truth();
+                    let p = (truth.t_s, slot, s.temp_c, s.accel_g, s.gyro_dps, truth.temp_c);
                     self.pending = Some(p);
                     p
                 }
@@ -304,6 +307,7 @@ impl Lsm9ds1Model {
             }
             self.pending = None;
             if let Some(b) = self.bmi.as_mut() {
+                b.set_temperature(true_temp);
                 b.set_sample(t, accel, gyro);
             }
             if !self.running() || !self.powered {

@@ -236,3 +236,21 @@ fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_soone
     assert!(worst_st < 0.02 * period + bmi270::SENSORTIME_S, "{worst_st}");
     assert!(worst_read > 0.5 * period, "the read time alone is up to a period late: {worst_read}");
 }
+
+/// The die temperature (issue 32 point 1): TEMPERATURE_0/1 read 0x8000 (invalid: `None`) until
+/// the part, with temp_en set by the driver's PWR_CTRL, converts with a sample; then raw / 512 +
+/// 23 °C (Bosch's `bmi2_get_temperature_data`), to the register's 1/512 °C.
+#[test]
+fn the_driver_reads_the_die_temperature_and_none_before_the_first_conversion() {
+    assert_eq!(bmi270::temperature_c(i16::MIN), None);
+    assert_eq!(bmi270::temperature_c(0), Some(23.0));
+    assert_eq!(bmi270::temperature_c(-512), Some(22.0));
+    let b = bus();
+    let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_eq!(s.temperature_c().unwrap(), None, "no conversion since the reset");
+    let t = b.0.borrow().now_s() + 0.01;
+    b.0.borrow_mut().set_temperature(31.337);
+    b.0.borrow_mut().set_sample(t, [0.0, 0.0, 1.0], [0.0; 3]);
+    let got = s.temperature_c().unwrap().expect("a conversion");
+    assert!((got - 31.337).abs() <= 0.5 / 512.0 + 1e-5, "{got}");
+}

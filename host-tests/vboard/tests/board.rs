@@ -104,6 +104,22 @@ fn a_rev2_board_calibrates_with_its_bmi270() {
     let (scale, cross) = b.k_errors_pct(&rec);
     println!("MEASURED rev2 max_scale_error_pct={scale:.4} max_cross_axis_pct={cross:.4}");
     assert!(scale < 0.1 && cross < 0.1, "{scale} % {cross} %");
+    // Its temperature, read from TEMPERATURE_0/1 (issue 32 point 1: it was never read), and the
+    // tempco when the rests spanned ≥ 1 °C (this rig warms up after power-on).
+    let (start_c, now_c, tempco_truth) = {
+        let p = b.mcu.periph.borrow();
+        let rig = p.sensor.rig();
+        (rig.config().temp_c, rig.truth().temp_c, rig.config().gyro.bias_tempco_dps_per_c)
+    };
+    let temp_c = rec.temp_c.expect("a Rev2 record holds the calibration's temperature");
+    println!("MEASURED rev2 record temp {temp_c:.2} C (rig {start_c:.2}..{now_c:.2} C), tempco {:?}", rec.tempco);
+    assert!(temp_c as f64 >= start_c.min(now_c) - 0.1 && temp_c as f64 <= start_c.max(now_c) + 0.1, "{temp_c}");
+    if now_c - start_c >= 1.5 {
+        let c = rec.tempco.expect("a tempco from rests spanning more than 1 C");
+        for k in 0..3 {
+            assert!((c.dps_per_c[k] as f64 - tempco_truth[k]).abs() <= 3.0 * c.sigma_dps_per_c[k] as f64, "{c:?} vs {tempco_truth}");
+        }
+    }
     // After a reset the Rev2's record is applied again (made at the setup the BMI270 runs at).
     b.reset().unwrap();
     b.run_for(3.0);
