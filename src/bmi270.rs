@@ -106,6 +106,10 @@ pub const PWR_CTRL_ON: u8 = 0x0E;
 pub const FIFO_HEADER_ACC_GYR: u8 = 0xD0;
 /// FIFO header: a gyro + accelerometer frame (12 bytes, gyro first).
 pub const FRAME_ACC_GYR: u8 = 0x8C;
+/// Header of an accelerometer-only frame (6 bytes): the gyro not yet started.
+pub const FRAME_ACC: u8 = 0x84;
+/// Header of a gyro-only frame (6 bytes).
+pub const FRAME_GYR: u8 = 0x88;
 /// FIFO header: frames were dropped (1 byte: how many).
 pub const FRAME_SKIP: u8 = 0x40;
 /// FIFO header: sensortime (3 bytes).
@@ -301,6 +305,9 @@ pub struct Bmi270<I> {
     gyr_cas: i8,
     /// Its gyro user gain was enabled.
     user_gain: bool,
+    /// Accelerometer-only frames since PWR_CTRL, until the gyro's first sample; `None` once it
+    /// has started.
+    starting: Option<usize>,
 }
 
 impl<I: I2c> Bmi270<I> {
@@ -308,7 +315,7 @@ impl<I: I2c> Bmi270<I> {
     /// as Bosch's API has it. Bounded: a fixed number of transfers and at most
     /// [`INIT_TIMEOUT_MS`] of polling.
     pub fn init(i2c: I, cfg: Config, delay: &mut impl DelayNs) -> Result<Self, (Bmi270Error, I)> {
-        let mut s = Self { i2c, cfg, gyr_cas: 0, user_gain: false };
+        let mut s = Self { i2c, cfg, gyr_cas: 0, user_gain: false, starting: Some(0) };
         match s.bring_up(delay) {
             Ok(()) => Ok(s),
             Err(e) => Err((e, s.i2c)),
@@ -438,7 +445,15 @@ impl<I: I2c> Bmi270<I> {
         }
         let n = n + FIFO_OVER_READ;
         self.read(reg::FIFO_DATA, &mut buf[..n])?;
-        Ok(parse_fifo(&buf[..n], self.cfg.per_lsb(), each))
+        let mut r = parse_fifo(&buf[..n], self.cfg.per_lsb(), each);
+        // The gyro's start-up: one sensor's frames before its first sample are no loss.
+        if let Some(before) = self.starting {
+            let (frames, started) = (before + r.partial, r.samples > 0);
+            self.starting = (!started).then_some(frames);
+            r.gyro_started_after = started.then_some(frames);
+            r.partial = 0;
+        }
+        Ok(r)
     }
 
     /// The die temperature (°C) from TEMPERATURE_0/1 (0x22/0x23: int16 little-endian, raw / 512
@@ -471,8 +486,15 @@ pub fn temperature_c(raw: i16) -> Option<f32> {
 pub struct FifoRead {
     /// Samples handed on.
     pub samples: usize,
-    /// Samples lost.
+    /// Samples lost (skip frames: a full FIFO dropped them).
     pub lost: usize,
+    /// The read that brought the gyro's first sample since the bring-up: after how many frames
+    /// of the accelerometer alone (its start-up, [`Bmi270::read_fifo`]; not counted as
+    /// [`Self::partial`]).
+    pub gyro_started_after: Option<usize>,
+    /// Frames of one sensor alone (0x84 accelerometer, 0x88 gyro: the other not producing, as
+    /// while the gyro starts after PWR_CTRL): no sample pair, a hole in the series.
+    pub partial: usize,
     /// The sensortime frame's count (24 bit, [`SENSORTIME_S`] each): the part's time when the
     /// burst had read the FIFO empty; `None` without one.
     pub sensortime: Option<u32>,
@@ -498,14 +520,16 @@ pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32;
         let (header, rest) = (bytes[i] & 0xFC, &bytes[i + 1..]);
         let payload = match header {
             FRAME_ACC_GYR => 12,
+            FRAME_ACC | FRAME_GYR => 6,
             FRAME_SKIP => 1,
             FRAME_SENSORTIME => 3,
             FRAME_CONFIG => 4,
             // Over-read, or an unknown header: the end of the data.
             _ => break,
         };
+        // A frame the burst cut: the part repeats it whole in the next burst (Bosch's parser
+        // skips a partially read frame), so it is not lost.
         if rest.len() < payload {
-            r.lost += usize::from(header == FRAME_ACC_GYR);
             break;
         }
         match header {
@@ -513,6 +537,7 @@ pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32;
                 each([v(rest, 3) * g, v(rest, 4) * g, v(rest, 5) * g], [v(rest, 0) * dps, v(rest, 1) * dps, v(rest, 2) * dps]);
                 r.samples += 1;
             }
+            FRAME_ACC | FRAME_GYR => r.partial += 1,
             FRAME_SKIP => r.lost += rest[0] as usize,
             FRAME_SENSORTIME => r.sensortime = Some(u32::from_le_bytes([rest[0], rest[1], rest[2], 0])),
             _ => {}

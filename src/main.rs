@@ -315,8 +315,17 @@ impl Sensing {
             Ok(r) => {
                 if r.lost > 0 {
                     io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} samples lost", r.lost));
+                }
+                if let Some(n) = r.gyro_started_after {
+                    io.console.say(Log::Info, format_args!("BMI270: gyro started after {} accelerometer-only frames", n));
+                }
+                if r.partial > 0 {
+                    io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} frames held one sensor alone: samples lost", r.partial));
+                }
+                let missing = r.lost + r.partial;
+                if missing > 0 {
                     self.stamper.restart();
-                    procedure.handle_samples_lost(r.lost.min(u16::MAX as usize) as u16);
+                    procedure.handle_samples_lost(missing.min(u16::MAX as usize) as u16);
                     procedure.drive(now, io);
                 }
                 // The newest sample's time: the read's, less its age by the part's sensortime.

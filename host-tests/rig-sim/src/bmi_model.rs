@@ -14,11 +14,19 @@
 //! - The data registers hold the latest sample handed in ([`Bmi270Model::set_sample`]: the
 //!   rig's, by the board model that owns the rig) in counts at the configured full scales while
 //!   PWR_CTRL enables that sensor (0 otherwise).
-//! - The FIFO (2048 bytes) in header mode with both sensors (FIFO_CONFIG_1 0xD0): each sample
-//!   enters as a 0x8C frame (gyro then accelerometer, 6 bytes each); FIFO_LENGTH 0x24/0x25 its
+//! - The FIFO (2048 bytes) in header mode (FIFO_CONFIG_1 bit 4) with the sensors its acc_en and
+//!   gyr_en bits (6, 7) take: each sample enters as a 0x8C frame (gyro then accelerometer, 6
+//!   bytes each) while both produce, as 0x84 (accelerometer, 6 bytes) or 0x88 (gyro) while only
+//!   one does (`bmi2_defs.h` headers and payload lengths). The gyro produces nothing for
+//!   [`GYR_START_S`] after PWR_CTRL turns it on (its start-up), the accelerometer from its
+//!   first sample: a FIFO that takes both holds accelerometer-only frames first. FIFO_LENGTH 0x24/0x25 its
 //!   byte count (14 bits), FIFO_DATA 0x26 its bytes in one burst (a read past the data gives
 //!   0x80, "over-read"). Full, it drops its oldest frames and the next read starts with a skip
-//!   frame (0x40 and the frames lost, at most 255).
+//!   frame (0x40 and the frames lost, at most 255). A burst that ends inside a frame leaves it
+//!   whole: the next burst reads it again (Bosch's parser skips a partially read frame, "the
+//!   part repeats it": `bmi2.c` unpack functions). Each transaction's samples enter before its
+//!   bytes are read (the board model advances to the transaction's end first), so a burst of
+//!   FIFO_LENGTH + 17 bytes read after a stall runs into frames that arrived while it ran.
 //! - Sensortime (SENSORTIME 0x18–0x1A, 24 bit, 39.0625 µs a count) runs on the part's own
 //!   oscillator, the one its ODR divides: sample n of the rig is produced at count
 //!   n · 25 600 / ODR (BMI160 datasheet Table 11: sensor_time bit 8 updates at 100 Hz; the
@@ -56,6 +64,11 @@ pub const RESET_S: f64 = 0.002;
 pub const APS_GAP_S: f64 = 450e-6;
 /// From INIT_CTRL = 1 to the initialisation's result (s).
 pub const INIT_S: f64 = 0.015;
+/// The gyro's start-up from suspend to its first sample (s): the datasheet's start-up table was
+/// not read here; 45 ms is inside the 50 ms drivers wait for the gyro's first readings
+/// (cardputer-adv's `GYROSCOPE_START`) and beyond the 2 ms of its fast start-up mode, which this
+/// firmware does not use.
+pub const GYR_START_S: f64 = 0.045;
 
 const CHIP_ID: u8 = 0x00;
 const ACC_X_LSB: u8 = 0x0C;
@@ -82,8 +95,6 @@ const SENSORTIME_0: u8 = 0x18;
 const TEMPERATURE_0: u8 = 0x22;
 /// FIFO size (bytes).
 pub const FIFO_BYTES: usize = 2048;
-/// A gyro + accelerometer frame: header and 12 bytes.
-const FRAME: usize = 13;
 
 /// The BMI270.
 #[derive(Clone)]
@@ -121,6 +132,11 @@ pub struct Bmi270Model {
     /// The die temperature handed in (°C), and the one the part last converted.
     temp_c: Option<f64>,
     converted_temp_c: Option<f64>,
+    /// When PWR_CTRL last turned the gyro on (s).
+    gyro_on_s: Option<f64>,
+    /// The data frame a FIFO_DATA burst is in: its bytes still to come, and those read.
+    frame_left: usize,
+    frame_read: Vec<u8>,
     sample_interval_s: f64,
     /// The sensortime frame's bytes still to send in this burst; whether this burst sent one.
     time_frame: std::collections::VecDeque<u8>,
@@ -155,6 +171,9 @@ impl Bmi270Model {
             last_sample_s: None,
             temp_c: None,
             converted_temp_c: None,
+            gyro_on_s: None,
+            frame_left: 0,
+            frame_read: vec![],
             sample_interval_s: 0.01,
             time_frame: std::collections::VecDeque::new(),
             time_sent: false,
@@ -174,7 +193,9 @@ impl Bmi270Model {
         self.init_started = None;
         self.fifo.clear();
         self.skipped = 0;
+        (self.frame_left, self.frame_read) = (0, vec![]);
         self.converted_temp_c = None;
+        self.gyro_on_s = None;
     }
 
     /// A register as written (no read side effects).
@@ -206,23 +227,39 @@ impl Bmi270Model {
         if self.regs[PWR_CTRL as usize] & 0x08 != 0 {
             self.converted_temp_c = self.temp_c.or(self.converted_temp_c);
         }
-        let on = self.regs[PWR_CTRL as usize] & 0x06 == 0x06;
-        if !(self.initialised() && on && self.regs[FIFO_CONFIG_1 as usize] & 0xD0 == 0xD0) {
+        let (pwr, fifo) = (self.regs[PWR_CTRL as usize], self.regs[FIFO_CONFIG_1 as usize]);
+        let acc = pwr & 0x04 != 0 && fifo & 0x40 != 0;
+        let gyr = pwr & 0x02 != 0 && fifo & 0x80 != 0 && self.gyro_on_s.is_some_and(|t0| t_s >= t0 + GYR_START_S);
+        if !(self.initialised() && fifo & 0x10 != 0 && (acc || gyr)) {
             return;
         }
-        while self.fifo.len() + FRAME > FIFO_BYTES {
-            self.fifo.drain(..FRAME);
+        let frame = 1 + 6 * (usize::from(acc) + usize::from(gyr));
+        while self.fifo.len() + frame > FIFO_BYTES {
+            self.drop_oldest_frame();
             self.skipped += 1;
         }
-        self.fifo.push_back(0x8C);
-        for r in 0x12..0x18u8 {
+        self.fifo.push_back(0x80 | if acc { 0x04 } else { 0 } | if gyr { 0x08 } else { 0 });
+        let regs = gyr.then_some(0x12..0x18u8).into_iter().chain(acc.then_some(ACC_X_LSB..0x12));
+        for r in regs.flatten() {
             let b = self.read_byte(r);
             self.fifo.push_back(b);
         }
-        for r in ACC_X_LSB..0x12 {
-            let b = self.read_byte(r);
-            self.fifo.push_back(b);
+    }
+
+    /// Drops the oldest frame (its length from its header).
+    fn drop_oldest_frame(&mut self) {
+        let Some(&header) = self.fifo.front() else { return };
+        self.fifo.drain(..(1 + payload_len(header)).min(self.fifo.len()));
+    }
+
+    /// The end of a FIFO_DATA burst: a frame it cut is put back whole.
+    fn end_burst(&mut self) {
+        if self.frame_left > 0 {
+            for b in self.frame_read.drain(..).rev() {
+                self.fifo.push_front(b);
+            }
         }
+        (self.frame_left, self.frame_read) = (0, vec![]);
     }
 
     /// The die temperature (°C) the next sample is produced at.
@@ -261,11 +298,20 @@ impl Bmi270Model {
         if self.skipped > 0 {
             let n = self.skipped.min(255) as u8;
             self.skipped = 0;
-            // The skip frame's header now, its count next.
+            // The skip frame: header, then its count.
             self.fifo.push_front(n);
-            return 0x40;
+            self.fifo.push_front(0x40);
         }
-        if let Some(b) = self.fifo.pop_front().or_else(|| self.time_frame.pop_front()) {
+        if let Some(b) = self.fifo.pop_front() {
+            if self.frame_left == 0 {
+                (self.frame_left, self.frame_read) = (payload_len(b), vec![]);
+            } else {
+                self.frame_left -= 1;
+            }
+            self.frame_read.push(b);
+            return b;
+        }
+        if let Some(b) = self.time_frame.pop_front() {
             return b;
         }
         if self.regs[FIFO_CONFIG_0 as usize] & 0x02 != 0 && !self.time_sent {
@@ -355,6 +401,9 @@ impl Bmi270Model {
                     if reg >= 0x80 || matches!(reg as u8, CHIP_ID | INTERNAL_STATUS | EVENT | CMD) {
                         continue;
                     }
+                    if reg as u8 == PWR_CTRL && b & 0x02 != 0 && self.regs[reg] & 0x02 == 0 {
+                        self.gyro_on_s = Some(self.now_s);
+                    }
                     self.regs[reg] = b;
                     if reg as u8 == INIT_CTRL && b & 1 != 0 && self.init_started.is_none() {
                         self.init_started = Some(self.now_s);
@@ -362,6 +411,17 @@ impl Bmi270Model {
                 }
             }
         }
+    }
+}
+
+/// The payload bytes after a FIFO frame header (`bmi2_defs.h`): 12 both sensors, 6 one, 1 a
+/// skip frame's count.
+fn payload_len(header: u8) -> usize {
+    match header & 0xFC {
+        0x8C => 12,
+        0x84 | 0x88 => 6,
+        0x40 => 1,
+        _ => 0,
     }
 }
 
@@ -401,6 +461,9 @@ impl I2c for Bmi270Model {
                         // FIFO_DATA (0x26) and INIT_DATA (0x5E) trap the address.
                         let r = if matches!(ptr, 0x26 | INIT_DATA) { ptr } else { ptr.wrapping_add(k as u8) };
                         *b = if lost { 0 } else { self.read_byte(r) };
+                    }
+                    if ptr == FIFO_DATA {
+                        self.end_burst();
                     }
                 }
             }

@@ -4,7 +4,7 @@
 
 use calib_core::record::{Sensor, SensorSetup};
 use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
-use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG};
+use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG, GYR_START_S};
 use sha2::{Digest, Sha256};
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -141,8 +141,8 @@ fn the_model_keeps_boschs_rules() {
 fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     let b = bus();
     let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
-    // Three samples in, 10 ms apart, three out, in order, in g and °/s.
-    let t0 = b.0.borrow().now_s();
+    // Three samples in, 10 ms apart once the gyro has started, three out, in order, in g and °/s.
+    let t0 = b.0.borrow().now_s() + GYR_START_S;
     for k in 0..3 {
         b.0.borrow_mut().set_sample(t0 + 0.01 * k as f64, [0.0, 0.0, 1.0], [k as f32, 0.0, 0.0]);
     }
@@ -165,12 +165,23 @@ fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     }
     let r = s.read_fifo(|_, _| {}).unwrap();
     assert_eq!((r.samples, r.lost), (157, 43));
-    // The parser on its own: tag bits ignored, a sensortime frame read, a cut frame lost.
+    // The parser on its own: tag bits ignored, a sensortime frame read, a cut frame left for the
+    // next burst (issue 32 point 3: it was counted lost).
     let mut bytes = vec![0x44, 1, 2, 3, 0x8D];
     bytes.extend_from_slice(&[0; 12]);
     bytes.extend_from_slice(&[0x8C, 0, 0]);
     let r = bmi270::parse_fifo(&bytes, Config::DEFAULT.per_lsb(), |_, _| {});
-    assert_eq!((r.samples, r.lost, r.sensortime), (1, 1, Some(0x030201)));
+    assert_eq!((r.samples, r.lost, r.sensortime), (1, 0, Some(0x030201)));
+    // One sensor's frames (6 bytes) are read past, each a missing pair (issue 32 point 2: the
+    // parse ended at them and dropped the rest of the burst, counted nowhere).
+    let mut bytes = vec![0x84, 0, 0, 0, 0, 0, 0];
+    for _ in 0..2 {
+        bytes.push(0x8C);
+        bytes.extend_from_slice(&[0; 12]);
+    }
+    bytes.extend_from_slice(&[0x88, 0, 0, 0, 0, 0, 0, 0x44, 9, 0, 0, 0x80]);
+    let r = bmi270::parse_fifo(&bytes, Config::DEFAULT.per_lsb(), |_, _| {});
+    assert_eq!((r.samples, r.lost, r.partial, r.sensortime), (2, 0, 2, Some(9)));
     // A burst that stops at FIFO_LENGTH gets no sensortime frame; one that reads on gets one,
     // once, then the over-read pattern.
     use embedded_hal::i2c::I2c;
@@ -183,6 +194,69 @@ fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     let mut over = [0u8; 8];
     m.write_read(bmi270::ADDR, &[bmi270::reg::FIFO_DATA], &mut over).unwrap();
     assert_eq!((over[0], over[4], over[7]), (0x44, 0x80, 0x80), "{over:?}");
+}
+
+/// A burst that ends inside a frame (FIFO_LENGTH read, then frames arrive before the data
+/// burst: a stalled loop) leaves the frame whole for the next burst: nothing is lost, nothing
+/// misaligned (issue 32 point 3).
+#[test]
+fn a_frame_a_burst_cuts_is_read_whole_by_the_next() {
+    let b = bus();
+    let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+    b.0.borrow_mut().bus_hz = None;
+    let t0 = b.0.borrow().now_s() + GYR_START_S;
+    let mut gyro_x = vec![];
+    let mut k = 0;
+    // 50 samples queued (a 0.5 s stall), FIFO_LENGTH read, then 2 more arrive before the burst:
+    // FIFO_LENGTH + 17 bytes read the 50, the 51st whole and 4 bytes of the 52nd.
+    for _ in 0..50 {
+        b.0.borrow_mut().set_sample(t0 + 0.01 * k as f64, [0.0, 0.0, 1.0], [k as f32, 0.0, 0.0]);
+        k += 1;
+    }
+    use embedded_hal::i2c::I2c;
+    let mut len = [0u8; 2];
+    b.0.borrow_mut().write_read(bmi270::ADDR, &[bmi270::reg::FIFO_LENGTH_0], &mut len).unwrap();
+    let n = u16::from_le_bytes(len) as usize;
+    assert_eq!(n, 650);
+    for _ in 0..2 {
+        b.0.borrow_mut().set_sample(t0 + 0.01 * k as f64, [0.0, 0.0, 1.0], [k as f32, 0.0, 0.0]);
+        k += 1;
+    }
+    let mut buf = vec![0u8; n + bmi270::FIFO_OVER_READ];
+    b.0.borrow_mut().write_read(bmi270::ADDR, &[bmi270::reg::FIFO_DATA], &mut buf).unwrap();
+    let r = bmi270::parse_fifo(&buf, Config::DEFAULT.per_lsb(), |_, g| gyro_x.push(g[0]));
+    assert_eq!((r.samples, r.lost, r.partial), (51, 0, 0));
+    let r = s.read_fifo(|_, g| gyro_x.push(g[0])).unwrap();
+    assert_eq!((r.samples, r.lost), (1, 0));
+    assert!(gyro_x.iter().enumerate().all(|(i, g)| (g - i as f32).abs() < 0.02), "{gyro_x:?}");
+}
+
+/// The gyro starts GYR_START_S after PWR_CTRL: the FIFO holds the accelerometer's frames alone
+/// until then (0x84), which the driver counts as missing pairs, then both (issue 32 point 2).
+#[test]
+fn the_gyros_start_up_fills_the_fifo_with_accelerometer_frames_the_driver_names() {
+    use embedded_hal::i2c::I2c;
+    let b = bus();
+    let mut s = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).unwrap_or_else(|(e, _)| panic!("{e}"));
+    let t0 = b.0.borrow().now_s();
+    for k in 0..10 {
+        b.0.borrow_mut().set_sample(t0 + 0.01 * k as f64, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+    }
+    let mut got = vec![];
+    let r = s.read_fifo(|a, g| got.push((a, g))).unwrap();
+    let alone = r.gyro_started_after.expect("the gyro's first sample in this read");
+    println!("MEASURED start-up frames: {alone} accelerometer alone, then {} pairs", r.samples);
+    assert_eq!(alone + r.samples, 10, "{r:?}");
+    assert!((4..=5).contains(&alone) && r.lost == 0 && r.partial == 0, "the start-up is no loss: {r:?}");
+    assert!(got.iter().all(|(_, g)| (g[0] - 1.0).abs() < 0.01), "only pairs with the gyro's reading: {got:?}");
+    // Once started, a frame of one sensor is a missing pair.
+    let t = t0 + 0.1;
+    b.0.borrow_mut().write(bmi270::ADDR, &[bmi270::reg::FIFO_CONFIG_1, 0x50]).unwrap();
+    b.0.borrow_mut().set_sample(t, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+    b.0.borrow_mut().write(bmi270::ADDR, &[bmi270::reg::FIFO_CONFIG_1, 0xD0]).unwrap();
+    b.0.borrow_mut().set_sample(t + 0.01, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]);
+    let r = s.read_fifo(|_, _| {}).unwrap();
+    assert_eq!((r.samples, r.partial, r.gyro_started_after), (1, 1, None), "{r:?}");
 }
 
 /// The sensortime frame dates each batch's newest sample to a count (39 µs), where the read's own
@@ -199,7 +273,7 @@ fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_soone
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     // The part's oscillator 1.7 % fast: a sample every 9.833 ms of true time.
     let period = 0.01 / 1.017;
-    let t0 = b.0.borrow().now_s();
+    let t0 = b.0.borrow().now_s() + GYR_START_S;
     let (mut next, mut newest) = (t0, t0);
     let (mut by_sensortime, mut by_read) = (Stamper::new(100.0), Stamper::new(100.0));
     let (mut worst_st, mut worst_read) = (0.0f64, 0.0f64);

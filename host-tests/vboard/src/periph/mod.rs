@@ -490,6 +490,9 @@ impl Periph {
             }
             b if b == base(pac::TWIM0::PTR.cast()) => {
                 self.sensor.advance_to(t);
+                // The sensor lives through each transfer: what it produces while a burst runs
+                // is there when the burst reaches it (a BMI270 FIFO read after a stall).
+                self.sensor.bus_hz = self.twim.bus_hz().ok();
                 self.sync_sensor_power();
                 let usable = self.sensor_powered && self.gpio.pullups_on();
                 let wiring = twim::Wiring { scl_sda_cnf: [self.gpio.cnf(0, 15), self.gpio.cnf(0, 14)] };

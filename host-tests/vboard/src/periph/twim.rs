@@ -129,7 +129,8 @@ impl Twim {
         }
     }
 
-    fn bus_hz(&self) -> Result<f64, String> {
+    /// The bus frequency FREQUENCY selects (Hz).
+    pub fn bus_hz(&self) -> Result<f64, String> {
         FREQUENCIES
             .iter()
             .find(|f| f.0 == self.frequency)
