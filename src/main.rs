@@ -328,9 +328,12 @@ impl Sensing {
                     procedure.handle_samples_lost(missing.min(u16::MAX as usize) as u16);
                     procedure.drive(now, io);
                 }
-                // The newest sample's time: the read's, less its age by the part's sensortime.
-                let age = r.newest_age_s(b.config().odr).unwrap_or(0.0);
-                let batch = self.stamper.batch(clock.now_s() - age, got.len());
+                // The newest sample's time: the read's, less its age by the part's sensortime;
+                // without a date, its samples are counted but do not move the time line.
+                let batch = match r.newest_age_s {
+                    Some(age) => self.stamper.batch(clock.now_s() - age, got.len()),
+                    None => self.stamper.undated(clock.now_s(), got.len()),
+                };
                 // One reading per batch; a failed or invalid one leaves the samples without it.
                 let temp_c = if got.is_empty() { None } else { b.temperature_c().ok().flatten() };
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {

@@ -43,10 +43,21 @@ impl Stamper {
     /// Registers a batch of `n` samples read at `t_read_s`; `stamp(i)` of the returned batch gives
     /// the time of sample `i` (0 = oldest).
     pub fn batch(&mut self, t_read_s: f64, n: usize) -> Batch {
+        self.add(t_read_s, n, true)
+    }
+
+    /// [`Self::batch`] for a batch whose newest sample's time is not known to better than a
+    /// period (a BMI270 read without a trusted sensortime date): its samples are counted, its
+    /// time does not enter the line.
+    pub fn undated(&mut self, t_read_s: f64, n: usize) -> Batch {
+        self.add(t_read_s, n, false)
+    }
+
+    fn add(&mut self, t_read_s: f64, n: usize, dated: bool) -> Batch {
         let t0 = *self.first_read_s.get_or_insert(t_read_s);
         let first_index = self.received;
         self.received += n as u64;
-        if n > 0 {
+        if n > 0 && dated {
             // Times relative to the first read keep the sums well conditioned.
             let _ = self.fit.add_row(&[1.0, (self.received - 1) as f64], t_read_s - t0, 1.0);
             if self.fit.rows() >= MIN_BATCHES {

@@ -27,6 +27,9 @@
 //!   part repeats it": `bmi2.c` unpack functions). Each transaction's samples enter before its
 //!   bytes are read (the board model advances to the transaction's end first), so a burst of
 //!   FIFO_LENGTH + 17 bytes read after a stall runs into frames that arrived while it ran.
+//! - A frame lands in the FIFO [`Bmi270Model::fifo_latency_s`] after its sample's tick (the data
+//!   path from the tick into the FIFO; its value is not in the documents read here: 2 ms by
+//!   default, the tests run 0 to 9 ms, anything below a period).
 //! - Sensortime (SENSORTIME 0x18–0x1A, 24 bit, 39.0625 µs a count) runs on the part's own
 //!   oscillator, the one its ODR divides: sample n of the rig is produced at count
 //!   n · 25 600 / ODR (BMI160 datasheet Table 11: sensor_time bit 8 updates at 100 Hz; the
@@ -69,6 +72,8 @@ pub const INIT_S: f64 = 0.015;
 /// (cardputer-adv's `GYROSCOPE_START`) and beyond the 2 ms of its fast start-up mode, which this
 /// firmware does not use.
 pub const GYR_START_S: f64 = 0.045;
+/// The default [`Bmi270Model::fifo_latency_s`] (s).
+pub const FIFO_LATENCY_S: f64 = 0.002;
 
 const CHIP_ID: u8 = 0x00;
 const ACC_X_LSB: u8 = 0x0C;
@@ -134,6 +139,10 @@ pub struct Bmi270Model {
     converted_temp_c: Option<f64>,
     /// When PWR_CTRL last turned the gyro on (s).
     gyro_on_s: Option<f64>,
+    /// From a sample's tick to its frame in the FIFO (s).
+    pub fifo_latency_s: f64,
+    /// Frames produced, not yet in the FIFO: (when they land, s; bytes).
+    landing: std::collections::VecDeque<(f64, Vec<u8>)>,
     /// The data frame a FIFO_DATA burst is in: its bytes still to come, and those read.
     frame_left: usize,
     frame_read: Vec<u8>,
@@ -172,6 +181,8 @@ impl Bmi270Model {
             temp_c: None,
             converted_temp_c: None,
             gyro_on_s: None,
+            fifo_latency_s: FIFO_LATENCY_S,
+            landing: std::collections::VecDeque::new(),
             frame_left: 0,
             frame_read: vec![],
             sample_interval_s: 0.01,
@@ -194,6 +205,7 @@ impl Bmi270Model {
         self.fifo.clear();
         self.skipped = 0;
         (self.frame_left, self.frame_read) = (0, vec![]);
+        self.landing.clear();
         self.converted_temp_c = None;
         self.gyro_on_s = None;
     }
@@ -213,6 +225,7 @@ impl Bmi270Model {
         if t_s > self.now_s {
             self.now_s = t_s;
         }
+        self.land();
     }
 
     /// The sensor's reading produced at true time `t_s`: specific force (g) and rate (°/s),
@@ -222,6 +235,8 @@ impl Bmi270Model {
             self.sample_interval_s = t_s - t0;
         }
         self.last_sample_s = Some(t_s);
+        // A sample produced at t_s: the part's time is at least that.
+        self.advance_to(t_s);
         self.produced += 1;
         self.last = (accel_g, gyro_dps);
         if self.regs[PWR_CTRL as usize] & 0x08 != 0 {
@@ -233,16 +248,27 @@ impl Bmi270Model {
         if !(self.initialised() && fifo & 0x10 != 0 && (acc || gyr)) {
             return;
         }
-        let frame = 1 + 6 * (usize::from(acc) + usize::from(gyr));
-        while self.fifo.len() + frame > FIFO_BYTES {
-            self.drop_oldest_frame();
-            self.skipped += 1;
-        }
-        self.fifo.push_back(0x80 | if acc { 0x04 } else { 0 } | if gyr { 0x08 } else { 0 });
+        let mut frame = vec![0x80 | if acc { 0x04 } else { 0 } | if gyr { 0x08 } else { 0 }];
         let regs = gyr.then_some(0x12..0x18u8).into_iter().chain(acc.then_some(ACC_X_LSB..0x12));
         for r in regs.flatten() {
-            let b = self.read_byte(r);
-            self.fifo.push_back(b);
+            frame.push(self.read_byte(r));
+        }
+        self.landing.push_back((t_s + self.fifo_latency_s, frame));
+        self.land();
+    }
+
+    /// Frames whose latency has passed enter the FIFO (a full one drops its oldest).
+    fn land(&mut self) {
+        while let Some((at, _)) = self.landing.front() {
+            if *at > self.now_s {
+                break;
+            }
+            let Some((_, frame)) = self.landing.pop_front() else { break };
+            while self.fifo.len() + frame.len() > FIFO_BYTES {
+                self.drop_oldest_frame();
+                self.skipped += 1;
+            }
+            self.fifo.extend(frame);
         }
     }
 
@@ -434,6 +460,7 @@ impl I2c for Bmi270Model {
         if address != ADDR || self.now_s < self.away_until {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
         }
+        self.land();
         let lost = self.aps() && self.now_s - self.last_access_s < APS_GAP_S;
         let aps = self.aps();
         if let Some(hz) = self.bus_hz {
