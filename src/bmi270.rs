@@ -63,6 +63,9 @@ pub mod reg {
     pub const FIFO_CONFIG_0: u8 = 0x48;
     /// FIFO_CONFIG_1 (bit 4 header mode, 6 accelerometer, 7 gyro).
     pub const FIFO_CONFIG_1: u8 = 0x49;
+    /// FIFO_DOWNS (bit 7 acc_fifo_filt_data, 6:4 acc_fifo_downs, bit 3 gyr_fifo_filt_data,
+    /// 2:0 gyr_fifo_downs).
+    pub const FIFO_DOWNS: u8 = 0x45;
     /// ACC_CONF (ODR bits 3:0, bandwidth 6:4, filter_perf 7); ACC_RANGE follows.
     pub const ACC_CONF: u8 = 0x40;
     /// ACC_RANGE (bits 1:0).
@@ -126,6 +129,25 @@ pub const FIFO_BYTES: usize = 2048;
 pub const FIFO_OVER_READ: usize = 13 + 4;
 /// FIFO_CONFIG_0: sensortime frames on (fifo_time_en, bit 1).
 pub const FIFO_TIME_EN: u8 = 0x02;
+/// FIFO_DOWNS: both sensors' filtered data, not down-sampled (the FIFO then carries what the
+/// data registers do; with 0x00 it carries pre-filter data, reported with a 2× gyro scale at
+/// ±500 °/s).
+pub const FIFO_DOWNS_FILTERED: u8 = 0x88;
+
+/// The bits of a register the driver writes and reads back that are defined (`bmi2_defs.h`
+/// masks); the others are reserved, and what they read is not checked.
+pub const fn defined_bits(r: u8) -> u8 {
+    match r {
+        // acc_range 1:0.
+        reg::ACC_RANGE => 0x03,
+        // gyr_range 2:0, ois_range 3.
+        reg::GYR_RANGE => 0x0F,
+        // stop_on_full 0, fifo_time_en 1.
+        reg::FIFO_CONFIG_0 => 0x03,
+        // ACC_CONF, GYR_CONF, FIFO_CONFIG_1, FIFO_DOWNS: every bit defined.
+        _ => 0xFF,
+    }
+}
 /// Sensortime resolution (s): 39.0625 µs per count (Bosch's `BMI2_SENSORTIME_RESOLUTION`).
 pub const SENSORTIME_S: f64 = 39.0625e-6;
 
@@ -454,11 +476,7 @@ impl<I: I2c> Bmi270<I> {
         for (r, v) in
             [(reg::ACC_CONF, c.acc_conf()), (reg::ACC_RANGE, acc_range), (reg::GYR_CONF, c.gyr_conf()), (reg::GYR_RANGE, gyr_range)]
         {
-            self.write(r, &[v])?;
-            let read = self.read1(r)?;
-            if read != v {
-                return Err(Bmi270Error::ConfigMismatch { reg: r, wrote: v, read });
-            }
+            self.write_checked(r, v)?;
         }
         match (self.read1(reg::EVENT)? >> 2) & 0x07 {
             0 => {}
@@ -467,12 +485,22 @@ impl<I: I2c> Bmi270<I> {
         // Advanced power save stays off (Bosch turns it back on; then every access would need
         // its 450 µs gap).
         self.write(reg::PWR_CTRL, &[PWR_CTRL_ON])?;
-        for (r, v) in [(reg::FIFO_CONFIG_0, FIFO_TIME_EN), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)] {
-            self.write(r, &[v])?;
-            let read = self.read1(r)?;
-            if read != v {
-                return Err(Bmi270Error::ConfigMismatch { reg: r, wrote: v, read });
-            }
+        // FIFO_DOWNS is written, not assumed: its reset value is the filtered, full-rate data.
+        for (r, v) in
+            [(reg::FIFO_DOWNS, FIFO_DOWNS_FILTERED), (reg::FIFO_CONFIG_0, FIFO_TIME_EN), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)]
+        {
+            self.write_checked(r, v)?;
+        }
+        Ok(())
+    }
+
+    /// Writes `v` to `r` and reads it back, its reserved bits masked ([`defined_bits`]).
+    fn write_checked(&mut self, r: u8, v: u8) -> Result<(), Bmi270Error> {
+        self.write(r, &[v])?;
+        let read = self.read1(r)?;
+        let mask = defined_bits(r);
+        if read & mask != v & mask {
+            return Err(Bmi270Error::ConfigMismatch { reg: r, wrote: v, read });
         }
         Ok(())
     }

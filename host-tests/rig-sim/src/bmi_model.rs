@@ -48,6 +48,13 @@
 //!   temperature handed in ([`Bmi270Model::set_temperature`]) as of the latest sample while
 //!   PWR_CTRL's temp_en (bit 3) is set (the part converts every 10 ms with the gyro on); 0x8000
 //!   after a reset until then.
+//! - FIFO_DOWNS 0x45 ([`Bmi270Model::fifo_downs_after_reset`] after a reset, 0x88 by default:
+//!   the datasheet's register map was not read here, so the tests run 0x00 too): with
+//!   gyr_fifo_filt_data (bit 3) clear the FIFO's gyro frames carry pre-filter data, reported on
+//!   Bosch's forum with a 2× gyro scale at ±500 °/s (the model doubles them); a down-sampling
+//!   field (6:4 accelerometer, 2:0 gyro) n ≠ 0 puts only every 2ⁿ-th sample into the FIFO.
+//! - Reserved bits of ACC_RANGE (7:2), GYR_RANGE (7:4) and FIFO_CONFIG_0 (7:2) read 0, or 1
+//!   with [`Bmi270Model::reserved_bits_read_one`] (unknown: the tests run both).
 //! - GYR_OFF_COMP_6 0x77 bit 7 (user gain enable) after a reset: [`Bmi270Model::user_gain_after_reset`]
 //!   (the datasheet's reset value was not available; a part whose NVM holds a CRT result may
 //!   come up with it on); writable.
@@ -95,6 +102,7 @@ const CMD: u8 = 0x7E;
 const FIFO_LENGTH_0: u8 = 0x24;
 const FIFO_DATA: u8 = 0x26;
 const FIFO_CONFIG_0: u8 = 0x48;
+const FIFO_DOWNS: u8 = 0x45;
 const FIFO_CONFIG_1: u8 = 0x49;
 const SENSORTIME_0: u8 = 0x18;
 const TEMPERATURE_0: u8 = 0x22;
@@ -152,6 +160,10 @@ pub struct Bmi270Model {
     time_sent: bool,
     /// GYR_OFF_COMP_6 bit 7 (user gain on) after a reset.
     pub user_gain_after_reset: bool,
+    /// FIFO_DOWNS after a reset.
+    pub fifo_downs_after_reset: u8,
+    /// Reserved bits read 1.
+    pub reserved_bits_read_one: bool,
 }
 
 /// The GYR_CAS of the model's part unless a test sets another: −1.4 % z→x, an example trim.
@@ -176,6 +188,8 @@ impl Bmi270Model {
             bus_hz: None,
             gyr_cas: GYR_CAS,
             user_gain_after_reset: false,
+            fifo_downs_after_reset: 0x88,
+            reserved_bits_read_one: false,
             produced: 0,
             last_sample_s: None,
             temp_c: None,
@@ -200,6 +214,7 @@ impl Bmi270Model {
         self.regs[ACC_CONF as usize] = 0xA8;
         self.regs[GYR_CONF as usize] = 0xA9;
         self.regs[0x77] = if self.user_gain_after_reset { 0x80 } else { 0 };
+        self.regs[FIFO_DOWNS as usize] = self.fifo_downs_after_reset;
         self.upload.fill(0);
         self.init_started = None;
         self.fifo.clear();
@@ -248,10 +263,23 @@ impl Bmi270Model {
         if !(self.initialised() && fifo & 0x10 != 0 && (acc || gyr)) {
             return;
         }
+        // FIFO_DOWNS: every 2ⁿ-th sample of each sensor; pre-filter gyro data at twice the scale.
+        let downs = self.regs[FIFO_DOWNS as usize];
+        let every = |n: u8| self.produced % (1u64 << n) == 0;
+        let (acc, gyr) = (acc && every((downs >> 4) & 0x07), gyr && every(downs & 0x07));
+        if !(acc || gyr) {
+            return;
+        }
         let mut frame = vec![0x80 | if acc { 0x04 } else { 0 } | if gyr { 0x08 } else { 0 }];
         let regs = gyr.then_some(0x12..0x18u8).into_iter().chain(acc.then_some(ACC_X_LSB..0x12));
         for r in regs.flatten() {
             frame.push(self.read_byte(r));
+        }
+        if gyr && downs & 0x08 == 0 {
+            for k in 0..3 {
+                let v = i16::from_le_bytes([frame[1 + 2 * k], frame[2 + 2 * k]]).saturating_mul(2).to_le_bytes();
+                frame[1 + 2 * k..3 + 2 * k].copy_from_slice(&v);
+            }
         }
         self.landing.push_back((t_s + self.fifo_latency_s, frame));
         self.land();
@@ -398,6 +426,8 @@ impl Bmi270Model {
                 let counts = if enabled { (value as f64 / lsb).round().clamp(-32768.0, 32767.0) as i16 } else { 0 };
                 counts.to_le_bytes()[i % 2]
             }
+            ACC_RANGE | FIFO_CONFIG_0 if self.reserved_bits_read_one => self.regs[r as usize] | 0xFC,
+            GYR_RANGE if self.reserved_bits_read_one => self.regs[r as usize] | 0xF0,
             r => self.regs[r as usize & 0x7F],
         }
     }
