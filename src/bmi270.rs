@@ -90,12 +90,25 @@ pub mod reg {
 
 /// CMD: soft reset.
 pub const CMD_SOFT_RESET: u8 = 0xB6;
-/// After the soft reset (ms; Bosch waits 2).
+/// After the soft reset (ms; Bosch waits 2), then CHIP_ID is polled every
+/// [`RESET_POLL_MS`] until the part answers, at most [`RESET_POLLS`] times: a part slower
+/// than Bosch's 2 ms still comes up, a missing one is named.
 pub const RESET_WAIT_MS: u32 = 2;
-/// While advanced power save is on, every access needs this gap (µs).
-pub const APS_GAP_US: u32 = 450;
-/// Bytes of the upload per I2C write (even: the address is in 16-bit words).
+/// See [`RESET_WAIT_MS`].
+pub const RESET_POLL_MS: u32 = 1;
+/// See [`RESET_WAIT_MS`]: up to 10 ms more, five times Bosch's wait.
+pub const RESET_POLLS: u32 = 10;
+/// While advanced power save is on, every access needs a gap of 450 µs (Bosch's API waits
+/// exactly that); the driver waits twice it, so a part's slower oscillator cannot eat it (µs).
+pub const APS_GAP_US: u32 = 900;
+/// Bytes of the upload per I2C write (even: the address is in 16-bit words; Arduino's library
+/// writes 30, Bosch's examples 46, Zephyr 256).
 pub const UPLOAD_CHUNK: usize = 32;
+/// After a register write with power save off, before the next access (µs): Bosch's API waits
+/// 2 (`BMI2_NORMAL_MODE_DELAY_IN_US`, Zephyr the same), Zephyr's upload 1000 after each chunk;
+/// five times Bosch's keeps back-to-back TWIM transfers (a few µs apart) off the limit and
+/// costs 5 ms over the upload's 512 writes.
+pub const WRITE_GAP_US: u32 = 10;
 /// Bosch reads INTERNAL_STATUS once, 20 ms after INIT_CTRL = 1 (an older API waited 140 ms):
 /// polled every [`STATUS_POLL_MS`] up to this (ms).
 pub const INIT_TIMEOUT_MS: u32 = 150;
@@ -444,14 +457,30 @@ impl<I: I2c> Bmi270<I> {
         delay.delay_us(APS_GAP_US);
         self.write(reg::CMD, &[CMD_SOFT_RESET])?;
         delay.delay_ms(RESET_WAIT_MS);
+        let mut back = self.read1(reg::CHIP_ID);
+        for _ in 0..RESET_POLLS {
+            if !matches!(back, Err(Bmi270Error::Bus(_))) {
+                break;
+            }
+            delay.delay_ms(RESET_POLL_MS);
+            back = self.read1(reg::CHIP_ID);
+        }
+        match back? {
+            CHIP_ID => {}
+            id => return Err(Bmi270Error::WrongId(id)),
+        }
         // Advanced power save is on after the reset: one access per 450 µs until it is off.
+        delay.delay_us(APS_GAP_US);
         self.write(reg::PWR_CONF, &[0x00])?;
         delay.delay_us(APS_GAP_US);
         self.write(reg::INIT_CTRL, &[0x00])?;
+        delay.delay_us(WRITE_GAP_US);
         for (i, chunk) in CONFIG.chunks(UPLOAD_CHUNK).enumerate() {
             let word = (i * UPLOAD_CHUNK / 2) as u16;
             self.write(reg::INIT_ADDR_0, &[(word & 0x0F) as u8, (word >> 4) as u8])?;
+            delay.delay_us(WRITE_GAP_US);
             self.write(reg::INIT_DATA, chunk)?;
+            delay.delay_us(WRITE_GAP_US);
         }
         self.write(reg::INIT_CTRL, &[0x01])?;
         let mut status = 0;
@@ -468,6 +497,7 @@ impl<I: I2c> Bmi270<I> {
         // GYR_CAS from feature page 0 (a 16-byte window read as Bosch's bmi2_get_feat_config),
         // and whether the user gain is on: the raw data's terms the record states.
         self.write(reg::FEAT_PAGE, &[0])?;
+        delay.delay_us(WRITE_GAP_US);
         let mut page = [0u8; 16];
         self.read(reg::FEATURES, &mut page)?;
         self.gyr_cas = gyr_cas(page[GYR_CAS_OFFSET]);
@@ -476,7 +506,7 @@ impl<I: I2c> Bmi270<I> {
         for (r, v) in
             [(reg::ACC_CONF, c.acc_conf()), (reg::ACC_RANGE, acc_range), (reg::GYR_CONF, c.gyr_conf()), (reg::GYR_RANGE, gyr_range)]
         {
-            self.write_checked(r, v)?;
+            self.write_checked(r, v, delay)?;
         }
         match (self.read1(reg::EVENT)? >> 2) & 0x07 {
             0 => {}
@@ -485,18 +515,21 @@ impl<I: I2c> Bmi270<I> {
         // Advanced power save stays off (Bosch turns it back on; then every access would need
         // its 450 µs gap).
         self.write(reg::PWR_CTRL, &[PWR_CTRL_ON])?;
+        delay.delay_us(WRITE_GAP_US);
         // FIFO_DOWNS is written, not assumed: its reset value is the filtered, full-rate data.
         for (r, v) in
             [(reg::FIFO_DOWNS, FIFO_DOWNS_FILTERED), (reg::FIFO_CONFIG_0, FIFO_TIME_EN), (reg::FIFO_CONFIG_1, FIFO_HEADER_ACC_GYR)]
         {
-            self.write_checked(r, v)?;
+            self.write_checked(r, v, delay)?;
         }
         Ok(())
     }
 
-    /// Writes `v` to `r` and reads it back, its reserved bits masked ([`defined_bits`]).
-    fn write_checked(&mut self, r: u8, v: u8) -> Result<(), Bmi270Error> {
+    /// Writes `v` to `r` and reads it back ([`WRITE_GAP_US`] after the write), its reserved
+    /// bits masked ([`defined_bits`]).
+    fn write_checked(&mut self, r: u8, v: u8, delay: &mut impl DelayNs) -> Result<(), Bmi270Error> {
         self.write(r, &[v])?;
+        delay.delay_us(WRITE_GAP_US);
         let read = self.read1(r)?;
         let mask = defined_bits(r);
         if read & mask != v & mask {

@@ -4,7 +4,8 @@
 //! - CHIP_ID 0x24; CMD 0xB6 resets every register and the part does not answer for 2 ms.
 //! - Advanced power save (PWR_CONF bit 0, on after a reset): an access that comes less than
 //!   450 µs after the previous one is lost (a write does nothing, a read returns 0), and a burst
-//!   write keeps only its first byte.
+//!   write keeps only its first byte. With it off, an access less than 2 µs after a register
+//!   write ([`WRITE_GAP_S`]) is lost the same way.
 //! - The configuration upload: INIT_DATA (0x5E, the address does not increment) takes a burst at
 //!   the word address in INIT_ADDR_0/1, only while INIT_CTRL = 0 and power save is off. INIT_CTRL
 //!   = 1 starts the initialisation: 15 ms later INTERNAL_STATUS reads 0x01 if the 8192 bytes are
@@ -72,12 +73,14 @@ pub const ADDR: u8 = 0x68;
 pub const RESET_S: f64 = 0.002;
 /// The access gap advanced power save needs (s).
 pub const APS_GAP_S: f64 = 450e-6;
+/// With power save off, the gap a register write needs before the next access (s): Bosch's
+/// `BMI2_NORMAL_MODE_DELAY_IN_US`, Zephyr's `BMI270_TRANSC_DELAY_NORMAL`.
+pub const WRITE_GAP_S: f64 = 2e-6;
 /// From INIT_CTRL = 1 to the initialisation's result (s).
 pub const INIT_S: f64 = 0.015;
-/// The gyro's start-up from suspend to its first sample (s): the datasheet's start-up table was
-/// not read here; 45 ms is inside the 50 ms drivers wait for the gyro's first readings
-/// (cardputer-adv's `GYROSCOPE_START`) and beyond the 2 ms of its fast start-up mode, which this
-/// firmware does not use.
+/// The gyro's start-up from suspend to its first sample (s): Zephyr's `bmi270.h`
+/// `BMI270_GYR_SUS_TO_NOR_START_UP_TIME` (45 ms; 2 ms in the fast start-up mode this firmware
+/// does not use; the datasheet's table was not read here).
 pub const GYR_START_S: f64 = 0.045;
 /// The default [`Bmi270Model::fifo_latency_s`] (s).
 pub const FIFO_LATENCY_S: f64 = 0.002;
@@ -124,6 +127,8 @@ pub struct Bmi270Model {
     away_until: f64,
     /// End of the last access (s), for the power-save gap.
     last_access_s: f64,
+    /// End of the last register write (s), for the normal mode's gap.
+    last_write_s: f64,
     /// INIT_CTRL = 1 was written at this time (s).
     init_started: Option<f64>,
     /// Accesses lost to the power-save rule.
@@ -160,6 +165,8 @@ pub struct Bmi270Model {
     time_sent: bool,
     /// GYR_OFF_COMP_6 bit 7 (user gain on) after a reset.
     pub user_gain_after_reset: bool,
+    /// How long a soft reset keeps the part away (s; [`RESET_S`] by default).
+    pub reset_s: f64,
     /// FIFO_DOWNS after a reset.
     pub fifo_downs_after_reset: u8,
     /// Reserved bits read 1.
@@ -181,6 +188,7 @@ impl Bmi270Model {
             now_s,
             away_until: 0.0,
             last_access_s: f64::NEG_INFINITY,
+            last_write_s: f64::NEG_INFINITY,
             init_started: None,
             lost_accesses: 0,
             resets: 0,
@@ -189,6 +197,7 @@ impl Bmi270Model {
             gyr_cas: GYR_CAS,
             user_gain_after_reset: false,
             fifo_downs_after_reset: 0x88,
+            reset_s: RESET_S,
             reserved_bits_read_one: false,
             produced: 0,
             last_sample_s: None,
@@ -211,8 +220,13 @@ impl Bmi270Model {
         self.regs = [0; 0x80];
         self.regs[CHIP_ID as usize] = 0x24;
         self.regs[PWR_CONF as usize] = 0x03;
+        // Reset values: ChromiumOS EC's BMI260 emulator (same register map), emul_bmi260.c
+        // bmi260_emul_reset(); the datasheet's register map was not read here.
         self.regs[ACC_CONF as usize] = 0xA8;
+        self.regs[ACC_RANGE as usize] = 0x02;
         self.regs[GYR_CONF as usize] = 0xA9;
+        self.regs[FIFO_CONFIG_0 as usize] = 0x02;
+        self.regs[FIFO_CONFIG_1 as usize] = 0x10;
         self.regs[0x77] = if self.user_gain_after_reset { 0x80 } else { 0 };
         self.regs[FIFO_DOWNS as usize] = self.fifo_downs_after_reset;
         self.upload.fill(0);
@@ -449,7 +463,7 @@ impl Bmi270Model {
             CMD if data.first() == Some(&0xB6) => {
                 self.reset();
                 self.resets += 1;
-                self.away_until = self.now_s + RESET_S;
+                self.away_until = self.now_s + self.reset_s;
             }
             _ => {
                 for (k, &b) in data.iter().enumerate() {
@@ -491,12 +505,16 @@ impl I2c for Bmi270Model {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
         }
         self.land();
-        let lost = self.aps() && self.now_s - self.last_access_s < APS_GAP_S;
+        let gap = if self.aps() { (self.last_access_s, APS_GAP_S) } else { (self.last_write_s, WRITE_GAP_S) };
+        let lost = self.now_s - gap.0 < gap.1;
         let aps = self.aps();
         if let Some(hz) = self.bus_hz {
             self.advance_to(self.now_s + bus_time_s(operations, hz));
         }
         self.last_access_s = self.now_s;
+        if operations.iter().any(|op| matches!(op, Operation::Write(b) if b.len() > 1)) {
+            self.last_write_s = self.now_s;
+        }
         if lost {
             self.lost_accesses += 1;
         }
