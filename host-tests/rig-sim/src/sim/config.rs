@@ -234,6 +234,13 @@ impl RigConfig {
         self
     }
 
+    /// The die temperature `temp_c` (°C) as the part's register gives it: the BMI270's
+    /// TEMPERATURE_0/1 in 1/512 °C (Bosch's raw / 512 + 23), the LSM9DS1's OUT_TEMP in 1/16 °C.
+    pub fn temp_reading_c(&self, temp_c: f64) -> f32 {
+        let per_c = if matches!(self.gyro.range, GyroRange::Bmi270(_)) { 512.0 } else { 16.0 };
+        ((temp_c * per_c).round() / per_c) as f32
+    }
+
     /// Actual ODR (Hz).
     pub fn actual_odr_hz(&self) -> f64 {
         self.odr_hz * (1.0 + self.odr_error)

@@ -23,7 +23,7 @@ pub struct Reading {
     pub accel_g: [f32; 3],
     /// Raw gyroscope (deg/s, datasheet sensitivity applied).
     pub gyro_dps: [f32; 3],
-    /// Temperature (°C) in 1/16 °C steps (16 LSB/°C).
+    /// Temperature (°C) at the part's register resolution ([`RigConfig::temp_reading_c`]).
     pub temp_c: f32,
     /// The accelerometer reached full scale in this sample.
     pub accel_saturated: bool,
@@ -286,7 +286,7 @@ impl Rig {
             t_s: self.t_mcu_s,
             accel_g,
             gyro_dps,
-            temp_c: (((self.cfg.temp_c + delta_temp_c) * 16.0).round() / 16.0) as f32,
+            temp_c: self.cfg.temp_reading_c(self.cfg.temp_c + delta_temp_c),
             accel_saturated,
             gyro_saturated,
         }
