@@ -277,6 +277,25 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     let (code, _, err) = calib(&[&hand, "--range", "60"]);
     assert_eq!(code, 4, "{err}");
     assert!(err.contains("moves between poses were dropped: they reached the gyro's full scale"), "{err}");
+    // A clipped gyro whose full scale nobody states (issue 31's MPU-6050 session at ±250 °/s):
+    // found from its repeated extreme values, the moves that reach it dropped and counted, the
+    // rest calibrate; no stated scale and no clipping: nothing dropped as saturated.
+    for (clip, dropped) in [(150.0f32, 4), (250.0, 2), (1e4, 0)] {
+        let clipped = write(
+            "clipped.csv",
+            &rewrite(&log, |r| {
+                r.gyro_dps = r.gyro_dps.map(|g| g.clamp(-clip, clip));
+                r.servo_deg.is_none()
+            }),
+        );
+        let (code, out, err) = calib(&[&clipped]);
+        assert_eq!(code, 0, "clip {clip}: {err}");
+        let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        assert_eq!(v["quality"]["hand_moves"]["dropped"]["saturated"], dropped, "clip {clip}: {v}");
+        for (a, t) in k(&out).iter().zip(truth) {
+            assert!((a / t - 1.0).abs() < 0.003, "clip {clip}: {a} vs {t}");
+        }
+    }
     let (code, out, err) = calib(&[&hand, "--no-rotations"]);
     assert_eq!(code, 4, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();

@@ -148,7 +148,7 @@ pub struct Options {
     /// Ferraris protocol); else such a turn constrains its axis only.
     pub whole_turns: bool,
     /// The gyro's full scale (°/s, `--range`): readings at it are clipped. Without it, the
-    /// log's stated setup, else runs of equal extreme readings ([`full_scale`]).
+    /// log's stated setup, else repeated extreme readings ([`full_scale`]).
     pub range_dps: Option<f32>,
 }
 
@@ -244,29 +244,22 @@ fn clipped(v: f32, range_dps: Option<f32>) -> bool {
 }
 
 /// The gyro's full scale (°/s) read off a log that does not state it: the largest |reading| of
-/// an axis, when at least [`CLIP_RUN`] consecutive samples hold exactly that value (a clipped
-/// sensor repeats its limit; a turning one never does) and it is above 100 °/s.
+/// an axis, when at least [`CLIP_COUNT`] samples hold exactly that value, of either sign (a
+/// clipped sensor repeats its limit, a hand's brief turn for one or two samples at a time; a
+/// turning one reaches its largest rate once) and it is above 100 °/s.
 pub fn full_scale(rows: &[Row]) -> Option<f32> {
     let mut found: Option<f32> = None;
     for axis in 0..3 {
         let peak = rows.iter().map(|r| r.gyro_dps[axis].abs()).fold(0.0f32, f32::max);
-        if peak < 100.0 {
-            continue;
-        }
-        let mut run = 0;
-        for r in rows {
-            run = if r.gyro_dps[axis].abs() == peak { run + 1 } else { 0 };
-            if run >= CLIP_RUN {
-                found = Some(found.map_or(peak, |f| f.min(peak)));
-                break;
-            }
+        if peak >= 100.0 && rows.iter().filter(|r| r.gyro_dps[axis].abs() == peak).count() >= CLIP_COUNT {
+            found = Some(found.map_or(peak, |f| f.min(peak)));
         }
     }
     found
 }
 
-/// Consecutive samples at one extreme value that mark a clipped gyro axis.
-const CLIP_RUN: usize = 3;
+/// Samples at one extreme |value| that mark a clipped gyro axis.
+const CLIP_COUNT: usize = 3;
 
 /// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS)
 /// faster than `min_dps`.
