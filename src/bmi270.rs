@@ -565,8 +565,8 @@ impl<I: I2c> Bmi270<I> {
         Ok(r)
     }
 
-    /// The die temperature (°C) from TEMPERATURE_0/1 (0x22/0x23: int16 little-endian, raw / 512
-    /// + 23 °C; Bosch's `bmi2_get_temperature_data`), `None` while the part reports 0x8000
+    /// The die temperature (°C) from TEMPERATURE_0/1 (0x22/0x23: int16 little-endian, 23 °C +
+    /// raw / 512; Bosch's `bmi2_get_temperature_data`), `None` while the part reports 0x8000
     /// (invalid: no conversion yet). New every 10 ms with the gyro on.
     pub fn temperature_c(&mut self) -> Result<Option<f32>, Bmi270Error> {
         let mut b = [0u8; 2];

@@ -279,7 +279,7 @@ impl Bmi270Model {
         }
         // FIFO_DOWNS: every 2ⁿ-th sample of each sensor; pre-filter gyro data at twice the scale.
         let downs = self.regs[FIFO_DOWNS as usize];
-        let every = |n: u8| self.produced % (1u64 << n) == 0;
+        let every = |n: u8| self.produced.is_multiple_of(1u64 << n);
         let (acc, gyr) = (acc && every((downs >> 4) & 0x07), gyr && every(downs & 0x07));
         if !(acc || gyr) {
             return;

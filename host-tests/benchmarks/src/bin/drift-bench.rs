@@ -104,9 +104,9 @@ fn main() {
                         (Some(c), Some(t0)) => c.dps_per_c[k] as f64 * (t.temp_c - t0 as f64),
                         _ => 0.0,
                     };
-                    for k in 0..3 {
+                    for (k, first_k) in first.iter().enumerate() {
                         bias_sq.push((rec.gyro_bias_dps[k] as f64 + shift(k) - t.gyro_bias_dps[k]).powi(2));
-                        first_sq.push((first[k] as f64 - t.gyro_bias_dps[k]).powi(2));
+                        first_sq.push((*first_k as f64 - t.gyro_bias_dps[k]).powi(2));
                     }
                 }
                 match (out.stored.first(), out.error) {

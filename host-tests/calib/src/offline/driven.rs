@@ -74,7 +74,7 @@ impl<'a> Log<'a> {
     /// moves are corrected against is the bias of no instant when it drifts.)
     fn bias_at_end(&self) -> Bias {
         let t_end = self.rows.last().map_or(0.0, |r| r.t_s);
-        let n = self.ph.segments.iter().zip(&self.rests).filter(|(_, r)| r.1).map(|(s, _)| s.gyro.count()).last().unwrap_or(1);
+        let n = self.ph.segments.iter().zip(&self.rests).filter(|(_, r)| r.1).map(|(s, _)| s.gyro.count()).next_back().unwrap_or(1);
         let floor = self.bias.noise_dps.map(|v| v / (n.max(1) as f32).sqrt());
         match self.drift().predict(t_end, floor) {
             Some((r, sigma_dps)) => {
