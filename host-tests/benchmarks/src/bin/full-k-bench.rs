@@ -41,8 +41,9 @@ struct Args {
 
 fn main() {
     let args = Args::parse_from(calib::cli_args());
-    let (mut full, mut diag, mut failed) = ((vec![], vec![]), (vec![], vec![]), vec![]);
-    let (mut fw_full, mut fw_diag, mut fw_failed, mut rig_s) = ((vec![], vec![]), (vec![], vec![]), vec![], vec![]);
+    // Per row: (largest |E| per rig, RMS of E per rig, failures named).
+    let (mut full, mut diag, mut fw_full, mut fw_diag) = (Row::default(), Row::default(), Row::default(), Row::default());
+    let mut rig_s = vec![];
     for run_idx in 0..args.rigs {
         // The firmware's plan: from the press to the stored record.
         let cfg = args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64);
@@ -56,21 +57,22 @@ fn main() {
         });
         match (out.stored.first(), out.error) {
             (Some(rec), _) => {
-                if let Some((mx, rms)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
-                    fw_full.0.push(mx);
-                    fw_full.1.push(rms);
-                }
+                fw_full.add(pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig).ok_or("no error matrix".into()));
                 rig_s.push(out.end_s - pressed.unwrap_or(0.0));
                 let sweep = out.reports.iter().find_map(|r| match r {
                     Report::Gyro(g) if g.method == Method::Sweep => Some(g.k),
                     _ => None,
                 });
-                if let Some((mx, rms)) = sweep.and_then(|k| pan_tilt::k_error(k, rec.accel_m, &rig)) {
-                    fw_diag.0.push(mx);
-                    fw_diag.1.push(rms);
-                }
+                fw_diag.add(
+                    sweep
+                        .ok_or_else(|| "no sweep K reported".to_string())
+                        .and_then(|k| pan_tilt::k_error(k, rec.accel_m, &rig).ok_or("no error matrix".into())),
+                );
             }
-            (None, e) => fw_failed.push(format!("{e:?}")),
+            (None, e) => {
+                fw_full.add(Err(format!("{e:?}")));
+                fw_diag.add(Err(format!("{e:?}")));
+            }
         }
         let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
         let log = pan_tilt::log(&mut rig, true);
@@ -79,35 +81,37 @@ fn main() {
             {
                 Ok(c) => c,
                 Err(e) => {
-                    failed.push(e);
+                    full.add(Err(e.clone()));
+                    diag.add(Err(e));
                     continue;
                 }
             };
-        match c.full.as_ref().map(|f| f.as_ref().map_err(|e| e.to_string())) {
-            Some(Ok(f)) => {
-                if let Some((mx, rms)) = pan_tilt::k_error(f.k, c.accel.m, &rig) {
-                    full.0.push(mx);
-                    full.1.push(rms);
-                }
-            }
-            Some(Err(e)) => failed.push(e),
-            None => failed.push("no full K attempted".into()),
-        }
-        if let Some((mx, rms)) = c.gyro.as_ref().ok().and_then(|g| pan_tilt::k_error(g.k, c.accel.m, &rig)) {
-            diag.0.push(mx);
-            diag.1.push(rms);
-        }
+        full.add(match c.full.as_ref().map(|f| f.as_ref().map_err(|e| e.to_string())) {
+            Some(Ok(f)) => pan_tilt::k_error(f.k, c.accel.m, &rig).ok_or("no error matrix".into()),
+            Some(Err(e)) => Err(e),
+            None => Err("no full K attempted".into()),
+        });
+        // The diagonal sweep K beside the full one (`quality.estimators`).
+        diag.add(
+            c.sweep
+                .as_ref()
+                .map_err(|e| e.to_string())
+                .and_then(|g| pan_tilt::k_error(g.k, c.accel.m, &rig).ok_or("no error matrix".into())),
+        );
     }
-    let row = |name: &str, (mx, rms): &(Vec<f64>, Vec<f64>)| {
-        let (r, m) = (Moments::of(rms).mean, mx.iter().fold(0.0f64, |a, b| a.max(*b)));
-        println!("{name:<40}{r:>14.2e}{m:>14.2e}{:>8}", rms.len());
-        json!({"method": name, "rms_mean": r, "max": m, "rigs": rms.len()})
+    let row = |name: &str, r: &Row| {
+        let (rms, m) = (Moments::of(&r.rms).mean, r.max.iter().fold(0.0f64, |a, b| a.max(*b)));
+        println!("{name:<40}{rms:>14.2e}{m:>14.2e}{:>8}{:>8}", r.rms.len(), r.failed.len());
+        for f in &r.failed {
+            println!("    failed: {f}");
+        }
+        json!({"method": name, "rms_mean": rms, "max": m, "rigs": r.rms.len(), "failed": r.failed})
     };
     println!(
         "full-k-bench: {} simulated pan/tilt rigs (gyro cross-axis ±1 %, accel misalignment ±0.3 %, servo ±3 %), the {:?} setup",
         args.rigs, args.setup
     );
-    println!("{:<40}{:>14}{:>14}{:>8}", "K", "RMS of E", "largest |E|", "rigs");
+    println!("{:<40}{:>14}{:>14}{:>8}{:>8}", "K", "RMS of E", "largest |E|", "rigs", "failed");
     let j = [
         row("full 3x3, firmware pan/tilt plan", &fw_full),
         row("diagonal, one axis (sweep), firmware", &fw_diag),
@@ -116,17 +120,33 @@ fn main() {
     ];
     let rig_time = Moments::of(&rig_s);
     let rig_max = rig_s.iter().fold(0.0f64, |a, b| a.max(*b));
-    println!(
-        "firmware plan: rig time {:.1} s mean, {rig_max:.1} s max (press to stored); failed: {} {fw_failed:?}",
-        rig_time.mean,
-        fw_failed.len()
-    );
-    println!("calib: failed: {} {:?}", failed.len(), failed);
+    println!("firmware plan: rig time {:.1} s mean, {rig_max:.1} s max (press to stored)", rig_time.mean);
     if args.json {
         println!(
             "{}",
-            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": j, "rig_time_s": {"mean": rig_time.mean, "max": rig_max},
-                   "firmware_failed": fw_failed, "failed": failed})
+            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": j, "rig_time_s": {"mean": rig_time.mean, "max": rig_max}})
         );
+    }
+}
+
+/// One row of the table: per rig scored, the largest |E| and the RMS of E; every rig not scored
+/// with its reason.
+#[derive(Default)]
+struct Row {
+    max: Vec<f64>,
+    rms: Vec<f64>,
+    failed: Vec<String>,
+}
+
+impl Row {
+    /// A rig's `(largest |E|, RMS of E)`, or why it has none.
+    fn add(&mut self, r: Result<(f64, f64), String>) {
+        match r {
+            Ok((mx, rms)) => {
+                self.max.push(mx);
+                self.rms.push(rms);
+            }
+            Err(e) => self.failed.push(e),
+        }
     }
 }

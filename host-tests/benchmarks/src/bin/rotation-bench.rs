@@ -101,7 +101,7 @@ fn main() {
         args.setup,
         hand_name(hand)
     );
-    println!("{:<38}{:<16}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
+    println!("{:<38}{:<24}{:>12}{:>12}{:>7}", "rig", "rotations", "RMS of E", "largest", "rigs");
     for (kind, name) in names.iter().enumerate() {
         for on in [true, false] {
             let (mut rms, mut max, mut failed, mut cover) = (vec![], 0.0f64, vec![], [0usize; 2]);
@@ -145,8 +145,13 @@ fn main() {
                 }
             }
             let mean = Moments::of(&rms).mean;
-            let label = if on { "on" } else { "off" };
-            println!("{name:<38}{label:<16}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
+            // One servo without the moves gives no full K: its row is the diagonal sweep K.
+            let label = match (on, kind) {
+                (true, _) => "on",
+                (false, 0) => "off: diagonal K (sweep)",
+                (false, _) => "off",
+            };
+            println!("{name:<38}{label:<24}{mean:>12.2e}{max:>12.2e}{:>7}", rms.len());
             if !failed.is_empty() {
                 let mut kinds = failed.clone();
                 kinds.sort();
@@ -164,7 +169,7 @@ fn main() {
                     println!("    {what}: within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * a, 100.0 * b);
                 }
             }
-            table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed,
+            table.push(json!({"rig": name, "rotations": on, "label": label, "rms_mean": mean, "max": max, "rigs": rms.len(), "failed": failed,
                 "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2),
                 "bias_within": on.then_some(other[0]), "accel_offset_within": on.then_some(other[1]), "accel_gain_within": on.then_some(other[2])}));
         }
@@ -172,6 +177,7 @@ fn main() {
     // The firmware's own procedure (default configuration) on the one-servo rigs: the full K it
     // stores, and the diagonal sweep K it reports beside it.
     let (mut full, mut diag, mut max, mut dmax, mut failed, mut cover) = (vec![], vec![], 0.0f64, 0.0f64, vec![], [0usize; 2]);
+    let mut diag_failed = vec![];
     for run_idx in 0..args.rigs {
         let cfg = RigConfig { hand, ..args.setup.rig(pan_tilt::rig_config(args.seed, run_idx), args.seed + run_idx as u64) };
         let mut rig = Rig::new(cfg, args.seed + run_idx as u64);
@@ -179,6 +185,7 @@ fn main() {
         let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
         let Some(rec) = out.stored.first() else {
             failed.push(format!("{:?}", out.error));
+            diag_failed.push(format!("{:?}", out.error));
             continue;
         };
         if let Some((mx, r)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
@@ -188,25 +195,28 @@ fn main() {
             cover = [cover[0] + a, cover[1] + b];
         }
         let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::gyro::Method::Sweep);
-        if let Some((mx, r)) = sweep.and_then(|g| pan_tilt::k_error(g.k, rec.accel_m, &rig)) {
-            diag.push(r);
-            dmax = dmax.max(mx);
+        match sweep.and_then(|g| pan_tilt::k_error(g.k, rec.accel_m, &rig)) {
+            Some((mx, r)) => {
+                diag.push(r);
+                dmax = dmax.max(mx);
+            }
+            None => diag_failed.push("no sweep K reported".into()),
         }
     }
     let name = "one servo + 12 hand-held (firmware)";
-    for (label, rms, mx) in [("on", &full, max), ("off (its sweep)", &diag, dmax)] {
+    for (label, rms, mx, failed) in [("on", &full, max, &failed), ("off: diagonal K (sweep)", &diag, dmax, &diag_failed)] {
         let mean = Moments::of(rms).mean;
-        println!("{name:<38}{label:<16}{mean:>12.2e}{mx:>12.2e}{:>7}", rms.len());
+        println!("{name:<38}{label:<24}{mean:>12.2e}{mx:>12.2e}{:>7}", rms.len());
         let on = label == "on";
         let [c1, c2] = coverage(cover, full.len());
         if on {
             println!("    errors within 1 sigma {:.0} %, within 2 sigma {:.0} %", 100.0 * c1, 100.0 * c2);
         }
-        table.push(json!({"rig": name, "rotations": on, "rms_mean": mean, "max": mx, "rigs": rms.len(), "failed": failed,
+        if !failed.is_empty() {
+            println!("    failed {}: {failed:?}", failed.len());
+        }
+        table.push(json!({"rig": name, "rotations": on, "label": label, "rms_mean": mean, "max": mx, "rigs": rms.len(), "failed": failed,
             "within_1sigma": on.then_some(c1), "within_2sigma": on.then_some(c2)}));
-    }
-    if !failed.is_empty() {
-        println!("    failed {}: {failed:?}", failed.len());
     }
     if args.json {
         println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "hand": hand_name(hand), "rows": table}));

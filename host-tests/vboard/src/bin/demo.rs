@@ -4,7 +4,10 @@
 //! firmware's own defmt log, resets the board,
 //! reads the stored record back from the emulated flash and compares it with the simulator's
 //! truth. The last stdout line is `RESULT max_scale_error_pct=<number> stored=<true|false>
-//! board=rev1`, after `SPEED board_s=<virtual s> wall_s=<s> x=<virtual s per wall s>`.
+//! board=rev1`, after `SPEED board_s=<virtual s> wall_s=<s> x=<virtual s per wall s>`; for a
+//! full `K` (every run that stores one) over `E = Qᵀ K̂ K⁻¹ − I` (the calibrated accelerometer
+//! frame aligned to the simulator's), with `max_cross_axis_error_pct=<max |E_ij|, i ≠ j, %>
+//! max_abs_e=<max |E_ij|>` after the scale error (`max |E_ii|`, %) in every mode.
 //!
 //! `--rev2` (with any of the modes below): the same firmware on a Nano 33 BLE Rev2, its BMI270 at
 //! 0x68 (Bosch's configuration upload, the FIFO in header mode); `board=rev2`.
@@ -16,14 +19,12 @@
 //! `--tilt`: the `tilt-servo` firmware (the pan/tilt plan) on a pan/tilt bracket (shaft 30–50°
 //! from vertical, gyro cross-axis ±1 %, accelerometer misalignment ±0.3 %). The stored full `K`
 //! is compared with the truth over `E = Qᵀ K̂ K⁻¹ − I` (the calibrated accelerometer frame
-//! aligned to the simulator's): the last line is `RESULT max_scale_error_pct=<max |E_ii|>
-//! max_cross_axis_error_pct=<max |E_ij|, i ≠ j> stored=<bool>`, after the rig time (press to
-//! stored).
+//! aligned to the simulator's): the RESULT line comes after the rig time (press to stored).
 //!
 //! `--no-probe`: nobody reads RTT until the end (no probe attached). The operator then cannot
 //! read the log and goes by the LEDs (as always: `Testbed::calibrate`);
 //! the result comes from the emulated flash and from what the RTT buffer holds at the end. The
-//! last line is `RESULT max_scale_error_pct=<x> stored=<bool> probe=none`, and the exit code is
+//! last line is `RESULT max_scale_error_pct=<x> … stored=<bool> probe=none`, and the exit code is
 //! non-zero if the watchdog reset the board.
 //!
 //! `--usb`: no button and no probe. The board's USB port (VBUS plugged, the virtual host
@@ -32,7 +33,7 @@
 //! operator after the re-clamp, saves the raw log to `OUT/demo-usb.csv` (`--out`, default
 //! `target/demo`), prints
 //! the board's JSON result and cross-checks it on the PC. The last line is
-//! `RESULT max_scale_error_pct=<x> stored=<bool> via=usb`, `x` from the board's JSON line.
+//! `RESULT max_scale_error_pct=<x> … stored=<bool> via=usb`, `x` from the board's JSON line.
 
 use clap::Parser;
 use rig_sim::lsm_model::Board;
@@ -178,8 +179,8 @@ fn main() -> ExitCode {
         }
         None => f64::NAN,
     };
-    // The full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
-    let full_err = stored.as_ref().filter(|_| tilt).map(|r| testbed.k_errors_pct(r));
+    // A full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
+    let full_err = stored.as_ref().filter(|r| r.method == calib_core::gyro::Method::Full).map(|r| testbed.k_errors_pct(r));
     let ok = stored.is_some() && outcome == Outcome::Done;
     // The raw log through the offline path of `calib` (the same code): the same K as the
     // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
@@ -200,13 +201,15 @@ fn main() -> ExitCode {
                 let vs_fw = (0..cells)
                     .map(|i| ((k[at(i).0][at(i).1] - rec.gyro_k[at(i).0][at(i).1]) / rec.gyro_k[at(i).0][at(i).0]).abs() as f64 * 100.0)
                     .fold(0.0, f64::max);
-                let vs_truth = if full {
-                    pan_tilt::k_error_matrix(k, m, testbed.mcu.periph.borrow().sensor.rig())
-                        .map_or(f64::NAN, |e| e.diagonal().amax() * 100.0)
+                let (vs_truth, cross) = if full {
+                    pan_tilt::k_error_matrix(k, m, testbed.mcu.periph.borrow().sensor.rig()).map_or((f64::NAN, f64::NAN), |e| {
+                        let off = (0..9).filter(|i| i / 3 != i % 3).map(|i| e[(i / 3, i % 3)].abs()).fold(0.0, f64::max);
+                        (e.diagonal().amax() * 100.0, off * 100.0)
+                    })
                 } else {
-                    (0..3).map(|i| (k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max)
+                    ((0..3).map(|i| (k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max), f64::NAN)
                 };
-                println!("ROUNDTRIP calib_vs_firmware_max_pct={vs_fw:.4} calib_scale_error_pct={vs_truth:.4}");
+                println!("ROUNDTRIP calib_vs_firmware_max_pct={vs_fw:.4} calib_scale_error_pct={vs_truth:.4} calib_cross_axis_error_pct={cross:.4}");
                 if vs_fw > 0.05 || vs_truth > 0.1 {
                     return ExitCode::from(1);
                 }
@@ -225,18 +228,25 @@ fn main() -> ExitCode {
             println!("[demo]   {l}");
         }
         println!("[demo] watchdog resets: {}", testbed.mcu.watchdog_resets);
-        println!("RESULT max_scale_error_pct={err:.4} stored={ok} probe=none board={board_name}");
+        println!("RESULT max_scale_error_pct={err:.4}{} stored={ok} probe=none board={board_name}", full_fields(full_err));
         if testbed.mcu.watchdog_resets > 0 {
             return ExitCode::from(1);
         }
-    } else if let Some((scale, cross)) = full_err {
-        println!("RESULT max_scale_error_pct={scale:.4} max_cross_axis_error_pct={cross:.4} stored={ok} board={board_name}");
+    } else if let Some((scale, _)) = full_err {
+        println!("RESULT max_scale_error_pct={scale:.4}{} stored={ok} board={board_name}", full_fields(full_err));
     } else if tilt {
         println!("RESULT max_scale_error_pct=NaN max_cross_axis_error_pct=NaN stored=false board={board_name}");
     } else {
         println!("RESULT max_scale_error_pct={err:.4} stored={ok} board={board_name}");
     }
     ExitCode::SUCCESS
+}
+
+/// The RESULT fields of a full `K` beside its scale error: ` max_cross_axis_error_pct=<largest
+/// off-diagonal |E_ij|, %> max_abs_e=<largest |E_ij|>` (empty for a one-axis record).
+fn full_fields(full_err: Option<(f64, f64)>) -> String {
+    full_err
+        .map_or(String::new(), |(scale, cross)| format!(" max_cross_axis_error_pct={cross:.4} max_abs_e={:.2e}", scale.max(cross) / 100.0))
 }
 
 /// `SPEED board_s=<virtual s> wall_s=<s> x=<board s per wall s>`: how fast the virtual board ran
@@ -285,7 +295,12 @@ fn demo_usb(
     let ok = same && outcome == Outcome::Done;
     println!("[demo] the record in flash is the one reported over USB: {same}");
     print_speed(testbed, wall);
-    println!("RESULT max_scale_error_pct={:.4} stored={ok} via=usb board={board_name}", testbed.max_scale_error_pct(&out.record));
+    let full = (out.record.method == calib_core::gyro::Method::Full).then(|| testbed.k_errors_pct(&out.record));
+    println!(
+        "RESULT max_scale_error_pct={:.4}{} stored={ok} via=usb board={board_name}",
+        full.map_or(testbed.max_scale_error_pct(&out.record), |f| f.0),
+        full_fields(full)
+    );
     let ok = ok && (!touch || demo_touch(testbed));
     if ok {
         ExitCode::SUCCESS
