@@ -95,6 +95,10 @@ pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
         .collect()
 }
 
+/// When the simulated operator presses the button (s of rig time): [`Run::end_s`] minus this is
+/// the time from the press.
+pub const PRESS_AT_S: f64 = 1.0;
+
 /// Converts a simulator sample to the procedure's input.
 pub fn to_input(s: &Reading) -> Sample {
     Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: Some(s.temp_c) }
@@ -197,7 +201,7 @@ fn run_posed(
     let mut started = false;
     let mut samples = 0;
     let (mut lost_reported, mut undrained) = (false, 0usize);
-    let mut b = SimBoard { rig, out: &mut out, faults, attitudes, next_pose: 0, handheld: false, press_at: Some(1.0), t: 0.0 };
+    let mut b = SimBoard { rig, out: &mut out, faults, attitudes, next_pose: 0, handheld: false, press_at: Some(PRESS_AT_S), t: 0.0 };
     b.rig.stall_tilt(faults.tilt_stalled);
     while b.t < max_s {
         let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);

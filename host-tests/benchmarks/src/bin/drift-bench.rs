@@ -114,7 +114,7 @@ fn main() {
                         Some((mx, r)) => {
                             rms.push(r);
                             largest.push(mx);
-                            times.push(out.end_s + wait);
+                            times.push(out.end_s - rig_sim::harness::PRESS_AT_S + wait);
                         }
                         None => failed.push("no error matrix".to_string()),
                     },
