@@ -564,20 +564,14 @@ mod tests {
     /// first rest.
     #[test]
     fn the_bias_predicted_for_the_end_of_a_warm_up_covers_the_truth() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut noise = crate::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
         let curve = |t: f64| 0.2 * (1.0 - libm::exp(-t / 60.0));
         let (mut within, mut err2, runs) = ([0u32; 2], 0.0, 2000);
         for _ in 0..runs {
             let mut d = Drift::new();
             for i in 0..=20 {
                 let t = 4.0 * i as f64;
-                let n = 0.007 * libm::sqrt(-2.0 * libm::log(1.0 - uniform())) * libm::cos(core::f64::consts::TAU * uniform());
+                let n = 0.007 * noise.next();
                 d.add(RestBias { t_s: t, residual_dps: [(curve(t) + n) as f32, 0.0, 0.0] });
             }
             let (at, sigma) = d.predict(82.0, [0.007; 3]).unwrap();

@@ -69,6 +69,8 @@ pub mod rest;
 pub mod rotation;
 pub mod stats;
 pub mod sweep;
+#[cfg(test)]
+mod test_noise;
 pub mod text;
 pub mod vec3;
 

@@ -283,20 +283,12 @@ mod tests {
     /// plain `rss / dof` gives about 61 % and 86 %).
     #[test]
     fn sigma_covers_the_error_with_few_degrees_of_freedom() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut noise = crate::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
         let (mut within, runs) = ([0u32; 2], 4000);
         for _ in 0..runs {
             let mut ne = NormalEquations::<2>::new();
             for k in 0..5 {
-                // Box–Muller.
-                let n = libm::sqrt(-2.0 * libm::log(1.0 - uniform())) * libm::cos(core::f64::consts::TAU * uniform());
-                ne.add_row(&[1.0, k as f64], 2.0 + 0.5 * k as f64 + n, 1.0).unwrap();
+                ne.add_row(&[1.0, k as f64], 2.0 + 0.5 * k as f64 + noise.next(), 1.0).unwrap();
             }
             let s = ne.solve().unwrap();
             let (e, sigma) = ((s.x[1] - 0.5).abs(), s.sigma(1));
