@@ -96,6 +96,8 @@ impl AccelCal {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AccelCalibrator {
     poses: heapless::Vec<[f64; 3], MAX_ACCEL_POSES>,
+    /// The poses' own 1σ (g).
+    sigma: heapless::Vec<f32, MAX_ACCEL_POSES>,
     lin6: NormalEquations<6>,
     lin9: NormalEquations<9>,
 }
@@ -106,7 +108,7 @@ type Params = [f64; 9];
 impl AccelCalibrator {
     /// No poses.
     pub const fn new() -> Self {
-        Self { poses: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
+        Self { poses: heapless::Vec::new(), sigma: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
     }
 
     /// Number of poses.
@@ -122,6 +124,7 @@ impl AccelCalibrator {
     /// Forgets every pose.
     pub fn clear(&mut self) {
         self.poses.clear();
+        self.sigma.clear();
         self.lin6 = NormalEquations::new();
         self.lin9 = NormalEquations::new();
     }
@@ -132,16 +135,23 @@ impl AccelCalibrator {
         nalgebra::Vector3::new(a[0], a[1], a[2])
     }
 
-    /// Adds the mean raw reading (g) of one static pose.
-    pub fn add_pose(&mut self, a: Vec3) -> Result<(), Error> {
+    /// Adds the mean raw reading (g) of one static pose and its 1σ from the pose's own samples
+    /// (`std / √n`, g; 0 when unknown). The poses' 1σ are a floor under the σ of the fit: its
+    /// residual, with few poses more than unknowns, can be small by chance.
+    pub fn add_pose(&mut self, a: Vec3, sigma_g: f32) -> Result<(), Error> {
         // Checked before the rows go in: a rejected pose leaves the fits as they were.
         let full = Error::CapacityExceeded { max: MAX_ACCEL_POSES as u8 };
         if self.poses.is_full() {
             return Err(full);
         }
         let [x, y, z] = [a[0] as f64, a[1] as f64, a[2] as f64];
+        let s = sigma_g as f64;
+        if !(s.is_finite() && s >= 0.0) {
+            return Err(Error::NonFinite);
+        }
         self.lin6.add_row(&[x * x, y * y, z * z, x, y, z], 1.0, 1.0)?;
         self.lin9.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
+        self.sigma.push(sigma_g).map_err(|_| full)?;
         self.poses.push([x, y, z]).map_err(|_| full)
     }
 
@@ -196,8 +206,9 @@ impl AccelCalibrator {
     /// Gauss-Newton on `|M (a − o)| − 1` over the poses; `P` = 6 (diagonal) or 9 (triangular).
     fn refine<const P: usize>(&self, mut p: Params, model: AccelModel) -> Result<AccelCal, Error> {
         let mut last = None;
+        let mut ne = NormalEquations::<P>::new();
         for _ in 0..GAUSS_NEWTON_STEPS {
-            let mut ne = NormalEquations::<P>::new();
+            ne = NormalEquations::<P>::new();
             for a in &self.poses {
                 let (r, jac) = residual(&p, a, P == 6);
                 ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
@@ -214,9 +225,34 @@ impl AccelCalibrator {
             }
         }
         let sol = last.ok_or(Error::AccelFitFailed)?;
-        let sigma = |i: [usize; 3]| i.map(|i| sol.sigma(i) as f32);
+        let var = self.variances::<P>(&p, &ne.inverse()?, sol.rss, sol.dof);
+        let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i]) as f32);
         let gains = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
         self.calibration(&p, model, sol.condition, sigma([0, 1, 2]), sigma(gains))
+    }
+
+    /// The parameters' variances (`inv = (JᵀJ)⁻¹`; `rss`, `dof` of the fit), the larger of two
+    /// estimates: the pooled one, `inv · max(rss / dof, floor²)` where `floor²` is the mean of the
+    /// poses' own variances (many samples each: a floor under a residual of few degrees of
+    /// freedom that came out small by chance); and the heteroskedasticity-consistent sandwich
+    /// (HC2, MacKinnon & White 1985), each pose's squared residual over one minus its leverage
+    /// but at least its own variance, for poses of unequal noise (hand-held among a rig's
+    /// still ones) that one pooled variance averages away.
+    fn variances<const P: usize>(&self, p: &Params, inv: &[[f64; P]; P], rss: f64, dof: u32) -> [f64; P] {
+        let floor2 = self.sigma.iter().map(|s| (*s as f64) * (*s as f64)).sum::<f64>() / self.poses.len().max(1) as f64;
+        let pooled = (rss / dof.max(1) as f64).max(floor2);
+        let mut var = [0.0; P];
+        for (a, s) in self.poses.iter().zip(&self.sigma) {
+            let (r, jac) = residual(p, a, P == 6);
+            let s = *s as f64;
+            let t: [f64; P] = core::array::from_fn(|k| (0..P).map(|j| inv[k][j] * jac[j]).sum());
+            let h: f64 = (0..P).map(|k| jac[k] * t[k]).sum();
+            let w = (r * r / (1.0 - h).max(0.05)).max(s * s);
+            for (v, tk) in var.iter_mut().zip(t) {
+                *v += w * tk * tk;
+            }
+        }
+        core::array::from_fn(|k| var[k].max(inv[k][k] * pooled))
     }
 
     /// The calibration of the refined parameters `p` with the 1σ of its offsets (g) and diagonal
@@ -332,7 +368,7 @@ mod tests {
         let o = [0.02, -0.015, 0.03];
         let mut c = AccelCalibrator::new();
         for f in [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
-            c.add_pose(raw(&m, &o, f)).unwrap();
+            c.add_pose(raw(&m, &o, f), 0.0).unwrap();
         }
         let cal = c.solve6().unwrap();
         for i in 0..3 {
@@ -348,7 +384,7 @@ mod tests {
         let o = [0.02, -0.015, 0.03];
         let mut c = AccelCalibrator::new();
         for f in icosahedron() {
-            c.add_pose(raw(&m, &o, f)).unwrap();
+            c.add_pose(raw(&m, &o, f), 0.0).unwrap();
         }
         let cal = c.solve9().unwrap();
         for i in 0..3 {
@@ -363,7 +399,7 @@ mod tests {
     fn too_few_and_degenerate_poses_are_errors() {
         let mut c = AccelCalibrator::new();
         for f in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
-            c.add_pose(f).unwrap();
+            c.add_pose(f, 0.0).unwrap();
         }
         assert_eq!(c.solve6(), Err(Error::TooFewPoses { have: 3, need: 6 }));
         // Eight poses on one cone (a servo's): the ellipsoid is not determined.
@@ -371,8 +407,54 @@ mod tests {
         for k in 0..8 {
             let th = k as f64 * 0.7;
             let v = [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8];
-            c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32]).unwrap();
+            c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32], 0.0).unwrap();
         }
         assert!(matches!(c.solve6(), Err(Error::Singular | Error::IllConditioned { .. } | Error::AccelFitFailed)));
+    }
+
+    /// Fraction of the 9-parameter fit's offsets and diagonal gains within 1σ and 2σ over
+    /// `runs` sensors, each pose of `poses` given noise of 1σ `sigma(k)` (g) per axis on its mean.
+    fn coverage(poses: &[[f64; 3]], sigma: impl Fn(usize) -> f64, runs: usize) -> [f64; 2] {
+        let mut noise = crate::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
+        let (m, o) = ([[1.01, 0.002, -0.003], [0.0, 0.99, 0.001], [0.0, 0.0, 1.02]], [0.01, -0.02, 0.005]);
+        let mut within = [0u32; 2];
+        for _ in 0..runs {
+            let mut c = AccelCalibrator::new();
+            for (k, f) in poses.iter().enumerate() {
+                let a = raw(&m, &o, *f).map(|v| (v as f64 + sigma(k) * noise.next()) as f32);
+                c.add_pose(a, sigma(k) as f32).unwrap();
+            }
+            let cal = c.solve9().unwrap();
+            for i in 0..3 {
+                let errs = [(cal.offset_g[i] as f64 - o[i], cal.sigma_offset_g[i]), (cal.m[i][i] as f64 - m[i][i], cal.sigma_gain[i])];
+                for (e, s) in errs {
+                    within[0] += (e.abs() <= s as f64) as u32;
+                    within[1] += (e.abs() <= 2.0 * s as f64) as u32;
+                }
+            }
+        }
+        within.map(|n| n as f64 / (6 * runs) as f64)
+    }
+
+    #[test]
+    fn sigma_covers_the_error_with_three_spare_poses() {
+        // 12 poses for 9 unknowns: the residual alone, from 3 degrees of freedom, is often small
+        // by chance (without the poses' own noise as a floor: 64 % / 89 %; with it 76 % / 97 %).
+        let [one, two] = coverage(&icosahedron(), |_| 1e-4, 1500);
+        assert!((0.60..=0.80).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+    }
+
+    #[test]
+    fn sigma_covers_the_error_of_noisy_poses_among_still_ones() {
+        // 20 still rig poses round a cone and 12 hand-held ones ten times noisier: one pooled
+        // residual variance would be set by the still poses (without the sandwich: 50 % / 82 %;
+        // with it, each pose's variance at least its own noise: 75 % / 97 %).
+        let mut poses = [[0.0; 3]; 32];
+        for (k, p) in poses.iter_mut().enumerate() {
+            let th = k as f64 * core::f64::consts::TAU / 20.0;
+            *p = if k < 20 { [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8] } else { icosahedron()[k - 20] };
+        }
+        let [one, two] = coverage(&poses, |k| if k < 20 { 1e-5 } else { 1e-4 }, 1500);
+        assert!((0.60..=0.80).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 }

@@ -2,29 +2,38 @@
 
 use crate::Vec3;
 
-/// Running mean and per-axis variance of 3-vectors (Welford). O(1) state, numerically stable.
+/// Running mean and covariance of 3-vectors (Welford). O(1) state, numerically stable.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Welford3 {
     n: u32,
     mean: [f64; 3],
     m2: [f64; 3],
+    /// Co-moments of the axis pairs `CROSS`.
+    m2c: [f64; 3],
 }
+
+/// The axis pairs of the co-moments.
+const CROSS: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
 
 impl Welford3 {
     /// Empty.
     pub const fn new() -> Self {
-        Self { n: 0, mean: [0.0; 3], m2: [0.0; 3] }
+        Self { n: 0, mean: [0.0; 3], m2: [0.0; 3], m2c: [0.0; 3] }
     }
 
     /// Adds one vector (any unit; the statistics keep it).
     pub fn add(&mut self, v: Vec3) {
         self.n += 1;
         let n = self.n as f64;
-        for ((m, m2), &x) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(v.iter()) {
+        let mut d = [0.0; 3];
+        for (((m, m2), &x), d) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(v.iter()).zip(d.iter_mut()) {
             let x = x as f64;
-            let d = x - *m;
-            *m += d / n;
-            *m2 += d * (x - *m);
+            *d = x - *m;
+            *m += *d / n;
+            *m2 += *d * (x - *m);
+        }
+        for (c, (i, j)) in self.m2c.iter_mut().zip(CROSS) {
+            *c += d[i] * (v[j] as f64 - self.mean[j]);
         }
     }
 
@@ -35,10 +44,13 @@ impl Welford3 {
         }
         let (na, nb) = (self.n as f64, other.n as f64);
         let n = na + nb;
+        let d: [f64; 3] = core::array::from_fn(|k| other.mean[k] - self.mean[k]);
         for k in 0..3 {
-            let d = other.mean[k] - self.mean[k];
-            self.mean[k] += d * nb / n;
-            self.m2[k] += other.m2[k] + d * d * na * nb / n;
+            self.mean[k] += d[k] * nb / n;
+            self.m2[k] += other.m2[k] + d[k] * d[k] * na * nb / n;
+        }
+        for ((c, oc), (i, j)) in self.m2c.iter_mut().zip(other.m2c).zip(CROSS) {
+            *c += oc + d[i] * d[j] * na * nb / n;
         }
         self.n += other.n;
     }
@@ -71,6 +83,20 @@ impl Welford3 {
     /// Largest per-axis standard deviation of the mean, `max_std / √n`.
     pub fn max_std_of_mean(&self) -> f64 {
         self.max_std() / libm::sqrt(self.n.max(1) as f64)
+    }
+
+    /// Standard deviation of the mean along the mean's own direction, `√(uᵀ Σ u / n)` with
+    /// `u = mean / |mean|`: an accelerometer pose's noise in `|a|`, without the sway that only
+    /// turns gravity about. 0 for a zero mean or fewer than two vectors.
+    pub fn radial_std_of_mean(&self) -> f64 {
+        let norm = libm::sqrt(self.mean.iter().map(|m| m * m).sum::<f64>());
+        if self.n < 2 || !(norm > 0.0) {
+            return 0.0;
+        }
+        let u = self.mean.map(|m| m / norm);
+        let diag: f64 = (0..3).map(|k| u[k] * u[k] * self.m2[k]).sum();
+        let cross: f64 = self.m2c.iter().zip(CROSS).map(|(c, (i, j))| 2.0 * u[i] * u[j] * c).sum();
+        libm::sqrt(((diag + cross) / (self.n - 1) as f64).max(0.0) / self.n as f64)
     }
 }
 
@@ -149,6 +175,32 @@ mod tests {
             assert!((a.mean()[k] - all.mean()[k]).abs() < 1e-12 && (a.variance()[k] - all.variance()[k]).abs() < 1e-12);
         }
         assert_eq!(a.count(), 6);
+        assert!((a.radial_std_of_mean() - all.radial_std_of_mean()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn radial_std_is_the_spread_along_the_mean() {
+        // Unit vectors swayed by ±3° about a diagonal, with a little noise in length: the
+        // per-axis spread sees the sway, the radial one only the length.
+        let (mut w, mut v) = (Welford3::new(), [0.0f64; 40]);
+        let c = 1.0 / libm::sqrt(3.0);
+        let mut xs = [[0.0f32; 3]; 40];
+        for (k, x) in xs.iter_mut().enumerate() {
+            let (a, len) = (0.05 * libm::sin(k as f64 * 0.9), 1.0 + 1e-3 * libm::cos(k as f64 * 2.3));
+            let dir = [c * libm::cos(a) + c * libm::sin(a), c * libm::cos(a) - c * libm::sin(a), c];
+            let n = libm::sqrt(dir.iter().map(|d| d * d).sum::<f64>());
+            *x = dir.map(|d| (d / n * len) as f32);
+            w.add(*x);
+        }
+        let m = w.mean();
+        let mn = libm::sqrt(m.iter().map(|x| x * x).sum::<f64>());
+        for (vi, x) in v.iter_mut().zip(xs.iter()) {
+            *vi = (0..3).map(|k| x[k] as f64 * m[k] / mn).sum();
+        }
+        let s = Spread::of(v.iter().copied());
+        let expect = s.std as f64 / libm::sqrt(40.0);
+        assert!((w.radial_std_of_mean() - expect).abs() < 1e-3 * expect, "{} vs {expect}", w.radial_std_of_mean());
+        assert!(w.max_std_of_mean() > 10.0 * w.radial_std_of_mean());
     }
 
     #[test]

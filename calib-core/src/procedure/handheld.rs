@@ -39,13 +39,13 @@ impl Procedure {
         if !distinct {
             return;
         }
-        if let Err(e) = self.accel_poses.add_pose(a) {
+        let sigma = capture.accel.radial_std_of_mean() as f32;
+        if let Err(e) = self.accel_poses.add_pose(a, sigma) {
             return self.fail(e);
         }
         let index = (self.accel_poses.len() - 1) as u8;
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
-        let sigma = capture.accel.max_std_of_mean() as f32;
         let (bias, predicted) = self.hand_rest(capture);
         let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
         let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32 };

@@ -206,7 +206,7 @@ pub(super) const HAND_HELD_STAGE: &str = "full K from the moves between hand-hel
 fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, usize), OfflineError> {
     let mut acc = AccelCalibrator::new();
     for s in log.ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
-        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
+        if acc.add_pose(s.accel.mean().map(|v| v as f32), s.accel.radial_std_of_mean() as f32).is_err() {
             break;
         }
     }
