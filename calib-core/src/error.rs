@@ -59,8 +59,10 @@ pub enum Error {
     Saturated,
     /// The calibration result failed validation (scale out of range or too uncertain).
     ResultRejected { axis: u8, k: f32, sigma: f32 },
-    /// A scale factor is known only to `sigma` (1σ), above the accepted `limit`.
-    TooUncertain { axis: u8, k: f32, sigma: f32, limit: f32 },
+    /// A scale factor is known only to `sigma` (1σ), above the accepted `limit`; `noise_ratio`:
+    /// the fit's weighted residual (≈ 1 when the moves agree within their noise; NaN unknown),
+    /// which tells disagreeing moves from too few of them about this axis.
+    TooUncertain { axis: u8, k: f32, sigma: f32, limit: f32, noise_ratio: f32 },
     /// The record could not be stored; the previous one is kept.
     Storage(StoreError),
     /// The shell did not drain the command queue: a command would have been lost.
@@ -99,6 +101,9 @@ pub enum Error {
     /// `limit`.
     MovesDropped { dropped: u8, total: u8, reason: crate::rotation::Rejected, value: f32, limit: f32 },
 }
+
+/// A fit's weighted residual above which its moves disagree (rather than agree, but too few).
+const DISAGREE_RATIO: f32 = 2.0;
 
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -158,10 +163,27 @@ impl fmt::Display for Error {
                 f,
                 "result rejected: axis {} scale {k} (1 sigma {sigma}) outside the accepted range",
                 ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4)),
-            Error::TooUncertain { axis, k, sigma, limit } => write!(
-                f,
-                "result rejected: axis {} scale {k} is known only to 1 sigma {sigma} (limit {limit}): the moves disagree by more than their noise; make more moves, about varied axes, and hold each pose still",
-                ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4), limit = Fixed(limit as f64, 4)),
+            Error::TooUncertain { axis, k, sigma, limit, noise_ratio } => {
+                let name = ["x", "y", "z"][axis as usize % 3];
+                write!(
+                    f,
+                    "result rejected: axis {name} scale {k} is known only to 1 sigma {sigma} (limit {limit}): ",
+                    k = Fixed(k as f64, 4),
+                    sigma = Fixed(sigma as f64, 4),
+                    limit = Fixed(limit as f64, 4)
+                )?;
+                if noise_ratio > DISAGREE_RATIO {
+                    write!(f, "the moves disagree by {} times their noise; hold each pose still and make more moves", Fixed(noise_ratio as f64, 1))
+                } else if noise_ratio >= 0.0 {
+                    write!(
+                        f,
+                        "the moves agree within their noise ({} times it) but turn too little about {name}: make more moves about axes near {name}",
+                        Fixed(noise_ratio as f64, 1)
+                    )
+                } else {
+                    f.write_str("make more moves, about varied axes, and hold each pose still")
+                }
+            }
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::SamplesLost { count } => write!(

@@ -56,14 +56,15 @@ pub fn choose(sweep: Result<GyroCal, Error>, paper: Option<Result<GyroCal, Error
     }
 }
 
-/// A scale factor `k` of axis `i` with its 1σ: outside the accepted range it is
+/// A scale factor `k` of axis `i` with its 1σ and the fit's weighted residual `noise_ratio`
+/// (NaN when the estimator has none): outside the accepted range it is
 /// [`Error::ResultRejected`], too uncertain [`Error::TooUncertain`].
-fn check_scale(i: usize, k: f32, sigma: f32, acc: &Acceptance) -> Result<(), Error> {
+fn check_scale(i: usize, k: f32, sigma: f32, noise_ratio: f32, acc: &Acceptance) -> Result<(), Error> {
     if !(k >= acc.k_min && k <= acc.k_max) {
         return Err(Error::ResultRejected { axis: i as u8, k, sigma });
     }
     if !(sigma <= acc.max_sigma_k) {
-        return Err(Error::TooUncertain { axis: i as u8, k, sigma, limit: acc.max_sigma_k });
+        return Err(Error::TooUncertain { axis: i as u8, k, sigma, limit: acc.max_sigma_k, noise_ratio });
     }
     Ok(())
 }
@@ -71,7 +72,7 @@ fn check_scale(i: usize, k: f32, sigma: f32, acc: &Acceptance) -> Result<(), Err
 /// Rejects a result whose scale factors are implausible or too uncertain.
 pub fn validate(cal: &GyroCal, acc: &Acceptance) -> Result<(), Error> {
     for i in 0..3 {
-        check_scale(i, cal.k[i][i], cal.quality.sigma_k[i], acc)?;
+        check_scale(i, cal.k[i][i], cal.quality.sigma_k[i], f32::NAN, acc)?;
     }
     Ok(())
 }
@@ -132,7 +133,7 @@ pub const MAX_CROSS_AXIS: f32 = 0.1;
 /// terms are implausible.
 pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
     for i in 0..3 {
-        check_scale(i, cal.k[i][i], cal.sigma_k[i][i], acc)?;
+        check_scale(i, cal.k[i][i], cal.sigma_k[i][i], cal.noise_ratio, acc)?;
         for j in (0..3).filter(|&j| j != i) {
             if !(cal.k[i][j].abs() <= MAX_CROSS_AXIS) {
                 return Err(Error::ResultRejected { axis: i as u8, k: cal.k[i][j], sigma: cal.sigma_k[i][j] });
@@ -264,6 +265,28 @@ mod tests {
     use super::*;
     use crate::accel::AccelModel;
     use crate::bias::RestBias;
+
+    #[test]
+    fn a_too_uncertain_scale_names_disagreeing_moves_apart_from_too_few() {
+        use core::fmt::Write;
+        let acc = crate::procedure::Config::DEFAULT.acceptance;
+        let text = |ratio: f32| {
+            let e = check_scale(1, 1.0057, 0.0051, ratio, &acc).unwrap_err();
+            let mut s = heapless::String::<400>::new();
+            write!(s, "{e}").unwrap();
+            s
+        };
+        assert!(check_scale(1, 1.0057, 0.0049, 15.0, &acc).is_ok());
+        let disagree = text(15.2);
+        assert!(
+            disagree.contains("known only to 1 sigma 0.0051 (limit 0.0050)") && disagree.contains("disagree by 15.2 times their noise"),
+            "{disagree}"
+        );
+        let few = text(0.9);
+        assert!(few.contains("agree within their noise (0.9 times it) but turn too little about y") && !few.contains("disagree"), "{few}");
+        let unknown = text(f32::NAN);
+        assert!(!unknown.contains("disagree") && unknown.contains("about varied axes"), "{unknown}");
+    }
 
     #[test]
     fn moves_that_disagree_are_blamed_on_the_bias_only_when_it_left_its_trend() {
