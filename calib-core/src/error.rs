@@ -63,6 +63,15 @@ pub enum Error {
     /// the fit's weighted residual (≈ 1 when the moves agree within their noise; NaN unknown),
     /// which tells disagreeing moves from too few of them about this axis.
     TooUncertain { axis: u8, k: f32, sigma: f32, limit: f32, noise_ratio: f32 },
+    /// The magnetometer's samples fit no ellipsoid (a quadric that is not one).
+    MagFitFailed,
+    /// A still pose's field strength or dip differs from the others': a magnet, a laptop or a
+    /// servo near the board.
+    MagDisturbed { pose: u8, field_ut: f32, expected_ut: f32, dip_deg: f32, expected_dip_deg: f32 },
+    /// The calibrated field's strength scatters by `residual_ut` RMS (µT), above `limit_ut`.
+    MagFitPoor { residual_ut: f32, limit_ut: f32 },
+    /// The samples reach only `coverage` of the sphere's directions, below `need`.
+    MagCoverageThin { coverage: f32, need: f32 },
     /// The record could not be stored; the previous one is kept.
     Storage(StoreError),
     /// The shell did not drain the command queue: a command would have been lost.
@@ -184,6 +193,27 @@ impl fmt::Display for Error {
                     f.write_str("make more moves, about varied axes, and hold each pose still")
                 }
             }
+            Error::MagFitFailed => f.write_str("magnetometer: the samples fit no ellipsoid: turn the board through every direction, away from magnets"),
+            Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => write!(
+                f,
+                "magnetometer: the field at pose {pose} is {field} uT at dip {dip} deg, the others' {expected} uT at {expected_dip} deg: a magnet, a laptop or the servo near the board; calibrate it away from them",
+                field = Fixed(field_ut as f64, 1),
+                dip = Fixed(dip_deg as f64, 1),
+                expected = Fixed(expected_ut as f64, 1),
+                expected_dip = Fixed(expected_dip_deg as f64, 1)
+            ),
+            Error::MagFitPoor { residual_ut, limit_ut } => write!(
+                f,
+                "magnetometer: the calibrated field's strength scatters by {} uT RMS (limit {}): the field changed during the step (a magnet or metal moving near it)",
+                Fixed(residual_ut as f64, 2),
+                Fixed(limit_ut as f64, 2)
+            ),
+            Error::MagCoverageThin { coverage, need } => write!(
+                f,
+                "magnetometer: the samples reach {} % of the sphere's directions (need {} %): turn the board through more orientations",
+                Fixed(coverage as f64 * 100.0, 0),
+                Fixed(need as f64 * 100.0, 0)
+            ),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::SamplesLost { count } => write!(

@@ -59,6 +59,7 @@ pub mod gyro;
 mod linalg;
 pub mod log;
 pub mod lsq;
+pub mod mag;
 pub mod paper;
 pub mod pipeline;
 pub mod procedure;

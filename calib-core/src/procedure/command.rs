@@ -78,6 +78,10 @@ impl ErrorClass {
             | Error::AccelFitFailed
             | Error::ResultRejected { .. }
             | Error::TooUncertain { .. }
+            | Error::MagFitFailed
+            | Error::MagDisturbed { .. }
+            | Error::MagFitPoor { .. }
+            | Error::MagCoverageThin { .. }
             | Error::CommandQueueFull
             | Error::ResultNotFinite
             | Error::MovesInconsistent { .. } => ErrorClass::Result,

@@ -1,0 +1,415 @@
+//! Magnetometer calibration (DESIGN §4.8): `m = A (m_raw − o)` (µT) in the calibrated
+//! accelerometer's frame, from the hand-held step only (a servo's motor magnet moves with the
+//! shaft: the rig's samples never enter).
+//!
+//! 1. Hard and soft iron: an ellipsoid (quadric) fit of raw samples spread over the sphere gives
+//!    the offset `o` and a symmetric `A_s` with `|A_s (m_raw − o)| = B`, the field strength
+//!    (µT: `A_s` keeps the raw scale's geometric mean).
+//! 2. Alignment: `A = R A_s`, `R` the small rotation of the magnetometer's die against the
+//!    accelerometer, from the seed paper's invariant applied to the field: at every still pose
+//!    the angle between gravity and the field is the same, `f̂ᵢ · R ûᵢ = −sin(dip)`, linear in
+//!    `R`'s angles for a small rotation (two Gauss–Newton steps).
+
+use crate::linalg::sym_eigen;
+use crate::lsq::NormalEquations;
+use crate::{Error, Mat3, Vec3};
+use nalgebra::{Matrix3, Vector3};
+
+/// Raw samples kept for the ellipsoid (thinned: each at least [`MIN_SPACING_UT`] from the
+/// previous one kept).
+pub const MAX_MAG_SAMPLES: usize = 192;
+/// Still poses kept for the alignment.
+pub const MAX_MAG_POSES: usize = 32;
+/// Distance (µT) from the last kept sample below which a raw sample adds nothing new.
+pub const MIN_SPACING_UT: f32 = 5.0;
+/// Samples the ellipsoid needs (9 unknowns, with room to spare).
+pub const MIN_SAMPLES: usize = 30;
+/// Poses the alignment needs (4 unknowns).
+pub const MIN_POSES: usize = 6;
+/// Directions of the sphere ([`COVERAGE_BINS`] cells) the samples must reach.
+pub const MIN_COVERAGE: f32 = 0.6;
+/// Sphere cells of the coverage figure: the faces of an icosahedron (nearest face centre).
+pub const COVERAGE_BINS: usize = 20;
+
+/// Limits of a magnetometer calibration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MagLimits {
+    /// Largest deviation of a pose's field strength from the fit's (µT).
+    pub max_field_dev_ut: f32,
+    /// Largest deviation of a pose's dip from the mean dip (°).
+    pub max_dip_dev_deg: f32,
+    /// Largest RMS of `|m| − B` over the samples (µT).
+    pub max_residual_ut: f32,
+}
+
+impl Default for MagLimits {
+    /// A few µT and degrees: a room's field varies by less across a hand's reach; a magnet, a
+    /// laptop or a servo within 10 cm adds more.
+    fn default() -> Self {
+        Self { max_field_dev_ut: 3.0, max_dip_dev_deg: 3.0, max_residual_ut: 2.0 }
+    }
+}
+
+/// A magnetometer calibration `m = A (m_raw − o)` (µT, the calibrated accelerometer's frame)
+/// with its quality.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct MagCal {
+    /// Soft iron, scale and alignment `A` (row-major).
+    pub a: Mat3,
+    /// Hard iron and the part's offset `o` (µT, raw frame).
+    pub offset_ut: Vec3,
+    /// Field strength `B` (µT) and its 1σ.
+    pub field_ut: f32,
+    /// 1σ of the field strength (µT): the poses' scatter over √n.
+    pub sigma_field_ut: f32,
+    /// Dip (inclination, °, positive: the field points below the horizon) and its 1σ.
+    pub dip_deg: f32,
+    /// 1σ of the dip (°).
+    pub sigma_dip_deg: f32,
+    /// Angle of the die's rotation `R` found against the accelerometer (°) and its 1σ.
+    pub alignment_deg: f32,
+    /// 1σ of the alignment, largest over its three angles (°).
+    pub sigma_alignment_deg: f32,
+    /// RMS of `|m| − B` over the samples (µT).
+    pub residual_ut: f32,
+    /// Fraction of the sphere's [`COVERAGE_BINS`] cells the calibrated samples reach.
+    pub coverage: f32,
+    /// Samples in the ellipsoid fit.
+    pub samples: u16,
+    /// Still poses in the alignment.
+    pub poses: u8,
+}
+
+impl MagCal {
+    /// Calibrated field (µT) from a raw reading (µT).
+    pub fn apply(&self, m_raw: Vec3) -> Vec3 {
+        let d = [m_raw[0] - self.offset_ut[0], m_raw[1] - self.offset_ut[1], m_raw[2] - self.offset_ut[2]];
+        core::array::from_fn(|i| self.a[i][0] * d[0] + self.a[i][1] * d[1] + self.a[i][2] * d[2])
+    }
+}
+
+/// Raw magnetometer samples and still poses of the hand-held step, fitted at the end.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MagCalibrator {
+    samples: heapless::Vec<[f32; 3], MAX_MAG_SAMPLES>,
+    /// Per pose: gravity's direction (calibrated accelerometer, unit) and the raw field mean (µT).
+    poses: heapless::Vec<([f32; 3], [f32; 3]), MAX_MAG_POSES>,
+    /// Samples offered (kept or thinned out).
+    offered: u32,
+}
+
+impl MagCalibrator {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self { samples: heapless::Vec::new(), poses: heapless::Vec::new(), offered: 0 }
+    }
+
+    /// Offers one raw reading (µT); kept when it is [`MIN_SPACING_UT`] from the last one kept
+    /// and there is room. Non-finite readings are refused.
+    pub fn add_sample(&mut self, m_raw: Vec3) -> Result<(), Error> {
+        if !m_raw.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        self.offered += 1;
+        let far = self.samples.last().is_none_or(|l| dist(l, &m_raw) >= MIN_SPACING_UT);
+        if far {
+            let _ = self.samples.push(m_raw);
+        }
+        Ok(())
+    }
+
+    /// Adds a still pose: gravity's direction from the calibrated accelerometer (any length) and
+    /// the raw field averaged over the same window (µT).
+    pub fn add_pose(&mut self, f: Vec3, m_raw: Vec3) -> Result<(), Error> {
+        if !f.iter().chain(m_raw.iter()).all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        self.poses.push((f, m_raw)).map_err(|_| Error::CapacityExceeded { max: MAX_MAG_POSES as u8 })
+    }
+
+    /// Samples kept for the ellipsoid.
+    pub fn samples(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// Still poses kept.
+    pub fn poses(&self) -> usize {
+        self.poses.len()
+    }
+
+    /// The ellipsoid alone (`A` symmetric, no alignment): what the usual tools fit.
+    pub fn fit_ellipsoid(&self) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
+        if self.samples.len() < MIN_SAMPLES {
+            return Err(Error::TooFewSamples { have: self.samples.len() as u32, need: MIN_SAMPLES as u32 });
+        }
+        // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
+        let c = self.samples.iter().fold(Vector3::zeros(), |s, m| s + v64(m)) / self.samples.len() as f64;
+        let mut ne = NormalEquations::<9>::new();
+        for m in &self.samples {
+            let p = (v64(m) - c) / 50.0;
+            let (x, y, z) = (p[0], p[1], p[2]);
+            ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
+        }
+        let q = ne.solve()?.x;
+        let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
+        let inv = shape.try_inverse().ok_or(Error::Singular)?;
+        let centre = -0.5 * inv * Vector3::new(q[6], q[7], q[8]);
+        let s = 1.0 + centre.dot(&(shape * centre));
+        if !(s > 0.0) {
+            return Err(Error::MagFitFailed);
+        }
+        let p = shape / s;
+        let (vals, vecs) =
+            sym_eigen(&[[p[(0, 0)], p[(0, 1)], p[(0, 2)]], [p[(1, 0)], p[(1, 1)], p[(1, 2)]], [p[(2, 0)], p[(2, 1)], p[(2, 2)]]]);
+        if !vals.iter().all(|v| *v > 0.0) {
+            return Err(Error::MagFitFailed);
+        }
+        // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
+        let v = Matrix3::from_fn(|r, k| vecs[r][k]);
+        let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
+        let field = 50.0 * libm::pow(vals[0] * vals[1] * vals[2], -1.0 / 6.0);
+        let a_s = sqrt * (field / 50.0);
+        Ok((a_s, c + centre * 50.0, field))
+    }
+
+    /// The calibration: ellipsoid, alignment, quality and the checks of `limits`.
+    pub fn solve(&self, limits: &MagLimits) -> Result<MagCal, Error> {
+        let (a_s, o, field) = self.fit_ellipsoid()?;
+        if self.poses.len() < MIN_POSES {
+            return Err(Error::TooFewPoses { have: self.poses.len() as u8, need: MIN_POSES as u8 });
+        }
+        let unit = |p: &([f32; 3], [f32; 3])| (v64(&p.0).normalize(), (a_s * (v64(&p.1) - o)).normalize());
+        // f̂ · (I + [θ]×) û = c: f̂·û + θ·(û × f̂) = c, re-linearised about the last R.
+        let mut r = Matrix3::identity();
+        let mut sol = None;
+        for _ in 0..3 {
+            let mut ne = NormalEquations::<4>::new();
+            for p in &self.poses {
+                let (f, u) = unit(p);
+                let u = r * u;
+                let x = u.cross(&f);
+                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
+            }
+            let s = ne.solve()?;
+            let theta = Vector3::new(s.x[0], s.x[1], s.x[2]);
+            r = nalgebra::Rotation3::new(theta).into_inner() * r;
+            sol = Some(s);
+        }
+        let sol = sol.ok_or(Error::MagFitFailed)?;
+        let a = r * a_s;
+        let c = sol.x[3];
+        let dip = libm::asin((-c).clamp(-1.0, 1.0));
+        let sigma_dip = sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6));
+        let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max);
+        let angle = nalgebra::Rotation3::from_matrix_unchecked(r).angle();
+        // Per pose: field strength and dip against the fit's.
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for (i, p) in self.poses.iter().enumerate() {
+            let (f, m) = (v64(&p.0).normalize(), a * (v64(&p.1) - o));
+            let b = m.norm();
+            let pose_dip = libm::asin((-f.dot(&m) / b).clamp(-1.0, 1.0));
+            let (db, dd) = (b - field, (pose_dip - dip).to_degrees());
+            if !(db.abs() <= limits.max_field_dev_ut as f64 && dd.abs() <= limits.max_dip_dev_deg as f64) {
+                return Err(Error::MagDisturbed {
+                    pose: i as u8,
+                    field_ut: b as f32,
+                    expected_ut: field as f32,
+                    dip_deg: pose_dip.to_degrees() as f32,
+                    expected_dip_deg: dip.to_degrees() as f32,
+                });
+            }
+            sum += b;
+            sum2 += b * b;
+        }
+        let n = self.poses.len() as f64;
+        let sigma_field = libm::sqrt(((sum2 - sum * sum / n) / (n - 1.0)).max(0.0) / n);
+        let mut bins = 0u32;
+        let mut rss = 0.0;
+        for m in &self.samples {
+            let v = a * (v64(m) - o);
+            rss += (v.norm() - field) * (v.norm() - field);
+            bins |= 1 << face(&v);
+        }
+        let residual = libm::sqrt(rss / self.samples.len() as f64);
+        let coverage = bins.count_ones() as f32 / COVERAGE_BINS as f32;
+        if !(residual <= limits.max_residual_ut as f64) {
+            return Err(Error::MagFitPoor { residual_ut: residual as f32, limit_ut: limits.max_residual_ut });
+        }
+        if !(coverage >= MIN_COVERAGE) {
+            return Err(Error::MagCoverageThin { coverage, need: MIN_COVERAGE });
+        }
+        Ok(MagCal {
+            a: core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)),
+            offset_ut: [o[0] as f32, o[1] as f32, o[2] as f32],
+            field_ut: field as f32,
+            sigma_field_ut: sigma_field as f32,
+            dip_deg: dip.to_degrees() as f32,
+            sigma_dip_deg: sigma_dip.to_degrees() as f32,
+            alignment_deg: angle.to_degrees() as f32,
+            sigma_alignment_deg: sigma_align.to_degrees() as f32,
+            residual_ut: residual as f32,
+            coverage,
+            samples: self.samples.len() as u16,
+            poses: self.poses.len() as u8,
+        })
+    }
+}
+
+/// Tilt-compensated heading (°, 0..360, clockwise from magnetic north seen from above) of the
+/// body's x axis, from the specific force `f` (g, up) and the field `m` (µT), both in the body
+/// frame. `None` when the field is parallel to gravity.
+pub fn heading_deg(f: Vector3<f64>, m: Vector3<f64>) -> Option<f64> {
+    let up = f.try_normalize(1e-9)?;
+    let north = (m - up * m.dot(&up)).try_normalize(1e-9)?;
+    let east = north.cross(&up);
+    let h = libm::atan2(east[0], north[0]).to_degrees();
+    Some(if h < 0.0 { h + 360.0 } else { h })
+}
+
+fn v64(v: &[f32; 3]) -> Vector3<f64> {
+    Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+}
+
+fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    libm::sqrtf((0..3).map(|i| (a[i] - b[i]) * (a[i] - b[i])).sum())
+}
+
+/// The icosahedron face (0..20) nearest to direction `v`: the face centres are the dodecahedron's
+/// vertices, `(±1, ±1, ±1)` and the cyclic permutations of `(0, ±1/φ, ±φ)`.
+fn face(v: &Vector3<f64>) -> u32 {
+    let (phi, iphi) = (1.618_033_988_749_895, 0.618_033_988_749_895);
+    let sign = |s: u32, bit: u32| if s & (1 << bit) != 0 { -1.0 } else { 1.0 };
+    let mut centres = [[0.0f64; 3]; COVERAGE_BINS];
+    for s in 0..8 {
+        centres[s as usize] = [sign(s, 0), sign(s, 1), sign(s, 2)];
+    }
+    for s in 0..4u32 {
+        let (a, b) = (sign(s, 0) * iphi, sign(s, 1) * phi);
+        let k = 8 + 3 * s as usize;
+        (centres[k], centres[k + 1], centres[k + 2]) = ([0.0, a, b], [a, b, 0.0], [b, 0.0, a]);
+    }
+    // Every centre has length √3: the largest dot product is the nearest centre.
+    let dot = |c: &[f64; 3]| c[0] * v[0] + c[1] * v[1] + c[2] * v[2];
+    (0..COVERAGE_BINS).fold(0, |best, k| if dot(&centres[k]) > dot(&centres[best]) { k } else { best }) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_noise::Gaussian;
+    use nalgebra::{Rotation3, UnitQuaternion};
+
+    /// A magnetometer: `m_raw = S b_B + h`, `S` soft iron times a 1.5° die rotation.
+    struct Part {
+        s: Matrix3<f64>,
+        h: Vector3<f64>,
+        field_w: Vector3<f64>,
+    }
+
+    impl Part {
+        fn new() -> Self {
+            let soft = Matrix3::new(1.04, 0.02, -0.01, 0.02, 0.97, 0.015, -0.01, 0.015, 1.01);
+            let die = Rotation3::new(Vector3::new(0.8, -1.0, 0.6).normalize() * 1.5f64.to_radians()).into_inner();
+            let dip = 62f64.to_radians();
+            Self { s: soft * die, h: Vector3::new(20.0, -35.0, 12.0), field_w: Vector3::new(libm::cos(dip), 0.0, -libm::sin(dip)) * 48.0 }
+        }
+
+        /// (specific force in B (g), raw field (µT)) at attitude `q` (body → world, z up).
+        fn read(&self, q: &UnitQuaternion<f64>, noise: &mut Gaussian, sigma_ut: f64) -> (Vector3<f64>, [f32; 3]) {
+            let m = self.s * (q.inverse() * self.field_w) + self.h + Vector3::from_fn(|_, _| sigma_ut * noise.next());
+            (q.inverse() * Vector3::z(), [m[0] as f32, m[1] as f32, m[2] as f32])
+        }
+    }
+
+    fn random_attitude(g: &mut Gaussian) -> UnitQuaternion<f64> {
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(g.next(), g.next(), g.next(), g.next()))
+    }
+
+    /// A hand-held step: 12 poses, held 40 samples each, and 30 samples along each move between.
+    fn session(part: &Part, disturb_pose: Option<usize>) -> MagCalibrator {
+        let mut g = Gaussian::new(0x5eed_1234_abcd_0001);
+        let mut c = MagCalibrator::new();
+        let poses: [UnitQuaternion<f64>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
+        for (i, q) in poses.iter().enumerate() {
+            let extra = if disturb_pose == Some(i) { Vector3::new(8.0, 0.0, 0.0) } else { Vector3::zeros() };
+            let (mut fsum, mut msum) = (Vector3::zeros(), Vector3::zeros());
+            for _ in 0..40 {
+                let (f, m) = part.read(q, &mut g, 0.3);
+                let m = v64(&m) + extra;
+                c.add_sample([m[0] as f32, m[1] as f32, m[2] as f32]).unwrap();
+                (fsum, msum) = (fsum + f, msum + m);
+            }
+            let (f, m) = (fsum / 40.0, msum / 40.0);
+            c.add_pose([f[0] as f32, f[1] as f32, f[2] as f32], [m[0] as f32, m[1] as f32, m[2] as f32]).unwrap();
+            if let Some(next) = poses.get(i + 1) {
+                for k in 0..30 {
+                    let (_, m) = part.read(&q.slerp(next, k as f64 / 30.0), &mut g, 0.3);
+                    c.add_sample(m).unwrap();
+                }
+            }
+        }
+        c
+    }
+
+    /// (RMS, largest) tilt-compensated heading error (°) over random attitudes of field `a`,
+    /// offset `o` against the truth.
+    fn heading_error(part: &Part, a: &Matrix3<f64>, o: &Vector3<f64>) -> (f64, f64) {
+        let mut g = Gaussian::new(0x0dd_ba11);
+        let (mut ss, mut max) = (0.0, 0.0f64);
+        for _ in 0..500 {
+            let q = random_attitude(&mut g);
+            let (f, m) = part.read(&q, &mut g, 0.0);
+            let truth = heading_deg(f, q.inverse() * part.field_w).unwrap();
+            let est = heading_deg(f, a * (v64(&m) - o)).unwrap();
+            let e = (est - truth + 540.0) % 360.0 - 180.0;
+            ss += e * e;
+            max = max.max(e.abs());
+        }
+        (libm::sqrt(ss / 500.0), max)
+    }
+
+    #[test]
+    fn hard_soft_iron_and_the_die_rotation_are_found() {
+        let part = Part::new();
+        let c = session(&part, None);
+        let cal = c.solve(&MagLimits::default()).unwrap();
+        let a = Matrix3::from_fn(|i, j| cal.a[i][j] as f64);
+        let o = v64(&cal.offset_ut);
+        assert!((o - part.h).norm() < 0.3, "offset {o} vs {}", part.h);
+        assert!((cal.field_ut - 48.0 * 1.0).abs() < 1.5, "{cal:?}");
+        assert!((cal.dip_deg - 62.0).abs() < 3.0 * cal.sigma_dip_deg.max(0.05), "{cal:?}");
+        assert!((cal.alignment_deg - 1.5).abs() < 0.5 && cal.coverage >= 0.6, "{cal:?}");
+        let (rms, max) = heading_error(&part, &a, &o);
+        let (a_s, o_s, _) = c.fit_ellipsoid().unwrap();
+        let (rms_s, max_s) = heading_error(&part, &a_s, &o_s);
+        assert!(rms < 0.3 && max < 1.0, "aligned: {rms:.3} RMS, {max:.3} max (ellipsoid only {rms_s:.3}, {max_s:.3})");
+        assert!(rms_s > 3.0 * rms, "the ellipsoid alone leaves the die's rotation: {rms_s:.3} vs {rms:.3}");
+    }
+
+    #[test]
+    fn a_magnet_near_one_pose_is_named() {
+        let e = session(&Part::new(), Some(5)).solve(&MagLimits::default()).unwrap_err();
+        assert!(matches!(e, Error::MagDisturbed { pose: 5, .. }), "{e:?}");
+    }
+
+    #[test]
+    fn thin_coverage_and_too_few_samples_are_named() {
+        let part = Part::new();
+        let mut g = Gaussian::new(7);
+        let mut c = MagCalibrator::new();
+        assert!(matches!(c.solve(&MagLimits::default()), Err(Error::TooFewSamples { have: 0, .. })));
+        // Turns about one vertical axis only: a ring, not a sphere.
+        for k in 0..200 {
+            let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as f64 * 0.05);
+            let (f, m) = part.read(&q, &mut g, 0.3);
+            c.add_sample(m).unwrap();
+            if k % 30 == 0 {
+                c.add_pose([f[0] as f32, f[1] as f32, f[2] as f32], m).unwrap();
+            }
+        }
+        let e = c.solve(&MagLimits::default()).unwrap_err();
+        assert!(matches!(e, Error::Singular | Error::IllConditioned { .. } | Error::MagFitFailed | Error::MagCoverageThin { .. }), "{e:?}");
+    }
+}
