@@ -212,7 +212,7 @@ impl Console {
 
     #[inline(never)]
     pub(crate) fn raw_row(&mut self, s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-        let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
+        let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
         let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
         if calib_core::log::write_row(&mut line, &row).is_ok() {
             self.raw(&line);

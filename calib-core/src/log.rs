@@ -5,6 +5,8 @@
 //! - `t_s`: MCU timestamp (s); `a*_g`: raw accelerometer (g); `g*_dps`: raw gyro (°/s);
 //!   `servo_deg`, `tilt_deg`: the commanded rotation and tilt servo angles (°), empty while that
 //!   servo is not commanded. Rows with both empty are hand-held.
+//! - Optional `mx_ut,my_ut,mz_ut` ([`MAG_COLUMNS`], all three or none): the raw magnetometer
+//!   (µT, in the accelerometer's axes), empty on rows without a new reading.
 //! - Lines starting with `#` are comments. Lines before the header are ignored (a logger's
 //!   preamble); [`END`] ends the data (what follows is ignored). After the header, a line whose
 //!   first character cannot start a number is a log message (the firmware's other log lines in
@@ -25,8 +27,10 @@ pub const END: &str = "# end of raw log";
 pub const SETUP: &str = "# sensor setup:";
 /// Column names, in the order written.
 pub const COLUMNS: [&str; 9] = ["t_s", "ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "servo_deg", "tilt_deg"];
-/// Longest row [`write_row`] writes (bytes, without the newline).
-pub const MAX_ROW: usize = 128;
+/// The optional magnetometer columns, written after [`COLUMNS`] by [`write_mag`].
+pub const MAG_COLUMNS: [&str; 3] = ["mx_ut", "my_ut", "mz_ut"];
+/// Longest row [`write_row`] and [`write_mag`] write (bytes, without the newline).
+pub const MAX_ROW: usize = 160;
 
 /// One IMU sample of a log.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -41,10 +45,14 @@ pub struct Row {
     pub servo_deg: Option<f32>,
     /// Commanded tilt-servo angle (°); `None` without a tilt servo (or no column).
     pub tilt_deg: Option<f32>,
+    /// Raw magnetometer (µT, accelerometer axes); `None` without a new reading (or no columns).
+    pub mag_ut: Option<[f32; 3]>,
 }
 
 /// Decimals written per column group: time, accelerometer, gyro, servo angles.
 const DECIMALS: (u32, u32, u32, u32) = (6, 6, 5, 2);
+/// Decimals of the magnetometer (1 nT).
+const MAG_DECIMALS: u32 = 3;
 
 /// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
 /// written as `nan`, which the parser rejects. Digits by hand: no `core::fmt` number code.
@@ -112,6 +120,18 @@ pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
         w.write_char(',')?;
         if let Some(s) = s {
             fixed(w, s as f64, ds)?;
+        }
+    }
+    Ok(())
+}
+
+/// Writes the three magnetometer fields of a row after [`write_row`] (empty without a reading),
+/// for a log whose header ends with [`MAG_COLUMNS`].
+pub fn write_mag(w: &mut impl Write, mag_ut: Option<[f32; 3]>) -> fmt::Result {
+    for k in 0..3 {
+        w.write_char(',')?;
+        if let Some(m) = mag_ut {
+            fixed(w, m[k] as f64, MAG_DECIMALS)?;
         }
     }
     Ok(())
@@ -224,6 +244,8 @@ pub struct Columns {
     idx: [usize; 8],
     /// Field index of `tilt_deg`, if present.
     tilt: Option<usize>,
+    /// Field indices of [`MAG_COLUMNS`], if present.
+    mag: Option<[usize; 3]>,
     /// Fields in the header.
     count: usize,
 }
@@ -232,6 +254,11 @@ impl Columns {
     /// Whether the header has `tilt_deg`.
     pub fn has_tilt(&self) -> bool {
         self.tilt.is_some()
+    }
+
+    /// Whether the header has the magnetometer's columns.
+    pub fn has_mag(&self) -> bool {
+        self.mag.is_some()
     }
 }
 
@@ -247,7 +274,13 @@ pub fn parse_header(line: &str) -> Result<Columns, LogError> {
         *slot = line.split(',').position(|n| n.trim() == name).ok_or(LogError::MissingColumn(name))?;
     }
     let tilt = line.split(',').position(|n| n.trim() == COLUMNS[8]);
-    Ok(Columns { idx, tilt, count: line.split(',').count() })
+    let find = |name: &str| line.split(',').position(|n| n.trim() == name);
+    let mag = match MAG_COLUMNS.map(find) {
+        [Some(x), Some(y), Some(z)] => Some([x, y, z]),
+        [None, None, None] => None,
+        found => return Err(LogError::MissingColumn(MAG_COLUMNS[found.iter().position(Option::is_none).unwrap_or(0)])),
+    };
+    Ok(Columns { idx, tilt, mag, count: line.split(',').count() })
 }
 
 /// Reads a data row (line number `line` for errors).
@@ -279,12 +312,26 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
             num(c).map(|v| Some(v as f32))
         }
     };
+    let mag_ut = match cols.mag {
+        Some(idx) if idx.iter().any(|&i| !field(i).is_empty()) => {
+            let mut m = [0.0f32; 3];
+            for ((v, &i), column) in m.iter_mut().zip(&idx).zip(MAG_COLUMNS) {
+                *v = match field(i).parse::<f64>() {
+                    Ok(x) if x.is_finite() => x as f32,
+                    _ => return Err(LogError::BadNumber { line, column }),
+                };
+            }
+            Some(m)
+        }
+        _ => None,
+    };
     Ok(Row {
         t_s: num(0)?,
         accel_g: [num(1)? as f32, num(2)? as f32, num(3)? as f32],
         gyro_dps: [num(4)? as f32, num(5)? as f32, num(6)? as f32],
         servo_deg: opt(7)?,
         tilt_deg: opt(8)?,
+        mag_ut,
     })
 }
 

@@ -426,7 +426,14 @@ mod tests {
 
     #[test]
     fn rows_round_trip() {
-        let row = Row { t_s: 12.5, accel_g: [0.25, -0.5, 1.0], gyro_dps: [0.125, 0.0, -2.5], servo_deg: Some(30.0), tilt_deg: None };
+        let row = Row {
+            t_s: 12.5,
+            accel_g: [0.25, -0.5, 1.0],
+            gyro_dps: [0.125, 0.0, -2.5],
+            servo_deg: Some(30.0),
+            tilt_deg: None,
+            mag_ut: None,
+        };
         assert_eq!(parse(&line(|s| log::write_row(s, &row))), Some(Event::Row(row)));
     }
 

@@ -76,6 +76,11 @@ pub fn format_row(out: &mut String, r: &Row) {
     out.push('\n');
 }
 
+/// Every column a log may have: [`log::COLUMNS`] then [`log::MAG_COLUMNS`].
+fn all_columns() -> impl Iterator<Item = &'static str> {
+    log::COLUMNS.iter().chain(log::MAG_COLUMNS.iter()).copied()
+}
+
 /// One column of `--columns`: this log column from that source column, times a factor.
 #[derive(Debug, Clone, PartialEq)]
 struct Source {
@@ -92,8 +97,9 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
     let mut map: Vec<(usize, Source)> = vec![];
     for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
         let (col, src) = item.split_once('=').ok_or(format!("--columns: {item:?} is not COLUMN=SOURCE"))?;
-        let at =
-            log::COLUMNS.iter().position(|c| *c == col.trim()).ok_or(format!("--columns: unknown column {col:?} (one of {HEADER})"))?;
+        let at = all_columns()
+            .position(|c| c == col.trim())
+            .ok_or(format!("--columns: unknown column {col:?} (one of {HEADER},{})", log::MAG_COLUMNS.join(",")))?;
         let (name, factor) = match src.find(['*', '/']) {
             Some(i) => {
                 let f: f64 = src[i + 1..].trim().parse().map_err(|_| format!("--columns: {:?} is not a number", &src[i + 1..]))?;
@@ -109,8 +115,8 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim().starts_with('#'));
     let (_, source_header) = lines.next().ok_or("--columns: the log has no header line")?;
     let names: Vec<&str> = source_header.split(',').map(str::trim).collect();
-    let mut from: [Option<(usize, f64)>; 9] = [None; 9];
-    for (i, col) in log::COLUMNS.iter().enumerate() {
+    let mut from: [Option<(usize, f64)>; 12] = [None; 12];
+    for (i, col) in all_columns().enumerate() {
         let src = map.iter().find(|(at, _)| *at == i).map(|(_, s)| s.clone()).unwrap_or(Source { name: col.to_string(), factor: 1.0 });
         from[i] = match names.iter().position(|n| *n == src.name) {
             Some(k) => Some((k, src.factor)),
@@ -118,10 +124,15 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
             None => return Err(format!("--columns: no source column {:?} for {col} in the header {source_header:?}", src.name)),
         };
     }
-    let mut out = header();
+    let mag = match from[9..].iter().filter(|s| s.is_some()).count() {
+        0 => false,
+        3 => true,
+        _ => return Err(format!("--columns: the magnetometer needs all three of {} or none", log::MAG_COLUMNS.join(","))),
+    };
+    let mut out = if mag { format!("{HEADER},{}\n", log::MAG_COLUMNS.join(",")) } else { header() };
     for (n, l) in lines {
         let f: Vec<&str> = l.split(',').map(str::trim).collect();
-        let mut v = [None; 9];
+        let mut v = [None; 12];
         for (i, src) in from.iter().enumerate() {
             if let Some((k, factor)) = *src {
                 let text = f.get(k).copied().unwrap_or("");
@@ -138,8 +149,16 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
             gyro_dps: [need(4)? as f32, need(5)? as f32, need(6)? as f32],
             servo_deg: v[7].map(|x| x as f32),
             tilt_deg: v[8].map(|x| x as f32),
+            mag_ut: match (v[9], v[10], v[11]) {
+                (Some(x), Some(y), Some(z)) => Some([x as f32, y as f32, z as f32]),
+                _ => None,
+            },
         };
-        format_row(&mut out, &row);
+        let _ = log::write_row(&mut out, &row);
+        if mag {
+            let _ = log::write_mag(&mut out, row.mag_ut);
+        }
+        out.push('\n');
     }
     Ok(out)
 }
@@ -212,7 +231,8 @@ mod tests {
 
     #[test]
     fn format_then_parse_round_trips_and_the_end_marker_ends_the_data() {
-        let r = Row { t_s: 1.25, accel_g: [0.5, -0.25, 0.75], gyro_dps: [1.5, -2.0, 3.0], servo_deg: Some(30.0), tilt_deg: None };
+        let r =
+            Row { t_s: 1.25, accel_g: [0.5, -0.25, 0.75], gyro_dps: [1.5, -2.0, 3.0], servo_deg: Some(30.0), tilt_deg: None, mag_ut: None };
         let mut s = header();
         format_row(&mut s, &r);
         format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, tilt_deg: Some(-25.0), ..r });
@@ -242,6 +262,39 @@ mod tests {
     }
 
     #[test]
+    fn magnetometer_columns_are_optional_and_empty_without_a_reading() {
+        let mut s = format!("{HEADER},mx_ut,my_ut,mz_ut\n");
+        let r = Row {
+            t_s: 1.0,
+            accel_g: [0.0, 0.0, 1.0],
+            gyro_dps: [0.0; 3],
+            servo_deg: None,
+            tilt_deg: None,
+            mag_ut: Some([21.5, -3.25, -40.125]),
+        };
+        for row in [r, Row { t_s: 1.01, mag_ut: None, ..r }] {
+            let _ = log::write_row(&mut s, &row);
+            let _ = log::write_mag(&mut s, row.mag_ut);
+            s.push('\n');
+        }
+        let back = parse(&s).unwrap().rows;
+        assert_eq!((back[0].mag_ut, back[1].mag_ut), (Some([21.5, -3.25, -40.125]), None));
+        // Two of the three columns: named, not guessed.
+        let e = parse(&format!("{HEADER},mx_ut,my_ut\n1,0,0,1,0,0,0,,,1,2\n")).unwrap_err();
+        assert_eq!(e, LogError::MissingColumn("mz_ut"));
+        // A field that is not a number.
+        let e = parse(&format!("{HEADER},mx_ut,my_ut,mz_ut\n1,0,0,1,0,0,0,,,1,x,2\n")).unwrap_err();
+        assert!(matches!(e, LogError::BadNumber { line: 2, column: "my_ut" }), "{e:?}");
+        // --columns maps a source's magnetometer (gauss) into µT.
+        let text = "time,ax,ay,az,gx,gy,gz,magx,magy,magz\n0.5,0,0,1,0,0,0,0.2,-0.1,0.4\n";
+        let spec = "t_s=time,ax_g=ax,ay_g=ay,az_g=az,gx_dps=gx,gy_dps=gy,gz_dps=gz,mx_ut=magx*100,my_ut=magy*100,mz_ut=magz*100";
+        let rows = parse(&remap(text, spec).unwrap()).unwrap().rows;
+        assert_eq!(rows[0].mag_ut, Some([20.0, -10.0, 40.0]));
+        let partial = spec.split(",mx_ut").next().unwrap().to_string() + ",mx_ut=magx";
+        assert!(remap(text, &partial).unwrap_err().contains("all three"));
+    }
+
+    #[test]
     fn fixed_decimals_are_exact_for_sensor_counts() {
         // Every LSB value of the ±2 g / ±500 °/s ranges survives the text round trip.
         for counts in [-32768i32, -12345, -1, 0, 1, 777, 32767] {
@@ -251,6 +304,7 @@ mod tests {
                 gyro_dps: [counts as f32 * 0.0175; 3],
                 servo_deg: Some(-12.34),
                 tilt_deg: Some(90.0),
+                mag_ut: None,
             };
             let mut s = header();
             format_row(&mut s, &r);

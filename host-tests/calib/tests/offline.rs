@@ -54,7 +54,14 @@ fn degenerate_logs_are_named_errors() {
     // Only a rest: no rig poses.
     let mut text = format!("{HEADER}\n");
     for i in 0..500 {
-        let r = Row { t_s: i as f64 / 119.0, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.5, -0.2, 0.1], servo_deg: Some(0.0), tilt_deg: None };
+        let r = Row {
+            t_s: i as f64 / 119.0,
+            accel_g: [0.0, 0.0, 1.0],
+            gyro_dps: [0.5, -0.2, 0.1],
+            servo_deg: Some(0.0),
+            tilt_deg: None,
+            mag_ut: None,
+        };
         csvlog::format_row(&mut text, &r);
     }
     let rows = csvlog::parse(&text).unwrap().rows;

@@ -258,7 +258,7 @@ fn run_posed(
 pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Run) {
     let mut text = format!("{comments}{}\n", log::HEADER);
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg };
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
         let _ = log::write_row(&mut text, &row);
         text.push('\n');
     });

@@ -33,7 +33,7 @@ struct Script<'a> {
 impl Script<'_> {
     fn sample(&mut self, servo: Option<f32>, tilt: Option<f32>) -> Reading {
         let s = self.rig.next_sample();
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt };
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt, mag_ut: None };
         let _ = log::write_row(&mut self.text, &row);
         self.text.push('\n');
         s
