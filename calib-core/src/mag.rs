@@ -15,8 +15,8 @@ use crate::lsq::NormalEquations;
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
-/// Raw samples kept for the ellipsoid (thinned: each at least [`MIN_SPACING_UT`] from the
-/// previous one kept).
+/// Points kept for the ellipsoid: each the mean of consecutive raw readings within
+/// [`MIN_SPACING_UT`] of the first of them (a still pose is one precise point, a move a trail).
 pub const MAX_MAG_SAMPLES: usize = 192;
 /// Still poses kept for the alignment.
 pub const MAX_MAG_POSES: usize = 32;
@@ -88,36 +88,79 @@ impl MagCal {
         let d = [m_raw[0] - self.offset_ut[0], m_raw[1] - self.offset_ut[1], m_raw[2] - self.offset_ut[2]];
         core::array::from_fn(|i| self.a[i][0] * d[0] + self.a[i][1] * d[1] + self.a[i][2] * d[2])
     }
+
+    /// Whether a still pose (gravity's direction `f`, raw field `m_raw` in µT) sees the field
+    /// the calibration saw, within `limits`: `Err` names the pose's field and dip.
+    pub fn check_pose(&self, index: u8, f: Vec3, m_raw: Vec3, limits: &MagLimits) -> Result<(), Error> {
+        let a = Matrix3::from_fn(|i, j| self.a[i][j] as f64);
+        let (b, dip) = field_and_dip(&v64(&f), &(a * (v64(&m_raw) - v64(&self.offset_ut))));
+        check(index, b, dip, self.field_ut as f64, (self.dip_deg as f64).to_radians(), limits)
+    }
+}
+
+/// Strength (µT) and dip (rad, positive below the horizon) of field `m` with gravity along `f`.
+fn field_and_dip(f: &Vector3<f64>, m: &Vector3<f64>) -> (f64, f64) {
+    let b = m.norm();
+    (b, libm::asin((-f.normalize().dot(m) / b).clamp(-1.0, 1.0)))
+}
+
+/// A pose's field `b` (µT) and dip (rad) against the expected ones, within `limits`.
+fn check(index: u8, b: f64, dip: f64, field: f64, expected_dip: f64, limits: &MagLimits) -> Result<(), Error> {
+    let (db, dd) = (b - field, (dip - expected_dip).to_degrees());
+    if db.abs() <= limits.max_field_dev_ut as f64 && dd.abs() <= limits.max_dip_dev_deg as f64 {
+        return Ok(());
+    }
+    Err(Error::MagDisturbed {
+        pose: index,
+        field_ut: b as f32,
+        expected_ut: field as f32,
+        dip_deg: dip.to_degrees() as f32,
+        expected_dip_deg: expected_dip.to_degrees() as f32,
+    })
 }
 
 /// Raw magnetometer samples and still poses of the hand-held step, fitted at the end.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct MagCalibrator {
-    samples: heapless::Vec<[f32; 3], MAX_MAG_SAMPLES>,
+    /// Cluster means (µT) and their reading counts.
+    samples: heapless::Vec<([f32; 3], u16), MAX_MAG_SAMPLES>,
     /// Per pose: gravity's direction (calibrated accelerometer, unit) and the raw field mean (µT).
     poses: heapless::Vec<([f32; 3], [f32; 3]), MAX_MAG_POSES>,
-    /// Samples offered (kept or thinned out).
-    offered: u32,
+    /// The open cluster: its first reading, the sum of its readings and their count.
+    cluster: Option<([f32; 3], [f64; 3], u32)>,
 }
 
 impl MagCalibrator {
     /// Empty.
     pub const fn new() -> Self {
-        Self { samples: heapless::Vec::new(), poses: heapless::Vec::new(), offered: 0 }
+        Self { samples: heapless::Vec::new(), poses: heapless::Vec::new(), cluster: None }
     }
 
-    /// Offers one raw reading (µT); kept when it is [`MIN_SPACING_UT`] from the last one kept
-    /// and there is room. Non-finite readings are refused.
+    /// Offers one raw reading (µT): it joins the open cluster when within [`MIN_SPACING_UT`] of
+    /// its first reading, else the cluster's mean is kept (while there is room) and a new one
+    /// opens. Non-finite readings are refused.
     pub fn add_sample(&mut self, m_raw: Vec3) -> Result<(), Error> {
         if !m_raw.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
-        self.offered += 1;
-        let far = self.samples.last().is_none_or(|l| dist(l, &m_raw) >= MIN_SPACING_UT);
-        if far {
-            let _ = self.samples.push(m_raw);
+        match &mut self.cluster {
+            Some((first, sum, n)) if dist(first, &m_raw) < MIN_SPACING_UT => {
+                (0..3).for_each(|k| sum[k] += m_raw[k] as f64);
+                *n += 1;
+            }
+            _ => {
+                self.close_cluster();
+                self.cluster = Some((m_raw, m_raw.map(|v| v as f64), 1));
+            }
         }
         Ok(())
+    }
+
+    /// Keeps the open cluster's mean (while there is room).
+    fn close_cluster(&mut self) {
+        if let Some((_, sum, n)) = self.cluster.take() {
+            let _ = self.samples.push((sum.map(|v| (v / n as f64) as f32), n.min(u16::MAX as u32) as u16));
+        }
     }
 
     /// Adds a still pose: gravity's direction from the calibrated accelerometer (any length) and
@@ -129,9 +172,18 @@ impl MagCalibrator {
         self.poses.push((f, m_raw)).map_err(|_| Error::CapacityExceeded { max: MAX_MAG_POSES as u8 })
     }
 
-    /// Samples kept for the ellipsoid.
+    /// Points kept for the ellipsoid (the open cluster's included).
     pub fn samples(&self) -> usize {
-        self.samples.len()
+        self.points().count()
+    }
+
+    /// The kept points (µT), then the open cluster's mean while there is room for it.
+    fn points(&self) -> impl Iterator<Item = ([f32; 3], u16)> + '_ {
+        let open = self
+            .cluster
+            .filter(|_| !self.samples.is_full())
+            .map(|(_, sum, n)| (sum.map(|v| (v / n as f64) as f32), n.min(u16::MAX as u32) as u16));
+        self.samples.iter().copied().chain(open)
     }
 
     /// Still poses kept.
@@ -141,16 +193,17 @@ impl MagCalibrator {
 
     /// The ellipsoid alone (`A` symmetric, no alignment): what the usual tools fit.
     pub fn fit_ellipsoid(&self) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
-        if self.samples.len() < MIN_SAMPLES {
-            return Err(Error::TooFewSamples { have: self.samples.len() as u32, need: MIN_SAMPLES as u32 });
+        let n = self.samples();
+        if n < MIN_SAMPLES {
+            return Err(Error::TooFewSamples { have: n as u32, need: MIN_SAMPLES as u32 });
         }
         // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
-        let c = self.samples.iter().fold(Vector3::zeros(), |s, m| s + v64(m)) / self.samples.len() as f64;
+        let c = self.points().fold(Vector3::zeros(), |s, (m, _)| s + v64(&m)) / n as f64;
         let mut ne = NormalEquations::<9>::new();
-        for m in &self.samples {
-            let p = (v64(m) - c) / 50.0;
+        for (m, k) in self.points() {
+            let p = (v64(&m) - c) / 50.0;
             let (x, y, z) = (p[0], p[1], p[2]);
-            ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
+            ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
         }
         let q = ne.solve()?.x;
         let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
@@ -180,24 +233,7 @@ impl MagCalibrator {
         if self.poses.len() < MIN_POSES {
             return Err(Error::TooFewPoses { have: self.poses.len() as u8, need: MIN_POSES as u8 });
         }
-        let unit = |p: &([f32; 3], [f32; 3])| (v64(&p.0).normalize(), (a_s * (v64(&p.1) - o)).normalize());
-        // f̂ · (I + [θ]×) û = c: f̂·û + θ·(û × f̂) = c, re-linearised about the last R.
-        let mut r = Matrix3::identity();
-        let mut sol = None;
-        for _ in 0..3 {
-            let mut ne = NormalEquations::<4>::new();
-            for p in &self.poses {
-                let (f, u) = unit(p);
-                let u = r * u;
-                let x = u.cross(&f);
-                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
-            }
-            let s = ne.solve()?;
-            let theta = Vector3::new(s.x[0], s.x[1], s.x[2]);
-            r = nalgebra::Rotation3::new(theta).into_inner() * r;
-            sol = Some(s);
-        }
-        let sol = sol.ok_or(Error::MagFitFailed)?;
+        let (r, sol) = self.align(&a_s, &o, None)?;
         let a = r * a_s;
         let c = sol.x[3];
         let dip = libm::asin((-c).clamp(-1.0, 1.0));
@@ -205,21 +241,29 @@ impl MagCalibrator {
         let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max);
         let angle = nalgebra::Rotation3::from_matrix_unchecked(r).angle();
         // Per pose: field strength and dip against the fit's.
+        if let Err(e) = self.check_poses(&a, &o, field, dip, None, limits) {
+            // A magnet near one pose pulls the alignment towards it, so that others deviate
+            // too: name the pose without which the rest agree, if there is one.
+            let culprit = (0..self.poses.len()).find(|&k| {
+                self.align(&a_s, &o, Some(k)).is_ok_and(|(rk, sk)| {
+                    let dip_k = libm::asin((-sk.x[3]).clamp(-1.0, 1.0));
+                    self.check_poses(&(rk * a_s), &o, field, dip_k, Some(k), limits).is_ok()
+                })
+            });
+            return Err(match culprit {
+                Some(k) => {
+                    let (rk, sk) = self.align(&a_s, &o, Some(k))?;
+                    let p = &self.poses[k];
+                    let (b, pose_dip) = field_and_dip(&v64(&p.0), &(rk * a_s * (v64(&p.1) - o)));
+                    let dip_k = libm::asin((-sk.x[3]).clamp(-1.0, 1.0));
+                    check(k as u8, b, pose_dip, field, dip_k, limits).err().unwrap_or(e)
+                }
+                None => e,
+            });
+        }
         let (mut sum, mut sum2) = (0.0, 0.0);
-        for (i, p) in self.poses.iter().enumerate() {
-            let (f, m) = (v64(&p.0).normalize(), a * (v64(&p.1) - o));
-            let b = m.norm();
-            let pose_dip = libm::asin((-f.dot(&m) / b).clamp(-1.0, 1.0));
-            let (db, dd) = (b - field, (pose_dip - dip).to_degrees());
-            if !(db.abs() <= limits.max_field_dev_ut as f64 && dd.abs() <= limits.max_dip_dev_deg as f64) {
-                return Err(Error::MagDisturbed {
-                    pose: i as u8,
-                    field_ut: b as f32,
-                    expected_ut: field as f32,
-                    dip_deg: pose_dip.to_degrees() as f32,
-                    expected_dip_deg: dip.to_degrees() as f32,
-                });
-            }
+        for p in &self.poses {
+            let b = (a * (v64(&p.1) - o)).norm();
             sum += b;
             sum2 += b * b;
         }
@@ -227,12 +271,12 @@ impl MagCalibrator {
         let sigma_field = libm::sqrt(((sum2 - sum * sum / n) / (n - 1.0)).max(0.0) / n);
         let mut bins = 0u32;
         let mut rss = 0.0;
-        for m in &self.samples {
-            let v = a * (v64(m) - o);
+        for (m, _) in self.points() {
+            let v = a * (v64(&m) - o);
             rss += (v.norm() - field) * (v.norm() - field);
             bins |= 1 << face(&v);
         }
-        let residual = libm::sqrt(rss / self.samples.len() as f64);
+        let residual = libm::sqrt(rss / self.samples() as f64);
         let coverage = bins.count_ones() as f32 / COVERAGE_BINS as f32;
         if !(residual <= limits.max_residual_ut as f64) {
             return Err(Error::MagFitPoor { residual_ut: residual as f32, limit_ut: limits.max_residual_ut });
@@ -251,9 +295,55 @@ impl MagCalibrator {
             sigma_alignment_deg: sigma_align.to_degrees() as f32,
             residual_ut: residual as f32,
             coverage,
-            samples: self.samples.len() as u16,
+            samples: self.samples() as u16,
             poses: self.poses.len() as u8,
         })
+    }
+
+    /// The die's rotation `R` and the fit (`x[3]` = `−sin(dip)`) from the gravity–field angle
+    /// of the poses (`skip` left out): `f̂ · (I + [θ]×) û = c`, i.e. `f̂·û + θ·(û × f̂) = c`,
+    /// re-linearised about the last `R` (three steps).
+    fn align(&self, a_s: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<(Matrix3<f64>, crate::lsq::Solution<4>), Error> {
+        let mut r = Matrix3::identity();
+        let mut sol = None;
+        for _ in 0..3 {
+            let mut ne = NormalEquations::<4>::new();
+            for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
+                let (f, u) = (v64(&p.0).normalize(), (r * a_s * (v64(&p.1) - o)).normalize());
+                let x = u.cross(&f);
+                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
+            }
+            let s = ne.solve()?;
+            r = nalgebra::Rotation3::new(Vector3::new(s.x[0], s.x[1], s.x[2])).into_inner() * r;
+            sol = Some(s);
+        }
+        Ok((r, sol.ok_or(Error::MagFitFailed)?))
+    }
+
+    /// Every pose (but `skip`) sees `field` (µT) at `dip` (rad) through `a`, `o`, within
+    /// `limits`; else the error of the one furthest from them.
+    fn check_poses(
+        &self,
+        a: &Matrix3<f64>,
+        o: &Vector3<f64>,
+        field: f64,
+        dip: f64,
+        skip: Option<usize>,
+        limits: &MagLimits,
+    ) -> Result<(), Error> {
+        let mut worst: Option<(f64, Error)> = None;
+        for (i, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
+            let (b, pose_dip) = field_and_dip(&v64(&p.0), &(a * (v64(&p.1) - o)));
+            if let Err(e) = check(i as u8, b, pose_dip, field, dip, limits) {
+                let far = ((b - field) / limits.max_field_dev_ut as f64)
+                    .abs()
+                    .max(((pose_dip - dip).to_degrees() / limits.max_dip_dev_deg as f64).abs());
+                if worst.as_ref().is_none_or(|w| far > w.0) {
+                    worst = Some((far, e));
+                }
+            }
+        }
+        worst.map_or(Ok(()), |(_, e)| Err(e))
     }
 }
 

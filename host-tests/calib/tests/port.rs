@@ -240,7 +240,9 @@ fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
     assert!(!saved.contains('\r'));
     let (got, want) = (csvlog::parse(&saved).unwrap(), csvlog::parse(sim_log()).unwrap());
     assert!(got.rows.len() + 1 >= want.rows.len(), "{} of {} rows", got.rows.len(), want.rows.len());
-    assert_eq!(got.rows[..], want.rows[..got.rows.len()]);
+    // The fake board sends the rows as the firmware does, without the simulator's magnetometer.
+    let want: Vec<_> = want.rows.iter().map(|r| csvlog::Row { mag_ut: None, ..*r }).collect();
+    assert_eq!(got.rows[..], want[..got.rows.len()]);
     assert!(got.messages > 20, "{} messages", got.messages);
     let events: Vec<_> = saved.lines().filter_map(protocol::parse).collect();
     assert!(events.contains(&Event::RawLogEnd));

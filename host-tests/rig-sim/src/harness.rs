@@ -254,13 +254,30 @@ fn run_posed(
     out
 }
 
+/// The log's header for a rig: with the magnetometer's columns when it has one.
+pub fn log_header(cfg: &RigConfig) -> String {
+    match cfg.mag {
+        Some(_) => format!("{},{}", log::HEADER, log::MAG_COLUMNS.join(",")),
+        None => log::HEADER.to_string(),
+    }
+}
+
+/// Appends a row (and its magnetometer fields when the log has them) and its newline.
+pub fn write_log_row(text: &mut String, row: &Row, mag: bool) {
+    let _ = log::write_row(text, row);
+    if mag {
+        let _ = log::write_mag(text, row.mag_ut);
+    }
+    text.push('\n');
+}
+
 /// Runs like [`run`] and records the log ([`calib_core::log`], `comments` first).
 pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Run) {
-    let mut text = format!("{comments}{}\n", log::HEADER);
+    let mag = rig.config().mag.is_some();
+    let mut text = format!("{comments}{}\n", log_header(rig.config()));
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
-        let _ = log::write_row(&mut text, &row);
-        text.push('\n');
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut };
+        write_log_row(&mut text, &row, mag);
     });
     (text, out)
 }

@@ -10,6 +10,7 @@
 pub mod bmi_model;
 pub mod bmm_model;
 pub mod harness;
+pub mod heading;
 pub mod lsm_model;
 pub mod nor;
 pub mod pan_tilt;

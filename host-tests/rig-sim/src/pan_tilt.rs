@@ -33,9 +33,8 @@ struct Script<'a> {
 impl Script<'_> {
     fn sample(&mut self, servo: Option<f32>, tilt: Option<f32>) -> Reading {
         let s = self.rig.next_sample();
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt, mag_ut: None };
-        let _ = log::write_row(&mut self.text, &row);
-        self.text.push('\n');
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt, mag_ut: s.mag_ut };
+        crate::harness::write_log_row(&mut self.text, &row, self.rig.config().mag.is_some());
         s
     }
 
@@ -70,7 +69,8 @@ pub fn log(rig: &mut Rig, handheld: bool) -> String {
 
 /// The protocol at these tilt settings (°).
 pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
-    let mut s = Script { rig, text: format!("# pan/tilt protocol\n{}\n", log::HEADER), pan: 0.0, tilt: 0.0 };
+    let header = crate::harness::log_header(rig.config());
+    let mut s = Script { rig, text: format!("# pan/tilt protocol\n{header}\n"), pan: 0.0, tilt: 0.0 };
     s.rig.set_pulse_us(pulse(0.0));
     s.rig.set_tilt_pulse_us(pulse(90.0));
     s.hold(3.0, true);
@@ -101,7 +101,8 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
 /// The same log with only its hand-held rows (both servo columns empty), comments and header:
 /// a log of hand-held poses and no servo, as other tools record.
 pub fn handheld_only(log: &str) -> String {
-    let keep = |l: &&str| l.starts_with('#') || *l == log::HEADER || l.ends_with(",,");
+    let servo_empty = |l: &str| l.split(',').skip(7).take(2).all(str::is_empty);
+    let keep = |l: &&str| l.starts_with('#') || log::is_header(l) || servo_empty(l);
     log.lines().filter(keep).map(|l| format!("{l}\n")).collect()
 }
 

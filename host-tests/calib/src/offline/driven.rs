@@ -194,6 +194,7 @@ pub(super) fn calibrate(
         time_base,
         phases: ph,
         setup: None,
+        mag: None,
     })
 }
 

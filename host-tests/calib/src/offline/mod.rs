@@ -27,11 +27,13 @@ use serde::Serialize;
 
 mod checks;
 mod driven;
+mod magnetometer;
 mod output;
 mod phases;
 
 use checks::{check_accel_units, gyro_units, implied_scale};
 pub use checks::{check_time_base, TimeBase};
+pub use magnetometer::MagOutcome;
 pub use output::{EstimatorOut, Estimators, FullOut, HandMoves, Output, QualityOut, Segments};
 pub use phases::{phases, steady_spin, Phases, Segment, SteadySpin};
 
@@ -127,6 +129,8 @@ pub struct Calibration {
     pub setup: Option<SensorSetup>,
     /// The moves between hand-held poses (the data-driven path).
     pub hand_moves: Option<HandMoves>,
+    /// The magnetometer from the hand-held rows (`None`: the log has no magnetometer columns).
+    pub mag: Option<MagOutcome>,
 }
 
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
@@ -186,11 +190,13 @@ fn calibrate_from(
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows, stored, setup.unwrap_or(SensorSetup::DEFAULT)) {
-            return Ok(Calibration { setup, ..replayed(r, time_base, setup, ph)? });
+            let c = replayed(r, time_base, setup, ph)?;
+            return Ok(Calibration { setup, mag: magnetometer::calibrate(rows, &c.phases, &c.accel), ..c });
         }
     }
     let range = options.range_dps.or(setup.map(|s| s.gyro_range_dps)).or_else(|| full_scale(rows));
-    Ok(Calibration { setup, ..driven::calibrate(rows, options, range, time_base, ph)? })
+    let c = driven::calibrate(rows, options, range, time_base, ph)?;
+    Ok(Calibration { setup, mag: magnetometer::calibrate(rows, &c.phases, &c.accel), ..c })
 }
 
 /// The calibration of a replayed run of the firmware: its procedure's results. Its rate must
@@ -230,6 +236,7 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         time_base,
         phases: ph,
         setup: None,
+        mag: None,
     })
 }
 

@@ -11,8 +11,34 @@ pub struct Output<'a> {
     pub gyro: Option<GyroJson>,
     /// `f = M (a − o)`.
     pub accel: AccelJson,
+    /// `m = A (m_raw − o)` (µT, the calibrated accelerometer's frame); `null` without
+    /// magnetometer columns or when the hand-held rows do not support it (`quality.missing`).
+    pub mag: Option<MagJson>,
     /// Quality of every part.
     pub quality: QualityOut<'a>,
+}
+
+/// The magnetometer's calibration.
+#[derive(Debug, Clone, Serialize)]
+pub struct MagJson {
+    /// `A` (row-major): soft iron, scale and the die's alignment onto the accelerometer.
+    #[serde(rename = "A")]
+    pub a: [[f32; 3]; 3],
+    /// Hard iron and offset (µT).
+    pub offset_ut: [f32; 3],
+}
+
+/// The magnetometer's quality, or why it failed, and which readings were used.
+#[derive(Debug, Clone, Serialize)]
+pub struct MagQualityOut<'a> {
+    /// The fit's figures (`null` on failure).
+    pub fit: Option<&'a calib_core::mag::MagCal>,
+    /// Why there is no calibration (`null` on success).
+    pub error: Option<String>,
+    /// Readings of hand-held rows offered to the fit.
+    pub hand_held_readings: usize,
+    /// Readings of rig rows (a servo commanded, its motor's magnet near), left out of the fit.
+    pub rig_readings_left_out: usize,
 }
 
 /// One estimator's outcome: its result, or why it failed.
@@ -157,6 +183,8 @@ pub struct QualityOut<'a> {
     /// The log was a run of the firmware's procedure, replayed through it under this
     /// configuration (`null`: phases found from the data).
     pub replayed: Option<&'static str>,
+    /// The magnetometer (`null`: the log has none).
+    pub mag: Option<MagQualityOut<'a>>,
 }
 
 const NO_SPIN: Result<GyroCal, Error> = Err(Error::NoSpin { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
@@ -181,6 +209,9 @@ impl Calibration {
             (Ok(_), None) => {}
         }
 
+        if let Some(Err(e)) = self.mag.as_ref().map(|m| &m.cal) {
+            m.push(format!("magnetometer: {e}"));
+        }
         if self.accel.model == AccelModel::None {
             m.push(format!(
                 "accelerometer: {} accelerometer poses, need {} (one more than the 6 unknowns of the smallest fit: as many poses as unknowns interpolate them and determine nothing); {}; the identity is used",
@@ -217,9 +248,11 @@ impl Calibration {
             (Some(f), _) => Some(GyroJson { k: f.k, bias_dps: self.bias.bias_dps, method: Method::Full }),
             (None, g) => g.map(|g| GyroJson { k: g.k, bias_dps: self.bias.bias_dps, method: g.method }),
         };
+        let mag_cal = self.mag.as_ref().and_then(|m| m.cal.as_ref().ok());
         Output {
             gyro: chosen,
             accel: AccelJson { m: self.accel.m, offset_g: self.accel.offset_g },
+            mag: mag_cal.map(|c| MagJson { a: c.a, offset_ut: c.offset_ut }),
             quality: QualityOut {
                 missing: self.missing(),
                 gyro: gyro.map(|g| GyroQuality {
@@ -249,6 +282,12 @@ impl Calibration {
                 rest_thresholds: &self.phases.rest,
                 log_messages,
                 replayed: self.replayed,
+                mag: self.mag.as_ref().map(|m| MagQualityOut {
+                    fit: m.cal.as_ref().ok(),
+                    error: m.cal.as_ref().err().map(|e| e.to_string()),
+                    hand_held_readings: m.used,
+                    rig_readings_left_out: m.left_out,
+                }),
             },
         }
     }

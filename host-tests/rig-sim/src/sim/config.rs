@@ -2,6 +2,7 @@
 
 use super::hand::HandLevel;
 use super::kinematics::{rotation_between, tilted_axis};
+use super::mag::MagPart;
 use super::sensor::{AccelRange, AccelSensor, GyroRange, GyroSensor};
 use super::servo::{PositionalServo, ServoModel};
 use nalgebra::{Unit, UnitQuaternion, Vector3};
@@ -51,6 +52,9 @@ pub struct RigConfig {
     pub tilt: Option<TiltStage>,
     /// The hand that holds the board off the shaft (None: perfectly still, as no hand is).
     pub hand: Option<HandLevel>,
+    /// The board's magnetometer (None: not simulated); its errors and the site's field are
+    /// drawn by the rig from a stream of their own ([`super::mag::Magnetometer::draw`]).
+    pub mag: Option<MagPart>,
 }
 
 /// A tilt servo mounted on the rotation shaft: it turns the board about a hinge perpendicular to
@@ -119,6 +123,7 @@ impl RigConfig {
             attach_transition_s: 1.0,
             tilt: None,
             hand: None,
+            mag: None,
         }
         .with_axis(Vector3::new(2.0, -3.0, 6.0), 25.0)
     }
@@ -128,7 +133,7 @@ impl RigConfig {
     /// U(−5 %, −2 %), shaft tilt U(20°, 70°) at a random azimuth, random mount with
     /// |u_k| ≥ 0.2 on every sensor axis, radius U(0, 2 cm), crystal U(−20, 20) ppm,
     /// 10 µs jitter, 20–30 °C; a braced hand ([`HandLevel::Braced`]) holding it off the shaft;
-    /// and a board just powered up ([`Self::drifting`]).
+    /// the LSM9DS1's magnetometer; and a board just powered up ([`Self::drifting`]).
     pub fn realistic(rng: &mut impl Rng) -> Self {
         let axis_b = loop {
             let v = Vector3::<f64>::from_fn(|_, _| rng.sample(StandardNormal)).normalize();
@@ -157,6 +162,7 @@ impl RigConfig {
             attach_transition_s: 1.0,
             tilt: None,
             hand: Some(HandLevel::Braced),
+            mag: Some(MagPart::Lsm9ds1),
         }
         .with_axis(axis_b, twist_deg)
         .drifting(rng)
@@ -203,6 +209,7 @@ impl RigConfig {
         self.accel.noise_ug_rthz = 160.0;
         self.gyro.range = GyroRange::Bmi270(gyro_dps);
         self.accel.range = AccelRange::Bmi270(accel_g);
+        self.mag = self.mag.map(|_| MagPart::Bmm150);
         self
     }
 

@@ -14,6 +14,7 @@
 mod config;
 mod hand;
 mod kinematics;
+mod mag;
 mod rig;
 mod sensor;
 mod servo;
@@ -21,6 +22,7 @@ mod servo;
 pub use config::{RigConfig, TiltStage, Warmup, EARTH_RATE_RAD_S};
 pub use hand::{Hand, HandLevel};
 pub use kinematics::{tilted_axis, G0};
+pub use mag::{MagPart, MagTruth, Magnetometer};
 pub use rig::{Reading, Rig, Truth};
 pub use sensor::{AccelRange, AccelSensor, GyroRange, GyroSensor};
 pub use servo::{ContinuousServo, PositionalServo, ServoModel, Vibration};

@@ -4,6 +4,7 @@
 use super::config::RigConfig;
 use super::hand::Hand;
 use super::kinematics::{lever_accel_g, perpendicular, rotation_vector_between, Transition, Wobble};
+use super::mag::{MagTruth, Magnetometer};
 use super::sensor::{AccelRange, GyroRange};
 use super::servo::{Servo, ServoModel};
 use nalgebra::{Matrix3, Unit, UnitQuaternion, Vector3};
@@ -29,6 +30,8 @@ pub struct Reading {
     pub accel_saturated: bool,
     /// The gyroscope reached full scale in this sample.
     pub gyro_saturated: bool,
+    /// A new magnetometer reading (µT, accelerometer axes), at the part's own rate.
+    pub mag_ut: Option<[f32; 3]>,
 }
 
 /// Ground truth after the latest sample.
@@ -68,6 +71,8 @@ pub struct Truth {
     pub specific_force_b_g: Vector3<f64>,
     /// Sensor temperature (°C).
     pub temp_c: f64,
+    /// The magnetometer's errors and the site's field, when simulated.
+    pub mag: Option<MagTruth>,
 }
 
 /// The simulated rig: servo(s), board attitude, sensors and clocks, sample by sample.
@@ -102,6 +107,9 @@ pub struct Rig {
     walk_rng: ChaCha8Rng,
     /// Sum of the temperature changes (°C) at the samples so far, and their count.
     temp_sum: (f64, u64),
+    /// The magnetometer and its noise stream.
+    mag: Option<Magnetometer>,
+    mag_rng: ChaCha8Rng,
 }
 
 impl Rig {
@@ -148,6 +156,8 @@ impl Rig {
             bias_walk: Vector3::zeros(),
             walk_rng: stream(6),
             temp_sum: (0.0, 0),
+            mag: cfg.mag.map(|part| Magnetometer::draw(part, &mut stream(8))),
+            mag_rng: stream(9),
         };
         rig.force_b = rig.specific_force(&rig.q_wb, 0.0);
         rig
@@ -181,6 +191,14 @@ impl Rig {
     pub fn set_tilt_pulse_us(&mut self, us: f64) {
         if let Some((tilt, _)) = &mut self.tilt {
             tilt.set_pulse_us(us);
+        }
+    }
+
+    /// A stray field at the board from now on (µT, in W; zero: none): a magnet or a laptop
+    /// brought near it. No effect without a magnetometer.
+    pub fn set_stray_field_ut(&mut self, field_w: Vector3<f64>) {
+        if let Some(m) = &mut self.mag {
+            m.stray_w = field_w;
         }
     }
 
@@ -278,6 +296,9 @@ impl Rig {
         let (gyro_dps, gyro_saturated) = cfg.gyro.measure(&rate_dps, delta_temp_c, &self.bias_walk, odr, rng);
         let (accel_g, accel_saturated) = cfg.accel.measure(&self.force_b, odr, rng);
 
+        let shaft = self.on_shaft().then(|| (self.axis_w, self.servo.angle(), q_wb * self.lever_b));
+        let mag_ut = self.mag.as_mut().and_then(|m| m.measure(t_s, &q_wb, shaft, &mut self.mag_rng));
+
         let jitter = self.cfg.timestamp_jitter_s * self.clock_rng.sample::<f64, _>(StandardNormal);
         let t_mcu = t_s * (1.0 + self.cfg.mcu_clock_ppm * 1e-6) + jitter;
         self.t_mcu_s = t_mcu.max(self.t_mcu_s + 1e-6);
@@ -289,6 +310,7 @@ impl Rig {
             temp_c: self.cfg.temp_reading_c(self.cfg.temp_c + delta_temp_c),
             accel_saturated,
             gyro_saturated,
+            mag_ut,
         }
     }
 
@@ -327,6 +349,7 @@ impl Rig {
             rate_b_dps: self.rate_b.map(f64::to_degrees),
             specific_force_b_g: self.force_b,
             temp_c: self.cfg.temp_c + delta_temp_c,
+            mag: self.mag.as_ref().map(Magnetometer::truth),
         }
     }
 

@@ -1,0 +1,115 @@
+//! The magnetometer from a log's hand-held rows ([`calib_core::mag`]). A servo's motor magnet
+//! adds tens to hundreds of µT near the board and moves with the shaft, so nothing recorded
+//! on the rig enters the fit: not the rows with a servo commanded, and not a still segment with
+//! the servo columns empty that sits next to them (the firmware's bias rest before the board
+//! is picked up, the settling after it is put back) unless its field agrees with the poses
+//! held in the hand. The hand-held stretch runs from its first pose to its last.
+
+use super::*;
+use calib_core::mag::{MagCal, MagCalibrator, MagLimits};
+
+/// The magnetometer's calibration from a log, with the readings used and left out.
+#[derive(Debug, Clone)]
+pub struct MagOutcome {
+    /// The calibration, or why there is none.
+    pub cal: Result<MagCal, Error>,
+    /// Readings in the hand-held stretch, offered to the fit.
+    pub used: usize,
+    /// Readings left out: on the rig (a servo commanded, or a still segment next to the rig
+    /// whose field is not the hand-held poses').
+    pub left_out: usize,
+    /// The same readings' ellipsoid alone (`A` symmetric, µT offset): what the usual tools
+    /// fit, for comparison.
+    pub ellipsoid: Option<([[f32; 3]; 3], [f32; 3])>,
+}
+
+fn hand_held(r: &Row) -> bool {
+    r.servo_deg.is_none() && r.tilt_deg.is_none()
+}
+
+/// `None` when the log has no magnetometer readings.
+pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutcome> {
+    let readings = rows.iter().filter(|r| r.mag_ut.is_some()).count();
+    if readings == 0 {
+        return None;
+    }
+    let limits = MagLimits::default();
+    let rig = rows.iter().any(|r| !hand_held(r));
+    // Hand-held segments; those next to the rig (no other segment between them and a rig row
+    // or, on a log with a rig, the log's start) are tested before they are used.
+    let segs: Vec<&Segment> = ph.segments.iter().filter(|s| !s.is_rig_pose()).collect();
+    let touches_rig = |s: &Segment, dir: isize| {
+        let mut i = if dir < 0 { s.first as isize - 1 } else { s.last as isize + 1 };
+        while i >= 0 && (i as usize) < rows.len() {
+            let r = &rows[i as usize];
+            if !hand_held(r) {
+                return true;
+            }
+            if ph.segments.iter().any(|o| o.first <= i as usize && i as usize <= o.last) {
+                return false;
+            }
+            i += dir;
+        }
+        rig && dir < 0
+    };
+    let (interior, boundary): (Vec<&Segment>, Vec<&Segment>) =
+        segs.iter().partition(|s| !(rig && (touches_rig(s, -1) || touches_rig(s, 1))));
+    let mut chosen = interior.clone();
+    if let Some((Ok(first), ..)) = fit(rows, &chosen, accel, &limits) {
+        for s in &boundary {
+            if let Some(m) = mean_field(rows, s) {
+                if first.check_pose(0, accel.apply(f32v(s.accel.mean())), m, &limits).is_ok() {
+                    chosen.push(s);
+                }
+            }
+        }
+        chosen.sort_by_key(|s| s.first);
+    }
+    let none = || (Err(Error::TooFewPoses { have: 0, need: calib_core::mag::MIN_POSES as u8 }), 0, None);
+    let (mut cal, used, ellipsoid) = fit(rows, &chosen, accel, &limits).unwrap_or_else(none);
+    // A disturbed pose is named by its place among all the log's hand-held poses.
+    if let Err(Error::MagDisturbed { pose, .. }) = &mut cal {
+        if let Some(k) = chosen.get(*pose as usize).and_then(|s| segs.iter().position(|o| o.first == s.first)) {
+            *pose = k as u8;
+        }
+    }
+    Some(MagOutcome { cal, used, left_out: readings - used, ellipsoid })
+}
+
+/// The fit of the poses `segs` (time order) and the readings from the first to the last, the
+/// readings used and their ellipsoid alone; `None` without a pose.
+type Fit = (Result<MagCal, Error>, usize, Option<([[f32; 3]; 3], [f32; 3])>);
+fn fit(rows: &[Row], segs: &[&Segment], accel: &AccelCal, limits: &MagLimits) -> Option<Fit> {
+    let (first, last) = (segs.first()?.first, segs.last()?.last);
+    let mut c = MagCalibrator::new();
+    let mut used = 0;
+    for m in rows[first..=last].iter().filter(|r| hand_held(r)).filter_map(|r| r.mag_ut) {
+        used += 1;
+        if let Err(e) = c.add_sample(m) {
+            return Some((Err(e), used, None));
+        }
+    }
+    for s in segs {
+        if let Some(m) = mean_field(rows, s) {
+            if let Err(e) = c.add_pose(accel.apply(f32v(s.accel.mean())), m) {
+                return Some((Err(e), used, None));
+            }
+        }
+    }
+    let ellipsoid = c
+        .fit_ellipsoid()
+        .ok()
+        .map(|(a, o, _)| (core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)), [o[0] as f32, o[1] as f32, o[2] as f32]));
+    Some((c.solve(limits), used, ellipsoid))
+}
+
+/// The mean raw field (µT) of a segment's readings.
+fn mean_field(rows: &[Row], s: &Segment) -> Option<[f32; 3]> {
+    let mut w = Welford3::new();
+    rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).for_each(|m| w.add(m));
+    (w.count() > 0).then(|| f32v(w.mean()))
+}
+
+fn f32v(v: [f64; 3]) -> [f32; 3] {
+    v.map(|x| x as f32)
+}

@@ -1,0 +1,50 @@
+//! What a magnetometer calibration buys a user: the tilt-compensated heading error over random
+//! attitudes, against the simulator's truth, in the calibrated accelerometer's frame (the frame
+//! `K`, `M` and the magnetometer's `A` share: `Q = polar(M̂ C_a)`).
+
+use crate::sim::Rig;
+use calib_core::mag::heading_deg;
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// A calibration as applied: accelerometer `f = M (a − o)` (g) and magnetometer
+/// `m = A (m_raw − o_m)` (µT).
+#[derive(Clone, Copy, Debug)]
+pub struct Applied {
+    /// `M`.
+    pub accel_m: [[f32; 3]; 3],
+    /// `o` (g).
+    pub accel_o: [f32; 3],
+    /// `A`.
+    pub mag_a: [[f32; 3]; 3],
+    /// `o_m` (µT).
+    pub mag_o: [f32; 3],
+}
+
+/// (RMS, largest) heading error (°) of `cal` over `n` random attitudes (noise-free readings of
+/// the rig's parts); `None` without a magnetometer.
+pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f64, f64)> {
+    let truth = rig.truth();
+    let mag = truth.mag?;
+    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
+    let v = |a: [f32; 3]| Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
+    let svd = (m(cal.accel_m) * truth.accel_c).svd(true, true);
+    let q_frame = svd.u? * svd.v_t?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let (mut ss, mut max) = (0.0, 0.0f64);
+    for _ in 0..n {
+        let g: [f64; 4] = core::array::from_fn(|_| StandardNormal.sample(&mut rng));
+        let q = UnitQuaternion::from_quaternion(Quaternion::new(g[0], g[1], g[2], g[3]));
+        let (f_b, b_b) = (q.inverse() * Vector3::z(), q.inverse() * mag.field_w);
+        let raw_a = truth.accel_c * f_b + truth.accel_offset_g;
+        let raw_m = mag.s * b_b + mag.h;
+        let est = heading_deg(m(cal.accel_m) * (raw_a - v(cal.accel_o)), m(cal.mag_a) * (raw_m - v(cal.mag_o)))?;
+        let want = heading_deg(q_frame * f_b, q_frame * b_b)?;
+        let e = (est - want + 540.0) % 360.0 - 180.0;
+        ss += e * e;
+        max = max.max(e.abs());
+    }
+    Some(((ss / n as f64).sqrt(), max))
+}
