@@ -23,7 +23,7 @@
 //! THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF SUCH DAMAGE.
 
 use crate::lsm9ds1::BusFault;
-use calib_core::record::{Sensor, SensorSetup};
+use calib_core::formats::record::{Sensor, SensorSetup};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 

@@ -2,11 +2,11 @@
 //! to RTT (defmt) and to the USB serial port, and the USB commands.
 
 use super::COMMANDS_PER_TICK;
-use calib_core::export::Format;
+use calib_core::formats::export::Format;
+use calib_core::formats::protocol::{self, RecordLine};
+use calib_core::formats::record::{Record, SensorSetup};
+use calib_core::formats::text::Level as Log;
 use calib_core::procedure::{Report, Sample};
-use calib_core::protocol::{self, RecordLine};
-use calib_core::record::{Record, SensorSetup};
-use calib_core::text::Level as Log;
 use core::fmt::{self, Write};
 use gyrocal_fw::lsm9ds1::SensorError;
 use gyrocal_fw::serial::Command;
@@ -20,7 +20,7 @@ pub(crate) const LINE: usize = 640;
 pub(crate) const EXPORT: usize = 2048;
 
 /// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
-/// over USB serial, with the same text (`calib_core::text`).
+/// over USB serial, with the same text (`calib_core::formats::text`).
 pub(crate) struct Console {
     /// The port, built at the first start.
     usb: Option<&'static mut Usb>,
@@ -94,8 +94,8 @@ impl Console {
     #[inline(never)]
     pub(crate) fn report(&mut self, r: &Report) {
         let mut line = heapless::String::<LINE>::new();
-        let _ = calib_core::text::report(&mut line, r);
-        self.send(calib_core::text::level(r), &line);
+        let _ = calib_core::formats::text::report(&mut line, r);
+        self.send(calib_core::formats::text::level(r), &line);
         if let Report::Done(rec) = r {
             self.export(rec, Format::Json);
         }
@@ -105,7 +105,7 @@ impl Console {
     #[inline(never)]
     pub(crate) fn export(&mut self, rec: &Record, format: Format) {
         let mut text = heapless::String::<EXPORT>::new();
-        match calib_core::export::write(&mut text, rec, format) {
+        match calib_core::formats::export::write(&mut text, rec, format) {
             Ok(()) => self.lines(&text),
             Err(_) => self.send(Log::Error, "export did not fit its buffer"),
         }
@@ -190,7 +190,7 @@ impl Console {
     }
 
     /// Raw-log mode (a long press or `r` toggles it): every sample as a row of
-    /// `calib_core::log` after its header line and the setup comment; the end marker when it is
+    /// `calib_core::formats::log` after its header line and the setup comment; the end marker when it is
     /// switched off. The other log lines in between are not rows (`calib` skips and counts them),
     /// so the message text alone (`probe-rs run --log-format "{s}"`, or what the USB port sends)
     /// is a log `calib` reads.
@@ -202,19 +202,19 @@ impl Console {
         }
     }
 
-    /// The raw log's setup comment ([`calib_core::log::write_setup`]).
+    /// The raw log's setup comment ([`calib_core::formats::log::write_setup`]).
     pub(crate) fn raw_setup(&mut self, setup: &SensorSetup) {
-        let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
-        if calib_core::log::write_setup(&mut line, setup).is_ok() {
+        let mut line = heapless::String::<{ calib_core::formats::log::MAX_ROW }>::new();
+        if calib_core::formats::log::write_setup(&mut line, setup).is_ok() {
             self.raw(&line);
         }
     }
 
     #[inline(never)]
     pub(crate) fn raw_row(&mut self, s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-        let row = calib_core::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
-        let mut line = heapless::String::<{ calib_core::log::MAX_ROW }>::new();
-        if calib_core::log::write_row(&mut line, &row).is_ok() {
+        let row = calib_core::formats::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
+        let mut line = heapless::String::<{ calib_core::formats::log::MAX_ROW }>::new();
+        if calib_core::formats::log::write_row(&mut line, &row).is_ok() {
             self.raw(&line);
         }
     }

@@ -5,7 +5,7 @@
 //! and owns the bus, while this driver needs the FIFO at 952 Hz and runs on the host against a
 //! simulated register map through the same `I2c` trait.
 
-use calib_core::record::{Sensor, SensorSetup};
+use calib_core::formats::record::{Sensor, SensorSetup};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::{ErrorKind, I2c};
 

@@ -17,11 +17,11 @@ mod console;
 use console::{Console, LINE};
 use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait};
 
+use calib_core::formats::protocol::{self, RecordLine};
+use calib_core::formats::record::{Record, SensorSetup};
+use calib_core::formats::text::{Level as Log, V3};
+use calib_core::math::stats::Welford3;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
-use calib_core::protocol::{self, RecordLine};
-use calib_core::record::{Record, SensorSetup};
-use calib_core::stats::Welford3;
-use calib_core::text::{Level as Log, V3};
 use embedded_hal::digital::InputPin;
 use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
@@ -381,7 +381,7 @@ fn suspend_bmm150(mut i2c: Bus, clock: &mut Clock, io: &mut Io) -> Bus {
 /// procedure saw); its row in raw-log mode; the calibrated rate when the stored record was made
 /// at `setup`, the sensor's.
 fn feed(sample: Sample, setup: SensorSetup, raw: bool, rate: &mut Welford3, procedure: &mut Procedure, io: &mut Io) {
-    let (accel_g, gyro_dps) = calib_core::log::as_logged(sample.accel_g, sample.gyro_dps);
+    let (accel_g, gyro_dps) = calib_core::formats::log::as_logged(sample.accel_g, sample.gyro_dps);
     let sample = Sample { accel_g, gyro_dps, ..sample };
     if raw {
         io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());

@@ -98,8 +98,8 @@ impl<const N: usize> Default for Outbox<N> {
 }
 
 /// The commands a terminal or `calib --port` sends, one byte each, and the help: the board↔PC
-/// protocol's, defined once in `calib_core::protocol`.
-pub use calib_core::protocol::{Command, HELP};
+/// protocol's, defined once in `calib_core::formats::protocol`.
+pub use calib_core::formats::protocol::{Command, HELP};
 
 /// Line coding rate (Bd) that asks for the bootloader (Arduino's "1200-baud touch").
 pub const TOUCH_BAUD: u32 = 1200;

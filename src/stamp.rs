@@ -7,7 +7,7 @@
 //! constant that no integral sees). So samples get evenly spaced times at the measured period,
 //! never the nominal ODR, and not the batch-to-batch jitter of the read times.
 
-use calib_core::lsq::NormalEquations;
+use calib_core::math::lsq::NormalEquations;
 
 /// Assigns MCU timestamps to FIFO samples.
 #[derive(Debug, Clone, Copy, PartialEq)]

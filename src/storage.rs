@@ -4,11 +4,11 @@
 //! is erased, written and read back. A power cut at any instant of the erase or the write leaves
 //! the other slot, with the previous record, untouched; at boot the valid record with the
 //! highest sequence number wins, and a torn or corrupt slot is never applied (CRC-32, version,
-//! magic and field checks of `calib_core::record`).
+//! magic and field checks of `calib_core::formats::record`).
 
-pub use calib_core::record::StoreError;
-use calib_core::record::{Record, LEN};
-pub use calib_core::region::{Slot, SLOTS};
+pub use calib_core::formats::record::StoreError;
+use calib_core::formats::record::{Record, LEN};
+pub use calib_core::formats::region::{Slot, SLOTS};
 use embedded_storage::nor_flash::NorFlash;
 
 /// The two record slots in a flash region (offsets relative to the driver's region).
@@ -46,9 +46,9 @@ impl<F: NorFlash> Storage<F> {
         Ok([self.slot(0)?, self.slot(1)?])
     }
 
-    /// The newest valid record and its slot, if any ([`calib_core::region::newest`]).
+    /// The newest valid record and its slot, if any ([`calib_core::formats::region::newest`]).
     pub fn load(&mut self) -> Result<Option<(usize, Record)>, StoreError> {
-        Ok(calib_core::region::newest(&self.slots()?))
+        Ok(calib_core::formats::region::newest(&self.slots()?))
     }
 
     /// Stores `rec` in the slot not holding the newest valid record; returns that slot.

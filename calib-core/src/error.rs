@@ -1,8 +1,8 @@
 //! The one error type of the crate: every failure names the requirement that was not met.
 
+use crate::formats::record::StoreError;
+use crate::formats::text::Fixed;
 use crate::procedure::Phase;
-use crate::record::StoreError;
-use crate::text::Fixed;
 use core::fmt;
 
 /// Why a calibration step failed. Values in the variants are in the units their names state.
@@ -108,7 +108,7 @@ pub enum Error {
     /// The moves between poses do not determine `K` because `dropped` of the `total` were
     /// dropped, most of them for `reason`: its worst value `value` (a step or turn in °, a bias change in °/s, a gap in s) against
     /// `limit`.
-    MovesDropped { dropped: u8, total: u8, reason: crate::rotation::Rejected, value: f32, limit: f32 },
+    MovesDropped { dropped: u8, total: u8, reason: crate::estimators::rotation::Rejected, value: f32, limit: f32 },
 }
 
 /// A fit's weighted residual above which its moves disagree (rather than agree, but too few).
@@ -245,7 +245,7 @@ impl fmt::Display for Error {
                 f,
                 "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
             Error::MovesDropped { dropped, total, reason, value, limit } => {
-                use crate::rotation::Rejected;
+                use crate::estimators::rotation::Rejected;
                 let (value, limit) = if reason == Rejected::Gap {
                     (Fixed(value as f64, 3), Fixed(limit as f64, 3))
                 } else {

@@ -7,19 +7,24 @@
 //! O(1) or bounded state (sums, normal equations, pose means), never sample buffers; sums are
 //! kept in `f64` so that `f32` inputs give results within 1e-5 of an `f64` reference.
 //!
-//! - [`lsq`]: weighted least squares by normal equations (every linear solve goes through it).
-//! - [`stats`], [`rest`]: Welford statistics and the stillness detector.
-//! - [`bias`]: gyro bias at rest. [`accel`]: 6- and 9-parameter accelerometer calibration.
-//! - [`axis`]: static poses, the rotation axis, turn angles and geometry checks.
-//! - [`paper`]: the paper's estimator; [`sweep`]: the speed-free sweep estimator.
-//! - [`full`]: the full 9-parameter `K` (scale and cross-axis) from moves about non-coplanar axes.
-//! - [`procedure`]: the whole calibration as a sans-IO state machine; [`record`]: the flash record.
-//! - [`pipeline`]: the decisions the procedure and the offline tool share (fit choice, gates).
-//! - [`log`]: the recorded log's format (the firmware's raw-log mode and the offline tool).
+//! Three rooms by concern, and the procedure that uses them:
+//! - [`math`]: [`math::lsq`] (weighted least squares by normal equations: every linear solve
+//!   goes through it), [`math::stats`] (Welford statistics), [`math::vec3`].
+//! - [`estimators`]: [`estimators::rest`] (stillness), [`estimators::bias`] (the gyro bias and
+//!   its drift), [`estimators::accel`] (6- and 9-parameter accelerometer), [`estimators::axis`]
+//!   (static poses, the rotation axis, geometry checks), [`estimators::paper`] (the paper's
+//!   estimator), [`estimators::sweep`] (the speed-free one), [`estimators::full`] and
+//!   [`estimators::rotation`] (the full `K` from moves about non-coplanar axes),
+//!   [`estimators::mag`] (the magnetometer).
+//! - [`formats`]: [`formats::log`] (the recorded log), [`formats::record`] and
+//!   [`formats::region`] (the flash record and its A/B region), [`formats::protocol`] and
+//!   [`formats::text`] (the console's lines), [`formats::export`] (JSON, C, Arduino).
+//! - [`procedure`]: the whole calibration as a sans-IO state machine;
+//!   [`procedure::pipeline`]: the decisions the procedure and the offline tool share.
 //!
 //! ```
-//! use calib_core::axis::{GeometryLimits, Poses};
-//! use calib_core::sweep::{self, Moves};
+//! use calib_core::estimators::axis::{GeometryLimits, Poses};
+//! use calib_core::estimators::sweep::{self, Moves};
 //!
 //! // Axis u in the sensor frame, tilted 45° from vertical; e1, e2 span the plane ⟂ u.
 //! let (s, h) = (1.0f32 / 3f32.sqrt(), 1.0f32 / 2f32.sqrt());
@@ -48,32 +53,11 @@
 // Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod accel;
-pub mod axis;
-pub mod bias;
 mod error;
-pub mod export;
-pub mod frame;
-pub mod full;
-pub mod gyro;
-mod linalg;
-pub mod log;
-pub mod lsq;
-pub mod mag;
-pub mod paper;
-pub mod pipeline;
+pub mod estimators;
+pub mod formats;
+pub mod math;
 pub mod procedure;
-pub mod protocol;
-pub mod record;
-pub mod region;
-pub mod rest;
-pub mod rotation;
-pub mod stats;
-pub mod sweep;
-#[cfg(test)]
-mod test_noise;
-pub mod text;
-pub mod vec3;
 
 pub use error::Error;
 

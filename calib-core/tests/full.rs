@@ -6,9 +6,10 @@
 //! Board attitude `R_WB(ψ, φ) = R_pan(ψ) R_hinge(φ) R_mount`: pan about the (tilted) shaft `p_W`,
 //! tilt about the hinge `h` (⟂ `p_W`, given at pan 0), board clamped askew by `R_mount`.
 
-use calib_core::full::{Axes, FullCal, FullLimits, MAX_AXES};
-use calib_core::sweep::Integrator;
-use calib_core::{vec3, Error};
+use calib_core::estimators::full::{Axes, FullCal, FullLimits, MAX_AXES};
+use calib_core::estimators::sweep::Integrator;
+use calib_core::math::vec3;
+use calib_core::Error;
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 type V3 = Vector3<f64>;

@@ -6,9 +6,9 @@
 //! board between two attitudes with smooth-step timing; the raw gyro is `K⁻¹ ω_B`, `ω_B` the mean
 //! rate over each sample interval (a MEMS gyro's decimated output).
 
-use calib_core::bias::RestBias;
-use calib_core::full::{Axes, FullLimits};
-use calib_core::rotation::{PoseRest, Rejected, RotationLimits, Rotations};
+use calib_core::estimators::bias::RestBias;
+use calib_core::estimators::full::{Axes, FullLimits};
+use calib_core::estimators::rotation::{PoseRest, Rejected, RotationLimits, Rotations};
 use calib_core::Error;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -101,7 +101,7 @@ fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
         let e = (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax();
         assert!(e < 2e-5, "start {start:?}: E {e:.2e}");
         assert!(
-            cal.iterations < calib_core::full::GAUSS_NEWTON_ITERATIONS && cal.rotation_moves == 9,
+            cal.iterations < calib_core::estimators::full::GAUSS_NEWTON_ITERATIONS && cal.rotation_moves == 9,
             "{} iterations, {} moves",
             cal.iterations,
             cal.rotation_moves

@@ -9,9 +9,9 @@
 #![no_std]
 #![no_main]
 
-use calib_core::record::{Record, SensorSetup};
-use calib_core::region::{self, ADDRESS, PAGE, SLOTS};
-use calib_core::stats::Welford3;
+use calib_core::formats::record::{Record, SensorSetup};
+use calib_core::formats::region::{self, ADDRESS, PAGE, SLOTS};
+use calib_core::math::stats::Welford3;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::stamp::Stamper;

@@ -1,11 +1,11 @@
 //! What the procedure asks its I/O shell to do, and what it reports.
 
 use super::Phase;
-use crate::accel::AccelCal;
-use crate::bias::{Bias, TempCo};
-use crate::gyro::{GyroCal, Method};
-use crate::record::{Record, StoreError};
-use crate::rotation::MAX_ROTATION_MOVES;
+use crate::estimators::accel::AccelCal;
+use crate::estimators::bias::{Bias, TempCo};
+use crate::estimators::gyro::{GyroCal, Method};
+use crate::estimators::rotation::MAX_ROTATION_MOVES;
+use crate::formats::record::{Record, StoreError};
 use crate::{Error, Mat3, Vec3};
 
 /// LED patterns (the shell maps them to pins and blink timing).
@@ -117,13 +117,13 @@ pub enum Report {
     /// A hand-held move was kept for the rotation constraints: its raw turn (°) and the spread
     /// of the kept moves' axes so far (smallest eigenvalue of their mean `n nᵀ`, 1/3 at best;
     /// `need` is the least accepted), or rejected (`rejected` says why; counted).
-    HandMove { from: u8, to: u8, rejected: Option<crate::rotation::Rejected>, turn_deg: f32, spread: f32, need: f32 },
+    HandMove { from: u8, to: u8, rejected: Option<crate::estimators::rotation::Rejected>, turn_deg: f32, spread: f32, need: f32 },
     /// The rotation constraints used in the full `K`: the misfit (°) of each of the `moves`
     /// kept moves at the solution (0 when none was solved), and the moves rejected by reason
-    /// ([`crate::rotation::Rejected`]).
-    Rotations { moves: u8, rejected: [u16; crate::rotation::REJECTED_REASONS], residual_deg: [f32; MAX_ROTATION_MOVES] },
+    /// ([`crate::estimators::rotation::Rejected`]).
+    Rotations { moves: u8, rejected: [u16; crate::estimators::rotation::REJECTED_REASONS], residual_deg: [f32; MAX_ROTATION_MOVES] },
     /// The gyro bias's temperature coefficient over the rests, or `None` when their
-    /// temperatures spanned too little to determine it ([`crate::bias::MIN_TEMP_SPAN_C`]).
+    /// temperatures spanned too little to determine it ([`crate::estimators::bias::MIN_TEMP_SPAN_C`]).
     TempCo(Option<TempCo>),
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },

@@ -1,13 +1,13 @@
 //! The one configuration of the calibration procedure, with defaults for a positional hobby
 //! servo on the Nano 33 BLE.
 
-use crate::axis::GeometryLimits;
-use crate::bias::BiasLimits;
-use crate::full::FullLimits;
-use crate::pipeline::{Acceptance, SteadyRate};
-use crate::record::SensorSetup;
-use crate::rest::RestConfig;
-use crate::rotation::RotationLimits;
+use crate::estimators::axis::GeometryLimits;
+use crate::estimators::bias::BiasLimits;
+use crate::estimators::full::FullLimits;
+use crate::estimators::rest::RestConfig;
+use crate::estimators::rotation::RotationLimits;
+use crate::formats::record::SensorSetup;
+use crate::procedure::pipeline::{Acceptance, SteadyRate};
 
 /// Tilt settings of the pan/tilt plan (each one pan axis; with the hinge, five axes).
 pub const TILT_SETTINGS: usize = 4;

@@ -4,7 +4,7 @@
 //!
 //! Phases: wait for rest → gyro bias → accelerometer (hand-held poses, skipped when a valid
 //! stored calibration exists; every move between two of them is kept as a rotation constraint,
-//! [`crate::rotation`]) → re-clamp and press → static rig poses and the moves between them,
+//! [`crate::estimators::rotation`]) → re-clamp and press → static rig poses and the moves between them,
 //! there and back → the paper's constant-rate spin → both one-axis estimators, and with
 //! hand-held moves the full 3×3 `K` from the rig's axis and the rotations → validate → store →
 //! (verified) report → apply.
@@ -12,7 +12,7 @@
 //! With a pan/tilt bracket ([`Config::pan_tilt`]): wait for rest → gyro bias → the rig poses,
 //! there and back across the pan range at every tilt setting, tilt moves between the settings
 //! at pan `pose_first_deg` and back down through them → the accelerometer fitted to those
-//! poses → the full 3×3 `K` ([`crate::full`]), the sweep estimator of the most oblique pan axis
+//! poses → the full 3×3 `K` ([`crate::estimators::full`]), the sweep estimator of the most oblique pan axis
 //! beside it → validate → store → report → apply. No user action after the press.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
@@ -26,25 +26,27 @@
 mod command;
 mod config;
 mod handheld;
+pub mod pipeline;
 mod rig;
 mod solve;
 
 pub use command::{Command, ErrorClass, Led, Report, Shell};
 pub use config::{Config, ServoKind, TILT_SETTINGS};
 
-use crate::accel::{AccelCal, AccelCalibrator, AccelModel};
-use crate::axis::Poses;
-use crate::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
-use crate::full::{Axes, FullAxis, FullCal};
-use crate::gyro::Method;
-use crate::pipeline::{GravityTurn, OneAxis};
-use crate::record::{self, Record, SensorSetup, StoreError};
-use crate::rest::{RestDetector, RestState, Window};
-use crate::rotation::{PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
-use crate::stats::Welford3;
-use crate::sweep::{Integrator, Moves};
-use crate::vec3::{sub, to_f64 as v64};
-use crate::{pipeline, sweep, Error, Vec3};
+use crate::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
+use crate::estimators::axis::Poses;
+use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
+use crate::estimators::full::{Axes, FullAxis, FullCal};
+use crate::estimators::gyro::Method;
+use crate::estimators::rest::{RestDetector, RestState, Window};
+use crate::estimators::rotation::{PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
+use crate::estimators::sweep;
+use crate::estimators::sweep::{Integrator, Moves};
+use crate::formats::record::{self, Record, SensorSetup, StoreError};
+use crate::math::stats::Welford3;
+use crate::math::vec3::{sub, to_f64 as v64};
+use crate::procedure::pipeline::{GravityTurn, OneAxis};
+use crate::{Error, Vec3};
 use heapless::Deque;
 
 /// One IMU sample as the shell delivers it.

@@ -3,7 +3,7 @@
 //! calibrated by the 9-parameter fit on 12 hand-held poses), both gyro estimators compared.
 
 use crate::moments::Moments;
-use calib_core::gyro::{GyroCal, Method};
+use calib_core::estimators::gyro::{GyroCal, Method};
 use calib_core::procedure::{Config, Procedure, Report};
 use calib_core::Error;
 use rig_sim::harness::{run, Faults};

@@ -4,11 +4,12 @@
 //! random installation tilt. Protocol choices the paper leaves open are the fields of
 //! [`PaperProtocol`] and are printed by `paper-tables`.
 
-use calib_core::accel::AccelCalibrator;
-use calib_core::axis::{GeometryLimits, Poses};
-use calib_core::bias::{BiasEstimator, BiasLimits};
-use calib_core::stats::Welford3;
-use calib_core::{paper, Error};
+use calib_core::estimators::accel::AccelCalibrator;
+use calib_core::estimators::axis::{GeometryLimits, Poses};
+use calib_core::estimators::bias::{BiasEstimator, BiasLimits};
+use calib_core::estimators::paper;
+use calib_core::math::stats::Welford3;
+use calib_core::Error;
 use nalgebra::{Rotation3, Unit, Vector3};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};

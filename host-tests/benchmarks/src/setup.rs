@@ -1,7 +1,7 @@
 //! The sensor a benchmark simulates (`--setup`): the part, its ODR and full scales, for the rigs
 //! (`rig_sim`'s sensor model) and for the procedure (`SensorSetup`) alike.
 
-use calib_core::record::{Sensor, SensorSetup};
+use calib_core::formats::record::{Sensor, SensorSetup};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rig_sim::sim::{AccelRange, GyroRange, RigConfig};

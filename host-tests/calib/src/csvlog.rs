@@ -1,9 +1,9 @@
-//! Whole logs on the PC: the format itself ([`calib_core::log`]) is shared with the firmware's
+//! Whole logs on the PC: the format itself ([`calib_core::formats::log`]) is shared with the firmware's
 //! raw-log mode; this adds reading a whole text into rows and writing one.
 
-use calib_core::log::{self, Line};
-pub use calib_core::log::{LogError, Row, HEADER};
-use calib_core::record::SensorSetup;
+use calib_core::formats::log::{self, Line};
+pub use calib_core::formats::log::{LogError, Row, HEADER};
+use calib_core::formats::record::SensorSetup;
 
 /// A parsed log.
 #[derive(Debug, Clone, PartialEq)]
@@ -166,7 +166,7 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use calib_core::record::Sensor;
+    use calib_core::formats::record::Sensor;
 
     #[test]
     fn parses_by_column_name_with_comments_preamble_and_empty_servo() {
@@ -237,7 +237,7 @@ mod tests {
         format_row(&mut s, &r);
         format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, tilt_deg: Some(-25.0), ..r });
         s.insert_str(header().len(), "phase: bias, a log message\n");
-        s.push_str(calib_core::log::END);
+        s.push_str(calib_core::formats::log::END);
         s.push_str("\nINFO a log line after the raw log\n");
         let log = parse(&s).unwrap();
         assert_eq!(log.messages, 1);

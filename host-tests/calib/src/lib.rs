@@ -1,5 +1,5 @@
 //! The PC side of gyrocal: the recorded log read whole ([`csvlog`], over the format of
-//! `calib_core::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
+//! `calib_core::formats::log`) and calibrated with the firmware's own calib-core code ([`offline`]): a
 //! log of the firmware's own run is replayed through its procedure ([`replay`]); a board
 //! calibrated over its USB serial port, its log saved and cross-checked ([`port`]). The
 //! binaries `gyrocal-calib` and `gyrocal-flash` are what a user installs (`cargo install --locked

@@ -1,5 +1,5 @@
 //! A calibration over the board's USB serial port (`calib --port`), nothing but a USB cable: the
-//! board's protocol ([`calib_core::protocol`]) is one-byte commands in, text lines out, which
+//! board's protocol ([`calib_core::formats::protocol`]) is one-byte commands in, text lines out, which
 //! the session knows only as the [`Event`]s they parse to.
 //!
 //! The session: open the port ([`open`]), drain stale input, [`Command::Stored`] for the stored
@@ -18,10 +18,10 @@
 
 use crate::csvlog::{self, Row};
 use crate::offline;
-use calib_core::export::RecordJson;
+use calib_core::formats::export::RecordJson;
+use calib_core::formats::protocol::{self, Command, Event, RecordLine};
+use calib_core::formats::record::Record;
 use calib_core::procedure::Phase;
-use calib_core::protocol::{self, Command, Event, RecordLine};
-use calib_core::record::Record;
 use serialport::SerialPort;
 use std::fmt;
 use std::fs::File;
@@ -573,7 +573,7 @@ impl Ui<'_> {
     }
 }
 
-/// The record a result line (`calib_core::export`'s JSON, [`RecordJson`]) was written from
+/// The record a result line (`calib_core::formats::export`'s JSON, [`RecordJson`]) was written from
 /// ([`RecordJson::record`]): `null` is NaN; `K`, `b`, `M` and `o` must be numbers, the names known.
 pub fn record_from_json(line: &str) -> Result<Record, String> {
     let j: RecordJson = serde_json::from_str(line).map_err(|e| format!("not the expected JSON ({e}): {line}"))?;

@@ -14,13 +14,14 @@
 //! did (its accelerometer calibration instead of the hand-held poses).
 
 use crate::csvlog::Row;
-use calib_core::accel::AccelCal;
-use calib_core::bias::Bias;
-use calib_core::full::FullCal;
-use calib_core::gyro::{GyroCal, Method};
+use calib_core::estimators::accel::AccelCal;
+use calib_core::estimators::bias::Bias;
+use calib_core::estimators::full::FullCal;
+use calib_core::estimators::gyro::{GyroCal, Method};
+use calib_core::formats::record::{Record, SensorSetup, StoreError};
+use calib_core::procedure::pipeline;
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
-use calib_core::record::{Record, SensorSetup, StoreError};
-use calib_core::{pipeline, Error};
+use calib_core::Error;
 
 /// What the procedure concluded on the replayed log.
 #[derive(Debug, Clone)]

@@ -13,8 +13,8 @@
 use crate::allan::{Allan, Noise};
 use crate::csvlog::Row;
 use crate::offline::{Calibration, Segment};
-use calib_core::record::Record;
-use calib_core::vec3::sub;
+use calib_core::formats::record::Record;
+use calib_core::math::vec3::sub;
 use nalgebra::{Matrix3, Vector3};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;

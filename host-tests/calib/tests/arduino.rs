@@ -1,10 +1,10 @@
 //! The GyroCal Arduino library (`calib-core/arduino/GyroCal`) compiled on the host with
 //! `-Wall -Wextra -Werror -pedantic` and run on regions of the board's flash: it loads what
-//! `calib_core::region` loads (the same page, every field, calibrated outputs to 1e-6), refuses
+//! `calib_core::formats::region` loads (the same page, every field, calibrated outputs to 1e-6), refuses
 //! what it refuses, and `calib LOG --export record` writes a region it reads.
 
-use calib_core::record::{crc32, Record, Sensor, SensorSetup, LEN};
-use calib_core::region::{self, PAGE, SLOTS};
+use calib_core::formats::record::{crc32, Record, Sensor, SensorSetup, LEN};
+use calib_core::formats::region::{self, PAGE, SLOTS};
 use common::{calib, simulated_log};
 use rig_sim::variant::Variant;
 use std::io::Write;

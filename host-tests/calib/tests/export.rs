@@ -1,15 +1,15 @@
-//! `calib_core::export` on the host: the firmware's hand-written JSON is the serde schema
+//! `calib_core::formats::export` on the host: the firmware's hand-written JSON is the serde schema
 //! (`RecordJson`) field for field, parses and round-trips, its `gyro` and `accel` are calib's own
 //! keys; the C snippet and the Rust constants compile; `calib LOG --export`.
 
 use calib::csvlog;
 use calib::offline;
 use calib::port::record_from_json;
-use calib_core::accel::AccelModel;
-use calib_core::bias::TempCo;
-use calib_core::export::{self, Format, NotFinite, RecordJson, Source};
-use calib_core::gyro::Method;
-use calib_core::record::{Record, SensorSetup};
+use calib_core::estimators::accel::AccelModel;
+use calib_core::estimators::bias::TempCo;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::export::{self, Format, NotFinite, RecordJson, Source};
+use calib_core::formats::record::{Record, SensorSetup};
 use common::{calib, simulated_log};
 use rig_sim::variant::Variant;
 use std::collections::{BTreeMap, BTreeSet};

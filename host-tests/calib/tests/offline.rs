@@ -2,7 +2,7 @@
 
 use calib::csvlog::{self, Row, HEADER};
 use calib::offline::{self, OfflineError};
-use calib_core::gyro::Method;
+use calib_core::estimators::gyro::Method;
 use calib_core::procedure::{Config, Procedure};
 use common::{calib, simulated_log};
 use rig_sim::harness::{record_log, Faults};
@@ -144,7 +144,7 @@ fn a_pan_tilt_firmware_log_is_replayed_to_the_firmware_s_full_k() {
     let rec = out.stored[0];
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
     assert_eq!(c.replayed, Some("tilt-servo"));
-    assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
+    assert_eq!(c.accel.model, calib_core::estimators::accel::AccelModel::NineParam);
     let full = c.full.expect("a full K").expect("solved");
     // The firmware's K, to the rounding of the log's numbers.
     let d = (0..9).map(|i| (full.k[i / 3][i % 3] - rec.gyro_k[i / 3][i % 3]).abs()).fold(0.0, f32::max);
@@ -175,7 +175,7 @@ fn hand_held_poses_alone_give_the_full_k_and_the_accelerometer() {
     assert!(rows.iter().all(|r| r.servo_deg.is_none() && r.tilt_deg.is_none()), "no servo at all");
     let c = offline::calibrate(&rows, None).unwrap();
     assert!(c.missing().is_empty(), "{:?}", c.missing());
-    assert_eq!(c.accel.model, calib_core::accel::AccelModel::NineParam);
+    assert_eq!(c.accel.model, calib_core::estimators::accel::AccelModel::NineParam);
     let full = c.full.expect("a full K").expect("solved");
     assert!(full.rotation_moves >= 10, "{} moves", full.rotation_moves);
     let (largest, rms) = pan_tilt::k_error(full.k, c.accel.m, &rig).unwrap();
@@ -325,7 +325,7 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let off = offline::calibrate_with(&csvlog::parse(&log).unwrap().rows, None, false).unwrap();
     assert!(off.replayed.is_none() && off.full.is_none() && off.gyro.is_ok());
     // The full K (the rig's axis and the hand-held moves), as stored.
-    assert_eq!(stored.method, calib_core::gyro::Method::Full);
+    assert_eq!(stored.method, calib_core::estimators::gyro::Method::Full);
     let k = c.full.as_ref().unwrap().as_ref().unwrap().k;
     let diff = (0..9).map(|i| (k[i / 3][i % 3] - stored.gyro_k[i / 3][i % 3]).abs()).fold(0.0f32, f32::max);
     println!("MEASURED calib_vs_procedure_max_abs_k_diff={diff:e}");

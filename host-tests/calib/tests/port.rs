@@ -1,17 +1,17 @@
 //! `calib --port` without hardware: a fake board on the master side of a pseudo-terminal plays a
 //! simulated log through the firmware's procedure (button presses on [`Command::Calibrate`], the
-//! procedure's report lines and the other lines through `calib_core::protocol`'s writers, its
+//! procedure's report lines and the other lines through `calib_core::formats::protocol`'s writers, its
 //! record as calib-core's JSON), the session on the slave.
 #![cfg(unix)]
 
 use calib::csvlog;
 use calib::port::{self, Awaiting, Options, SessionError, K_TOLERANCE};
-use calib_core::export::{self, Format};
-use calib_core::log;
+use calib_core::formats::export::{self, Format};
+use calib_core::formats::log;
+use calib_core::formats::protocol::{self, Command, Event, RecordLine};
+use calib_core::formats::record::{Record, StoreError};
+use calib_core::formats::text;
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
-use calib_core::protocol::{self, Command, Event, RecordLine};
-use calib_core::record::{Record, StoreError};
-use calib_core::text;
 use calib_core::Error;
 use common::calib;
 use rig_sim::harness::{record_log, Faults};
@@ -250,8 +250,8 @@ fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
     assert_eq!(o.lines, saved.lines().count());
     // The board's result, parsed, and the cross-check.
     assert_eq!(protocol::parse(&o.json), Some(Event::ResultJson(&o.json)));
-    let v: calib_core::export::RecordJson = serde_json::from_str(&o.json).unwrap();
-    assert_eq!(v.gyro.method, calib_core::gyro::Method::Full);
+    let v: calib_core::formats::export::RecordJson = serde_json::from_str(&o.json).unwrap();
+    assert_eq!(v.gyro.method, calib_core::estimators::gyro::Method::Full);
     assert_eq!(o.check.replayed, Some("default"));
     assert!(o.check.max_diff <= K_TOLERANCE, "{}", o.check.max_diff);
     assert_eq!(o.check.lost_rows, 0);

@@ -6,10 +6,10 @@
 //! presses again. Faults are injected through [`Faults`].
 
 use crate::sim::{Reading, Rig, RigConfig};
-use calib_core::gyro::GyroCal;
-use calib_core::log::{self, Row};
+use calib_core::estimators::gyro::GyroCal;
+use calib_core::formats::log::{self, Row};
+use calib_core::formats::record::{Record, StoreError};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
-use calib_core::record::{Record, StoreError};
 use calib_core::Error;
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -271,7 +271,7 @@ pub fn write_log_row(text: &mut String, row: &Row, mag: bool) {
     text.push('\n');
 }
 
-/// Runs like [`run`] and records the log ([`calib_core::log`], `comments` first).
+/// Runs like [`run`] and records the log ([`calib_core::formats::log`], `comments` first).
 pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments: &str) -> (String, Run) {
     let mag = rig.config().mag.is_some();
     let mut text = format!("{comments}{}\n", log_header(rig.config()));

@@ -3,7 +3,7 @@
 //! `K`, `M` and the magnetometer's `A` share: `Q = polar(M̂ C_a)`).
 
 use crate::sim::Rig;
-use calib_core::mag::heading_deg;
+use calib_core::estimators::mag::heading_deg;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

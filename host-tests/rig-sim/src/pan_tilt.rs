@@ -6,7 +6,7 @@
 use crate::harness::handheld_attitudes;
 use crate::sim::{Reading, Rig, RigConfig, TiltStage};
 use crate::variant::Variant;
-use calib_core::log::{self, Row};
+use calib_core::formats::log::{self, Row};
 use nalgebra::Matrix3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -2,7 +2,7 @@
 //! absence, the power-save access gap, the configuration upload and its check, invalid
 //! configurations), and the configuration file against Bosch's published array.
 
-use calib_core::record::{Sensor, SensorSetup};
+use calib_core::formats::record::{Sensor, SensorSetup};
 use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
 use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG, GYR_START_S};
 use sha2::{Digest, Sha256};

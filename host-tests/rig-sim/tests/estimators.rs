@@ -1,10 +1,11 @@
 //! Property tests of the gyro and accelerometer estimators on analytic, noise-free rig data:
 //! exact recovery whatever the mounting and tilt, and each degenerate geometry named.
 
-use calib_core::accel::AccelCalibrator;
-use calib_core::axis::{GeometryLimits, Poses};
-use calib_core::sweep::{Integrator, Moves};
-use calib_core::{paper, sweep, Error, Vec3};
+use calib_core::estimators::accel::AccelCalibrator;
+use calib_core::estimators::axis::{GeometryLimits, Poses};
+use calib_core::estimators::sweep::{Integrator, Moves};
+use calib_core::estimators::{paper, sweep};
+use calib_core::{Error, Vec3};
 use nalgebra::{Rotation3, Unit, Vector3};
 use proptest::prelude::*;
 

@@ -1,6 +1,6 @@
-//! The `simulate` binary: a simulated calibration run written as a log of calib_core::log.
+//! The `simulate` binary: a simulated calibration run written as a log of calib_core::formats::log.
 
-use calib_core::log::{is_header, parse_header, parse_line, Line};
+use calib_core::formats::log::{is_header, parse_header, parse_line, Line};
 
 #[test]
 fn simulate_writes_a_log_of_the_shared_format() {

@@ -1,8 +1,8 @@
 //! `f32` inputs, `f64` accumulators: results within 1e-5 relative of an `f64` reference over
 //! 100 000 samples (a naive `f32` running mean is not).
 
-use calib_core::bias::{BiasEstimator, BiasLimits};
-use calib_core::sweep::Integrator;
+use calib_core::estimators::bias::{BiasEstimator, BiasLimits};
+use calib_core::estimators::sweep::Integrator;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -60,8 +60,8 @@ fn gyro_integral_over_100k_samples_matches_f64() {
 /// The sweep estimator end to end on noisy f32 data vs the same formulas in f64 with nalgebra.
 #[test]
 fn sweep_result_matches_an_f64_reference() {
-    use calib_core::axis::{GeometryLimits, Poses};
-    use calib_core::sweep::{self, Moves};
+    use calib_core::estimators::axis::{GeometryLimits, Poses};
+    use calib_core::estimators::sweep::{self, Moves};
     use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let u = Vector3::new(0.5, -0.45, 0.74).normalize();

@@ -1,10 +1,10 @@
 //! The calibration procedure end to end on the simulated rig: button press to stored record,
 //! and every failure ending in its own error with nothing stored.
 
-use calib_core::accel::AccelModel;
-use calib_core::gyro::Method;
+use calib_core::estimators::accel::AccelModel;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::record::{Record, SensorSetup, StoreError};
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, ServoKind};
-use calib_core::record::{Record, SensorSetup, StoreError};
 use calib_core::Error;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -104,7 +104,7 @@ fn continuous_rotation_servo() {
         let err = max_rel_error(&out.stored[0], &rig);
         assert!(err < 0.003, "seed {seed}: max scale error {:.4} %", err * 100.0);
         // The paper estimator, fed the rate measured from the accelerometer, also works here.
-        let paper = out.gyro_results().into_iter().find(|c| c.method == calib_core::gyro::Method::Paper).unwrap();
+        let paper = out.gyro_results().into_iter().find(|c| c.method == calib_core::estimators::gyro::Method::Paper).unwrap();
         let k = rig.truth().gyro_k;
         for i in 0..3 {
             assert!((paper.k[i][i] as f64 / k[(i, i)] - 1.0).abs() < 0.01);

@@ -1,9 +1,9 @@
 //! The flash record: round trip of any record, and a decoder that never panics on any bytes.
 
-use calib_core::accel::AccelModel;
-use calib_core::bias::TempCo;
-use calib_core::gyro::Method;
-use calib_core::record::{DecodeError, Record, Sensor, SensorSetup, LEN};
+use calib_core::estimators::accel::AccelModel;
+use calib_core::estimators::bias::TempCo;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::record::{DecodeError, Record, Sensor, SensorSetup, LEN};
 use proptest::prelude::*;
 
 fn finite() -> impl Strategy<Value = f32> {

@@ -73,9 +73,9 @@ fn lines_go_in_whole_or_are_dropped_and_counted() {
 
 #[test]
 fn the_console_takes_the_protocols_command_bytes() {
-    // The console's commands and help are `calib_core::protocol`'s (every byte is tested there).
-    let _: calib_core::protocol::Command = Command::Help;
-    assert_eq!(HELP, calib_core::protocol::HELP);
+    // The console's commands and help are `calib_core::formats::protocol`'s (every byte is tested there).
+    let _: calib_core::formats::protocol::Command = Command::Help;
+    assert_eq!(HELP, calib_core::formats::protocol::HELP);
     for c in Command::ALL {
         assert_eq!(Command::decode(c.byte()), Some(c));
     }

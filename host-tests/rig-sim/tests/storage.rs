@@ -2,9 +2,9 @@
 //! erase and word-write step of a store: the previous record always survives, a torn record is
 //! never loaded.
 
-use calib_core::accel::AccelModel;
-use calib_core::gyro::Method;
-use calib_core::record::{Record, SensorSetup};
+use calib_core::estimators::accel::AccelModel;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::record::{Record, SensorSetup};
 use gyrocal_fw::storage::{Slot, Storage, StoreError};
 use rig_sim::nor::{NorError, NorSim};
 
@@ -65,7 +65,7 @@ fn power_cut_at_every_step_never_loses_the_previous_record() {
     s.store(&record(2)).unwrap();
     flash = s.release();
     let per_store = flash.steps() - before;
-    assert_eq!(per_store, 1 + calib_core::record::LEN / 4);
+    assert_eq!(per_store, 1 + calib_core::formats::record::LEN / 4);
 
     for history in [1u32, 2] {
         for cut in 0..per_store {
@@ -96,7 +96,7 @@ fn a_version_1_record_in_flash_loads_and_the_next_store_is_the_current_version()
     // A record of the release before the full K (format version 1, 156 bytes), as it sits in
     // flash, laid out field by field: the v2 header, then the diagonal 1σ, six quality fields, CRC.
     use embedded_storage::nor_flash::NorFlash;
-    let mut v1 = record(4).encode().unwrap()[..calib_core::record::LEN_V1].to_vec();
+    let mut v1 = record(4).encode().unwrap()[..calib_core::formats::record::LEN_V1].to_vec();
     v1[4] = 1;
     v1[14] &= 1; // flags: only "temperature unknown" exists in v1
     let sigma = [1e-4f32; 3];
@@ -104,7 +104,7 @@ fn a_version_1_record_in_flash_loads_and_the_next_store_is_the_current_version()
     for (i, x) in sigma.iter().chain(quality.iter()).enumerate() {
         v1[116 + 4 * i..120 + 4 * i].copy_from_slice(&x.to_le_bytes());
     }
-    let crc = calib_core::record::crc32(&v1[..152]);
+    let crc = calib_core::formats::record::crc32(&v1[..152]);
     v1[152..].copy_from_slice(&crc.to_le_bytes());
     let mut flash = NorSim::new(2, 4);
     flash.write(0, &v1).unwrap();
@@ -113,7 +113,7 @@ fn a_version_1_record_in_flash_loads_and_the_next_store_is_the_current_version()
     assert_eq!(loaded, Some((0, 4, record(4).gyro_k, record(4).sigma_k)));
     s.store(&record(5)).unwrap();
     assert_eq!(s.load().unwrap(), Some((1, record(5))));
-    assert_eq!(s.release().bytes()[4096 + 4], calib_core::record::VERSION);
+    assert_eq!(s.release().bytes()[4096 + 4], calib_core::formats::record::VERSION);
 }
 
 #[test]

@@ -5,7 +5,7 @@ use crate::elf::Firmware;
 use crate::mcu::{Mcu, Stop};
 use crate::periph::{Leds, Periph};
 use crate::pty::PtyBridge;
-use calib_core::record::Record;
+use calib_core::formats::record::Record;
 use rig_sim::harness::handheld_attitudes;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
 use rig_sim::nor::NorSim;
@@ -323,7 +323,7 @@ impl Testbed {
     pub fn k_errors_pct(&self, rec: &Record) -> (f64, f64) {
         let p = self.mcu.periph.borrow();
         let rig = p.sensor.rig();
-        if rec.method != calib_core::gyro::Method::Full {
+        if rec.method != calib_core::estimators::gyro::Method::Full {
             let k = rig.truth().gyro_k;
             return ((0..3).map(|i| (rec.gyro_k[i][i] as f64 / k[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max), f64::NAN);
         }

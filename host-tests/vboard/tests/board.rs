@@ -1,7 +1,7 @@
 //! The real firmware ELF on the emulated board: calibration end to end, reboot, and faults.
 
-use calib_core::frame::DataFrame;
-use calib_core::record::Sensor;
+use calib_core::estimators::frame::DataFrame;
+use calib_core::formats::record::Sensor;
 use gyrocal_fw::lsm9ds1::SensorError;
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
@@ -97,7 +97,7 @@ fn a_rev2_board_calibrates_with_its_bmi270() {
     // The record names its part (a record of the other part is never applied: its setup differs).
     assert_eq!(rec.setup.sensor, Sensor::Bmi270 { gyr_cas: rig_sim::bmi_model::GYR_CAS, user_gain: false });
     // The part's raw z→x coupling (GYR_CAS/512 = -1.4 %) is in K; for data with Bosch's CAS
-    // applied (calib_core::frame) it is gone: this rig has no other cross-axis coupling.
+    // applied (calib_core::estimators::frame) it is gone: this rig has no other cross-axis coupling.
     let bosch = rec.in_frame(DataFrame::BoschApi).unwrap();
     println!("MEASURED rev2 K[0][2] raw {:.5}, for Bosch's API data {:.5}", rec.gyro_k[0][2], bosch.gyro_k[0][2]);
     assert!((rec.gyro_k[0][2] - 7.0 / 512.0).abs() < 5e-4 && bosch.gyro_k[0][2].abs() < 5e-4);
@@ -201,7 +201,7 @@ fn the_tilt_servo_firmware_calibrates_the_full_k_on_a_pan_tilt_bracket() {
     assert_eq!(outcome, Outcome::Done, "{:?}", b.mcu.log.iter().rev().take(5).collect::<Vec<_>>());
     assert!(!asked, "the pan/tilt plan asked for the user: {:#?}", b.mcu.log);
     let rec = b.stored().expect("a record in flash");
-    assert_eq!(rec.method, calib_core::gyro::Method::Full);
+    assert_eq!(rec.method, calib_core::estimators::gyro::Method::Full);
     let (largest, rms) = rig_sim::pan_tilt::k_error(rec.gyro_k, rec.accel_m, b.mcu.periph.borrow().sensor.rig()).unwrap();
     assert!(largest < 1.5e-3 && rms < 5e-4, "E largest {largest:.2e}, rms {rms:.2e}");
     assert_servo_frames_whole(&b);

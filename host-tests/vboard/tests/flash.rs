@@ -46,7 +46,7 @@ fn a_failed_store_and_a_power_cut_at_every_flash_step_keep_the_previous_record()
         }
     }
     let steps = b.mcu.periph.borrow().flash.steps() - steps0;
-    assert_eq!(steps, 1 + calib_core::record::LEN / 4, "one page erase and 47 word writes");
+    assert_eq!(steps, 1 + calib_core::formats::record::LEN / 4, "one page erase and 47 word writes");
     assert_eq!(b.stored().unwrap().seq, 2);
     // The snapshot the cuts start from: 0.3 s before the first flash step, nothing written yet.
     let t_first_step = t_first_step.expect("the store wrote the flash");

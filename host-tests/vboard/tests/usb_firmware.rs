@@ -1,12 +1,12 @@
 //! The real firmware on the virtual USB port: enumeration by the virtual host, a command, the
 //! 1200-baud touch (a smoke test of the USBD model against nrf-usbd + usb-device + usbd-serial).
-//! What the board says is read as `calib_core::protocol` events, never as sentences.
+//! What the board says is read as `calib_core::formats::protocol` events, never as sentences.
 
-use calib_core::export::{self, Format};
-use calib_core::gyro::Method;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::export::{self, Format};
+use calib_core::formats::protocol::{self, Command, Event, RecordLine};
+use calib_core::formats::record::{Sensor, SensorSetup};
 use calib_core::procedure::Phase;
-use calib_core::protocol::{self, Command, Event, RecordLine};
-use calib_core::record::{Sensor, SensorSetup};
 use rig_sim::lsm_model::Board;
 use rig_sim::nor::NorSim;
 use rig_sim::variant::Variant;

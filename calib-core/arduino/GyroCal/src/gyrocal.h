@@ -4,7 +4,7 @@
  * Arduino bootloader erases only the pages a sketch upload writes, so the record survives the
  * upload of your own sketch, and this library finds it there: the newest valid record of the two
  * pages (magic, version, CRC-32 and every field checked, sequence numbers compared with
- * wrap-around), exactly as the firmware's own storage and calib_core::region decide.
+ * wrap-around), exactly as the firmware's own storage and calib_core::formats::region decide.
  *
  * Model and units (the same as the firmware and every export):
  *   gyro   out_dps = K (raw_dps - bias_dps)        K row-major, raw in the datasheet's units

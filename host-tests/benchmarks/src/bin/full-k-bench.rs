@@ -13,7 +13,7 @@
 use benchmarks::moments::Moments;
 use benchmarks::setup::Setup;
 use calib::{csvlog, offline};
-use calib_core::gyro::Method;
+use calib_core::estimators::gyro::Method;
 use calib_core::procedure::{Config, Procedure, Report};
 use clap::Parser;
 use rig_sim::harness::{run, Faults};

@@ -61,7 +61,7 @@ fn main() {
                     let text = record_log(&mut rig, &mut p, Faults::default(), "").0;
                     // The setup comment the firmware's raw log holds after its header.
                     let mut setup = String::new();
-                    let _ = calib_core::log::write_setup(&mut setup, &args.setup.setup());
+                    let _ = calib_core::formats::log::write_setup(&mut setup, &args.setup.setup());
                     let at = text.find('\n').map_or(0, |i| i + 1);
                     format!("{}{setup}\n{}", &text[..at], &text[at..])
                 }

@@ -194,7 +194,7 @@ fn main() {
             let [a, b] = covered(rec.gyro_k, rec.sigma_k, rec.accel_m, &rig);
             cover = [cover[0] + a, cover[1] + b];
         }
-        let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::gyro::Method::Sweep);
+        let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::estimators::gyro::Method::Sweep);
         match sweep.and_then(|g| pan_tilt::k_error(g.k, rec.accel_m, &rig)) {
             Some((mx, r)) => {
                 diag.push(r);

@@ -11,12 +11,12 @@
 
 use calib::port::{self, Options};
 use calib::{csvlog, offline};
-use calib_core::accel::AccelModel;
-use calib_core::export::{self, Format, RecordJson};
-use calib_core::frame::DataFrame;
-use calib_core::gyro::Method;
-use calib_core::record::Record;
-use calib_core::region;
+use calib_core::estimators::accel::AccelModel;
+use calib_core::estimators::frame::DataFrame;
+use calib_core::estimators::gyro::Method;
+use calib_core::formats::export::{self, Format, RecordJson};
+use calib_core::formats::record::Record;
+use calib_core::formats::region;
 use clap::{Parser, ValueEnum};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -82,7 +82,7 @@ struct Args {
     /// Write the result as JSON (one line), a C snippet (arrays and gyrocal_apply()) or Rust
     /// constants: to stdout instead of the usual output, or to --out; `record`: the two record
     /// pages (8 KiB) as they would be in the board's flash at 0xF8000 (needs --out), for the
-    /// GyroCal Arduino library's or calib_core::region's loader.
+    /// GyroCal Arduino library's or calib_core::formats::region's loader.
     #[arg(long, value_enum)]
     export: Option<ExportArg>,
     /// Also write a report to look at: one self-contained HTML page with plots (the poses on the
@@ -155,8 +155,8 @@ enum ExportArg {
 }
 
 /// The export of `rec`: JSON through its serde schema ([`RecordJson`], the one the board writes
-/// by hand), C and Rust by `calib_core::export` (text, ending in a newline), the record pages by
-/// `calib_core::region::image`.
+/// by hand), C and Rust by `calib_core::formats::export` (text, ending in a newline), the record pages by
+/// `calib_core::formats::region::image`.
 fn export_bytes(rec: &Record, format: ExportArg, frame: FrameArg) -> Result<Vec<u8>, String> {
     let failed = |e: &dyn std::fmt::Display| format!("--export: the record could not be written: {e}");
     let mut text = String::new();

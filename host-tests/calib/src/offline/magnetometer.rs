@@ -1,4 +1,4 @@
-//! The magnetometer from a log's hand-held rows ([`calib_core::mag`]). A servo's motor magnet
+//! The magnetometer from a log's hand-held rows ([`calib_core::estimators::mag`]). A servo's motor magnet
 //! adds tens to hundreds of µT near the board and moves with the shaft, so nothing recorded
 //! on the rig enters the fit: not the rows with a servo commanded, and not a still segment with
 //! the servo columns empty that sits next to them (the firmware's bias rest before the board
@@ -6,7 +6,7 @@
 //! held in the hand. The hand-held stretch runs from its first pose to its last.
 
 use super::*;
-use calib_core::mag::{MagCal, MagCalibrator, MagLimits};
+use calib_core::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 
 /// The magnetometer's calibration from a log, with the readings used and left out.
 #[derive(Debug, Clone)]
@@ -65,7 +65,7 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
         }
         chosen.sort_by_key(|s| s.first);
     }
-    let none = || (Err(Error::TooFewPoses { have: 0, need: calib_core::mag::MIN_POSES as u8 }), 0, None);
+    let none = || (Err(Error::TooFewPoses { have: 0, need: calib_core::estimators::mag::MIN_POSES as u8 }), 0, None);
     let (mut cal, used, ellipsoid) = fit(rows, &chosen, accel, &limits).unwrap_or_else(none);
     // A disturbed pose is named by its place among all the log's hand-held poses.
     if let Err(Error::MagDisturbed { pose, .. }) = &mut cal {

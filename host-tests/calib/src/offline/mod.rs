@@ -7,21 +7,23 @@
 //! steady gyro rate is the paper's constant-rate spin.
 
 use crate::csvlog::{Log, Row};
-use calib_core::accel::{AccelCal, AccelCalibrator, AccelModel};
-use calib_core::axis::{Poses, MAX_POSES};
-use calib_core::bias::{Bias, BiasEstimator, BiasLimits, Drift, RestBias};
-use calib_core::full::FullCal;
-use calib_core::gyro::{GyroCal, GyroQuality, Method};
-use calib_core::pipeline::{GravityTurn, SteadyRate};
+use calib_core::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
+use calib_core::estimators::axis::{Poses, MAX_POSES};
+use calib_core::estimators::bias::{Bias, BiasEstimator, BiasLimits, Drift, RestBias};
+use calib_core::estimators::full::FullCal;
+use calib_core::estimators::gyro::{GyroCal, GyroQuality, Method};
+use calib_core::estimators::rest::{RestConfig, RestDetector, RestState};
+use calib_core::estimators::rotation::{PoseRest, PoseTurn, RotationLimits, Rotations};
+use calib_core::estimators::sweep::{Integrator, Moves, MAX_MOVES};
+use calib_core::estimators::{full, paper, sweep};
+use calib_core::formats::record::{self, Record, SensorSetup};
+use calib_core::math::stats::Welford3;
+use calib_core::math::vec3::{sub, to_f64 as v64};
+use calib_core::procedure::pipeline;
+use calib_core::procedure::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
-use calib_core::record::{self, Record, SensorSetup};
-use calib_core::rest::{RestConfig, RestDetector, RestState};
-use calib_core::rotation::{PoseRest, PoseTurn, RotationLimits, Rotations};
-use calib_core::stats::Welford3;
-use calib_core::sweep::{Integrator, Moves, MAX_MOVES};
-use calib_core::vec3::{sub, to_f64 as v64};
+use calib_core::Error;
 use calib_core::Vec3;
-use calib_core::{full, paper, pipeline, sweep, Error};
 use nalgebra::Vector3;
 use serde::Serialize;
 

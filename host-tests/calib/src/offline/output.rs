@@ -1,10 +1,10 @@
 //! The tool's JSON output and the record of a result.
 
 use super::*;
-use calib_core::export::{AccelJson, GyroJson};
+use calib_core::formats::export::{AccelJson, GyroJson};
 
 /// The tool's JSON output: the calibration to apply (`gyro` and `accel` in the one schema of
-/// `calib_core::export`), then everything about its quality.
+/// `calib_core::formats::export`), then everything about its quality.
 #[derive(Debug, Clone, Serialize)]
 pub struct Output<'a> {
     /// `ω = K (g − b)`; `null` when the log does not support it (see `quality.missing`).
@@ -32,7 +32,7 @@ pub struct MagJson {
 #[derive(Debug, Clone, Serialize)]
 pub struct MagQualityOut<'a> {
     /// The fit's figures (`null` on failure).
-    pub fit: Option<&'a calib_core::mag::MagCal>,
+    pub fit: Option<&'a calib_core::estimators::mag::MagCal>,
     /// Why there is no calibration (`null` on success).
     pub error: Option<String>,
     /// Readings of hand-held rows offered to the fit.
@@ -137,7 +137,7 @@ impl HandMoves {
     /// The summary of `rotations`, recorded under `limits`.
     pub fn of(rotations: &Rotations, limits: &RotationLimits) -> Self {
         let dropped: std::collections::BTreeMap<_, _> =
-            calib_core::rotation::Rejected::ALL.iter().zip(rotations.rejected()).map(|(r, n)| (r.name(), n)).collect();
+            calib_core::estimators::rotation::Rejected::ALL.iter().zip(rotations.rejected()).map(|(r, n)| (r.name(), n)).collect();
         let kept = rotations.moves().len();
         HandMoves {
             total: kept + dropped.values().map(|&n| n as usize).sum::<usize>(),
@@ -292,7 +292,7 @@ impl Calibration {
         }
     }
 
-    /// The result as a flash record, for `calib_core::export`: the gyro `K` of
+    /// The result as a flash record, for `calib_core::formats::export`: the gyro `K` of
     /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
     /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
     /// and tempco unknown (a log has no temperature column), the setup the log states, else its

@@ -133,7 +133,7 @@ fn main() -> ExitCode {
         testbed.press(2.3);
         testbed.run_for(0.5);
         let text: String = testbed.mcu.log[from..].iter().map(|l| format!("{}\n", message(l))).collect();
-        let Some(start) = text.find(calib_core::log::HEADER) else {
+        let Some(start) = text.find(calib_core::formats::log::HEADER) else {
             eprintln!("[demo] raw-log mode printed no header");
             return ExitCode::from(1);
         };
@@ -180,7 +180,7 @@ fn main() -> ExitCode {
         None => f64::NAN,
     };
     // A full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
-    let full_err = stored.as_ref().filter(|r| r.method == calib_core::gyro::Method::Full).map(|r| testbed.k_errors_pct(r));
+    let full_err = stored.as_ref().filter(|r| r.method == calib_core::estimators::gyro::Method::Full).map(|r| testbed.k_errors_pct(r));
     let ok = stored.is_some() && outcome == Outcome::Done;
     // The raw log through the offline path of `calib` (the same code): the same K as the
     // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
@@ -295,7 +295,7 @@ fn demo_usb(
     let ok = same && outcome == Outcome::Done;
     println!("[demo] the record in flash is the one reported over USB: {same}");
     print_speed(testbed, wall);
-    let full = (out.record.method == calib_core::gyro::Method::Full).then(|| testbed.k_errors_pct(&out.record));
+    let full = (out.record.method == calib_core::estimators::gyro::Method::Full).then(|| testbed.k_errors_pct(&out.record));
     println!(
         "RESULT max_scale_error_pct={:.4}{} stored={ok} via=usb board={board_name}",
         full.map_or(testbed.max_scale_error_pct(&out.record), |f| f.0),

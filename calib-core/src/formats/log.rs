@@ -16,7 +16,7 @@
 //! Numbers are written with fixed decimals (µs, µg, 10 µ°/s, 0.01°) by integer arithmetic, so
 //! the firmware needs no float-formatting code.
 
-use crate::record::{Sensor, SensorSetup};
+use crate::formats::record::{Sensor, SensorSetup};
 use core::fmt::{self, Write};
 
 /// The header line.

@@ -1,6 +1,6 @@
 //! The result shared by the gyro estimators: `ω = K (g − b)` with its quality report.
 
-use crate::stats::Spread;
+use crate::math::stats::Spread;
 use crate::{Mat3, Vec3};
 
 /// Which gyro estimator produced a result.
@@ -13,7 +13,7 @@ pub enum Method {
     Paper,
     /// Speed-free sweeps: turn angles from the accelerometer (DESIGN §4.2).
     Sweep,
-    /// The full 3×3 `K` from moves about several axes ([`crate::full`]).
+    /// The full 3×3 `K` from moves about several axes ([`crate::estimators::full`]).
     Full,
 }
 

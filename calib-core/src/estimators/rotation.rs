@@ -11,7 +11,7 @@
 //! every Gauss–Newton iterate: the result does not depend on where the iteration starts (no
 //! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 24 bytes.
 //!
-//! Jacobian (vec `K` column-major, [`crate::full::vec_index`]): composing
+//! Jacobian (vec `K` column-major, [`crate::estimators::full::vec_index`]): composing
 //! `J ← Exp(φ_c)ᵀ J + J_r(φ_c) (Γ_cᵀ ⊗ I)` (the preintegration recursion; the coning term's small
 //! derivative is left out, which slows Gauss–Newton a little but does not move its fixed point)
 //! gives `R(K + δK) ≈ R Exp(J δk)`. In the tangent basis `(e₁, e₂)` of `g_i` the residual is
@@ -24,13 +24,13 @@
 //! Noise (1σ per row, rad): `σ² = σ_i² + σ_j² + σ_Γ²`, `σ_i` the direction noise of pose `i`
 //! (its mean's noise per component over `|f|`), `σ_Γ` the gyro integral's noise over one move.
 
-use crate::accel::AccelCal;
-use crate::axis::{Poses, MAX_POSES};
-use crate::bias::RestBias;
-use crate::gyro::SCALE_RANGE;
-use crate::linalg::sym_eigen;
-use crate::lsq::NormalEquations;
-use crate::vec3::{tangent_basis, to_f64 as v64};
+use crate::estimators::accel::AccelCal;
+use crate::estimators::axis::{Poses, MAX_POSES};
+use crate::estimators::bias::RestBias;
+use crate::estimators::gyro::SCALE_RANGE;
+use crate::math::linalg::sym_eigen;
+use crate::math::lsq::NormalEquations;
+use crate::math::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -700,7 +700,7 @@ impl Rotations {
     /// `H·k' ≈ H·k − r`. Returns the weighted residual sum at `k`, and the unweighted one (rad²)
     /// of the rotation rows with their count (a vertical turn's rows are in the weighted sum only).
     pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64, usize), Error> {
-        let km = Matrix3::from_fn(|r, c| k[crate::full::vec_index(r, c)]);
+        let km = Matrix3::from_fn(|r, c| k[crate::estimators::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
         let (mut wrss, mut rss, mut n) = (0.0, 0.0, 0);

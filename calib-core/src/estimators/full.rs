@@ -4,7 +4,7 @@
 //!
 //! Frames and units. Poses are calibrated accelerometer readings `f = M (a − o)` (g): `K` maps
 //! the raw gyro (°/s) into that calibrated accelerometer frame, `ω = K (g − b)`. Gyro integrals
-//! `Γ = ∫ (g − b) dt` are in ° (from [`crate::sweep::Integrator`]), turns in °.
+//! `Γ = ∫ (g − b) dt` are in ° (from [`crate::estimators::sweep::Integrator`]), turns in °.
 //!
 //! Equations. Every move `m` from pose `i` to pose `j` about axis `u` gives `K Γ_m = Δθ_m u`,
 //! written in the orthonormal basis `(u, e₁, e₂)` of the axis' plane fit: `uᵀ K Γ = Δθ` and
@@ -39,13 +39,13 @@ mod fit;
 mod gauss_newton;
 mod rows;
 
-use crate::accel::AccelCal;
-use crate::axis::{GeometryLimits, Poses};
-use crate::gyro::SCALE_RANGE;
-use crate::lsq::{NormalEquations, Solution};
-use crate::rotation::{RotationLimits, Rotations};
-use crate::sweep::MAX_MOVES;
-use crate::vec3::to_f64 as v64;
+use crate::estimators::accel::AccelCal;
+use crate::estimators::axis::{GeometryLimits, Poses};
+use crate::estimators::gyro::SCALE_RANGE;
+use crate::estimators::rotation::{RotationLimits, Rotations};
+use crate::estimators::sweep::MAX_MOVES;
+use crate::math::lsq::{NormalEquations, Solution};
+use crate::math::vec3::to_f64 as v64;
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 use rows::{Rig, RigEquations};

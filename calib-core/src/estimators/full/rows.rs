@@ -3,8 +3,8 @@
 
 use super::fit::Fits;
 use super::{vec_index, Axes, AxisMove, FullLimits, MAX_AXES};
-use crate::axis::{turn_deg, unwrap_near};
-use crate::lsq::{NormalEquations, Solution};
+use crate::estimators::axis::{turn_deg, unwrap_near};
+use crate::math::lsq::{NormalEquations, Solution};
 use crate::{Error, Mat3};
 use nalgebra::Vector3;
 

@@ -1,15 +1,15 @@
 //! The procedure's reports as text lines: the one wording of every line the firmware logs, over
 //! RTT (as a defmt string) and over USB serial alike, and of [`crate::Error`]'s messages. The
-//! lines the PC reacts to are [`crate::protocol`]'s, each beside its parser: [`report`] writes
+//! lines the PC reacts to are [`crate::formats::protocol`]'s, each beside its parser: [`report`] writes
 //! those through it.
 //!
 //! Numbers are written digit by digit ([`Fixed`]): `core::fmt`'s float code is ~6 KiB
 //! of flash the firmware does not have.
 
-use crate::log::fixed;
+use crate::estimators::rotation::Rejected;
+use crate::formats::log::fixed;
+use crate::formats::protocol::{self, RecordLine};
 use crate::procedure::{Phase, Report};
-use crate::protocol::{self, RecordLine};
-use crate::rotation::Rejected;
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Display, Write};
 
@@ -143,7 +143,7 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
         Report::TempCo(None) => write!(
             w,
             "gyro bias tempco unknown: the rests' temperatures spanned < {} C (or were not read)",
-            Fixed(crate::bias::MIN_TEMP_SPAN_C as f64, 1)
+            Fixed(crate::estimators::bias::MIN_TEMP_SPAN_C as f64, 1)
         ),
         Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
         Report::Done(rec) => protocol::record(w, RecordLine::CalibrationDone, rec),
@@ -183,10 +183,10 @@ mod tests {
 
     #[test]
     fn a_record_line_has_k_in_full() {
-        let rec = crate::record::Record {
+        let rec = crate::formats::record::Record {
             seq: 7,
             gyro_k: [[1.01, 0.002, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]],
-            ..crate::record::tests::sample()
+            ..crate::formats::record::tests::sample()
         };
         let mut s = String::new();
         protocol::record(&mut s, RecordLine::Loaded, &rec).unwrap();

@@ -4,7 +4,7 @@
 //! Convention (DESIGN §4): turning the shaft by `+θ` about `u` (right hand) rotates the specific
 //! force `A`, seen in the sensor frame B, by `−θ` about `u`; `A·u` is the same in every pose.
 
-use crate::linalg::sym_eigen;
+use crate::math::linalg::sym_eigen;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 

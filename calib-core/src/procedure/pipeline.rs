@@ -1,15 +1,15 @@
 //! The calibration's decisions, made once: the firmware's procedure and the offline tool both
 //! call these, so that they choose, gate and reject alike.
 
-use crate::accel::{AccelCal, AccelCalibrator};
-use crate::axis::{turn_deg, GeometryLimits, Poses};
-use crate::bias::Drift;
-use crate::full::{Axes, FullCal, FullLimits};
-use crate::gyro::GyroCal;
-use crate::rotation::{RotationLimits, Rotations};
-use crate::sweep::Moves;
-use crate::vec3::to_f64 as v64;
-use crate::{paper, sweep};
+use crate::estimators::accel::{AccelCal, AccelCalibrator};
+use crate::estimators::axis::{turn_deg, GeometryLimits, Poses};
+use crate::estimators::bias::Drift;
+use crate::estimators::full::{Axes, FullCal, FullLimits};
+use crate::estimators::gyro::GyroCal;
+use crate::estimators::rotation::{RotationLimits, Rotations};
+use crate::estimators::sweep::Moves;
+use crate::estimators::{paper, sweep};
+use crate::math::vec3::to_f64 as v64;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -263,8 +263,8 @@ pub fn spin_rate(commanded_dps: Option<f32>, gravity: &GravityTurn) -> (f32, Rat
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::AccelModel;
-    use crate::bias::RestBias;
+    use crate::estimators::accel::AccelModel;
+    use crate::estimators::bias::RestBias;
 
     #[test]
     fn a_too_uncertain_scale_names_disagreeing_moves_apart_from_too_few() {

@@ -1,9 +1,9 @@
-//! The rig rows and the rotation constraints ([`crate::rotation`]) in one least squares over vec
+//! The rig rows and the rotation constraints ([`crate::estimators::rotation`]) in one least squares over vec
 //! `K` (column-major), by Gauss–Newton: the rotation rows are re-linearised at every iterate.
 
 use super::{FullLimits, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
-use crate::lsq::NormalEquations;
-use crate::rotation::{RotationLimits, Rotations};
+use crate::estimators::rotation::{RotationLimits, Rotations};
+use crate::math::lsq::NormalEquations;
 use crate::Error;
 
 /// What the rotation constraints gave.

@@ -3,11 +3,11 @@
 //! pose accelerations and `Δθ` the turn read from the accelerometer. No servo speed, no constant
 //! rate; back-and-forth moves cancel a residual bias.
 
-use crate::axis::{turn_deg, unwrap_near, GeometryLimits, Poses};
-use crate::bias::RestBias;
-use crate::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
-use crate::lsq::NormalEquations;
-use crate::stats::Spread;
+use crate::estimators::axis::{turn_deg, unwrap_near, GeometryLimits, Poses};
+use crate::estimators::bias::RestBias;
+use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
+use crate::math::lsq::NormalEquations;
+use crate::math::stats::Spread;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 

@@ -22,10 +22,10 @@
 //! The C and Rust formats are several lines separated by `\n` (no line ending after the last),
 //! each at most [`MAX_LINE`] bytes.
 
-use crate::bias::TempCo;
-use crate::frame::DataFrame;
-use crate::log::fixed;
-use crate::record::{Record, Sensor};
+use crate::estimators::bias::TempCo;
+use crate::estimators::frame::DataFrame;
+use crate::formats::log::fixed;
+use crate::formats::record::{Record, Sensor};
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Write};
 
@@ -64,7 +64,7 @@ const D_TEMPCO: u32 = 6;
 /// Decimals of the ODR (Hz) and the full scales.
 const D_SETUP: u32 = 1;
 
-/// The first bytes of the JSON line (its first key), by which [`crate::protocol::parse`] knows it.
+/// The first bytes of the JSON line (its first key), by which [`crate::formats::protocol::parse`] knows it.
 pub(crate) const JSON_START: &str = "{\"gyro\":";
 
 /// Where a record comes from: JSON's `quality.source`.
@@ -322,7 +322,7 @@ fn rust(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
     w.write_str(";")
 }
 
-pub use crate::record::NotFinite;
+pub use crate::formats::record::NotFinite;
 #[cfg(feature = "serde")]
 pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson, TempCoJson};
 
@@ -330,9 +330,9 @@ pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson, TempCoJson};
 #[cfg(feature = "serde")]
 mod schema {
     use super::*;
-    use crate::accel::AccelModel;
-    use crate::gyro::Method;
-    use crate::record::{NotFinite, SensorSetup};
+    use crate::estimators::accel::AccelModel;
+    use crate::estimators::gyro::Method;
+    use crate::formats::record::{NotFinite, SensorSetup};
     use serde::{Deserialize, Serialize};
 
     /// The JSON line of a record, field for field what [`Format::Json`] writes: the calibration
@@ -474,9 +474,9 @@ mod schema {
 
     /// A field written as its `name()` (as the firmware writes it), read back by that name.
     mod by_name {
-        use crate::accel::AccelModel;
-        use crate::export::Source;
-        use crate::gyro::Method;
+        use crate::estimators::accel::AccelModel;
+        use crate::estimators::gyro::Method;
+        use crate::formats::export::Source;
         use core::fmt;
         use core::marker::PhantomData;
         use serde::de::{self, Unexpected, Visitor};
@@ -491,7 +491,7 @@ mod schema {
 
         impl Named for Method {
             const WHAT: &'static str = "a gyro method";
-            const ALL: &'static [Self] = &crate::protocol::METHODS;
+            const ALL: &'static [Self] = &crate::formats::protocol::METHODS;
             fn name(self) -> &'static str {
                 Method::name(self)
             }
@@ -499,7 +499,7 @@ mod schema {
 
         impl Named for AccelModel {
             const WHAT: &'static str = "an accelerometer model";
-            const ALL: &'static [Self] = &crate::protocol::ACCEL_MODELS;
+            const ALL: &'static [Self] = &crate::formats::protocol::ACCEL_MODELS;
             fn name(self) -> &'static str {
                 AccelModel::name(self)
             }
@@ -536,9 +536,9 @@ mod schema {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gyro::Method;
-    use crate::record::tests::sample;
-    use crate::record::SensorSetup;
+    use crate::estimators::gyro::Method;
+    use crate::formats::record::tests::sample;
+    use crate::formats::record::SensorSetup;
     extern crate std;
     use std::string::String;
 

@@ -4,10 +4,10 @@
 //! Rows `x_i = A_i ∘ ḡ`, `X β̂ ≈ 1`, `K = L diag(β̂)`, `|L| = ω_n / ‖β̂ ∘ ḡ‖`, the sign of `L`
 //! chosen so that `K` has a positive diagonal (β̂ alone cannot tell it).
 
-use crate::axis::{GeometryLimits, Poses};
-use crate::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
-use crate::lsq::NormalEquations;
-use crate::stats::Spread;
+use crate::estimators::axis::{GeometryLimits, Poses};
+use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
+use crate::math::lsq::NormalEquations;
+use crate::math::stats::Spread;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 

@@ -4,7 +4,9 @@
 //! number of rows. Every linear solve of the crate goes through it (3 unknowns for the gyro,
 //! 6 and 9 for the accelerometer).
 
-use crate::linalg::{cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_eigen_in, MAX_N};
+use crate::math::linalg::{
+    cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_eigen_in, MAX_N,
+};
 use crate::Error;
 
 /// Largest accepted condition number of the equilibrated normal matrix (unit diagonal).
@@ -283,7 +285,7 @@ mod tests {
     /// plain `rss / dof` gives about 61 % and 86 %).
     #[test]
     fn sigma_covers_the_error_with_few_degrees_of_freedom() {
-        let mut noise = crate::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
+        let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
         let (mut within, runs) = ([0u32; 2], 4000);
         for _ in 0..runs {
             let mut ne = NormalEquations::<2>::new();

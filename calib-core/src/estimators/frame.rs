@@ -1,5 +1,5 @@
 //! A record's calibration for data read another way than raw. A record maps its part's raw
-//! sensor axes in datasheet units ([`crate::record::Sensor`]); a BMI270 read through Bosch's
+//! sensor axes in datasheet units ([`crate::formats::record::Sensor`]); a BMI270 read through Bosch's
 //! BMI270_SensorAPI has its factory z→x trim applied (`x − GYR_CAS · z / 512`, gyro only), and
 //! through Arduino_BMI270_BMM150 (1.2.3 on the Nano 33 BLE) that and then its axis remap
 //! `x = −y, y = −x` (a reflection, gyro and accelerometer alike).
@@ -9,7 +9,7 @@
 //! each element's 1σ is propagated as from independent elements. Sources: `docs/rev2-sources.md`
 //! §2.9 (CAS) and §4 (the remap).
 
-use crate::record::{Record, Sensor};
+use crate::formats::record::{Record, Sensor};
 use crate::{Mat3, Vec3};
 
 /// How the data a calibration is applied to were read.
@@ -106,8 +106,8 @@ impl Record {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::record::tests::sample;
-    use crate::record::SensorSetup;
+    use crate::formats::record::tests::sample;
+    use crate::formats::record::SensorSetup;
 
     /// Bosch's CAS on raw counts, then Arduino's remap (`bmi2.c`'s `comp_gyro_cross_axis_sensitivity`,
     /// `BMI270.cpp`'s readGyroscope) — in °/s, without the integer truncation.

@@ -10,8 +10,8 @@
 //!    the angle between gravity and the field is the same, `f̂ᵢ · R ûᵢ = −sin(dip)`, linear in
 //!    `R`'s angles for a small rotation (two Gauss–Newton steps).
 
-use crate::linalg::sym_eigen;
-use crate::lsq::NormalEquations;
+use crate::math::linalg::sym_eigen;
+use crate::math::lsq::NormalEquations;
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -303,7 +303,12 @@ impl MagCalibrator {
     /// The die's rotation `R` and the fit (`x[3]` = `−sin(dip)`) from the gravity–field angle
     /// of the poses (`skip` left out): `f̂ · (I + [θ]×) û = c`, i.e. `f̂·û + θ·(û × f̂) = c`,
     /// re-linearised about the last `R` (three steps).
-    fn align(&self, a_s: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<(Matrix3<f64>, crate::lsq::Solution<4>), Error> {
+    fn align(
+        &self,
+        a_s: &Matrix3<f64>,
+        o: &Vector3<f64>,
+        skip: Option<usize>,
+    ) -> Result<(Matrix3<f64>, crate::math::lsq::Solution<4>), Error> {
         let mut r = Matrix3::identity();
         let mut sol = None;
         for _ in 0..3 {
@@ -388,7 +393,7 @@ fn face(v: &Vector3<f64>) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_noise::Gaussian;
+    use crate::math::test_noise::Gaussian;
     use nalgebra::{Rotation3, UnitQuaternion};
 
     /// A magnetometer: `m_raw = S b_B + h`, `S` soft iron times a 1.5° die rotation.

@@ -7,7 +7,7 @@
 //! seconds (a warm-up of τ ≥ 1 min) leaves `h² b'' / 8` (h the rest-to-rest time), and the
 //! Earth's rate is removed to first order in the move's turn with no latitude needed.
 
-use crate::stats::Welford3;
+use crate::math::stats::Welford3;
 use crate::{Error, Vec3};
 
 /// Limits applied to a bias estimate.
@@ -274,7 +274,7 @@ impl Drift {
     /// The bias at `t_s` on the line of the latest rests ([`PREDICT_MEMORY_S`]: the bias a
     /// calibration hands over) with its 1σ per axis (°/s): the line's prediction error `s² Σ wᵢ²
     /// cᵢ²` (the prediction is `Σ wᵢ cᵢ bᵢ`), `s²` a rest's scatter about the line (times
-    /// [`crate::lsq::few_dof_factor`] of the effective rests `(Σw)²/Σw²` beyond the line's two;
+    /// [`crate::math::lsq::few_dof_factor`] of the effective rests `(Σw)²/Σw²` beyond the line's two;
     /// with fewer than [`MIN_SCATTER_DOF`] of them, at least `rest_sigma_dps²`, a rest mean's own
     /// noise), a bias walk of [`BIAS_WALK_DPS_RTSEC`] from the latest rest to
     /// `t_s`, and the Earth's rate every rest measures as bias in its own pose
@@ -292,7 +292,7 @@ impl Drift {
             let ss = (l.bb[k] - l.b[k] * mean - slope * (l.tb[k] - l.s[1] * mean)).max(0.0);
             let floor = rest_sigma_dps[k] as f64 * rest_sigma_dps[k] as f64;
             // E[Σw r²] = σ² Σw (1 − params / n_eff).
-            let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) * crate::lsq::few_dof_factor(dof) } else { 0.0 };
+            let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) * crate::math::lsq::few_dof_factor(dof) } else { 0.0 };
             let s2 = if dof >= MIN_SCATTER_DOF { scatter } else { scatter.max(floor) };
             libm::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
         });
@@ -564,7 +564,7 @@ mod tests {
     /// first rest.
     #[test]
     fn the_bias_predicted_for_the_end_of_a_warm_up_covers_the_truth() {
-        let mut noise = crate::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
+        let mut noise = crate::math::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
         let curve = |t: f64| 0.2 * (1.0 - libm::exp(-t / 60.0));
         let (mut within, mut err2, runs) = ([0u32; 2], 0.0, 2000);
         for _ in 0..runs {

@@ -3,7 +3,7 @@
 //! sequence number (wrapping) is the newest. The firmware's `storage` driver and a user's own
 //! firmware (which finds the pages at 0xF8000 after uploading over ours) decide alike.
 
-use crate::record::{DecodeError, NotFinite, Record, LEN};
+use crate::formats::record::{DecodeError, NotFinite, Record, LEN};
 
 /// Record pages.
 pub const SLOTS: usize = 2;
@@ -77,7 +77,7 @@ pub fn image(rec: &Record) -> Result<[u8; SLOTS * PAGE], NotFinite> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::record::tests::sample;
+    use crate::formats::record::tests::sample;
 
     #[test]
     fn the_newest_valid_page_wins_across_the_sequence_wrap_and_garbage_is_never_loaded() {

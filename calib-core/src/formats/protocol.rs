@@ -3,20 +3,20 @@
 //! test reacts to, its writer beside its parser ([`parse`] → [`Event`]).
 //!
 //! The firmware writes the lines with these writers (directly, or through
-//! [`crate::text::report`] and [`crate::export`]); the PC never matches a sentence, only the
+//! [`crate::formats::text::report`] and [`crate::formats::export`]); the PC never matches a sentence, only the
 //! [`Event`] it parses to. A line that is none of these (the other report lines, the C snippet,
 //! warnings) parses to `None`: it is for people.
 //!
 //! No allocation, and no `core::fmt` float code (numbers with decimals go through
-//! [`crate::text::Fixed`]). The parsers are for the PC; the firmware links only the writers.
+//! [`crate::formats::text::Fixed`]). The parsers are for the PC; the firmware links only the writers.
 
-use crate::accel::AccelModel;
 use crate::error::Error;
-use crate::gyro::Method;
-use crate::log::{self, Row, END, HEADER};
+use crate::estimators::accel::AccelModel;
+use crate::estimators::gyro::Method;
+use crate::formats::log::{self, Row, END, HEADER};
+use crate::formats::record::Record;
+use crate::formats::text::{Fixed, M3, V3};
 use crate::procedure::Phase;
-use crate::record::Record;
-use crate::text::{Fixed, M3, V3};
 use crate::Vec3;
 use core::fmt::{self, Write};
 
@@ -139,7 +139,7 @@ pub enum Event<'a> {
     },
     /// [`NO_RECORD`].
     NoRecord,
-    /// The record as one line of JSON ([`crate::export::Format::Json`]), after
+    /// The record as one line of JSON ([`crate::formats::export::Format::Json`]), after
     /// [`RecordLine::CalibrationDone`] and [`RecordLine::Stored`].
     ResultJson(&'a str),
     /// The raw log starts: [`HEADER`] ([`raw_log`]).
@@ -321,7 +321,7 @@ pub fn parse(line: &str) -> Option<Event<'_>> {
         NO_RECORD => Event::NoRecord,
         HEADER => Event::RawLogStart,
         END => Event::RawLogEnd,
-        _ if l.starts_with(crate::export::JSON_START) => Event::ResultJson(l),
+        _ if l.starts_with(crate::formats::export::JSON_START) => Event::ResultJson(l),
         _ if l.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) => {
             Event::Row(log::parse_row(l, &log::parse_header(HEADER).ok()?, 0).ok()?)
         }
@@ -337,8 +337,8 @@ fn parse_prefixed(l: &str) -> Option<Event<'_>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::export::{self, Format};
-    use crate::record::tests::sample;
+    use crate::formats::export::{self, Format};
+    use crate::formats::record::tests::sample;
     extern crate std;
     use std::string::String;
 
@@ -444,7 +444,7 @@ mod tests {
             let l = line(|s| phase(s, p));
             assert_eq!(parse(&l), Some(Event::Phase { phase: p, instruction: p.instruction() }), "{l}");
             // And as the procedure reports it.
-            assert_eq!(l, line(|s| crate::text::report(s, &crate::procedure::Report::Phase(p))));
+            assert_eq!(l, line(|s| crate::formats::text::report(s, &crate::procedure::Report::Phase(p))));
         }
         for index in [0, 11, 255] {
             assert_eq!(parse(&line(|s| hand_held_pose(s, index, &[0.0, -0.6, 0.8]))), Some(Event::HandHeldPose { index }));

@@ -2,8 +2,8 @@
 //! pose noise the planes show, and how far from coplanar the fitted axes are.
 
 use super::{Axes, FullAxis, FullLimits, MAX_AXES, MIN_NOISE_DOF};
-use crate::axis::Plane;
-use crate::vec3::tangent_basis;
+use crate::estimators::axis::Plane;
+use crate::math::vec3::tangent_basis;
 use crate::Error;
 use nalgebra::Vector3;
 

@@ -9,8 +9,8 @@
 //! Poses must point the sensor in many directions (Ye: 6 axis poses or 12 icosahedron poses);
 //! poses on one servo cone do not determine the model.
 
-use crate::linalg::{cholesky, cholesky_inverse};
-use crate::lsq::NormalEquations;
+use crate::math::linalg::{cholesky, cholesky_inverse};
+use crate::math::lsq::NormalEquations;
 use crate::{Error, Mat3, Vec3};
 
 /// Largest number of accelerometer poses kept.
@@ -415,7 +415,7 @@ mod tests {
     /// Fraction of the 9-parameter fit's offsets and diagonal gains within 1σ and 2σ over
     /// `runs` sensors, each pose of `poses` given noise of 1σ `sigma(k)` (g) per axis on its mean.
     fn coverage(poses: &[[f64; 3]], sigma: impl Fn(usize) -> f64, runs: usize) -> [f64; 2] {
-        let mut noise = crate::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
+        let mut noise = crate::math::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
         let (m, o) = ([[1.01, 0.002, -0.003], [0.0, 0.99, 0.001], [0.0, 0.0, 1.02]], [0.01, -0.02, 0.005]);
         let mut within = [0u32; 2];
         for _ in 0..runs {

@@ -3,7 +3,7 @@
 //! Each completed window is returned with its statistics so that callers build pose and bias
 //! means from whole still windows only: a window with motion never leaks into a mean.
 
-use crate::stats::Welford3;
+use crate::math::stats::Welford3;
 use crate::Vec3;
 
 /// Thresholds of the rest detector.

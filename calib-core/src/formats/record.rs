@@ -26,10 +26,10 @@
 //! Layout v1 (`LEN_V1` = 156 bytes, written before the full `K`) still loads: the same up to the
 //! accel offset, then the 1σ of the diagonal of `K` only (3), the six quality fields, the CRC.
 
-use crate::accel::{AccelCal, AccelModel};
-use crate::bias::TempCo;
-use crate::full::FullCal;
-use crate::gyro::{GyroCal, Method};
+use crate::estimators::accel::{AccelCal, AccelModel};
+use crate::estimators::bias::TempCo;
+use crate::estimators::full::FullCal;
+use crate::estimators::gyro::{GyroCal, Method};
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
@@ -104,7 +104,7 @@ pub enum Sensor {
     #[default]
     Lsm9ds1,
     /// Bosch BMI270 (Rev2), read raw: its factory z→x cross-axis trim GYR_CAS is not applied
-    /// (Bosch's API subtracts `gyr_cas · z / 512` from x; [`crate::frame`] gives the `K` for such
+    /// (Bosch's API subtracts `gyr_cas · z / 512` from x; [`crate::estimators::frame`] gives the `K` for such
     /// data).
     Bmi270 {
         /// GYR_CAS (7-bit two's complement, −64..63; counts per 512 counts of z).

@@ -1,0 +1,9 @@
+//! The numerics every estimator shares: linear algebra, least squares, streaming statistics,
+//! 3-vector helpers.
+
+pub(crate) mod linalg;
+pub mod lsq;
+pub mod stats;
+#[cfg(test)]
+pub(crate) mod test_noise;
+pub mod vec3;
