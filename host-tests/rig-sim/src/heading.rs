@@ -23,6 +23,21 @@ pub struct Applied {
     pub mag_o: [f32; 3],
 }
 
+/// `Q = polar(M̂ C_a)`: the calibrated accelerometer's frame (that of `K`, `M` and `A`) from
+/// the body frame B, for a calibrated `M̂` (row-major).
+pub fn calibrated_frame(accel_m: [[f32; 3]; 3], rig: &Rig) -> Option<Matrix3<f64>> {
+    let svd = (Matrix3::from_fn(|r, c| accel_m[r][c] as f64) * rig.truth().accel_c).svd(true, true);
+    Some(svd.u? * svd.v_t?)
+}
+
+/// Heading (°, clockwise from magnetic north seen from above, −180..180] of the vector `x_w`
+/// (in W) under the site's field `field_w`: W's z is up.
+pub fn heading_w(x_w: &Vector3<f64>, field_w: &Vector3<f64>) -> Option<f64> {
+    let north = Vector3::new(field_w[0], field_w[1], 0.0).try_normalize(1e-9)?;
+    let east = north.cross(&Vector3::z());
+    Some(x_w.dot(&east).atan2(x_w.dot(&north)).to_degrees())
+}
+
 /// (RMS, largest) heading error (°) of `cal` over `n` random attitudes (noise-free readings of
 /// the rig's parts); `None` without a magnetometer.
 pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f64, f64)> {
@@ -30,8 +45,7 @@ pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f
     let mag = truth.mag?;
     let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
     let v = |a: [f32; 3]| Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
-    let svd = (m(cal.accel_m) * truth.accel_c).svd(true, true);
-    let q_frame = svd.u? * svd.v_t?;
+    let q_frame = calibrated_frame(cal.accel_m, rig)?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (mut ss, mut max) = (0.0, 0.0f64);
     for _ in 0..n {

@@ -436,6 +436,38 @@ fn mag_section(rev1: &Value, rev2: &Value) -> String {
     s
 }
 
+fn ahrs_section(rev1: &Value, rev2: &Value) -> String {
+    let mut s = format!(
+        "## What it buys an AHRS filter\n\n`ahrs-bench` (seed {}, {} rigs each, {} failed / {} failed): Madgwick's filter (the `ahrs` crate, \
+         beta {}) fed {} s of a hand turning the board between random attitudes right after its calibration, as raw readings, \
+         with only the gyro calibrated, with the magnetometer's ellipsoid alone (gyro and accelerometer calibrated) and fully \
+         calibrated (`gyrocal-calib` on the scripted one-servo log: `K`, bias, `M`, the magnetometer's `A` with the die's \
+         alignment); the heading error of the filter's body x axis against the truth after {} s of settling, while that axis \
+         is within 60° of the horizon (its heading is defined). The filter starts at its own first readings' attitude.\n\n\
+         | fed | LSM9DS1 (Rev1): RMS | largest | BMI270 + BMM150 (Rev2): RMS | largest |\n|---|---|---|---|---|\n",
+        rev1["seed"],
+        rev1["rigs"],
+        count(&rev1["failed"]),
+        count(&rev2["failed"]),
+        rev1["beta"],
+        rev1["motion_s"],
+        rev1["settle_s"]
+    );
+    let rows2 = rev2["rows"].as_array().cloned().unwrap_or_default();
+    for (i, r) in rev1["rows"].as_array().into_iter().flatten().enumerate() {
+        let r2 = rows2.get(i).cloned().unwrap_or(Value::Null);
+        s += &format!(
+            "| {} | {:.2}° | {:.2}° | {:.2}° | {:.2}° |\n",
+            r["fed"].as_str().unwrap_or("?"),
+            f(&r["rms_deg"]),
+            f(&r["max_deg"]),
+            f(&r2["rms_deg"]),
+            f(&r2["max_deg"])
+        );
+    }
+    s
+}
+
 fn page() -> Result<String, String> {
     build()?;
     let raw = calib::firmware::target_dir().join("results/raw.csv");
@@ -462,6 +494,8 @@ fn page() -> Result<String, String> {
         Run { bin: "rotation-bench", args: a(&["--hand", "free", "--json"]) },
         Run { bin: "mag-bench", args: a(&["--json"]) },
         Run { bin: "mag-bench", args: a(&["--setup", "bmi270", "--json"]) },
+        Run { bin: "ahrs-bench", args: a(&["--json"]) },
+        Run { bin: "ahrs-bench", args: a(&["--setup", "bmi270", "--json"]) },
     ];
     let out = run_all(&runs)?;
     let mut budgets = vec![];
@@ -510,6 +544,8 @@ fn page() -> Result<String, String> {
     s += &real_section(&json(&out[14])?);
     s += "\n";
     s += &mag_section(&json(&out[16])?, &json(&out[17])?);
+    s += "\n";
+    s += &ahrs_section(&json(&out[18])?, &json(&out[19])?);
     Ok(s)
 }
 
