@@ -58,6 +58,12 @@ pub struct Plots {
     /// Each rest's gyro bias minus the calibration's (°/s; x, y, z) over time (s): the rests as
     /// still as the rig's thresholds.
     pub bias: Plot,
+    /// The magnetometer's hand-held readings, raw and calibrated, in the x–y plane (µT), with
+    /// the calibrated field's circle: the ellipsoid and its sphere.
+    pub mag: Option<Plot>,
+    /// The magnetometer's invariant per hand-held pose: the dip (°) through the ellipsoid alone
+    /// and through the calibration with the die's alignment.
+    pub mag_dip: Option<Plot>,
 }
 
 fn unit(v: [f32; 3]) -> Vector3<f64> {
@@ -223,7 +229,59 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
     let x = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.0)));
     let y = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.1)));
     let bias = scatter("Each rest's gyro bias minus the calibration's (the log has no temperature)", ("time (s)", x), ("°/s", y), &series)?;
-    Ok(Plots { sphere, invariant, residuals, bias })
+    let (mag, mag_dip) = mag_plots(rows, c)?;
+    Ok(Plots { sphere, invariant, residuals, bias, mag, mag_dip })
+}
+
+/// [`Plots::mag`] and [`Plots::mag_dip`], when the log's magnetometer was calibrated.
+fn mag_plots(rows: &[Row], c: &Calibration) -> Result<(Option<Plot>, Option<Plot>), String> {
+    let Some((outcome, cal, (ea, eo))) = c.mag.as_ref().and_then(|m| Some((m, m.cal.as_ref().ok()?, m.ellipsoid?))) else {
+        return Ok((None, None));
+    };
+    let v = |a: [f32; 3]| Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
+    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|i, j| a[i][j] as f64);
+    let (a, o, ea, eo) = (m(cal.a), v(cal.offset_ut), m(ea), v(eo));
+    let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(v).collect();
+    let raw: Vec<(f64, f64)> = readings.iter().map(|r| (r.x, r.y)).collect();
+    let calibrated: Vec<(f64, f64)> = readings.iter().map(|r| a * (r - o)).map(|r| (r.x, r.y)).collect();
+    let b = cal.field_ut as f64;
+    let circle: Vec<(f64, f64)> = (0..=72).map(|i| (i as f64 * 5.0).to_radians()).map(|t| (b * t.cos(), b * t.sin())).collect();
+    let x = span(raw.iter().chain(&calibrated).map(|p| p.0).chain([-b, b]));
+    let y = span(raw.iter().chain(&calibrated).map(|p| p.1).chain([-b, b]));
+    let field = plot(
+        "Magnetometer, the readings of the fit: raw on their ellipsoid, calibrated on the sphere",
+        ("x (µT)", x),
+        ("y (µT)", y),
+        &[(BEFORE, "raw", raw), (AFTER, "calibrated", calibrated)],
+        &[(AFTER, circle)],
+    )?;
+    // The dip at each pose of the fit: the same everywhere when the field is aligned with gravity.
+    let (first, last) = outcome.stretch.unwrap_or((1, 0));
+    let dip = |a: &Matrix3<f64>, o: &Vector3<f64>| {
+        c.phases
+            .segments
+            .iter()
+            .filter(|s| !s.is_rig_pose() && first <= s.first && s.last <= last)
+            .filter_map(|s| {
+                let readings: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(v).collect();
+                let mean = readings.iter().sum::<Vector3<f64>>() / readings.len().max(1) as f64;
+                let f = direction(c, s);
+                let mm = a * (mean - o);
+                (!readings.is_empty()).then(|| (-f.dot(&mm) / mm.norm()).clamp(-1.0, 1.0).asin().to_degrees())
+            })
+            .enumerate()
+            .map(|(i, d)| (i as f64, d))
+            .collect::<Vec<_>>()
+    };
+    let (before, after) = (dip(&ea, &eo), dip(&a, &o));
+    let y = span(before.iter().chain(&after).map(|p| p.1));
+    let dips = scatter(
+        "The magnetometer's invariant per hand-held pose: the dip of the field",
+        ("pose of the fit", -0.5..before.len().max(1) as f64 - 0.5),
+        ("dip (°)", y),
+        &[(BEFORE, "ellipsoid alone", before), (AFTER, "with the die's alignment", after)],
+    )?;
+    Ok((Some(field), Some(dips)))
 }
 
 fn escape(s: &str) -> String {
@@ -291,7 +349,16 @@ pub fn html(name: &str, rows: &[Row], c: &Calibration) -> Result<String, String>
         h += &format!("<li>{}</li>", escape(&a));
     }
     h += "</ul>\n<h2>Plots</h2>\n";
-    for plot in [Some(&p.sphere), p.invariant.as_ref(), p.residuals.as_ref(), Some(&p.bias)].into_iter().flatten() {
+    if let Some(m) = c.mag.as_ref().and_then(|m| m.cal.as_ref().ok()) {
+        h += &format!(
+            "<h2>Magnetometer</h2>\n<p>Field {:.2} ± {:.2} µT at a dip of {:.2} ± {:.2}°; the die turned {:.2} ± {:.2}° onto the accelerometer; |m| − B {:.2} µT RMS; {:.0} % of the sphere's directions reached; {} points, {} poses.</p>\n",
+            m.field_ut, m.sigma_field_ut, m.dip_deg, m.sigma_dip_deg, m.alignment_deg, m.sigma_alignment_deg, m.residual_ut, m.coverage * 100.0, m.samples, m.poses
+        );
+    }
+    for plot in [Some(&p.sphere), p.invariant.as_ref(), p.residuals.as_ref(), Some(&p.bias), p.mag.as_ref(), p.mag_dip.as_ref()]
+        .into_iter()
+        .flatten()
+    {
         h += &format!("<figure>{}</figure>\n", plot.svg);
     }
     if p.invariant.is_none() {

@@ -106,7 +106,7 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     let text = simulated_log(Variant::Hobby.config(9, 0)).0;
     let log = csvlog::parse(&text).unwrap();
     let c = calibrate_log(&log, &Default::default(), None).unwrap();
-    let Plots { sphere, invariant, residuals, bias } = report::plots(&log.rows, &c).unwrap();
+    let Plots { sphere, invariant, residuals, bias, mag, mag_dip } = report::plots(&log.rows, &c).unwrap();
     // A marker per pose, where the data puts it.
     let rig = c.phases.segments.iter().filter(|s| s.is_rig_pose()).count();
     let hand = c.phases.segments.len() - rig;
@@ -133,6 +133,26 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
         let later: Vec<(i32, i32)> = bias.markers[a + 1..].concat();
         drawn_as_placed(&img, *colour, &bias.markers[a], &later, "bias");
     }
+    // The magnetometer: every hand-held reading raw and calibrated; its invariant (the dip at
+    // each pose) flatter with the die's alignment than through the ellipsoid alone.
+    let (mag, dip) = (mag.expect("the simulated log has a magnetometer"), mag_dip.expect("and it calibrates"));
+    let outcome = c.mag.as_ref().unwrap();
+    let readings = outcome.readings(&log.rows).count();
+    assert!(readings == outcome.used && readings > 500 && mag.markers[0].len() == readings && mag.markers[1].len() == readings);
+    // Calibrated, the readings lie on the sphere: their x–y projections inside its circle (drawn
+    // as a line of the same colour), the raw ones off centre by the hard iron.
+    let cal = outcome.cal.as_ref().unwrap();
+    let inside = outcome.readings(&log.rows).all(|m| {
+        let v = cal.apply(m);
+        (v[0] * v[0] + v[1] * v[1]).sqrt() <= cal.field_ut + 2.0
+    });
+    assert!(inside && mag.svg.contains("polyline"), "the sphere's circle and the readings inside it");
+    let img = render(&dip.svg);
+    drawn_as_placed(&img, BEFORE, &dip.markers[0], &dip.markers[1], "dip, ellipsoid alone");
+    drawn_as_placed(&img, AFTER, &dip.markers[1], &[], "dip, aligned");
+    let (before, after) = (spread(&dip.markers[0]), spread(&dip.markers[1]));
+    println!("dip: ellipsoid alone over {before} px, aligned over {after} px");
+    assert!(dip.markers[0].len() == cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
 }
 
 #[test]
@@ -146,7 +166,8 @@ fn calib_writes_a_self_contained_page_with_k_and_its_plots() {
     assert!(out.contains("\"gyro\""), "the usual JSON stays on stdout");
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.starts_with("<!DOCTYPE html>") && html.contains("± ") && html.contains("What to do"));
-    assert_eq!(html.matches("<svg").count(), 4, "sphere, invariant, residuals, bias");
+    assert_eq!(html.matches("<svg").count(), 6, "sphere, invariant, residuals, bias, the magnetometer's field and dip");
+    assert!(html.contains("<h2>Magnetometer</h2>") && html.contains("dip of"));
     assert!(!html.contains("src=\"http") && !html.contains("<script"), "self-contained");
     let (code, _, err) = calib(&[log.to_str().unwrap(), "--report", dir.join("no/such/dir/r.html").to_str().unwrap()]);
     assert_eq!(code, 2, "{err}");

@@ -21,6 +21,16 @@ pub struct MagOutcome {
     /// The same readings' ellipsoid alone (`A` symmetric, µT offset): what the usual tools
     /// fit, for comparison.
     pub ellipsoid: Option<([[f32; 3]; 3], [f32; 3])>,
+    /// The hand-held stretch whose readings were offered: first and last row (inclusive).
+    pub stretch: Option<(usize, usize)>,
+}
+
+impl MagOutcome {
+    /// The readings offered to the fit (µT): the hand-held rows of the stretch.
+    pub fn readings<'a>(&self, rows: &'a [Row]) -> impl Iterator<Item = [f32; 3]> + 'a {
+        let (a, b) = self.stretch.unwrap_or((1, 0));
+        rows.get(a..=b).unwrap_or(&[]).iter().filter(|r| hand_held(r)).filter_map(|r| r.mag_ut)
+    }
 }
 
 fn hand_held(r: &Row) -> bool {
@@ -73,7 +83,8 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
             *pose = k as u8;
         }
     }
-    Some(MagOutcome { cal, used, left_out: readings - used, ellipsoid })
+    let stretch = chosen.first().zip(chosen.last()).map(|(a, b)| (a.first, b.last));
+    Some(MagOutcome { cal, used, left_out: readings - used, ellipsoid, stretch })
 }
 
 /// The fit of the poses `segs` (time order) and the readings from the first to the last, the
