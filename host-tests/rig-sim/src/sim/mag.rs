@@ -13,8 +13,9 @@ pub enum MagPart {
     /// The LSM9DS1's magnetometer at ±4 gauss: 0.14 mgauss/LSB (datasheet Table 3), read at
     /// 40 Hz; RMS noise 0.3 µT (assumed: the datasheet gives none).
     Lsm9ds1,
-    /// A BMM150: 0.3 µT resolution (datasheet), read at 20 Hz; RMS noise 0.5 µT (the regular
-    /// preset's order of magnitude).
+    /// A BMM150 at its high-accuracy preset (nXY 47, nZ 83, 20 Hz: 0.3 µT RMS noise, datasheet
+    /// Table 3 as docs/mag-sources.md gives it), the one a calibration should use; 0.3 µT
+    /// resolution.
     Bmm150,
 }
 
@@ -39,7 +40,7 @@ impl MagPart {
     pub fn noise_ut(self) -> f64 {
         match self {
             Self::Lsm9ds1 => 0.3,
-            Self::Bmm150 => 0.5,
+            Self::Bmm150 => 0.3,
         }
     }
 }
