@@ -12,6 +12,7 @@
 
 use crate::math::linalg::sym_eigen;
 use crate::math::lsq::NormalEquations;
+use crate::math::vec3::{mat_to_f64, to_f64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -92,8 +93,8 @@ impl MagCal {
     /// Whether a still pose (gravity's direction `f`, raw field `m_raw` in µT) sees the field
     /// the calibration saw, within `limits`: `Err` names the pose's field and dip.
     pub fn check_pose(&self, index: u8, f: Vec3, m_raw: Vec3, limits: &MagLimits) -> Result<(), Error> {
-        let a = Matrix3::from_fn(|i, j| self.a[i][j] as f64);
-        let (b, dip) = field_and_dip(&v64(&f), &(a * (v64(&m_raw) - v64(&self.offset_ut))));
+        let a = mat_to_f64(&self.a);
+        let (b, dip) = field_and_dip(&to_f64(f), &(a * (to_f64(m_raw) - to_f64(self.offset_ut))));
         check(index, b, dip, self.field_ut as f64, (self.dip_deg as f64).to_radians(), limits)
     }
 }
@@ -198,10 +199,10 @@ impl MagCalibrator {
             return Err(Error::TooFewSamples { have: n as u32, need: MIN_SAMPLES as u32 });
         }
         // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
-        let c = self.points().fold(Vector3::zeros(), |s, (m, _)| s + v64(&m)) / n as f64;
+        let c = self.points().fold(Vector3::zeros(), |s, (m, _)| s + to_f64(m)) / n as f64;
         let mut ne = NormalEquations::<9>::new();
         for (m, k) in self.points() {
-            let p = (v64(&m) - c) / 50.0;
+            let p = (to_f64(m) - c) / 50.0;
             let (x, y, z) = (p[0], p[1], p[2]);
             ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
         }
@@ -254,7 +255,7 @@ impl MagCalibrator {
                 Some(k) => {
                     let (rk, sk) = self.align(&a_s, &o, Some(k))?;
                     let p = &self.poses[k];
-                    let (b, pose_dip) = field_and_dip(&v64(&p.0), &(rk * a_s * (v64(&p.1) - o)));
+                    let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(rk * a_s * (to_f64(p.1) - o)));
                     let dip_k = libm::asin((-sk.x[3]).clamp(-1.0, 1.0));
                     check(k as u8, b, pose_dip, field, dip_k, limits).err().unwrap_or(e)
                 }
@@ -263,7 +264,7 @@ impl MagCalibrator {
         }
         let (mut sum, mut sum2) = (0.0, 0.0);
         for p in &self.poses {
-            let b = (a * (v64(&p.1) - o)).norm();
+            let b = (a * (to_f64(p.1) - o)).norm();
             sum += b;
             sum2 += b * b;
         }
@@ -272,7 +273,7 @@ impl MagCalibrator {
         let mut bins = 0u32;
         let mut rss = 0.0;
         for (m, _) in self.points() {
-            let v = a * (v64(&m) - o);
+            let v = a * (to_f64(m) - o);
             rss += (v.norm() - field) * (v.norm() - field);
             bins |= 1 << face(&v);
         }
@@ -314,7 +315,7 @@ impl MagCalibrator {
         for _ in 0..3 {
             let mut ne = NormalEquations::<4>::new();
             for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-                let (f, u) = (v64(&p.0).normalize(), (r * a_s * (v64(&p.1) - o)).normalize());
+                let (f, u) = (to_f64(p.0).normalize(), (r * a_s * (to_f64(p.1) - o)).normalize());
                 let x = u.cross(&f);
                 ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
             }
@@ -338,7 +339,7 @@ impl MagCalibrator {
     ) -> Result<(), Error> {
         let mut worst: Option<(f64, Error)> = None;
         for (i, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-            let (b, pose_dip) = field_and_dip(&v64(&p.0), &(a * (v64(&p.1) - o)));
+            let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(a * (to_f64(p.1) - o)));
             if let Err(e) = check(i as u8, b, pose_dip, field, dip, limits) {
                 let far = ((b - field) / limits.max_field_dev_ut as f64)
                     .abs()
@@ -361,10 +362,6 @@ pub fn heading_deg(f: Vector3<f64>, m: Vector3<f64>) -> Option<f64> {
     let east = north.cross(&up);
     let h = libm::atan2(east[0], north[0]).to_degrees();
     Some(if h < 0.0 { h + 360.0 } else { h })
-}
-
-fn v64(v: &[f32; 3]) -> Vector3<f64> {
-    Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
 }
 
 fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
@@ -432,7 +429,7 @@ mod tests {
             let (mut fsum, mut msum) = (Vector3::zeros(), Vector3::zeros());
             for _ in 0..40 {
                 let (f, m) = part.read(q, &mut g, 0.3);
-                let m = v64(&m) + extra;
+                let m = to_f64(m) + extra;
                 c.add_sample([m[0] as f32, m[1] as f32, m[2] as f32]).unwrap();
                 (fsum, msum) = (fsum + f, msum + m);
             }
@@ -457,7 +454,7 @@ mod tests {
             let q = random_attitude(&mut g);
             let (f, m) = part.read(&q, &mut g, 0.0);
             let truth = heading_deg(f, q.inverse() * part.field_w).unwrap();
-            let est = heading_deg(f, a * (v64(&m) - o)).unwrap();
+            let est = heading_deg(f, a * (to_f64(m) - o)).unwrap();
             let e = (est - truth + 540.0) % 360.0 - 180.0;
             ss += e * e;
             max = max.max(e.abs());
@@ -470,8 +467,8 @@ mod tests {
         let part = Part::new();
         let c = session(&part, None);
         let cal = c.solve(&MagLimits::default()).unwrap();
-        let a = Matrix3::from_fn(|i, j| cal.a[i][j] as f64);
-        let o = v64(&cal.offset_ut);
+        let a = mat_to_f64(&cal.a);
+        let o = to_f64(cal.offset_ut);
         assert!((o - part.h).norm() < 0.3, "offset {o} vs {}", part.h);
         assert!((cal.field_ut - 48.0 * 1.0).abs() < 1.5, "{cal:?}");
         assert!((cal.dip_deg - 62.0).abs() < 3.0 * cal.sigma_dip_deg.max(0.05), "{cal:?}");

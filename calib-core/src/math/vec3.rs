@@ -1,7 +1,7 @@
 //! The 3-vector helpers around the `[f32; 3]` API.
 
-use crate::Vec3;
-use nalgebra::Vector3;
+use crate::{Mat3, Vec3};
+use nalgebra::{Matrix3, Vector3};
 
 /// `a − b`, element-wise (e.g. a raw gyro reading minus the bias, °/s).
 pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
@@ -18,4 +18,9 @@ pub fn tangent_basis(u: &Vector3<f64>) -> [Vector3<f64>; 2] {
 /// The same vector in `f64` for the math.
 pub fn to_f64(a: Vec3) -> Vector3<f64> {
     Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
+}
+
+/// A row-major `[[f32; 3]; 3]` as an `f64` matrix.
+pub fn mat_to_f64(m: &Mat3) -> Matrix3<f64> {
+    Matrix3::from_fn(|r, c| m[r][c] as f64)
 }

@@ -4,6 +4,7 @@
 #![deny(missing_docs)]
 
 pub mod hobby_servo;
+pub mod logs;
 pub mod moments;
 pub mod paper_model;
 pub mod setup;

@@ -14,7 +14,7 @@ use crate::allan::{Allan, Noise};
 use crate::csvlog::Row;
 use crate::offline::{Calibration, Segment};
 use calib_core::formats::record::Record;
-use calib_core::math::vec3::sub;
+use calib_core::math::vec3::{mat_to_f64, sub, to_f64};
 use nalgebra::{Matrix3, Vector3};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
@@ -238,10 +238,8 @@ fn mag_plots(rows: &[Row], c: &Calibration) -> Result<(Option<Plot>, Option<Plot
     let Some((outcome, cal, (ea, eo))) = c.mag.as_ref().and_then(|m| Some((m, m.cal.as_ref().ok()?, m.ellipsoid?))) else {
         return Ok((None, None));
     };
-    let v = |a: [f32; 3]| Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
-    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|i, j| a[i][j] as f64);
-    let (a, o, ea, eo) = (m(cal.a), v(cal.offset_ut), m(ea), v(eo));
-    let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(v).collect();
+    let (a, o, ea, eo) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut), mat_to_f64(&ea), to_f64(eo));
+    let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(to_f64).collect();
     let raw: Vec<(f64, f64)> = readings.iter().map(|r| (r.x, r.y)).collect();
     let calibrated: Vec<(f64, f64)> = readings.iter().map(|r| a * (r - o)).map(|r| (r.x, r.y)).collect();
     let b = cal.field_ut as f64;
@@ -263,7 +261,7 @@ fn mag_plots(rows: &[Row], c: &Calibration) -> Result<(Option<Plot>, Option<Plot
             .iter()
             .filter(|s| !s.is_rig_pose() && first <= s.first && s.last <= last)
             .filter_map(|s| {
-                let readings: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(v).collect();
+                let readings: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_f64).collect();
                 let mean = readings.iter().sum::<Vector3<f64>>() / readings.len().max(1) as f64;
                 let f = direction(c, s);
                 let mm = a * (mean - o);

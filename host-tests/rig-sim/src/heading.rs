@@ -4,6 +4,7 @@
 
 use crate::sim::Rig;
 use calib_core::estimators::mag::heading_deg;
+use calib_core::math::vec3::{mat_to_f64, to_f64};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -26,7 +27,7 @@ pub struct Applied {
 /// `Q = polar(M̂ C_a)`: the calibrated accelerometer's frame (that of `K`, `M` and `A`) from
 /// the body frame B, for a calibrated `M̂` (row-major).
 pub fn calibrated_frame(accel_m: [[f32; 3]; 3], rig: &Rig) -> Option<Matrix3<f64>> {
-    let svd = (Matrix3::from_fn(|r, c| accel_m[r][c] as f64) * rig.truth().accel_c).svd(true, true);
+    let svd = (mat_to_f64(&accel_m) * rig.truth().accel_c).svd(true, true);
     Some(svd.u? * svd.v_t?)
 }
 
@@ -43,8 +44,6 @@ pub fn heading_w(x_w: &Vector3<f64>, field_w: &Vector3<f64>) -> Option<f64> {
 pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f64, f64)> {
     let truth = rig.truth();
     let mag = truth.mag?;
-    let m = |a: [[f32; 3]; 3]| Matrix3::from_fn(|r, c| a[r][c] as f64);
-    let v = |a: [f32; 3]| Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
     let q_frame = calibrated_frame(cal.accel_m, rig)?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (mut ss, mut max) = (0.0, 0.0f64);
@@ -54,7 +53,8 @@ pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f
         let (f_b, b_b) = (q.inverse() * Vector3::z(), q.inverse() * mag.field_w);
         let raw_a = truth.accel_c * f_b + truth.accel_offset_g;
         let raw_m = mag.s * b_b + mag.h;
-        let est = heading_deg(m(cal.accel_m) * (raw_a - v(cal.accel_o)), m(cal.mag_a) * (raw_m - v(cal.mag_o)))?;
+        let est =
+            heading_deg(mat_to_f64(&cal.accel_m) * (raw_a - to_f64(cal.accel_o)), mat_to_f64(&cal.mag_a) * (raw_m - to_f64(cal.mag_o)))?;
         let want = heading_deg(q_frame * f_b, q_frame * b_b)?;
         let e = (est - want + 540.0) % 360.0 - 180.0;
         ss += e * e;

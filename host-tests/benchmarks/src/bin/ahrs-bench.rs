@@ -12,7 +12,8 @@
 
 use ahrs::{Ahrs, Madgwick};
 use benchmarks::setup::Setup;
-use calib::{csvlog, offline};
+use calib::offline;
+use calib_core::math::vec3::{mat_to_f64, to_f64};
 use clap::Parser;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -58,14 +59,6 @@ struct Feed {
     frame: Matrix3<f64>,
 }
 
-fn mat(a: [[f32; 3]; 3]) -> Matrix3<f64> {
-    Matrix3::from_fn(|r, c| a[r][c] as f64)
-}
-
-fn vec(a: [f32; 3]) -> Vector3<f64> {
-    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
-
 /// The feeds of a calibration `c` on `rig` (`None` when it lacks a gyro `K` or a magnetometer).
 fn feeds(c: &offline::Calibration, rig: &Rig) -> Option<Vec<Feed>> {
     let k = match (&c.full, &c.gyro) {
@@ -76,10 +69,10 @@ fn feeds(c: &offline::Calibration, rig: &Rig) -> Option<Vec<Feed>> {
     let m = c.mag.as_ref()?;
     let cal = m.cal.as_ref().ok()?;
     let (ea, eo) = m.ellipsoid?;
-    let (k, b) = (mat(k), vec(c.bias.bias_dps));
-    let (am, ao) = (mat(c.accel.m), vec(c.accel.offset_g));
-    let (ma, mo) = (mat(cal.a), vec(cal.offset_ut));
-    let (ea, eo) = (mat(ea), vec(eo));
+    let (k, b) = (mat_to_f64(&k), to_f64(c.bias.bias_dps));
+    let (am, ao) = (mat_to_f64(&c.accel.m), to_f64(c.accel.offset_g));
+    let (ma, mo) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut));
+    let (ea, eo) = (mat_to_f64(&ea), to_f64(eo));
     let q = calibrated_frame(c.accel.m, rig)?;
     let rad = |v: Vector3<f64>| v.map(f64::to_radians);
     Some(vec![
@@ -114,10 +107,7 @@ fn main() {
         let seed = args.seed + run as u64;
         let mut rig = Rig::new(args.setup.rig(pan_tilt::rig_config(args.seed, run), seed), seed);
         let log = pan_tilt::log_at(&mut rig, true, &[0.0]);
-        let c = match csvlog::parse(&log)
-            .map_err(|e| e.to_string())
-            .and_then(|l| offline::calibrate_log(&l, &offline::Options::default(), None).map_err(|e| e.to_string()))
-        {
+        let c = match benchmarks::logs::calibrate(&log) {
             Ok(c) => c,
             Err(e) => {
                 failed.push(e);
@@ -143,21 +133,21 @@ fn main() {
                 next_turn = t + turn + rng.random_range(0.5..1.5);
             }
             let s = rig.next_sample();
-            last_mag = s.mag_ut.map(vec).or(last_mag);
+            last_mag = s.mag_ut.map(to_f64).or(last_mag);
             let Some(m) = last_mag else { continue };
             let truth = rig.truth();
             let field_w = truth.mag.map(|m| m.field_w).unwrap_or_default();
             for (k, (feed, f)) in feeds.iter().zip(filters.iter_mut()).enumerate() {
                 if !started[k] {
                     // Started where its own first readings put it (TRIAD, as AHRS users do).
-                    let (a, m) = ((feed.accel)(vec(s.accel_g)), (feed.mag)(m));
+                    let (a, m) = ((feed.accel)(to_f64(s.accel_g)), (feed.mag)(m));
                     let up = a.normalize();
                     let north = (m - up * m.dot(&up)).normalize();
                     let r = Matrix3::from_rows(&[north.transpose(), up.cross(&north).transpose(), up.transpose()]);
                     f.quat = UnitQuaternion::from_matrix(&r);
                     started[k] = true;
                 }
-                let _ = f.update(&(feed.gyro)(vec(s.gyro_dps)), &(feed.accel)(vec(s.accel_g)), &(feed.mag)(m));
+                let _ = f.update(&(feed.gyro)(to_f64(s.gyro_dps)), &(feed.accel)(to_f64(s.accel_g)), &(feed.mag)(m));
                 if truth.t_s - t0 < SETTLE_S {
                     continue;
                 }

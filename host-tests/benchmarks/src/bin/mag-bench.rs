@@ -10,7 +10,6 @@
 //! `cargo run --profile host -p benchmarks --target host-tuple --bin mag-bench [--rigs N] [--setup S] [--json]`
 
 use benchmarks::setup::Setup;
-use calib::{csvlog, offline};
 use calib_core::procedure::{Config, Procedure};
 use clap::Parser;
 use rig_sim::harness::{record_log, Faults};
@@ -66,10 +65,7 @@ fn main() {
                     format!("{}{setup}\n{}", &text[..at], &text[at..])
                 }
             };
-            let c = match csvlog::parse(&log)
-                .map_err(|e| e.to_string())
-                .and_then(|l| offline::calibrate_log(&l, &offline::Options::default(), None).map_err(|e| e.to_string()))
-            {
+            let c = match benchmarks::logs::calibrate(&log) {
                 Ok(c) => c,
                 Err(e) => {
                     failed.push(e);

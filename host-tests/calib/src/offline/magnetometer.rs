@@ -68,7 +68,7 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
     if let Some((Ok(first), ..)) = fit(rows, &chosen, accel, &limits) {
         for s in &boundary {
             if let Some(m) = mean_field(rows, s) {
-                if first.check_pose(0, accel.apply(f32v(s.accel.mean())), m, &limits).is_ok() {
+                if first.check_pose(0, accel.apply(s.accel.mean().map(|v| v as f32)), m, &limits).is_ok() {
                     chosen.push(s);
                 }
             }
@@ -102,7 +102,7 @@ fn fit(rows: &[Row], segs: &[&Segment], accel: &AccelCal, limits: &MagLimits) ->
     }
     for s in segs {
         if let Some(m) = mean_field(rows, s) {
-            if let Err(e) = c.add_pose(accel.apply(f32v(s.accel.mean())), m) {
+            if let Err(e) = c.add_pose(accel.apply(s.accel.mean().map(|v| v as f32)), m) {
                 return Some((Err(e), used, None));
             }
         }
@@ -118,9 +118,5 @@ fn fit(rows: &[Row], segs: &[&Segment], accel: &AccelCal, limits: &MagLimits) ->
 fn mean_field(rows: &[Row], s: &Segment) -> Option<[f32; 3]> {
     let mut w = Welford3::new();
     rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).for_each(|m| w.add(m));
-    (w.count() > 0).then(|| f32v(w.mean()))
-}
-
-fn f32v(v: [f64; 3]) -> [f32; 3] {
-    v.map(|x| x as f32)
+    (w.count() > 0).then(|| w.mean().map(|v| v as f32))
 }
