@@ -211,10 +211,11 @@ impl Console {
     }
 
     #[inline(never)]
-    pub(crate) fn raw_row(&mut self, s: &Sample, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-        let row = calib_core::formats::log::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: None };
-        let mut line = heapless::String::<{ calib_core::formats::log::MAX_ROW }>::new();
-        if calib_core::formats::log::write_row(&mut line, &row).is_ok() {
+    pub(crate) fn raw_row(&mut self, s: &Sample, mag_ut: Option<[f32; 3]>, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
+        use calib_core::formats::log::{write_mag, write_row, Row, MAX_ROW};
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut };
+        let mut line = heapless::String::<MAX_ROW>::new();
+        if write_row(&mut line, &row).and_then(|_| write_mag(&mut line, mag_ut)).is_ok() {
             self.raw(&line);
         }
     }

@@ -3,7 +3,7 @@
 //!
 //! - [`bootloader`]: which Arduino bootloader, and whether the record pages are safe to write.
 //! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C;
-//!   [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it; [`bmm150`]: its
+//!   [`lsm9ds1_mag`]: its magnetometer; [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it; [`bmm150`]: its
 //!   magnetometer, found and left in suspend.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
@@ -24,6 +24,7 @@ pub mod bootloader;
 pub mod button;
 pub mod led;
 pub mod lsm9ds1;
+pub mod lsm9ds1_mag;
 pub mod rtt;
 pub mod serial;
 pub mod stamp;

@@ -27,6 +27,7 @@ use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
@@ -169,6 +170,12 @@ struct Sensing {
     stamper: Stamper,
     next_try_s: f64,
     last_poll_s: f64,
+    /// The LSM9DS1's magnetometer, configured (Rev1).
+    mag: Option<LsmMag>,
+    /// When to try to bring the magnetometer up again (s), after it failed.
+    mag_next_try_s: f64,
+    /// Its last failure, said once (not again while it keeps failing the same way).
+    mag_error: Option<lsm9ds1_mag::Error>,
     /// Raw-log mode.
     raw: bool,
     /// The calibrated rate (°/s) since the last rate line.
@@ -186,6 +193,9 @@ impl Sensing {
             stamper: Stamper::new(SENSOR.odr.hz()),
             next_try_s: 0.0,
             last_poll_s: 0.0,
+            mag: None,
+            mag_next_try_s: 0.0,
+            mag_error: None,
             raw: false,
             rate: Welford3::new(),
         }
@@ -258,6 +268,7 @@ impl Sensing {
             return self.service_rev2(now, clock, procedure, io);
         }
         let Some(s) = self.sensor.as_mut() else { return };
+        let mag_ut = Self::read_mag(s, &mut self.mag, &mut self.mag_next_try_s, &mut self.mag_error, now, clock, io);
         let (stamper, raw, rate, setup) = (&mut self.stamper, self.raw, &mut self.rate, self.config.setup());
         let result = s.fifo_status().and_then(|st| {
             if st.overrun {
@@ -275,7 +286,8 @@ impl Sensing {
                 let raw_slot = s.read_slot()?;
                 let (accel_g, gyro_dps) = s.convert(&raw_slot);
                 let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                feed(sample, setup, raw, rate, procedure, io);
+                // A new field reading goes with the batch's newest sample (read just before).
+                feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, rate, procedure, io);
             }
             Ok(())
         });
@@ -284,8 +296,47 @@ impl Sensing {
             procedure.handle_sensor_fault();
             procedure.drive(now, io);
             self.bus = self.sensor.take().map(|s| s.release());
+            self.mag = None;
             self.next_try_s = now + 0.5;
         }
+    }
+
+    /// The LSM9DS1's magnetometer: brought up (again every 2 s after a failure) and read when
+    /// it has a new reading (µT, accelerometer axes). A failure is said once, names its cause,
+    /// and leaves the calibration without its readings (the procedure says what that costs);
+    /// never fatal to the gyro's.
+    fn read_mag(
+        s: &mut Lsm9ds1<Bus>,
+        mag: &mut Option<LsmMag>,
+        next_try_s: &mut f64,
+        last_error: &mut Option<lsm9ds1_mag::Error>,
+        now: f64,
+        clock: &mut Clock,
+        io: &mut Io,
+    ) -> Option<[f32; 3]> {
+        let result = match mag.as_mut() {
+            Some(m) => m.read(s.bus_mut(), clock.now_us()),
+            None if now >= *next_try_s => {
+                let t_us = clock.now_us();
+                let up = LsmMag::init(s.bus_mut(), lsm9ds1_mag::Config::DEFAULT, &mut Wait(clock), t_us);
+                up.map(|m| {
+                    *mag = Some(m);
+                    *last_error = None;
+                    io.console.send(Log::Info, "LSM9DS1 magnetometer ready: 40 Hz, +-4 gauss, ultra-high performance");
+                    None
+                })
+            }
+            None => Ok(None),
+        };
+        result.unwrap_or_else(|e| {
+            if *last_error != Some(e) {
+                io.console.say(Log::Warn, format_args!("{e}; calibrating without it, retrying every 2 s"));
+            }
+            *last_error = Some(e);
+            *mag = None;
+            *next_try_s = now + 2.0;
+            None
+        })
     }
 }
 
@@ -338,7 +389,7 @@ impl Sensing {
                 let temp_c = if got.is_empty() { None } else { b.temperature_c().ok().flatten() };
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                    feed(sample, b.setup(), self.raw, &mut self.rate, procedure, io);
+                    feed(sample, None, b.setup(), self.raw, &mut self.rate, procedure, io);
                 }
             }
             Err(e) => {
@@ -377,14 +428,27 @@ fn suspend_bmm150(mut i2c: Bus, clock: &mut Clock, io: &mut Io) -> Bus {
     i2c
 }
 
-/// One reading into the procedure, as the raw log holds it (a replay of the log sees what the
+/// One reading (and the field read with it) into the procedure, as the raw log holds it (a replay of the log sees what the
 /// procedure saw); its row in raw-log mode; the calibrated rate when the stored record was made
 /// at `setup`, the sensor's.
-fn feed(sample: Sample, setup: SensorSetup, raw: bool, rate: &mut Welford3, procedure: &mut Procedure, io: &mut Io) {
+fn feed(
+    sample: Sample,
+    mag_ut: Option<[f32; 3]>,
+    setup: SensorSetup,
+    raw: bool,
+    rate: &mut Welford3,
+    procedure: &mut Procedure,
+    io: &mut Io,
+) {
     let (accel_g, gyro_dps) = calib_core::formats::log::as_logged(sample.accel_g, sample.gyro_dps);
     let sample = Sample { accel_g, gyro_dps, ..sample };
+    let mag_ut = mag_ut.map(calib_core::formats::log::mag_as_logged);
     if raw {
-        io.console.raw_row(&sample, procedure.servo_deg(), procedure.tilt_deg());
+        io.console.raw_row(&sample, mag_ut, procedure.servo_deg(), procedure.tilt_deg());
+    }
+    if let Some(m) = mag_ut {
+        procedure.handle_mag(sample.t_s, m);
+        procedure.drive(sample.t_s, io);
     }
     if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
         rate.add(rec.apply_gyro(gyro_dps));

@@ -65,6 +65,9 @@ pub enum Error {
     TooUncertain { axis: u8, k: f32, sigma: f32, limit: f32, noise_ratio: f32 },
     /// The magnetometer's samples fit no ellipsoid (a quadric that is not one).
     MagFitFailed,
+    /// Too few distinct magnetometer readings (`samples`) or still poses with a reading
+    /// (`poses`) for its fit: the readings stopped, or the board turned too little.
+    MagTooFew { samples: u16, need_samples: u16, poses: u8, need_poses: u8 },
     /// A still pose's field strength or dip differs from the others': a magnet, a laptop or a
     /// servo near the board.
     MagDisturbed { pose: u8, field_ut: f32, expected_ut: f32, dip_deg: f32, expected_dip_deg: f32 },
@@ -194,6 +197,10 @@ impl fmt::Display for Error {
                 }
             }
             Error::MagFitFailed => f.write_str("magnetometer: the samples fit no ellipsoid: turn the board through every direction, away from magnets"),
+            Error::MagTooFew { samples, need_samples, poses, need_poses } => write!(
+                f,
+                "magnetometer: {samples} distinct readings and {poses} still poses with one (need {need_samples} and {need_poses}): its readings stopped, or the board was turned through too few orientations"
+            ),
             Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => write!(
                 f,
                 "magnetometer: the field at pose {pose} is {field} uT at dip {dip} deg, the others' {expected} uT at {expected_dip} deg: a magnet, a laptop or the servo near the board; calibrate it away from them",

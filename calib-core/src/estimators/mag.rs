@@ -99,10 +99,31 @@ impl MagCal {
     }
 }
 
+/// `asin(x)` (rad) with `x` clamped to ±1, through the `atan2` the firmware has already.
+fn asin(x: f64) -> f64 {
+    let x = x.clamp(-1.0, 1.0);
+    libm::atan2(x, libm::sqrt(1.0 - x * x))
+}
+
+/// The rotation by about `θ` (rad, small) without trigonometry: Cayley's
+/// `(I − [θ/2]×)⁻¹ (I + [θ/2]×)`, a rotation by `2 atan(|θ|/2)` about `θ`.
+fn cayley(theta: &Vector3<f64>) -> Matrix3<f64> {
+    let h = theta / 2.0;
+    let k = h.cross_matrix();
+    let i = Matrix3::identity();
+    (i - k).try_inverse().map_or(i, |inv| inv * (i + k))
+}
+
+/// The angle (rad) of rotation matrix `r`: `atan2(sin, cos)` from its skew part and trace.
+fn angle_of(r: &Matrix3<f64>) -> f64 {
+    let v = Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]);
+    libm::atan2(v.norm() / 2.0, (r.trace() - 1.0) / 2.0)
+}
+
 /// Strength (µT) and dip (rad, positive below the horizon) of field `m` with gravity along `f`.
 fn field_and_dip(f: &Vector3<f64>, m: &Vector3<f64>) -> (f64, f64) {
     let b = m.norm();
-    (b, libm::asin((-f.normalize().dot(m) / b).clamp(-1.0, 1.0)))
+    (b, asin(-f.normalize().dot(m) / b))
 }
 
 /// A pose's field `b` (µT) and dip (rad) against the expected ones, within `limits`.
@@ -192,11 +213,23 @@ impl MagCalibrator {
         self.poses.len()
     }
 
+    /// [`Error::MagTooFew`] with the counts kept.
+    fn too_few(&self) -> Error {
+        let samples = self.samples().min(u16::MAX as usize) as u16;
+        Error::MagTooFew { samples, need_samples: MIN_SAMPLES as u16, poses: self.poses.len() as u8, need_poses: MIN_POSES as u8 }
+    }
+
+    /// Replaces every pose's gravity direction `f` by `map(f)`: poses taken before the
+    /// accelerometer was calibrated, brought into its calibrated frame.
+    pub fn map_poses(&mut self, map: impl Fn(Vec3) -> Vec3) {
+        self.poses.iter_mut().for_each(|p| p.0 = map(p.0));
+    }
+
     /// The ellipsoid alone (`A` symmetric, no alignment): what the usual tools fit.
     pub fn fit_ellipsoid(&self) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
         let n = self.samples();
         if n < MIN_SAMPLES {
-            return Err(Error::TooFewSamples { have: n as u32, need: MIN_SAMPLES as u32 });
+            return Err(self.too_few());
         }
         // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
         let c = self.points().fold(Vector3::zeros(), |s, (m, _)| s + to_f64(m)) / n as f64;
@@ -206,7 +239,9 @@ impl MagCalibrator {
             let (x, y, z) = (p[0], p[1], p[2]);
             ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
         }
-        let q = ne.solve()?.x;
+        // The parameters alone (no condition number: a 9×9 eigen-decomposition costs ~2 M
+        // instructions on the MCU); a degenerate spread fails the eigenvalue and coverage checks.
+        let q = ne.estimate()?;
         let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
         let inv = shape.try_inverse().ok_or(Error::Singular)?;
         let centre = -0.5 * inv * Vector3::new(q[6], q[7], q[8]);
@@ -223,7 +258,7 @@ impl MagCalibrator {
         // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
         let v = Matrix3::from_fn(|r, k| vecs[r][k]);
         let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
-        let field = 50.0 * libm::pow(vals[0] * vals[1] * vals[2], -1.0 / 6.0);
+        let field = 50.0 / libm::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
         let a_s = sqrt * (field / 50.0);
         Ok((a_s, c + centre * 50.0, field))
     }
@@ -232,22 +267,22 @@ impl MagCalibrator {
     pub fn solve(&self, limits: &MagLimits) -> Result<MagCal, Error> {
         let (a_s, o, field) = self.fit_ellipsoid()?;
         if self.poses.len() < MIN_POSES {
-            return Err(Error::TooFewPoses { have: self.poses.len() as u8, need: MIN_POSES as u8 });
+            return Err(self.too_few());
         }
         let (r, sol) = self.align(&a_s, &o, None)?;
         let a = r * a_s;
         let c = sol.x[3];
-        let dip = libm::asin((-c).clamp(-1.0, 1.0));
+        let dip = asin(-c);
         let sigma_dip = sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6));
         let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max);
-        let angle = nalgebra::Rotation3::from_matrix_unchecked(r).angle();
+        let angle = angle_of(&r);
         // Per pose: field strength and dip against the fit's.
         if let Err(e) = self.check_poses(&a, &o, field, dip, None, limits) {
             // A magnet near one pose pulls the alignment towards it, so that others deviate
             // too: name the pose without which the rest agree, if there is one.
             let culprit = (0..self.poses.len()).find(|&k| {
                 self.align(&a_s, &o, Some(k)).is_ok_and(|(rk, sk)| {
-                    let dip_k = libm::asin((-sk.x[3]).clamp(-1.0, 1.0));
+                    let dip_k = asin(-sk.x[3]);
                     self.check_poses(&(rk * a_s), &o, field, dip_k, Some(k), limits).is_ok()
                 })
             });
@@ -256,7 +291,7 @@ impl MagCalibrator {
                     let (rk, sk) = self.align(&a_s, &o, Some(k))?;
                     let p = &self.poses[k];
                     let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(rk * a_s * (to_f64(p.1) - o)));
-                    let dip_k = libm::asin((-sk.x[3]).clamp(-1.0, 1.0));
+                    let dip_k = asin(-sk.x[3]);
                     check(k as u8, b, pose_dip, field, dip_k, limits).err().unwrap_or(e)
                 }
                 None => e,
@@ -320,7 +355,7 @@ impl MagCalibrator {
                 ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
             }
             let s = ne.solve()?;
-            r = nalgebra::Rotation3::new(Vector3::new(s.x[0], s.x[1], s.x[2])).into_inner() * r;
+            r = cayley(&Vector3::new(s.x[0], s.x[1], s.x[2])) * r;
             sol = Some(s);
         }
         Ok((r, sol.ok_or(Error::MagFitFailed)?))
@@ -491,7 +526,7 @@ mod tests {
         let part = Part::new();
         let mut g = Gaussian::new(7);
         let mut c = MagCalibrator::new();
-        assert!(matches!(c.solve(&MagLimits::default()), Err(Error::TooFewSamples { have: 0, .. })));
+        assert!(matches!(c.solve(&MagLimits::default()), Err(Error::MagTooFew { samples: 0, .. })));
         // Turns about one vertical axis only: a ring, not a sphere.
         for k in 0..200 {
             let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as f64 * 0.05);

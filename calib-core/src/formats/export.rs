@@ -63,6 +63,8 @@ const D_ACCEL_RMS: u32 = 7;
 const D_TEMPCO: u32 = 6;
 /// Decimals of the ODR (Hz) and the full scales.
 const D_SETUP: u32 = 1;
+/// Decimals of the magnetometer's offset, field, angles, residual and coverage (nT, m°).
+const D_MAG: u32 = 3;
 
 /// The first bytes of the JSON line (its first key), by which [`crate::formats::protocol::parse`] knows it.
 pub(crate) const JSON_START: &str = "{\"gyro\":";
@@ -171,7 +173,18 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     json_mat(w, &r.accel_m, D_MATRIX)?;
     w.write_str(",\"offset_g\":")?;
     json_vec(w, &r.accel_offset_g, D_OFFSET)?;
-    write!(w, "}},\"quality\":{{\"source\":\"{}\",\"seq\":{},\"temp_c\":", Source::of(r).name(), r.seq)?;
+    w.write_str("},\"mag\":")?;
+    match &r.mag {
+        None => w.write_str("null")?,
+        Some(m) => {
+            w.write_str("{\"A\":")?;
+            json_mat(w, &m.a, D_MATRIX)?;
+            w.write_str(",\"offset_ut\":")?;
+            json_vec(w, &m.offset_ut, D_MAG)?;
+            w.write_str("}")?;
+        }
+    }
+    write!(w, ",\"quality\":{{\"source\":\"{}\",\"seq\":{},\"temp_c\":", Source::of(r).name(), r.seq)?;
     json_num(w, temp_c(r), D_TEMP)?;
     w.write_str(",\"sigma_K\":")?;
     json_mat(w, &r.sigma_k, D_SIGMA)?;
@@ -208,6 +221,29 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
             w.write_str(",")?;
             json_num(w, t.range_c[1], D_TEMP)?;
             w.write_str("]}")?;
+        }
+    }
+    w.write_str(",\"mag\":")?;
+    match &r.mag {
+        None => w.write_str("null")?,
+        Some(m) => {
+            for (i, (k, v)) in [
+                ("field_ut", m.field_ut),
+                ("sigma_field_ut", m.sigma_field_ut),
+                ("dip_deg", m.dip_deg),
+                ("sigma_dip_deg", m.sigma_dip_deg),
+                ("alignment_deg", m.alignment_deg),
+                ("sigma_alignment_deg", m.sigma_alignment_deg),
+                ("residual_ut", m.residual_ut),
+                ("coverage", m.coverage),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                write!(w, "{}\"{k}\":", if i == 0 { "{" } else { "," })?;
+                json_num(w, v, D_MAG)?;
+            }
+            write!(w, ",\"samples\":{},\"poses\":{}}}", m.samples, m.poses)?;
         }
     }
     w.write_str("}}")
@@ -324,7 +360,7 @@ fn rust(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
 
 pub use crate::formats::record::NotFinite;
 #[cfg(feature = "serde")]
-pub use schema::{AccelJson, GyroJson, QualityJson, RecordJson, TempCoJson};
+pub use schema::{AccelJson, GyroJson, MagJson, MagQualityJson, QualityJson, RecordJson, TempCoJson};
 
 /// [`Format::Json`] as serde types (feature `serde`).
 #[cfg(feature = "serde")]
@@ -344,8 +380,38 @@ mod schema {
         pub gyro: GyroJson,
         /// `f = M (a − o)`.
         pub accel: AccelJson,
+        /// `m = A (m_raw − o)`; `null`: none (absent in a record's JSON older than the
+        /// magnetometer: none).
+        #[serde(default)]
+        pub mag: Option<MagJson>,
         /// Where the record comes from and how good it is.
         pub quality: QualityJson,
+    }
+
+    /// The magnetometer's calibration (also the `mag` of the offline tool's output).
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct MagJson {
+        /// `A` (row-major): soft iron, scale and the die's alignment onto the accelerometer.
+        #[serde(rename = "A")]
+        pub a: Mat3,
+        /// Hard iron and offset (µT, raw frame).
+        pub offset_ut: Vec3,
+    }
+
+    /// The magnetometer's quality ([`crate::estimators::mag::MagCal`]'s figures).
+    #[allow(missing_docs)] // named as MagCal's fields
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    pub struct MagQualityJson {
+        pub field_ut: Option<f32>,
+        pub sigma_field_ut: Option<f32>,
+        pub dip_deg: Option<f32>,
+        pub sigma_dip_deg: Option<f32>,
+        pub alignment_deg: Option<f32>,
+        pub sigma_alignment_deg: Option<f32>,
+        pub residual_ut: Option<f32>,
+        pub coverage: Option<f32>,
+        pub samples: u16,
+        pub poses: u8,
     }
 
     /// The gyro calibration (also the `gyro` of the offline tool's output).
@@ -393,6 +459,9 @@ mod schema {
         pub setup: SensorSetup,
         /// `null`: unknown.
         pub tempco: Option<TempCoJson>,
+        /// `null`: no magnetometer calibration.
+        #[serde(default)]
+        pub mag: Option<MagQualityJson>,
     }
 
     /// The gyro bias's temperature coefficient (°/s per °C) with its 1σ, and the temperature
@@ -415,6 +484,7 @@ mod schema {
             RecordJson {
                 gyro: GyroJson { k: r.gyro_k, bias_dps: r.gyro_bias_dps, method: r.method },
                 accel: AccelJson { m: r.accel_m, offset_g: r.accel_offset_g },
+                mag: r.mag.map(|m| MagJson { a: m.a, offset_ut: m.offset_ut }),
                 quality: QualityJson {
                     source: Source::of(r),
                     seq: r.seq,
@@ -429,6 +499,18 @@ mod schema {
                     accel_rms_g: written(r.accel_rms_g, D_ACCEL_RMS),
                     setup: r.setup,
                     tempco: r.tempco.map(|t| TempCoJson { dps_per_c: t.dps_per_c, sigma_dps_per_c: t.sigma_dps_per_c, range_c: t.range_c }),
+                    mag: r.mag.map(|m| MagQualityJson {
+                        field_ut: written(m.field_ut, D_MAG),
+                        sigma_field_ut: written(m.sigma_field_ut, D_MAG),
+                        dip_deg: written(m.dip_deg, D_MAG),
+                        sigma_dip_deg: written(m.sigma_dip_deg, D_MAG),
+                        alignment_deg: written(m.alignment_deg, D_MAG),
+                        sigma_alignment_deg: written(m.sigma_alignment_deg, D_MAG),
+                        residual_ut: written(m.residual_ut, D_MAG),
+                        coverage: written(m.coverage, D_MAG),
+                        samples: m.samples,
+                        poses: m.poses,
+                    }),
                 },
             }
         }
@@ -441,10 +523,37 @@ mod schema {
         pub fn record(&self) -> Result<Record, NotFinite> {
             let (g, a, q) = (&self.gyro, &self.accel, &self.quality);
             let cal = [g.k.as_flattened(), &g.bias_dps, a.m.as_flattened(), &a.offset_g];
-            if cal.iter().any(|s| s.iter().any(|x| !x.is_finite())) {
+            let mag = self.mag.iter().flat_map(|m| m.a.as_flattened().iter().chain(&m.offset_ut));
+            if cal.iter().any(|s| s.iter().any(|x| !x.is_finite())) || mag.clone().any(|x| !x.is_finite()) {
                 return Err(NotFinite);
             }
             let v = |x: Option<f32>| x.filter(|x| x.is_finite()).unwrap_or(0.0);
+            let mq = q.mag.unwrap_or(MagQualityJson {
+                field_ut: None,
+                sigma_field_ut: None,
+                dip_deg: None,
+                sigma_dip_deg: None,
+                alignment_deg: None,
+                sigma_alignment_deg: None,
+                residual_ut: None,
+                coverage: None,
+                samples: 0,
+                poses: 0,
+            });
+            let mag = self.mag.map(|m| crate::estimators::mag::MagCal {
+                a: m.a,
+                offset_ut: m.offset_ut,
+                field_ut: v(mq.field_ut),
+                sigma_field_ut: v(mq.sigma_field_ut),
+                dip_deg: v(mq.dip_deg),
+                sigma_dip_deg: v(mq.sigma_dip_deg),
+                alignment_deg: v(mq.alignment_deg),
+                sigma_alignment_deg: v(mq.sigma_alignment_deg),
+                residual_ut: v(mq.residual_ut),
+                coverage: v(mq.coverage),
+                samples: mq.samples,
+                poses: mq.poses,
+            });
             let rec = Record {
                 seq: q.seq,
                 temp_c: q.temp_c,
@@ -467,6 +576,7 @@ mod schema {
                 non_coplanar_deg: v(q.non_coplanar_deg),
                 setup: q.setup,
                 tempco: q.tempco.map(|t| TempCo { dps_per_c: t.dps_per_c, sigma_dps_per_c: t.sigma_dps_per_c, range_c: t.range_c }),
+                mag,
             };
             rec.check_finite().map(|_| rec)
         }
@@ -557,9 +667,12 @@ mod tests {
         assert!(s.contains("\"offset_g\":[0.010000,-0.020000,0.015000]}"), "{s}");
         assert!(s.contains("\"quality\":{\"source\":\"board\",\"seq\":7,\"temp_c\":24.50,\"sigma_K\":[[0.000100000,"), "{s}");
         assert!(s.contains("\"accel_model\":\"nine_param\",\"accel_rms_g\":0.0004000,"), "{s}");
-        assert!(s.ends_with(",\"setup\":{\"odr_hz\":119.0,\"gyro_range_dps\":500.0,\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":{\"dps_per_c\":[0.030000,-0.045000,0.010000],\"sigma_dps_per_c\":[0.002000,0.003000,0.002500],\"range_c\":[24.00,27.50]}}}"), "{s}");
-        let unknown = text(&Record { tempco: None, ..sample() }, Format::Json);
-        assert!(unknown.ends_with("\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":null}}"), "{unknown}");
+        assert!(s.contains(",\"setup\":{\"odr_hz\":119.0,\"gyro_range_dps\":500.0,\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":{\"dps_per_c\":[0.030000,-0.045000,0.010000],\"sigma_dps_per_c\":[0.002000,0.003000,0.002500],\"range_c\":[24.00,27.50]},"), "{s}");
+        assert!(s.contains("\"offset_g\":[0.010000,-0.020000,0.015000]},\"mag\":{\"A\":[[1.0200000,0.0100000,-0.0200000],"), "{s}");
+        assert!(s.ends_with("\"mag\":{\"field_ut\":48.500,\"sigma_field_ut\":0.125,\"dip_deg\":61.250,\"sigma_dip_deg\":0.063,\"alignment_deg\":1.500,\"sigma_alignment_deg\":0.031,\"residual_ut\":0.250,\"coverage\":0.850,\"samples\":140,\"poses\":12}}}"), "{s}");
+        let unknown = text(&Record { tempco: None, mag: None, ..sample() }, Format::Json);
+        assert!(unknown.contains("\"offset_g\":[0.010000,-0.020000,0.015000]},\"mag\":null,\"quality\":"), "{unknown}");
+        assert!(unknown.ends_with("\"accel_range_g\":2.0,\"sensor\":\"lsm9ds1\"},\"tempco\":null,\"mag\":null}}"), "{unknown}");
         let bmi =
             Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: true }, ..SensorSetup::DEFAULT }, ..sample() };
         let b = text(&bmi, Format::Json);

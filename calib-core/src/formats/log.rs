@@ -21,6 +21,8 @@ use core::fmt::{self, Write};
 
 /// The header line.
 pub const HEADER: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg";
+/// The header with the magnetometer's columns ([`MAG_COLUMNS`]): the firmware's raw log.
+pub const HEADER_MAG: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg,mx_ut,my_ut,mz_ut";
 /// The comment line that ends a raw log (raw-log mode switched off).
 pub const END: &str = "# end of raw log";
 /// The comment that states the sensor setup the rows after it were sampled at ([`write_setup`]).
@@ -102,6 +104,11 @@ fn on_grid(v: f32, decimals: u32) -> f32 {
 pub fn as_logged(accel_g: [f32; 3], gyro_dps: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     let (_, da, dg, _) = DECIMALS;
     (accel_g.map(|v| on_grid(v, da)), gyro_dps.map(|v| on_grid(v, dg)))
+}
+
+/// A magnetometer reading as a row holds it (to 1 nT; parses back to these `f32`s).
+pub fn mag_as_logged(m_ut: [f32; 3]) -> [f32; 3] {
+    m_ut.map(|v| on_grid(v, MAG_DECIMALS))
 }
 
 /// Writes one row (no newline).

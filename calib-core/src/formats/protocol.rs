@@ -13,7 +13,7 @@
 use crate::error::Error;
 use crate::estimators::accel::AccelModel;
 use crate::estimators::gyro::Method;
-use crate::formats::log::{self, Row, END, HEADER};
+use crate::formats::log::{self, Row, END, HEADER, HEADER_MAG};
 use crate::formats::record::Record;
 use crate::formats::text::{Fixed, M3, V3};
 use crate::procedure::Phase;
@@ -217,10 +217,11 @@ fn parse_record(l: &str) -> Option<Event<'_>> {
     Some(Event::Record { line, seq: seq.parse().ok()?, method: method(name)? })
 }
 
-/// The raw log's first line (`on`, [`HEADER`]) or its end marker ([`END`]).
+/// The raw log's first line (`on`, [`HEADER_MAG`]: the magnetometer's columns empty on a board
+/// without one) or its end marker ([`END`]).
 pub fn raw_log(on: bool) -> &'static str {
     if on {
-        HEADER
+        HEADER_MAG
     } else {
         END
     }
@@ -319,11 +320,13 @@ pub fn parse(line: &str) -> Option<Event<'_>> {
     Some(match l {
         USB_STARTED => Event::UsbStarted,
         NO_RECORD => Event::NoRecord,
-        HEADER => Event::RawLogStart,
+        HEADER | HEADER_MAG => Event::RawLogStart,
         END => Event::RawLogEnd,
         _ if l.starts_with(crate::formats::export::JSON_START) => Event::ResultJson(l),
         _ if l.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) => {
-            Event::Row(log::parse_row(l, &log::parse_header(HEADER).ok()?, 0).ok()?)
+            // A row of either header: with the magnetometer's three fields or without.
+            let header = if l.split(',').count() > log::COLUMNS.len() { HEADER_MAG } else { HEADER };
+            Event::Row(log::parse_row(l, &log::parse_header(header).ok()?, 0).ok()?)
         }
         _ => return parse_prefixed(l),
     })
@@ -435,6 +438,12 @@ mod tests {
             mag_ut: None,
         };
         assert_eq!(parse(&line(|s| log::write_row(s, &row))), Some(Event::Row(row)));
+        let with = Row { mag_ut: Some([-12.5, 30.25, -41.0]), ..row };
+        for r in [row, with] {
+            assert_eq!(parse(&line(|s| log::write_row(s, &r).and_then(|_| log::write_mag(s, r.mag_ut)))), Some(Event::Row(r)));
+        }
+        assert_eq!(HEADER_MAG, std::format!("{HEADER},{}", log::MAG_COLUMNS.join(",")));
+        assert_eq!(parse(HEADER), Some(Event::RawLogStart));
     }
 
     #[test]

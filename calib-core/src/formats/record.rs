@@ -1,6 +1,13 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
-//! Layout v4 (`LEN` = 236 bytes): the v3 layout, then before the CRC the part the calibration was
+//! Layout v5 (`LEN` = 320 bytes): the v4 layout, then before the CRC the magnetometer's
+//! calibration ([`MagCal`]): `A` (9, row-major), offset (3, µT), field strength and its 1σ (µT),
+//! dip and its 1σ (°), alignment and its 1σ (°), residual (µT), coverage (0..1), all `f32`, then
+//! samples (`u16`), poses (`u8`) and a reserved 0; all zeros with flags bit 2 when there is none
+//! (no magnetometer read, or a pan/tilt run: no hand-held step).
+//!
+//! Layout v4 (`LEN_V4` = 236 bytes, written before the magnetometer; loads without one): the v3
+//! layout, then before the CRC the part the calibration was
 //! made with (`u8`: 0 LSM9DS1, 1 BMI270), the BMI270's GYR_CAS (`i8`, 0 for an LSM9DS1), its
 //! flags (`u8`: bit 0 the BMI270's gyro user gain was enabled) and a reserved 0.
 //!
@@ -30,12 +37,15 @@ use crate::estimators::accel::{AccelCal, AccelModel};
 use crate::estimators::bias::TempCo;
 use crate::estimators::full::FullCal;
 use crate::estimators::gyro::{GyroCal, Method};
+use crate::estimators::mag::MagCal;
 use crate::{Mat3, Vec3};
 
 /// Record format version written by this code.
-pub const VERSION: u8 = 4;
-/// Encoded length (bytes) of a version-4 record (the longest a reader needs).
-pub const LEN: usize = 236;
+pub const VERSION: u8 = 5;
+/// Encoded length (bytes) of a version-5 record (the longest a reader needs).
+pub const LEN: usize = 320;
+/// Encoded length (bytes) of a version-4 record.
+pub const LEN_V4: usize = 236;
 /// Encoded length (bytes) of a version-3 record.
 pub const LEN_V3: usize = 232;
 /// Encoded length (bytes) of a version-2 record.
@@ -43,6 +53,8 @@ pub const LEN_V2: usize = 188;
 /// Encoded length (bytes) of a version-1 record.
 pub const LEN_V1: usize = 156;
 const MAGIC: [u8; 4] = *b"GYRC";
+/// `f32` fields of the magnetometer's part (v5).
+const MAG_F32S: usize = 20;
 
 /// Why bytes are not a valid record.
 #[allow(missing_docs)] // variant fields are named with their units
@@ -92,6 +104,8 @@ impl core::fmt::Display for NotFinite {
 const TEMP_UNKNOWN: u16 = 1;
 /// Flags bit: the bias's temperature coefficient is unknown.
 const TEMPCO_UNKNOWN: u16 = 2;
+/// Flags bit: there is no magnetometer calibration.
+const MAG_UNKNOWN: u16 = 4;
 
 /// The part a calibration was made with. `K`, `b`, `M` and `o` are in that part's raw sensor
 /// axes, in its datasheet units (nothing else applied).
@@ -211,6 +225,9 @@ pub struct Record {
     /// The gyro bias's temperature coefficient; `None`: unknown (too little temperature span,
     /// no temperature, or a record older than version 3).
     pub tempco: Option<TempCo>,
+    /// The magnetometer's calibration (µT, in the frame of `accel_m`); `None`: none (no
+    /// magnetometer read, a pan/tilt run, or a record older than version 5).
+    pub mag: Option<MagCal>,
 }
 
 /// What a record holds beside the gyro result.
@@ -228,6 +245,8 @@ pub struct Context {
     pub setup: SensorSetup,
     /// The gyro bias's temperature coefficient, if the calibration determined it.
     pub tempco: Option<TempCo>,
+    /// The magnetometer's calibration, if one was made (or reused with the accelerometer's).
+    pub mag: Option<MagCal>,
 }
 
 impl Context {
@@ -255,6 +274,7 @@ impl Context {
             non_coplanar_deg: 0.0,
             setup: self.setup,
             tempco: self.tempco,
+            mag: self.mag,
         }
     }
 
@@ -331,6 +351,7 @@ impl Record {
             self.setup.gyro_range_dps,
             self.setup.accel_range_g,
         ];
+        let mag = self.mag_f32s();
         let all = [
             self.gyro_k.as_flattened(),
             &self.gyro_bias_dps,
@@ -339,6 +360,7 @@ impl Record {
             self.sigma_k.as_flattened(),
             &scalars,
             &tempco,
+            &mag,
         ];
         if all.iter().all(|s| s.iter().all(|v| v.is_finite())) {
             Ok(())
@@ -358,7 +380,27 @@ impl Record {
         v
     }
 
-    /// Encodes to the version-4 layout; a record with a NaN or infinite field is refused.
+    /// The magnetometer's `f32` fields as stored (zeros when there is none).
+    fn mag_f32s(&self) -> [f32; MAG_F32S] {
+        let mut v = [0.0; MAG_F32S];
+        if let Some(m) = &self.mag {
+            v[..9].copy_from_slice(m.a.as_flattened());
+            v[9..12].copy_from_slice(&m.offset_ut);
+            v[12..].copy_from_slice(&[
+                m.field_ut,
+                m.sigma_field_ut,
+                m.dip_deg,
+                m.sigma_dip_deg,
+                m.alignment_deg,
+                m.sigma_alignment_deg,
+                m.residual_ut,
+                m.coverage,
+            ]);
+        }
+        v
+    }
+
+    /// Encodes to the version-5 layout; a record with a NaN or infinite field is refused.
     pub fn encode(&self) -> Result<[u8; LEN], NotFinite> {
         self.check_finite()?;
         let mut w = Writer { buf: [0; LEN], at: 0 };
@@ -379,7 +421,9 @@ impl Record {
         ]);
         w.bytes(&self.seq.to_le_bytes());
         w.bytes(&self.rows.to_le_bytes());
-        let flags = if self.temp_c.is_none() { TEMP_UNKNOWN } else { 0 } | if self.tempco.is_none() { TEMPCO_UNKNOWN } else { 0 };
+        let flags = if self.temp_c.is_none() { TEMP_UNKNOWN } else { 0 }
+            | if self.tempco.is_none() { TEMPCO_UNKNOWN } else { 0 }
+            | if self.mag.is_none() { MAG_UNKNOWN } else { 0 };
         w.bytes(&flags.to_le_bytes());
         w.f32s(&[self.temp_c.unwrap_or(0.0)]);
         w.f32s(self.gyro_k.as_flattened());
@@ -395,12 +439,16 @@ impl Record {
             Sensor::Lsm9ds1 => [0, 0, 0, 0],
             Sensor::Bmi270 { gyr_cas, user_gain } => [1, gyr_cas as u8, u8::from(user_gain), 0],
         });
+        w.f32s(&self.mag_f32s());
+        let (samples, poses) = self.mag.map_or((0, 0), |m| (m.samples, m.poses));
+        w.bytes(&samples.to_le_bytes());
+        w.bytes(&[poses, 0]);
         let crc = crc32(&w.buf[..LEN - 4]);
         w.bytes(&crc.to_le_bytes());
         Ok(w.buf)
     }
 
-    /// Decodes and validates bytes of a version-4, -3, -2 or -1 record (extra bytes after the
+    /// Decodes and validates bytes of a version-5, -4, -3, -2 or -1 record (extra bytes after the
     /// record are ignored).
     pub fn decode(bytes: &[u8]) -> Result<Record, DecodeError> {
         let truncated = |need: usize| DecodeError::Truncated { len: bytes.len().min(u16::MAX as usize) as u16, need: need as u16 };
@@ -414,7 +462,8 @@ impl Record {
             1 => LEN_V1,
             2 => LEN_V2,
             3 => LEN_V3,
-            4 => LEN,
+            4 => LEN_V4,
+            5 => LEN,
             v => return Err(DecodeError::UnsupportedVersion(v)),
         };
         if bytes.len() < len {
@@ -439,7 +488,11 @@ impl Record {
             _ => return Err(DecodeError::InvalidField),
         };
         let flags = u16::from_le_bytes([b[14], b[15]]);
-        let known = if len >= LEN_V3 { TEMP_UNKNOWN | TEMPCO_UNKNOWN } else { TEMP_UNKNOWN };
+        let known = match len {
+            LEN => TEMP_UNKNOWN | TEMPCO_UNKNOWN | MAG_UNKNOWN,
+            LEN_V3 | LEN_V4 => TEMP_UNKNOWN | TEMPCO_UNKNOWN,
+            _ => TEMP_UNKNOWN,
+        };
         if flags & !known != 0 {
             return Err(DecodeError::InvalidField);
         }
@@ -477,6 +530,7 @@ impl Record {
             non_coplanar_deg: 0.0,
             setup: SensorSetup::DEFAULT,
             tempco: None,
+            mag: None,
         };
         if len >= LEN_V2 {
             rec.residual_rms = r.f32();
@@ -489,14 +543,31 @@ impl Record {
                 rec.tempco = Some(TempCo { dps_per_c: c, sigma_dps_per_c: sigma, range_c: range });
             }
         }
-        if len == LEN {
-            rec.setup.sensor = match b[LEN_V3 - 4..LEN - 4] {
+        if len >= LEN_V4 {
+            rec.setup.sensor = match b[LEN_V3 - 4..LEN_V4 - 4] {
                 [0, 0, 0, 0] => Sensor::Lsm9ds1,
                 [1, cas, f, 0] if (-64..64).contains(&(cas as i8)) && f & !1 == 0 => {
                     Sensor::Bmi270 { gyr_cas: cas as i8, user_gain: f == 1 }
                 }
                 _ => return Err(DecodeError::InvalidField),
             };
+        }
+        if len == LEN {
+            r.at = LEN_V4 - 4;
+            let (a, offset_ut) = (r.mat3(), r.vec3());
+            let q: [f32; 8] = core::array::from_fn(|_| r.f32());
+            let (samples, poses) = (u16::from_le_bytes([b[LEN - 8], b[LEN - 7]]), b[LEN - 6]);
+            if b[LEN - 5] != 0 {
+                return Err(DecodeError::InvalidField);
+            }
+            if flags & MAG_UNKNOWN == 0 {
+                let [field_ut, sigma_field_ut, dip_deg, sigma_dip_deg, alignment_deg, sigma_alignment_deg, residual_ut, coverage] = q;
+                #[rustfmt::skip]
+                let m = MagCal { a, offset_ut, field_ut, sigma_field_ut, dip_deg, sigma_dip_deg, alignment_deg, sigma_alignment_deg, residual_ut, coverage, samples, poses };
+                rec.mag = Some(m);
+            } else if a.as_flattened().iter().chain(&offset_ut).chain(&q).any(|v| *v != 0.0) || samples != 0 || poses != 0 {
+                return Err(DecodeError::InvalidField);
+            }
         }
         if !r.all_finite {
             return Err(DecodeError::InvalidField);
@@ -586,7 +657,26 @@ pub(crate) mod tests {
             non_coplanar_deg: 54.0,
             setup: SensorSetup::DEFAULT,
             tempco: Some(TempCo { dps_per_c: [0.03, -0.045, 0.01], sigma_dps_per_c: [0.002, 0.003, 0.0025], range_c: [24.0, 27.5] }),
+            mag: Some(MagCal {
+                a: [[1.02, 0.01, -0.02], [0.0, 0.97, 0.015], [0.02, -0.01, 1.01]],
+                offset_ut: [12.5, -30.25, 4.0],
+                field_ut: 48.5,
+                sigma_field_ut: 0.125,
+                dip_deg: 61.25,
+                sigma_dip_deg: 0.0625,
+                alignment_deg: 1.5,
+                sigma_alignment_deg: 0.03125,
+                residual_ut: 0.25,
+                coverage: 0.85,
+                samples: 140,
+                poses: 12,
+            }),
         }
+    }
+
+    /// `sample()` as a record older than version 5 loads it: no magnetometer.
+    fn without_mag() -> Record {
+        Record { mag: None, ..sample() }
     }
 
     #[test]
@@ -599,11 +689,11 @@ pub(crate) mod tests {
         let r = sample();
         let bytes = r.encode().unwrap();
         assert_eq!(Record::decode(&bytes), Ok(r));
-        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 236 })));
+        assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 320 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
         let mut v = bytes;
-        v[4] = 5;
-        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(5)));
+        v[4] = 6;
+        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(6)));
         let mut c = bytes;
         c[40] ^= 0x10;
         assert!(matches!(Record::decode(&c), Err(DecodeError::BadCrc { .. })));
@@ -620,7 +710,7 @@ pub(crate) mod tests {
             v1[i] = u8::from_str_radix(&GOLDEN_V1[2 * i..2 * i + 2], 16).unwrap();
         }
         let sigma_k = [[1e-4, 0.0, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1.5e-4]];
-        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, tempco: None, ..sample() }));
+        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, tempco: None, ..without_mag() }));
         assert!(matches!(Record::decode(&v1[..150]), Err(DecodeError::Truncated { len: 150, need: 156 })));
         let mut torn = v1;
         torn[120] ^= 1;
@@ -637,7 +727,7 @@ pub(crate) mod tests {
         for i in 0..LEN_V2 {
             v2[i] = u8::from_str_radix(&GOLDEN_V2[2 * i..2 * i + 2], 16).unwrap();
         }
-        assert_eq!(Record::decode(&v2), Ok(Record { tempco: None, ..sample() }));
+        assert_eq!(Record::decode(&v2), Ok(Record { tempco: None, ..without_mag() }));
         assert!(matches!(Record::decode(&v2[..180]), Err(DecodeError::Truncated { len: 180, need: 188 })));
         // Bit 1 (tempco unknown) is not a v2 flag.
         let mut flagged = v2;
@@ -694,7 +784,7 @@ pub(crate) mod tests {
         assert_eq!((bytes[14], &bytes[16..20]), (1, &[0u8; 4][..]), "flag set, temperature 0");
         assert_eq!(Record::decode(&bytes), Ok(r));
         let mut other = bytes;
-        other[14] = 0b100;
+        other[14] = 0b1000;
         assert_eq!(Record::decode(&re_crc(other)), Err(DecodeError::InvalidField));
     }
 
@@ -708,7 +798,7 @@ pub(crate) mod tests {
         for i in 0..LEN_V3 {
             v3[i] = u8::from_str_radix(&GOLDEN_V3[2 * i..2 * i + 2], 16).unwrap();
         }
-        assert_eq!(Record::decode(&v3), Ok(sample()));
+        assert_eq!(Record::decode(&v3), Ok(without_mag()));
         assert!(matches!(Record::decode(&v3[..231]), Err(DecodeError::Truncated { len: 231, need: 232 })));
     }
 
@@ -732,5 +822,50 @@ pub(crate) mod tests {
         let mut lsm = sample().encode().unwrap();
         lsm[229] = 3;
         assert_eq!(Record::decode(&re_crc(lsm)), Err(DecodeError::InvalidField));
+    }
+
+    /// `sample()` made with a BMI270 (GYR_CAS −5, user gain on), as the version-4 encoder of the
+    /// release before the magnetometer (commit b73f472) wrote it.
+    const GOLDEN_V4: &str = "475952430401020d070000000c0000000000c441ae47813f000000000000000000000000a4707d3f0000000000000000000000005c8f823f0000003f0000a0bf00000040c520803f6f12033b0000000000000000ee7c7f3f6f1283ba00000000000000004e62803f0ad7233c0ad7a3bc8fc2753c17b7d13882a8fb37000000000000000017b7513900000000000000000000000052491d390ad7a33c6f12833a00006040000034420000344317b7d1390ad7a33c000058420000ee420000fa43000000408fc2f53cec5138bd0ad7233c6f12033ba69b443b0ad7233b0000c0410000dc4101fb0100c4dc2e69";
+
+    #[test]
+    fn version_4_records_still_load_without_a_magnetometer() {
+        let mut v4 = [0xFFu8; LEN];
+        for i in 0..LEN_V4 {
+            v4[i] = u8::from_str_radix(&GOLDEN_V4[2 * i..2 * i + 2], 16).unwrap();
+        }
+        let sensor = Sensor::Bmi270 { gyr_cas: -5, user_gain: true };
+        assert_eq!(Record::decode(&v4), Ok(Record { setup: SensorSetup { sensor, ..SensorSetup::DEFAULT }, ..without_mag() }));
+        assert!(matches!(Record::decode(&v4[..235]), Err(DecodeError::Truncated { len: 235, need: 236 })));
+        // Bit 2 (no magnetometer) is not a v4 flag.
+        let mut flagged = v4;
+        flagged[14] |= 0b100;
+        let crc = crc32(&flagged[..LEN_V4 - 4]);
+        flagged[LEN_V4 - 4..LEN_V4].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(Record::decode(&flagged), Err(DecodeError::InvalidField));
+    }
+
+    #[test]
+    fn the_magnetometer_round_trips_known_or_unknown_and_unknown_means_zeros() {
+        let bytes = sample().encode().unwrap();
+        assert_eq!((bytes[14] & 0b100, bytes[312], bytes[314]), (0, 140, 12), "flag clear, samples, poses");
+        let none = without_mag();
+        let bytes = none.encode().unwrap();
+        assert_eq!((bytes[14], &bytes[232..316]), (0b100, &[0u8; 84][..]), "flag set, magnetometer zeros");
+        assert_eq!(Record::decode(&bytes), Ok(none));
+        // Unknown yet holding a value, a reserved byte set, a non-finite A: invalid.
+        for (at, v) in [(240, 0x3Fu8), (312, 1), (315, 1)] {
+            let mut b = bytes;
+            b[at] = v;
+            assert_eq!(Record::decode(&re_crc(b)), Err(DecodeError::InvalidField), "byte {at} = {v}");
+        }
+        let mut b = sample().encode().unwrap();
+        b[232..236].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(Record::decode(&re_crc(b)), Err(DecodeError::InvalidField));
+        let mut m = sample();
+        if let Some(c) = m.mag.as_mut() {
+            c.offset_ut[2] = f32::INFINITY;
+        }
+        assert_eq!(m.encode(), Err(NotFinite));
     }
 }

@@ -84,6 +84,21 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             c.poses,
             V3(c.offset_g, 4)
         ),
+        Report::Mag(c) => write!(
+            w,
+            "magnetometer: field {} +- {} uT at dip {} +- {} deg; die turned {} +- {} deg; residual {} uT rms, {} % of the sphere, {} samples, {} poses; offset {} uT",
+            Fixed(c.field_ut as f64, 2),
+            Fixed(c.sigma_field_ut as f64, 2),
+            Fixed(c.dip_deg as f64, 2),
+            Fixed(c.sigma_dip_deg as f64, 2),
+            Fixed(c.alignment_deg as f64, 2),
+            Fixed(c.sigma_alignment_deg as f64, 2),
+            Fixed(c.residual_ut as f64, 3),
+            Fixed(c.coverage as f64 * 100.0, 0),
+            c.samples,
+            c.poses,
+            V3(c.offset_ut, 2)
+        ),
         Report::RigPose { index, servo_deg, accel_g } => protocol::rig_pose(w, *index, *servo_deg, accel_g),
         Report::Retake { index, retries } => write!(w, "pose {index} disturbed: retake {retries}"),
         Report::Move { from, to, gyro_turn_deg } => {

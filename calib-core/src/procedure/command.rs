@@ -79,6 +79,7 @@ impl ErrorClass {
             | Error::ResultRejected { .. }
             | Error::TooUncertain { .. }
             | Error::MagFitFailed
+            | Error::MagTooFew { .. }
             | Error::MagDisturbed { .. }
             | Error::MagFitPoor { .. }
             | Error::MagCoverageThin { .. }
@@ -102,6 +103,8 @@ pub enum Report {
     AccelPose { index: u8, accel_g: Vec3 },
     /// The accelerometer calibration.
     Accel(AccelCal),
+    /// The magnetometer's calibration from the hand-held step.
+    Mag(crate::estimators::mag::MagCal),
     /// A static rig pose was captured (calibrated mean, g; raw with the pan/tilt plan, whose
     /// accelerometer is fitted to these poses at the end).
     RigPose { index: u8, servo_deg: f32, accel_g: Vec3 },

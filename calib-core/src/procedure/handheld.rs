@@ -43,6 +43,12 @@ impl Procedure {
         if let Err(e) = self.accel_poses.add_pose(a, sigma) {
             return self.fail(e);
         }
+        // Gravity's direction in the raw accelerometer's axes until it is calibrated.
+        if capture.mag.count() > 0 {
+            if let Err(e) = self.mag.add_pose(a, capture.mag.mean().map(|v| v as f32)) {
+                return self.fail(e);
+            }
+        }
         let index = (self.accel_poses.len() - 1) as u8;
         self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
@@ -71,6 +77,7 @@ impl Procedure {
         }
         match self.fit_accel() {
             Ok(()) => {
+                self.mag_pending = true;
                 self.rotations.calibrate_poses(&self.accel_cal);
                 self.enter(Step::Reattach, t_s)
             }
@@ -100,6 +107,29 @@ impl Procedure {
         }
         self.drift.add(rest);
         self.temp_fit.add(capture.temp_c(), &rest);
+    }
+
+    /// The magnetometer's fit if it is due ([`Self::fit_mag`]; a failure fails the calibration).
+    pub(super) fn fit_mag_pending(&mut self) {
+        if core::mem::take(&mut self.mag_pending) {
+            if let Err(e) = self.fit_mag() {
+                self.fail(e);
+            }
+        }
+    }
+
+    /// Fits the magnetometer to the hand-held step's readings in the calibrated accelerometer's
+    /// frame and reports it; nothing to do when none was read (no magnetometer).
+    fn fit_mag(&mut self) -> Result<(), Error> {
+        if self.mag.samples() == 0 && self.mag.poses() == 0 {
+            return Ok(());
+        }
+        let accel = self.accel_cal;
+        self.mag.map_poses(|f| accel.apply(f));
+        let cal = self.mag.solve(&MagLimits::default())?;
+        self.mag_cal = Some(cal);
+        self.push(Command::Report(Report::Mag(cal)));
+        Ok(())
     }
 
     /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.

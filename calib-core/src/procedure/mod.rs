@@ -38,6 +38,7 @@ use crate::estimators::axis::Poses;
 use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::estimators::full::{Axes, FullAxis, FullCal};
 use crate::estimators::gyro::Method;
+use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
 use crate::estimators::rotation::{PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
 use crate::estimators::sweep;
@@ -119,11 +120,22 @@ struct Capture {
     gyro: Welford3,
     /// Temperature (°C, first component) of the samples of its windows that had one.
     temp: Welford3,
+    /// Magnetometer readings (raw, µT) during its windows.
+    mag: Welford3,
     /// The bias-free gyro turn over its windows (hand-held poses: the sway inside the pose).
     turn: PoseTurn,
     t_first: f64,
     t_last: f64,
     retries: u8,
+}
+
+/// What the shell read beside the IMU's samples since the rest detector's last window closed.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct WindowReadings {
+    /// Temperatures (°C, first component).
+    temp: Welford3,
+    /// Magnetometer readings (raw, µT).
+    mag: Welford3,
 }
 
 enum CaptureStep {
@@ -133,15 +145,17 @@ enum CaptureStep {
 }
 
 impl Capture {
-    /// A closed window, the temperatures read during it and the gyro's turn over it.
-    fn feed(&mut self, w: &Window, temp: &Welford3, turn: &PoseTurn, tainted: bool, need_s: f32) -> CaptureStep {
+    /// A closed window, the temperatures and magnetometer readings taken during it and the
+    /// gyro's turn over it.
+    fn feed(&mut self, w: &Window, read: &WindowReadings, turn: &PoseTurn, tainted: bool, need_s: f32) -> CaptureStep {
         if w.still && w.state == RestState::Still && !tainted {
             if self.accel.count() == 0 {
                 self.t_first = w.t_start_s;
             }
             self.accel.merge(&w.accel);
             self.gyro.merge(&w.gyro);
-            self.temp.merge(temp);
+            self.temp.merge(&read.temp);
+            self.mag.merge(&read.mag);
             self.turn.merge(turn);
             self.t_last = w.t_end_s;
             return if self.t_last - self.t_first >= need_s as f64 { CaptureStep::Done } else { CaptureStep::Pending };
@@ -231,6 +245,10 @@ struct Spin {
     gravity: GravityTurn,
 }
 
+/// How long after the hand-held step ends the magnetometer is fitted (s), unless the button
+/// comes first.
+const MAG_FIT_AFTER_S: f64 = 0.5;
+
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
 
@@ -261,8 +279,15 @@ pub struct Procedure {
     drift: Drift,
     /// The rests' biases against their temperatures.
     temp_fit: TempFit,
-    /// Temperatures read since the rest detector's last window closed.
-    window_temp: Welford3,
+    /// Temperatures and magnetometer readings since the rest detector's last window closed.
+    window_read: WindowReadings,
+    /// The hand-held step's magnetometer readings and still poses.
+    mag: MagCalibrator,
+    /// The magnetometer's calibration of this run (or the stored one, reused with its
+    /// accelerometer's).
+    mag_cal: Option<MagCal>,
+    /// The hand-held step ended: the magnetometer's fit is due (at the next sample).
+    mag_pending: bool,
     /// The bias-free gyro turn since then (hand-held phase only).
     window_turn: PoseTurn,
     gbar: Option<(Vec3, f32)>,
@@ -299,7 +324,10 @@ impl Procedure {
             integ: Integrator::new(),
             drift: Drift::new(),
             temp_fit: TempFit::new(),
-            window_temp: Welford3::new(),
+            window_read: WindowReadings { temp: Welford3::new(), mag: Welford3::new() },
+            mag: MagCalibrator::new(),
+            mag_cal: None,
+            mag_pending: false,
             window_turn: PoseTurn::new(),
             gbar: None,
             temp: Welford3::new(),
@@ -366,7 +394,10 @@ impl Procedure {
         match self.step {
             Step::Idle | Step::Finished(_) => self.start(t_s),
             Step::Reattach => {
-                self.begin_rig(t_s);
+                self.fit_mag_pending();
+                if self.running() {
+                    self.begin_rig(t_s);
+                }
             }
             _ => {}
         }
@@ -419,6 +450,21 @@ impl Procedure {
         }
     }
 
+    /// A magnetometer reading (raw, µT, in the accelerometer's axes: the part's axis mapping
+    /// applied) at MCU time `t_s`. Only the hand-held step uses them, from its first pose on: on
+    /// the rig a servo's motor magnet moves with the shaft, and the step's first pose is
+    /// usually taken before the board is lifted off it. A non-finite reading fails the
+    /// calibration there.
+    pub fn handle_mag(&mut self, t_s: f64, m_ut: Vec3) {
+        if matches!(self.step, Step::HandHeld { .. }) && !self.accel_poses.is_empty() && t_s.is_finite() {
+            match self.mag.add_sample(m_ut) {
+                Ok(()) => self.window_read.mag.add(m_ut),
+                Err(e) => self.fail(e),
+            }
+        }
+        self.settle();
+    }
+
     /// Timer tick without a sample: detects a sensor that stopped and phase timeouts.
     pub fn handle_tick(&mut self, t_s: f64) {
         self.tick(t_s);
@@ -467,7 +513,7 @@ impl Procedure {
         self.tainted |= saturated;
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
             self.temp.add([t, 0.0, 0.0]);
-            self.window_temp.add([t, 0.0, 0.0]);
+            self.window_read.temp.add([t, 0.0, 0.0]);
         }
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
@@ -475,12 +521,15 @@ impl Procedure {
         if matches!(self.step, Step::HandHeld { .. }) {
             self.window_turn.add(s.t_s, dt, g);
         }
-        let wt = if window.is_some() { core::mem::take(&mut self.window_temp) } else { Welford3::new() };
+        let wt = if window.is_some() { core::mem::take(&mut self.window_read) } else { WindowReadings::default() };
         let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
         if window.is_some() {
             self.tainted = false;
         }
         match self.step {
+            // The magnetometer's fit, a while after the accelerometer's (~0.1 s on the MCU after
+            // ~0.25 s): the shell drains the sensor's FIFO between the two long calls.
+            Step::Reattach if self.mag_pending && s.t_s - self.phase_t0 >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
@@ -599,7 +648,10 @@ impl Procedure {
         self.integ = Integrator::new();
         self.drift = Drift::new();
         self.temp_fit = TempFit::new();
-        self.window_temp = Welford3::new();
+        self.window_read = WindowReadings::default();
+        self.mag = MagCalibrator::new();
+        self.mag_pending = false;
+        self.mag_cal = self.stored.filter(|_| !self.cfg.pan_tilt && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
         self.gbar = None;
         self.temp = Welford3::new();

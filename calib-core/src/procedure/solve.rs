@@ -177,6 +177,7 @@ impl Procedure {
             accel: self.accel_cal,
             setup: self.cfg.setup,
             tempco: self.temp_fit.finish(),
+            mag: self.mag_cal,
         }
     }
 }

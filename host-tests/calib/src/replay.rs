@@ -127,6 +127,11 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         if !same(p.servo_deg(), r.servo_deg) || !same(p.tilt_deg(), r.tilt_deg) {
             return None;
         }
+        // A field reading enters before its row's sample, as the firmware feeds them.
+        if let Some(m) = r.mag_ut {
+            p.handle_mag(r.t_s, m);
+            p.drive(r.t_s, &mut out);
+        }
         // The log has no temperature; it only annotates the record, never the estimates.
         p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: None });
         p.drive(r.t_s, &mut out);

@@ -104,6 +104,20 @@ fn exact_record() -> Record {
             sigma_dps_per_c: [0.015625, 0.03125, 0.0625],
             range_c: [24.0, 27.5],
         }),
+        mag: Some(calib_core::estimators::mag::MagCal {
+            a: [[1.015625, 0.0078125, 0.0], [0.0078125, 0.984375, -0.015625], [0.0, 0.015625, 1.0]],
+            offset_ut: [12.5, -30.25, 4.125],
+            field_ut: 48.5,
+            sigma_field_ut: 0.125,
+            dip_deg: 61.25,
+            sigma_dip_deg: 0.125,
+            alignment_deg: 1.5,
+            sigma_alignment_deg: 0.375,
+            residual_ut: 0.25,
+            coverage: 0.875,
+            samples: 140,
+            poses: 11,
+        }),
     }
 }
 
@@ -112,7 +126,7 @@ fn the_boards_hand_written_line_is_the_serde_schema() {
     // The firmware's line (written without serde) read with the serde type: the same record, and
     // the serde type writes the same JSON (every field where the board writes it, null where it
     // writes null; value for value, every value here being exact at its decimals).
-    let unknown = Record { temp_c: None, condition: 3e30, tempco: None, ..exact_record() };
+    let unknown = Record { temp_c: None, condition: 3e30, tempco: None, mag: None, ..exact_record() };
     for (what, rec, back) in [
         ("a stored record", exact_record(), exact_record()),
         // (a condition too large to print is written null and reads 0, never NaN)

@@ -220,6 +220,11 @@ fn run_posed(
                     _ => input.temp_c,
                 };
             }
+            // A field reading enters before its sample, as the firmware feeds them (as logged);
+            // its commands (a failure's, at most 4) are drained with the sample's below.
+            if let Some(m) = s.mag_ut {
+                proc.handle_mag(s.t_s, calib_core::formats::log::mag_as_logged(m));
+            }
             proc.handle_sample(&input);
             samples += 1;
         }

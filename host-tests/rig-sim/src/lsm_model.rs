@@ -23,6 +23,7 @@
 
 use crate::bmi_model::Bmi270Model;
 use crate::bmm_model::{self, Bmm150Model};
+use crate::lsm_mag_model::{self, LsmMagModel};
 use crate::sim::{AccelRange, GyroRange, Rig, RigConfig};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 use gyrocal_fw::lsm9ds1::{reg, ADDR_AG, ADDR_BMI270, FIFO_DEPTH, WHO_AM_I_AG};
@@ -64,8 +65,8 @@ impl Board {
 
 /// A produced sample waiting for its time: true time, FIFO slot, temperature, rig readings.
 /// (true time, the LSM9DS1's slot, its temperature reading (1/16 °C), accelerometer, gyro, the
-/// true temperature for the BMI270's finer register).
-type Pending = (f64, Slot, f32, [f32; 3], [f32; 3], f64);
+/// true temperature for the BMI270's finer register, a new magnetometer reading).
+type Pending = (f64, Slot, f32, [f32; 3], [f32; 3], f64, Option<[f32; 3]>);
 
 #[derive(Debug, Clone, Copy)]
 struct Slot {
@@ -106,6 +107,8 @@ pub struct Lsm9ds1Model {
     bmi: Option<Bmi270Model>,
     /// On a Rev2 board: the BMM150 magnetometer that answers at 0x10.
     bmm: Option<Bmm150Model>,
+    /// On a Rev1 board whose rig simulates the field: the LSM9DS1's magnetometer at 0x1E.
+    mag: Option<LsmMagModel>,
 }
 
 const DEFAULT_CTRL_REG8: u8 = 0x04;
@@ -147,7 +150,9 @@ impl Lsm9ds1Model {
             clock: None,
             bmi: (board == Board::Rev2).then(|| Bmi270Model::new(0.0)),
             bmm: (board == Board::Rev2).then(|| Bmm150Model::new(0.0)),
+            mag: None,
         };
+        m.mag = m.has_lsm_mag().then(|| LsmMagModel::new(0.0));
         m.reset_registers();
         m
     }
@@ -165,6 +170,9 @@ impl Lsm9ds1Model {
             if self.board == Board::Rev2 {
                 self.bmi = Some(Bmi270Model::new(self.now_s));
                 self.bmm = Some(Bmm150Model::new(self.now_s));
+            }
+            if self.has_lsm_mag() {
+                self.mag = Some(LsmMagModel::new(self.now_s));
             }
         }
     }
@@ -184,6 +192,17 @@ impl Lsm9ds1Model {
         self.bmm.as_ref()
     }
 
+    /// Whether the LSM9DS1's magnetometer answers at 0x1E: on a Rev1 board whose rig simulates
+    /// the field (a rig without one models a board whose magnetometer is missing).
+    fn has_lsm_mag(&self) -> bool {
+        self.board == Board::Rev1 && self.rig.config().mag.is_some()
+    }
+
+    /// On a Rev1 board: the LSM9DS1's magnetometer at 0x1E.
+    pub fn lsm_mag(&self) -> Option<&LsmMagModel> {
+        self.mag.as_ref()
+    }
+
     /// Junk first slots produced (after each FIFO enable).
     pub fn junk(&self) -> usize {
         self.junk
@@ -192,12 +211,19 @@ impl Lsm9ds1Model {
     /// Whether the part acknowledges `address` now.
     pub fn acks(&self, address: u8) -> bool {
         let present = match self.board {
-            Board::Rev1 | Board::OtherChip(_) => address == ADDR_AG,
+            Board::Rev1 => address == ADDR_AG || (address == lsm_mag_model::ADDR && self.mag.is_some()),
+            Board::OtherChip(_) => address == ADDR_AG,
             Board::Rev2 => address == ADDR_BMI270 || address == bmm_model::ADDR,
             Board::Missing => false,
         };
         let bmm_answers = address != bmm_model::ADDR || self.bmm.as_ref().is_some_and(|m| m.acks_at(self.now_s));
-        present && bmm_answers && self.powered && self.now_s >= self.busy_until && self.nack_from.is_none_or(|n| self.transactions < n)
+        let mag_answers = address != lsm_mag_model::ADDR || self.mag.as_ref().is_some_and(|m| m.acks_at(self.now_s));
+        present
+            && bmm_answers
+            && mag_answers
+            && self.powered
+            && self.now_s >= self.busy_until
+            && self.nack_from.is_none_or(|n| self.transactions < n)
     }
 
     fn fifo_on(&self) -> bool {
@@ -288,7 +314,7 @@ impl Lsm9ds1Model {
     /// output registers when the FIFO is off).
     pub fn advance_to(&mut self, t_s: f64) {
         loop {
-            let (t, slot, temp, accel, gyro, true_temp) = match self.pending {
+            let (t, slot, temp, accel, gyro, true_temp, mag_ut) = match self.pending {
                 Some(p) => p,
                 None => {
                     let s = self.rig.next_sample();
@@ -297,7 +323,7 @@ impl Lsm9ds1Model {
                         accel: Self::counts_le(s.accel_g, self.accel_range().lsb_g()),
                     };
                     let truth = self.rig.truth();
-                    let p = (truth.t_s, slot, s.temp_c, s.accel_g, s.gyro_dps, truth.temp_c);
+                    let p = (truth.t_s, slot, s.temp_c, s.accel_g, s.gyro_dps, truth.temp_c, s.mag_ut);
                     self.pending = Some(p);
                     p
                 }
@@ -309,6 +335,9 @@ impl Lsm9ds1Model {
             if let Some(b) = self.bmi.as_mut() {
                 b.set_temperature(true_temp);
                 b.set_sample(t, accel, gyro);
+            }
+            if let (Some(m), Some(reading), true) = (self.mag.as_mut(), mag_ut, self.powered) {
+                m.convert(reading);
             }
             if !self.running() || !self.powered {
                 continue;
@@ -436,6 +465,16 @@ impl I2c for Lsm9ds1Model {
         self.transactions += 1;
         if !acked {
             return Err(BusError(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
+        }
+        if address == lsm_mag_model::ADDR {
+            if let Some(m) = self.mag.as_mut() {
+                let r = m.transaction(operations, self.now_s);
+                // The field is read at the rate the registers ask for.
+                if let Some(hz) = m.odr_hz() {
+                    self.rig.set_mag_odr_hz(hz);
+                }
+                return r;
+            }
         }
         if address == bmm_model::ADDR {
             if let Some(m) = self.bmm.as_mut() {

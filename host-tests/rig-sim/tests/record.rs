@@ -3,6 +3,7 @@
 use calib_core::estimators::accel::AccelModel;
 use calib_core::estimators::bias::TempCo;
 use calib_core::estimators::gyro::Method;
+use calib_core::estimators::mag::MagCal;
 use calib_core::formats::record::{DecodeError, Record, Sensor, SensorSetup, LEN};
 use proptest::prelude::*;
 
@@ -19,6 +20,7 @@ prop_compose! {
         poses in any::<u8>(), rows in any::<u16>(), setup in prop::array::uniform3(finite()),
         tempco in prop::option::of(prop::array::uniform8(finite())),
         part in prop::option::of((-64i8..64, any::<bool>())),
+        mag in prop::option::of((prop::array::uniform20(finite()), any::<u16>(), any::<u8>())),
     ) -> Record {
         Record {
             seq, temp_c,
@@ -34,6 +36,11 @@ prop_compose! {
             setup: SensorSetup { odr_hz: setup[0], gyro_range_dps: setup[1], accel_range_g: setup[2],
                 sensor: part.map_or(Sensor::Lsm9ds1, |(gyr_cas, user_gain)| Sensor::Bmi270 { gyr_cas, user_gain }) },
             tempco: tempco.map(|t| TempCo { dps_per_c: [t[0], t[1], t[2]], sigma_dps_per_c: [t[3], t[4], t[5]], range_c: [t[6], t[7]] }),
+            mag: mag.map(|(v, samples, poses)| MagCal {
+                a: [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]], offset_ut: [v[9], v[10], v[11]],
+                field_ut: v[12], sigma_field_ut: v[13], dip_deg: v[14], sigma_dip_deg: v[15],
+                alignment_deg: v[16], sigma_alignment_deg: v[17], residual_ut: v[18], coverage: v[19], samples, poses,
+            }),
         }
     }
 }

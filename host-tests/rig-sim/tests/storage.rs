@@ -31,6 +31,7 @@ fn record(seq: u32) -> Record {
         non_coplanar_deg: 0.0,
         setup: SensorSetup::DEFAULT,
         tempco: None,
+        mag: None,
     }
 }
 

@@ -1,4 +1,4 @@
-/* GyroCal: the record layout of calib-core's record.rs (versions 1-4) and the page choice of its
+/* GyroCal: the record layout of calib-core's record.rs (versions 1-5) and the page choice of its
  * region.rs, in C99 with no heap and no libm. See gyrocal.h. */
 #include "gyrocal.h"
 
@@ -15,9 +15,12 @@ const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_BMI270 = {100.0f, 2000.0f, 4.0f
 #define LEN_V2 188u
 #define LEN_V3 232u
 #define LEN_V4 236u
-/* Flags: bit 0 the temperature is unknown, bit 1 (v3) the tempco is unknown. */
+#define LEN_V5 320u
+/* Flags: bit 0 the temperature is unknown, bit 1 (v3) the tempco is unknown, bit 2 (v5) there is
+ * no magnetometer calibration. */
 #define TEMP_UNKNOWN 1u
 #define TEMPCO_UNKNOWN 2u
+#define MAG_UNKNOWN 4u
 
 /* CRC-32 (IEEE 802.3, reflected, init and final XOR 0xFFFFFFFF), bitwise. */
 static uint32_t crc32(const uint8_t *p, size_t n) {
@@ -64,6 +67,7 @@ static void identity(struct gyrocal *cal, enum gyrocal_status status) {
     for (int i = 0; i < 3; i++) {
         cal->gyro_k[i][i] = 1.0f;
         cal->accel_m[i][i] = 1.0f;
+        cal->mag_a[i][i] = 1.0f;
     }
 }
 
@@ -79,13 +83,16 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
     case 2: len = LEN_V2; break;
     case 3: len = LEN_V3; break;
     case 4: len = LEN_V4; break;
+    case 5: len = LEN_V5; break;
     default: return false;
     }
     if (u32_le(b + len - 4) != crc32(b, len - 4) || b[5] > 2 || b[6] > 2) {
         return false;
     }
     uint16_t flags = (uint16_t)(b[14] | b[15] << 8);
-    uint16_t known = len >= LEN_V3 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN) : TEMP_UNKNOWN;
+    uint16_t known = len == LEN_V5 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN | MAG_UNKNOWN)
+                     : len >= LEN_V3 ? (TEMP_UNKNOWN | TEMPCO_UNKNOWN)
+                                     : TEMP_UNKNOWN;
     if (flags & ~known) {
         return false;
     }
@@ -120,7 +127,7 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
             memset(cal->tempco_dps_per_c, 0, sizeof cal->tempco_dps_per_c);
         }
     }
-    if (len == LEN_V4) {
+    if (len >= LEN_V4) {
         /* The part, GYR_CAS (7-bit range), flags (bit 0 user gain), a reserved 0. */
         const uint8_t *p = b + LEN_V3 - 4;
         int8_t cas = (int8_t)p[1];
@@ -133,12 +140,42 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
         } else {
             return false;
         }
+        r.p = b + LEN_V4 - 4;
+    }
+    if (len == LEN_V5) {
+        /* The magnetometer: A, offset (uT), field (uT), its 1 sigma, dip, its 1 sigma, alignment,
+         * its 1 sigma, residual, coverage, then samples (u16), poses, a reserved 0. Zeros when
+         * there is none. */
+        float q[8];
+        next_f32s(&r, &cal->mag_a[0][0], 9);
+        next_f32s(&r, cal->mag_offset_ut, 3);
+        next_f32s(&r, q, 8);
+        const uint8_t *p = b + LEN_V5 - 8;
+        if (p[3] != 0) {
+            return false;
+        }
+        cal->mag_known = !(flags & MAG_UNKNOWN);
+        if (cal->mag_known) {
+            cal->mag_field_ut = q[0];
+            cal->mag_dip_deg = q[2];
+        } else {
+            const uint8_t *z = b + LEN_V4 - 4;
+            for (uint32_t i = 0; i < LEN_V5 - LEN_V4; i++) {
+                if (z[i] != 0) {
+                    return false;
+                }
+            }
+            memset(cal->mag_a, 0, sizeof cal->mag_a);
+            for (int i = 0; i < 3; i++) {
+                cal->mag_a[i][i] = 1.0f;
+            }
+        }
     }
     return r.finite;
 }
 
 static bool erased(const uint8_t *b) {
-    for (uint32_t i = 0; i < LEN_V4; i++) {
+    for (uint32_t i = 0; i < LEN_V5; i++) {
         if (b[i] != 0xFF) {
             return false;
         }
@@ -217,6 +254,19 @@ void gyrocal_gyro_dps(const struct gyrocal *cal, const float raw_dps[3], float o
 
 void gyrocal_accel_g(const struct gyrocal *cal, const float raw_g[3], float out_g[3]) {
     apply(cal->accel_m, cal->accel_offset_g, raw_g, out_g);
+}
+
+void gyrocal_mag_ut(const struct gyrocal *cal, const float raw_ut[3], float out_ut[3]) {
+    apply(cal->mag_a, cal->mag_offset_ut, raw_ut, out_ut);
+}
+
+void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]) {
+    /* counts = reading * 32768 / 400; uT = counts * 0.014 (0.14 mgauss/LSB at +-4 gauss); the
+     * magnetometer's x is the accelerometer's -x. */
+    const float k = 0.014f * 32768.0f / 400.0f;
+    mag_ut[0] *= -k;
+    mag_ut[1] *= k;
+    mag_ut[2] *= k;
 }
 
 const char *gyrocal_status_str(enum gyrocal_status status) {

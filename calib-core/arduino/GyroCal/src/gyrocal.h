@@ -9,6 +9,7 @@
  * Model and units (the same as the firmware and every export):
  *   gyro   out_dps = K (raw_dps - bias_dps)        K row-major, raw in the datasheet's units
  *   accel  out_g   = M (raw_g - offset_g)
+ *   mag    out_ut  = A (raw_ut - offset_ut)   (record version 5 on: mag_known; else A = I)
  * "raw" is the sensor's counts times its datasheet sensitivity at the range the record was made
  * at, in the sensor's own axes: on a Rev1 board the LSM9DS1's (e.g. 70 mdps/LSB at +-2000 dps),
  * on a Rev2 the BMI270's (range/32768 per LSB) with its GYR_CAS trim NOT applied.
@@ -77,7 +78,7 @@ struct gyrocal {
     enum gyrocal_status status;
     uint32_t seq;               /**< the record's sequence number */
     uint8_t page;               /**< which page it came from (0 = A at 0xF8000, 1 = B) */
-    uint8_t version;            /**< record format version (1..4) */
+    uint8_t version;            /**< record format version (1..5) */
     uint8_t method;             /**< gyro estimator: 0 paper, 1 sweep, 2 full 3x3 K */
     struct gyrocal_setup setup; /**< the configuration it was made at */
     int8_t gyr_cas;             /**< a BMI270's GYR_CAS (z to x trim, per 512), 0 for an LSM9DS1 */
@@ -90,6 +91,12 @@ struct gyrocal {
     float temp_c;               /**< (degC) */
     bool tempco_known;          /**< tempco_dps_per_c holds the bias's temperature coefficient */
     float tempco_dps_per_c[3];  /**< bias(T) = bias + tempco (T - temp_c) (dps per degC) */
+    bool mag_known;             /**< the record holds a magnetometer calibration (version 5) */
+    float mag_a[3][3];          /**< A, row-major: soft iron, scale and the die's alignment onto
+                                     the calibrated accelerometer (unitless; I when unknown) */
+    float mag_offset_ut[3];     /**< hard iron and the part's offset (uT, its raw frame) */
+    float mag_field_ut;         /**< the field strength at calibration (uT; 0 when unknown) */
+    float mag_dip_deg;          /**< its dip below the horizon (deg; 0 when unknown) */
 };
 
 /** Loads the newest valid record of `region` (GYROCAL_REGION_SIZE bytes: page A then page B),
@@ -109,6 +116,17 @@ void gyrocal_gyro_dps(const struct gyrocal *cal, const float raw_dps[3], float o
 
 /** Calibrated specific force out = M (raw - offset) (g); `raw_g` and `out_g` may be the same. */
 void gyrocal_accel_g(const struct gyrocal *cal, const float raw_g[3], float out_g[3]);
+
+/** Calibrated field out = A (raw - offset) (uT), in the calibrated accelerometer's frame (the
+ *  frame of K and M); `raw_ut` in the accelerometer's axes: on a Rev1 pass Arduino_LSM9DS1's
+ *  readMagneticField() through gyrocal_from_arduino_lsm9ds1_mag() first. The identity when the
+ *  record has no magnetometer calibration (mag_known false). */
+void gyrocal_mag_ut(const struct gyrocal *cal, const float raw_ut[3], float out_ut[3]);
+
+/** Arduino_LSM9DS1's readMagneticField() (counts * 400/32768 uT, the magnetometer's own axes) in
+ *  uT at the datasheet's 0.14 mgauss/LSB (+-4 gauss: the library reads 13 % low) and in the
+ *  accelerometer's axes (its x is the accelerometer's -x: DocID025715 Figure 1). In place. */
+void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]);
 
 /** The record's status as a sentence. */
 const char *gyrocal_status_str(enum gyrocal_status status);

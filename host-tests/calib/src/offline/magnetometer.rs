@@ -75,7 +75,7 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
         }
         chosen.sort_by_key(|s| s.first);
     }
-    let none = || (Err(Error::TooFewPoses { have: 0, need: calib_core::estimators::mag::MIN_POSES as u8 }), 0, None);
+    let none = || (Err(MagCalibrator::new().solve(&limits).unwrap_err()), 0, None);
     let (mut cal, used, ellipsoid) = fit(rows, &chosen, accel, &limits).unwrap_or_else(none);
     // A disturbed pose is named by its place among all the log's hand-held poses.
     if let Err(Error::MagDisturbed { pose, .. }) = &mut cal {

@@ -1,7 +1,7 @@
 //! The tool's JSON output and the record of a result.
 
 use super::*;
-use calib_core::formats::export::{AccelJson, GyroJson};
+use calib_core::formats::export::{AccelJson, GyroJson, MagJson};
 
 /// The tool's JSON output: the calibration to apply (`gyro` and `accel` in the one schema of
 /// `calib_core::formats::export`), then everything about its quality.
@@ -16,16 +16,6 @@ pub struct Output<'a> {
     pub mag: Option<MagJson>,
     /// Quality of every part.
     pub quality: QualityOut<'a>,
-}
-
-/// The magnetometer's calibration.
-#[derive(Debug, Clone, Serialize)]
-pub struct MagJson {
-    /// `A` (row-major): soft iron, scale and the die's alignment onto the accelerometer.
-    #[serde(rename = "A")]
-    pub a: [[f32; 3]; 3],
-    /// Hard iron and offset (µT).
-    pub offset_ut: [f32; 3],
 }
 
 /// The magnetometer's quality, or why it failed, and which readings were used.
@@ -304,7 +294,8 @@ impl Calibration {
         if let Some(r) = self.replayed_record {
             return Some(Record { seq: 0, setup, ..r });
         }
-        let ctx = record::Context { seq: 0, temp_c: None, gyro_bias_dps: self.bias.bias_dps, accel: self.accel, setup, tempco: None };
+        let mag = self.mag.as_ref().and_then(|m| m.cal.as_ref().ok().copied());
+        let ctx = record::Context { seq: 0, temp_c: None, gyro_bias_dps: self.bias.bias_dps, accel: self.accel, setup, tempco: None, mag };
         // The full K's poses: every rig pose (each one went into its axes).
         let rig_poses = self.phases.segments.iter().filter(|s| s.is_rig_pose()).count().min(u8::MAX as usize) as u8;
         match (&self.full, &self.gyro) {

@@ -67,6 +67,9 @@ pub struct Magnetometer {
     dipole_am2: f64,
     gear: f64,
     next_t_s: f64,
+    /// Readings per second (Hz): the part's ([`MagPart::odr_hz`]) until a register model sets
+    /// its own.
+    odr_hz: f64,
     /// A stray field at the board (µT, in W): a magnet or a laptop brought near it.
     pub stray_w: Vector3<f64>,
 }
@@ -103,6 +106,7 @@ impl Magnetometer {
             dipole_am2: rng.random_range(0.005..0.02),
             gear: rng.random_range(150.0..300.0),
             next_t_s: 0.0,
+            odr_hz: part.odr_hz(),
             stray_w: Vector3::zeros(),
         }
     }
@@ -115,6 +119,13 @@ impl Magnetometer {
     /// The part.
     pub fn part(&self) -> MagPart {
         self.part
+    }
+
+    /// Readings from now on at `hz` (a register model's configured rate); ignored unless > 0.
+    pub fn set_odr_hz(&mut self, hz: f64) {
+        if hz > 0.0 {
+            self.odr_hz = hz;
+        }
     }
 
     /// A reading (µT) when one is due at true time `t_s`, for attitude `q_wb`; `shaft` while
@@ -130,7 +141,7 @@ impl Magnetometer {
         if t_s < self.next_t_s {
             return None;
         }
-        self.next_t_s = t_s + 1.0 / self.part.odr_hz();
+        self.next_t_s = t_s + 1.0 / self.odr_hz;
         let motor = shaft.map_or(Vector3::zeros(), |(axis, angle, sensor_w)| self.motor_field_w(&axis, angle, &sensor_w));
         let b_b = q_wb.inverse() * (self.truth.field_w + motor + self.stray_w);
         let noise = Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)) * self.part.noise_ut();

@@ -194,6 +194,14 @@ impl Rig {
         }
     }
 
+    /// The magnetometer's readings from now on at `hz` (its register model's data rate). No
+    /// effect without a magnetometer.
+    pub fn set_mag_odr_hz(&mut self, hz: f64) {
+        if let Some(m) = &mut self.mag {
+            m.set_odr_hz(hz);
+        }
+    }
+
     /// A stray field at the board from now on (µT, in W; zero: none): a magnet or a laptop
     /// brought near it. No effect without a magnetometer.
     pub fn set_stray_field_ut(&mut self, field_w: Vector3<f64>) {
