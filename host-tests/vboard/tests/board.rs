@@ -34,6 +34,14 @@ fn calibrates_stores_and_reloads_after_reset() {
     let err = b.max_scale_error_pct(&rec);
     assert!(err <= 0.1, "max scale error {err:.4} %");
     assert_servo_frames_whole(&b);
+    // The LSM9DS1's magnetometer, read through its register model at 0x1E and calibrated from
+    // the hand-held step: the bound on the tilt-compensated heading error.
+    let mag = rec.mag.expect("a magnetometer calibration in the record");
+    let applied = rig_sim::heading::Applied { accel_m: rec.accel_m, accel_o: rec.accel_offset_g, mag_a: mag.a, mag_o: mag.offset_ut };
+    let (rms, max) = rig_sim::heading::heading_error(&applied, b.mcu.periph.borrow().sensor.rig(), 500, 3).expect("a heading");
+    assert!(rms <= 0.3 && max <= 1.0, "heading error {rms:.3} deg RMS, {max:.3} deg max");
+    let m = b.mcu.periph.borrow().sensor.lsm_mag().map(|m| (m.conversions(), m.resets()));
+    assert!(m.is_some_and(|(n, resets)| n > 1000 && resets == 1), "conversions, resets: {m:?}");
     let (instr, calls) = b.mcu.handle_sample.get();
     println!(
         "MEASURED instructions_per_sample={:.0} peak_stack_bytes_boot={boot_stack:?} peak_stack_bytes_calibration={:?} max_scale_error_pct={err:.4}",

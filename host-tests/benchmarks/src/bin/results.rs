@@ -134,7 +134,11 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
             field(f, "max_abs_e")
         )
     };
-    s += &format!("| `cargo demo` (one servo + hand-held poses, full K) | {}, stored {} |\n", full(&r), field(&r, "stored"));
+    // The magnetometer's tilt-compensated heading error over random attitudes.
+    let mag = |f: &[(String, String)]| {
+        format!("magnetometer heading error {}° RMS, {}° max", field(f, "mag_heading_rms_deg"), field(f, "mag_heading_max_deg"))
+    };
+    s += &format!("| `cargo demo` (one servo + hand-held poses, full K) | {}, {}, stored {} |\n", full(&r), mag(&r), field(&r, "stored"));
     s += &format!(
         "| `cargo demo -- --tilt` (pan/tilt, full K) | {}, stored {}, rig time {} s |\n",
         full(&t),
@@ -149,8 +153,9 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
     );
     s += &format!("| `cargo demo -- --no-probe` | {}, stored {} |\n", full(&np), field(&np, "stored"));
     s += &format!(
-        "| `cargo demo -- --rev2` (Rev2: BMI270, BMM150 suspended; its z→x coupling is cross-axis) | {}, stored {}, board {} |\n\n",
+        "| `cargo demo -- --rev2` (Rev2: BMI270, BMM150 suspended; its z→x coupling is cross-axis) | {}, {}, stored {}, board {} |\n\n",
         full(&r2),
+        mag(&r2),
         field(&r2, "stored"),
         field(&r2, "board")
     );

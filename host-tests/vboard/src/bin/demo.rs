@@ -182,6 +182,7 @@ fn main() -> ExitCode {
     // A full K against the truth: scale (diagonal) and cross-axis (off-diagonal) of E.
     let full_err = stored.as_ref().filter(|r| r.method == calib_core::estimators::gyro::Method::Full).map(|r| testbed.k_errors_pct(r));
     let ok = stored.is_some() && outcome == Outcome::Done;
+    let mag = mag_fields(stored.as_ref(), testbed.mcu.periph.borrow().sensor.rig(), seed);
     // The raw log through the offline path of `calib` (the same code): the same K as the
     // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
     // against the record, E's diagonal against the truth).
@@ -228,18 +229,31 @@ fn main() -> ExitCode {
             println!("[demo]   {l}");
         }
         println!("[demo] watchdog resets: {}", testbed.mcu.watchdog_resets);
-        println!("RESULT max_scale_error_pct={err:.4}{} stored={ok} probe=none board={board_name}", full_fields(full_err));
+        println!("RESULT max_scale_error_pct={err:.4}{}{mag} stored={ok} probe=none board={board_name}", full_fields(full_err));
         if testbed.mcu.watchdog_resets > 0 {
             return ExitCode::from(1);
         }
     } else if let Some((scale, _)) = full_err {
-        println!("RESULT max_scale_error_pct={scale:.4}{} stored={ok} board={board_name}", full_fields(full_err));
+        println!("RESULT max_scale_error_pct={scale:.4}{}{mag} stored={ok} board={board_name}", full_fields(full_err));
     } else if tilt {
         println!("RESULT max_scale_error_pct=NaN max_cross_axis_error_pct=NaN stored=false board={board_name}");
     } else {
-        println!("RESULT max_scale_error_pct={err:.4} stored={ok} board={board_name}");
+        println!("RESULT max_scale_error_pct={err:.4}{mag} stored={ok} board={board_name}");
     }
     ExitCode::SUCCESS
+}
+
+/// The RESULT fields of the stored magnetometer calibration: ` mag_heading_rms_deg=<RMS>
+/// mag_heading_max_deg=<largest>`, the tilt-compensated heading error (°) over 500 random
+/// attitudes against the simulator's truth (`rig_sim::heading`); NaN without one.
+fn mag_fields(stored: Option<&calib_core::formats::record::Record>, rig: &rig_sim::sim::Rig, seed: u64) -> String {
+    let err = stored.and_then(|r| {
+        let m = r.mag?;
+        let applied = rig_sim::heading::Applied { accel_m: r.accel_m, accel_o: r.accel_offset_g, mag_a: m.a, mag_o: m.offset_ut };
+        rig_sim::heading::heading_error(&applied, rig, 500, seed)
+    });
+    let (rms, max) = err.unwrap_or((f64::NAN, f64::NAN));
+    format!(" mag_heading_rms_deg={rms:.3} mag_heading_max_deg={max:.3}")
 }
 
 /// The RESULT fields of a full `K` beside its scale error: ` max_cross_axis_error_pct=<largest
