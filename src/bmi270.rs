@@ -407,6 +407,11 @@ impl<I: I2c> Bmi270<I> {
         self.i2c
     }
 
+    /// The bus, for the other parts on it (the BMM150).
+    pub fn bus_mut(&mut self) -> &mut I {
+        &mut self.i2c
+    }
+
     /// The settings it runs at.
     pub fn config(&self) -> Config {
         self.cfg

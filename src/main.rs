@@ -13,6 +13,7 @@
 #![no_main]
 
 mod console;
+mod mag;
 
 use console::{Console, LINE};
 use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait};
@@ -27,13 +28,13 @@ use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
-use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
 use hal::gpio::Level;
 use hal::pac::{self, interrupt};
 use hal::pwm::{Channel, Prescaler, Pwm};
+use mag::Magnetometer;
 use nrf52840_hal as hal;
 use panic_probe as _;
 
@@ -170,12 +171,8 @@ struct Sensing {
     stamper: Stamper,
     next_try_s: f64,
     last_poll_s: f64,
-    /// The LSM9DS1's magnetometer, configured (Rev1).
-    mag: Option<LsmMag>,
-    /// When to try to bring the magnetometer up again (s), after it failed.
-    mag_next_try_s: f64,
-    /// Its last failure, said once (not again while it keeps failing the same way).
-    mag_error: Option<lsm9ds1_mag::Error>,
+    /// The board's magnetometer.
+    mag: Magnetometer,
     /// Raw-log mode.
     raw: bool,
     /// The calibrated rate (°/s) since the last rate line.
@@ -193,9 +190,7 @@ impl Sensing {
             stamper: Stamper::new(SENSOR.odr.hz()),
             next_try_s: 0.0,
             last_poll_s: 0.0,
-            mag: None,
-            mag_next_try_s: 0.0,
-            mag_error: None,
+            mag: Magnetometer::new(),
             raw: false,
             rate: Welford3::new(),
         }
@@ -218,8 +213,8 @@ impl Sensing {
                         self.sensor = Some(s);
                         self.say_applied(io);
                     }
-                    // A Rev2 board: its BMM150 left in suspend (not used), its BMI270 at its setup.
-                    Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(suspend_bmm150(i2c, clock, io), self.bmi, &mut Wait(clock)) {
+                    // A Rev2 board: its BMI270 at its setup (its BMM150 comes up at the first poll).
+                    Err((SensorError::Rev2Bmi270, i2c)) => match Bmi270::init(i2c, self.bmi, &mut Wait(clock)) {
                         Ok(s) => {
                             let setup = s.setup();
                             let c = s.config();
@@ -268,7 +263,7 @@ impl Sensing {
             return self.service_rev2(now, clock, procedure, io);
         }
         let Some(s) = self.sensor.as_mut() else { return };
-        let mag_ut = Self::read_mag(s, &mut self.mag, &mut self.mag_next_try_s, &mut self.mag_error, now, clock, io);
+        let mag_ut = self.mag.poll(s.bus_mut(), false, now, clock, &mut io.console);
         let (stamper, raw, rate, setup) = (&mut self.stamper, self.raw, &mut self.rate, self.config.setup());
         let result = s.fifo_status().and_then(|st| {
             if st.overrun {
@@ -296,47 +291,9 @@ impl Sensing {
             procedure.handle_sensor_fault();
             procedure.drive(now, io);
             self.bus = self.sensor.take().map(|s| s.release());
-            self.mag = None;
+            self.mag.reset();
             self.next_try_s = now + 0.5;
         }
-    }
-
-    /// The LSM9DS1's magnetometer: brought up (again every 2 s after a failure) and read when
-    /// it has a new reading (µT, accelerometer axes). A failure is said once, names its cause,
-    /// and leaves the calibration without its readings (the procedure says what that costs);
-    /// never fatal to the gyro's.
-    fn read_mag(
-        s: &mut Lsm9ds1<Bus>,
-        mag: &mut Option<LsmMag>,
-        next_try_s: &mut f64,
-        last_error: &mut Option<lsm9ds1_mag::Error>,
-        now: f64,
-        clock: &mut Clock,
-        io: &mut Io,
-    ) -> Option<[f32; 3]> {
-        let result = match mag.as_mut() {
-            Some(m) => m.read(s.bus_mut(), clock.now_us()),
-            None if now >= *next_try_s => {
-                let t_us = clock.now_us();
-                let up = LsmMag::init(s.bus_mut(), lsm9ds1_mag::Config::DEFAULT, &mut Wait(clock), t_us);
-                up.map(|m| {
-                    *mag = Some(m);
-                    *last_error = None;
-                    io.console.send(Log::Info, "LSM9DS1 magnetometer ready: 40 Hz, +-4 gauss, ultra-high performance");
-                    None
-                })
-            }
-            None => Ok(None),
-        };
-        result.unwrap_or_else(|e| {
-            if *last_error != Some(e) {
-                io.console.say(Log::Warn, format_args!("{e}; calibrating without it, retrying every 2 s"));
-            }
-            *last_error = Some(e);
-            *mag = None;
-            *next_try_s = now + 2.0;
-            None
-        })
     }
 }
 
@@ -359,6 +316,7 @@ impl Sensing {
     /// temperature read once a batch; lost samples and failed reads enter the procedure).
     fn service_rev2(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
         let Some(b) = self.rev2.as_mut() else { return };
+        let mag_ut = self.mag.poll(b.bus_mut(), true, now, clock, &mut io.console);
         let mut got = heapless::Vec::<([f32; 3], [f32; 3]), { bmi270::FIFO_BYTES / 13 + 1 }>::new();
         match b.read_fifo(|a, g| {
             let _ = got.push((a, g));
@@ -389,7 +347,8 @@ impl Sensing {
                 let temp_c = if got.is_empty() { None } else { b.temperature_c().ok().flatten() };
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                    feed(sample, None, b.setup(), self.raw, &mut self.rate, procedure, io);
+                    // A new field reading goes with the batch's newest sample (read just before).
+                    feed(sample, mag_ut.filter(|_| i + 1 == got.len()), b.setup(), self.raw, &mut self.rate, procedure, io);
                 }
             }
             Err(e) => {
@@ -397,6 +356,7 @@ impl Sensing {
                 procedure.handle_sensor_fault();
                 procedure.drive(now, io);
                 self.bus = self.rev2.take().map(|s| s.release());
+                self.mag.reset();
                 self.next_try_s = now + 0.5;
             }
         }
@@ -414,23 +374,14 @@ impl Sensing {
         if let Some(s) = self.rev2.take() {
             self.bus = Some(s.release());
         }
+        self.mag.reset();
         self.next_try_s = now;
     }
 }
 
-/// A Rev2 board's BMM150 found and left in suspend, its lowest-power state (the magnetometer is
-/// not used); said either way, never fatal. The bus back.
-fn suspend_bmm150(mut i2c: Bus, clock: &mut Clock, io: &mut Io) -> Bus {
-    match gyrocal_fw::bmm150::detect_and_suspend(&mut i2c, &mut Wait(clock)) {
-        Ok(()) => io.console.send(Log::Info, "Nano 33 BLE Rev2: BMM150 found (CHIP_ID 0x32) and left in suspend"),
-        Err(e) => io.console.say(Log::Warn, format_args!("Nano 33 BLE Rev2: {e}")),
-    }
-    i2c
-}
-
-/// One reading (and the field read with it) into the procedure, as the raw log holds it (a replay of the log sees what the
-/// procedure saw); its row in raw-log mode; the calibrated rate when the stored record was made
-/// at `setup`, the sensor's.
+/// One reading (and the field read with it) into the procedure, as the raw log holds it (a
+/// replay of the log sees what the procedure saw); its row in raw-log mode; the calibrated rate
+/// when the stored record was made at `setup`, the sensor's.
 fn feed(
     sample: Sample,
     mag_ut: Option<[f32; 3]>,

@@ -25,8 +25,22 @@
 //!   read-only, writes to them are ignored (DS §5.1). Defaults (DS §5.2): 0x4C 0x06 (op mode 11,
 //!   sleep), 0x4D 0x3F, 0x4E 0x07, 0x4F-0x52 0x00. OP_MODE 0x4C bits 2:1: 00 normal, 01 forced,
 //!   11 sleep (API: `BMM150_OP_MODE_MSK` 0x06, `BMM150_POWERMODE_*`); 10 is reported as
-//!   [`Mode::Reserved`]. No measurement is modelled (data registers read 0x00; forced mode is
-//!   not ended by a measurement).
+//!   [`Mode::Reserved`].
+//! - Measurements (DS §4.2.4, §5.2 and Tables 6–13; API `bmm150_read_mag_data` and the
+//!   floating-point `compensate_x/y/z`): in normal mode one per data-rate period (OP_MODE bits
+//!   5:3: 10, 2, 6, 8, 15, 20, 25, 30 Hz), never faster than the repetitions allow
+//!   (1 / (145 µs nXY + 500 µs nZ + 980 µs), nXY = 1 + 2 REP_XY, nZ = 1 + REP_Z: Zephyr's and
+//!   Linux's drivers, citing DS §4.2.4); in forced mode one, then back to sleep (OP_MODE reads
+//!   11). Each is the rig's field (µT, the BMI270's axes taken as the BMM150's: the identity,
+//!   UNVERIFIED) turned into the counts Bosch's compensation maps back onto it with this part's
+//!   trim ([`TRIM`]) and hall resistance ([`RHALL`]): x, y 13-bit (bits 7:3 of the LSB), z 15-bit
+//!   (bits 7:1), RHALL 14-bit (bits 7:2) with data ready in 0x48 bit 0, which a read of the data
+//!   registers clears when its burst ends (DS §4.6.6); beyond the ADC's range x, y read −4096 and
+//!   z −16384 (Bosch's overflow values). Before the first measurement the data registers read 0.
+//!   The noise is the rig's (the high-accuracy preset's 0.3 µT) whatever the repetitions: a
+//!   lower preset is noisier on the part (DS Table 3), not in the model.
+//! - Trim registers 0x5D–0x71 (API `read_trim_registers`): read-only, [`TRIM`]'s values, DIG_XYZ1
+//!   with bit 15 clear.
 //! - Soft reset: writing 0x4B with bits 7 and 1 set (API `BMM150_SET_SOFT_RESET` 0x82, ORed into
 //!   0x4B) resets every register except 0x4B (API `bmm150.h`: "all the registers are reset to
 //!   their default values except 0x4B"); the part is away for [`SOFT_RESET_S`] (API
@@ -57,6 +71,17 @@ pub const START_UP_S: f64 = 0.003;
 pub const SOFT_RESET_S: f64 = 0.001;
 
 const REG_CHIP_ID: u8 = 0x40;
+const DATA: u8 = 0x42;
+const REP_XY: u8 = 0x51;
+const REP_Z: u8 = 0x52;
+
+/// This part's trim (Bosch's names), as the registers at 0x5D–0x71 hold it: values in the range
+/// real parts report (the x/y sensitivity terms near 26 and 29, DIG_Z1 ~24700, DIG_XYZ1 ~6600),
+/// with the small offsets non-zero so that a driver that leaves a term out is off.
+pub const TRIM: gyrocal_fw::bmm150::Trim =
+    gyrocal_fw::bmm150::Trim { x1: 2, y1: -3, x2: 26, y2: 27, z1: 24747, z2: 763, z3: -45, z4: 12, xy1: 29, xy2: -3, xyz1: 6615 };
+/// The hall resistance the part reads (counts; near DIG_XYZ1 at room temperature).
+pub const RHALL: u16 = 6780;
 const POWER_CONTROL: u8 = 0x4B;
 const OP_MODE: u8 = 0x4C;
 /// Bits of 0x4B that are stored: power control (0) and SPI 3-wire (2).
@@ -88,8 +113,6 @@ pub struct Bmm150Model {
     ready_at: f64,
     /// Fault injection: the part at 0x10 reports this CHIP_ID (another part).
     pub chip_id: u8,
-    /// Fault injection: once set, the power bit does not clear (the part never suspends).
-    pub stuck_awake: bool,
     /// The other reading of the start-up: the part does not acknowledge its address at all until
     /// [`START_UP_S`] after the power bit was set (or [`SOFT_RESET_S`] after a soft reset).
     pub nack_while_starting: bool,
@@ -111,6 +134,10 @@ pub struct Bmm150Model {
     pub ignored_writes: u32,
     /// Transactions not acknowledged because of [`Self::nack_while_starting`].
     pub startup_nacks: u32,
+    /// Measurements made.
+    pub measurements: u32,
+    /// No measurement before this time (s): the last one's period.
+    next_measurement_s: f64,
 }
 
 impl Bmm150Model {
@@ -121,7 +148,6 @@ impl Bmm150Model {
             now_s,
             ready_at: now_s,
             chip_id: CHIP_ID,
-            stuck_awake: false,
             nack_while_starting: false,
             bus_hz: None,
             transactions: 0,
@@ -131,6 +157,8 @@ impl Bmm150Model {
             blocked_reads: 0,
             ignored_writes: 0,
             startup_nacks: 0,
+            measurements: 0,
+            next_measurement_s: 0.0,
         };
         m.defaults();
         m
@@ -144,6 +172,48 @@ impl Bmm150Model {
         self.regs[OP_MODE as usize] = 0x06;
         self.regs[0x4D] = 0x3F;
         self.regs[0x4E] = 0x07;
+        let t = TRIM;
+        let z = |v: u16| v.to_le_bytes();
+        self.regs[0x5D..0x5F].copy_from_slice(&[t.x1 as u8, t.y1 as u8]);
+        self.regs[0x62..0x66].copy_from_slice(&[z(t.z4 as u16)[0], z(t.z4 as u16)[1], t.x2 as u8, t.y2 as u8]);
+        let [z2, z1, xyz1, z3] = [t.z2 as u16, t.z1, t.xyz1, t.z3 as u16].map(z);
+        self.regs[0x68..0x72].copy_from_slice(&[z2[0], z2[1], z1[0], z1[1], xyz1[0], xyz1[1], z3[0], z3[1], t.xy2 as u8, t.xy1]);
+    }
+
+    /// The rate it measures at now (Hz): the data rate in normal mode, capped by the
+    /// repetitions' time; `None` when it does not measure on its own (suspend, sleep, forced).
+    pub fn odr_hz(&self) -> Option<f64> {
+        (self.mode() == Mode::Normal).then(|| {
+            let odr = [10.0, 2.0, 6.0, 8.0, 15.0, 20.0, 25.0, 30.0][((self.regs[OP_MODE as usize] >> 3) & 7) as usize];
+            let (nxy, nz) = (1.0 + 2.0 * self.regs[REP_XY as usize] as f64, 1.0 + self.regs[REP_Z as usize] as f64);
+            f64::min(odr, 1.0 / (145e-6 * nxy + 500e-6 * nz + 980e-6))
+        })
+    }
+
+    /// A reading of the rig (µT, the BMI270's axes) at true time `t_s`: measured when the part
+    /// is due to (normal mode, a period after the last; forced mode, once).
+    pub fn measure(&mut self, t_s: f64, field_ut: [f32; 3]) {
+        let forced = self.mode() == Mode::Forced;
+        let due = match self.odr_hz() {
+            Some(hz) if t_s >= self.next_measurement_s => {
+                self.next_measurement_s = t_s + 1.0 / hz;
+                true
+            }
+            _ => forced,
+        };
+        if !due {
+            return;
+        }
+        let [x, y, z] = counts(&TRIM, field_ut, RHALL);
+        let [xl, xh] = ((x as u16) << 3).to_le_bytes();
+        let [yl, yh] = ((y as u16) << 3).to_le_bytes();
+        let [zl, zh] = ((z as u16) << 1).to_le_bytes();
+        let [rl, rh] = (RHALL << 2).to_le_bytes();
+        self.regs[DATA as usize..DATA as usize + 8].copy_from_slice(&[xl, xh, yl, yh, zl, zh, rl | 0x01, rh]);
+        self.measurements += 1;
+        if forced {
+            self.regs[OP_MODE as usize] |= 0x06;
+        }
     }
 
     /// True time (s).
@@ -220,7 +290,7 @@ impl Bmm150Model {
 
     fn write_power_control(&mut self, v: u8) {
         let was_on = !self.suspended();
-        let on = v & 0x01 != 0 || (self.stuck_awake && was_on);
+        let on = v & 0x01 != 0;
         if v & 0x82 == 0x82 && self.accessible() {
             self.defaults();
             self.soft_resets += 1;
@@ -270,6 +340,7 @@ impl I2c for Bmm150Model {
             self.advance_to(self.now_s + bus_time_s(operations, hz));
         }
         let mut ptr = 0u8;
+        let mut data_read = false;
         for op in operations.iter_mut() {
             match op {
                 Operation::Write(bytes) => {
@@ -283,11 +354,38 @@ impl I2c for Bmm150Model {
                 Operation::Read(buf) => {
                     for b in buf.iter_mut() {
                         *b = self.read_byte(ptr);
+                        data_read |= (DATA..DATA + 8).contains(&ptr) && self.accessible();
                         ptr = ptr.wrapping_add(1);
                     }
                 }
             }
         }
+        // Data ready clears when a burst of the data registers ends.
+        if data_read {
+            self.regs[DATA as usize + 6] &= !0x01;
+        }
         Ok(())
     }
+}
+
+/// The raw counts (x, y 13-bit, z 15-bit) that Bosch's floating-point compensation with `trim`
+/// and hall resistance `rhall` maps onto `field_ut` (the part's axes, µT): its equations
+/// inverted, rounded; beyond the ADC's range the overflow values (−4096, −16384).
+pub fn counts(trim: &gyrocal_fw::bmm150::Trim, field_ut: [f32; 3], rhall: u16) -> [i16; 3] {
+    let (t, rh) = (trim, rhall as f64);
+    let r = t.xyz1 as f64 * 16384.0 / rh - 16384.0;
+    let p = t.xy2 as f64 * (r * r / 268_435_456.0) + r * t.xy1 as f64 / 16384.0 + 256.0;
+    let xy = |b: f32, d1: i8, d2: i8| {
+        let c = ((b as f64 * 16.0 - d1 as f64 * 8.0) * 8192.0 / (p * (d2 as f64 + 160.0))).round();
+        if (-4095.0..=4095.0).contains(&c) {
+            c as i16
+        } else {
+            -4096
+        }
+    };
+    let z4 = t.z2 as f64 + t.z1 as f64 * rh / 32768.0;
+    let z2 = t.z3 as f64 * (rh - t.xyz1 as f64);
+    let cz = ((field_ut[2] as f64 * 16.0 * z4 * 4.0 + z2) / 131072.0 + t.z4 as f64).round();
+    let z = if (-16383.0..=16383.0).contains(&cz) { cz as i16 } else { -16384 };
+    [xy(field_ut[0], t.x1, t.x2), xy(field_ut[1], t.y1, t.y2), z]
 }

@@ -339,6 +339,10 @@ impl Lsm9ds1Model {
             if let (Some(m), Some(reading), true) = (self.mag.as_mut(), mag_ut, self.powered) {
                 m.convert(reading);
             }
+            if let (Some(m), Some(reading), true) = (self.bmm.as_mut(), mag_ut, self.powered) {
+                m.advance_to(t);
+                m.measure(t, reading);
+            }
             if !self.running() || !self.powered {
                 continue;
             }
@@ -479,7 +483,12 @@ impl I2c for Lsm9ds1Model {
         if address == bmm_model::ADDR {
             if let Some(m) = self.bmm.as_mut() {
                 m.advance_to(self.now_s);
-                return m.transaction(address, operations);
+                let r = m.transaction(address, operations);
+                // The field is read at the rate the part measures at.
+                if let Some(hz) = m.odr_hz() {
+                    self.rig.set_mag_odr_hz(hz);
+                }
+                return r;
             }
         }
         if let Some(b) = self.bmi.as_mut() {

@@ -1,10 +1,11 @@
-//! The firmware's BMM150 code (find it, leave it suspended) against the register model, which is
-//! as strict as the part about suspend mode; and the Rev2 board model answering at 0x10.
+//! The firmware's BMM150 driver (wake it, read its trim, run the high-accuracy preset, compensate
+//! as Bosch does) against the register model, which is as strict as the part about suspend mode;
+//! and the Rev2 board model answering at 0x10.
 
 use embedded_hal::i2c::I2c;
-use gyrocal_fw::bmm150::{self, detect_and_suspend, Bmm150Error};
+use gyrocal_fw::bmm150::{self, Bmm150, Config, ReadError};
 use gyrocal_fw::lsm9ds1::{BusFault, ADDR_BMI270};
-use rig_sim::bmm_model::{Bmm150Model, Mode, START_UP_S};
+use rig_sim::bmm_model::{counts, Bmm150Model, Mode, RHALL, START_UP_S, TRIM};
 use rig_sim::lsm_model::{Board, BusError, Lsm9ds1Model};
 use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
@@ -76,9 +77,9 @@ fn board(b: Board) -> Bus<Lsm9ds1Model> {
     Bus(Rc::new(RefCell::new(Lsm9ds1Model::new(Rig::new(Variant::Hobby.config(31, 0), 9), b))))
 }
 
-/// `detect_and_suspend` on `bus`, waiting `scale` times what it asks.
-fn run<M: I2c<Error = BusError> + Clock>(bus: &Bus<M>, scale: f64) -> Result<(), Bmm150Error> {
-    detect_and_suspend(&mut bus.clone(), &mut ModelDelay(bus.clone(), scale))
+/// [`Bmm150::init`] on `bus`, waiting `scale` times what it asks.
+fn run<M: I2c<Error = BusError> + Clock>(bus: &Bus<M>, scale: f64) -> Result<Bmm150, ReadError> {
+    Bmm150::init(&mut bus.clone(), Config::HIGH_ACCURACY, &mut ModelDelay(bus.clone(), scale), 0)
 }
 
 fn read(bus: &mut impl I2c<Error = BusError>, r: u8) -> Result<u8, BusError> {
@@ -87,19 +88,72 @@ fn read(bus: &mut impl I2c<Error = BusError>, r: u8) -> Result<u8, BusError> {
 }
 
 #[test]
-fn the_driver_wakes_identifies_and_suspends_the_bmm150() {
+fn the_driver_wakes_it_reads_its_trim_and_runs_the_high_accuracy_preset() {
     let bus = bmm();
     assert_eq!(bus.0.borrow().mode(), Mode::Suspend, "power-on is suspend");
-    run(&bus, 1.0).unwrap();
+    let d = run(&bus, 1.0).unwrap();
+    assert_eq!(*d.trim(), TRIM);
     let m = bus.0.borrow();
-    assert!(m.suspended(), "power control 0x{:02X}", m.power_control());
-    assert_eq!(m.mode(), Mode::Suspend);
-    assert_eq!((m.wakes, m.suspends, m.soft_resets), (1, 1, 0));
+    assert_eq!(m.mode(), Mode::Normal);
+    assert_eq!([m.reg(0x51), m.reg(0x52), m.reg(0x4C)], [0x17, 0x52, 0x28], "nXY 47, nZ 83, 20 Hz, normal");
+    // nXY 47 and nZ 83 take 49.3 ms: 20.3 Hz at most, so the 20 Hz data rate holds.
+    assert_eq!(m.odr_hz(), Some(20.0));
     // Every access beyond 0x4B came after the start-up: none answered as in suspend.
-    assert_eq!((m.blocked_reads, m.ignored_writes), (0, 0));
-    // Six transfers, bounded; the 3 ms wait and six short transfers at 400 kHz.
-    assert_eq!(m.transactions, 6);
-    assert!(m.now_s() >= START_UP_S && m.now_s() < START_UP_S + 1e-3, "{} s", m.now_s());
+    assert_eq!((m.blocked_reads, m.ignored_writes, m.wakes, m.suspends), (0, 0, 1, 0));
+    // 0x4B read and written, CHIP_ID, three trim bursts, three registers written and read back.
+    assert_eq!(m.transactions, 12);
+    assert!(m.now_s() >= START_UP_S && m.now_s() < START_UP_S + 3e-3, "{} s", m.now_s());
+}
+
+#[test]
+fn bosch_s_compensation_inverts_the_model_s_counts_to_a_count() {
+    // Over the ADC's range the driver's compensation of the model's counts gives back the field
+    // within half a count (0.18 µT for x and y, 0.18 µT for z with this trim).
+    for k in -120..=120 {
+        let f = [k as f32 * 8.3, -(k as f32) * 5.1 + 3.0, k as f32 * 10.7 - 7.0];
+        let [x, y, z] = counts(&TRIM, f, RHALL);
+        let back = TRIM.compensate(x, y, z, RHALL).expect("in range");
+        for a in 0..3 {
+            assert!((back[a] - f[a]).abs() <= 0.19, "axis {a}: {f:?} -> {back:?}");
+        }
+    }
+    // Beyond the ADC (a magnet on the chip): Bosch's overflow, no reading.
+    let [x, y, z] = counts(&TRIM, [2000.0, 0.0, 0.0], RHALL);
+    assert_eq!(x, -4096);
+    assert_eq!(TRIM.compensate(x, y, z, RHALL), None);
+    assert_eq!(TRIM.compensate(10, 10, 10, 0), None, "a zero hall resistance");
+}
+
+#[test]
+fn readings_come_at_the_data_rate_and_data_ready_clears_after_the_burst() {
+    let bus = bmm();
+    let mut d = run(&bus, 1.0).unwrap();
+    let t0 = bus.0.borrow().now_s();
+    let field = [21.5, -13.25, -40.0];
+    bus.0.borrow_mut().measure(t0, field);
+    let m = d.read(&mut bus.clone(), 10_000).unwrap().expect("a reading");
+    for a in 0..3 {
+        assert!((m[a] - field[a]).abs() <= 0.19, "{m:?}");
+    }
+    // Data ready cleared by that burst: nothing new until the next period (50 ms).
+    assert_eq!(d.read(&mut bus.clone(), 20_000), Ok(None));
+    bus.0.borrow_mut().measure(t0 + 0.01, field);
+    assert_eq!(d.read(&mut bus.clone(), 30_000), Ok(None), "inside the period: no measurement");
+    bus.0.borrow_mut().measure(t0 + 0.05, field);
+    assert!(d.read(&mut bus.clone(), 60_000).unwrap().is_some());
+    // No reading for longer than 500 ms: stopped, named.
+    assert_eq!(d.read(&mut bus.clone(), 600_000), Err(ReadError::Stalled { ms: 540, limit_ms: 500 }));
+    assert_eq!(ReadError::Stalled { ms: 540, limit_ms: 500 }.to_string(), "BMM150: no new reading for 540 ms (limit 500 ms): stopped");
+    // The same counts 40 times in a row: stuck.
+    let mut stuck = None;
+    for k in 0..40 {
+        bus.0.borrow_mut().measure(t0 + 1.0 + k as f64 * 0.051, field);
+        if let Err(e) = d.read(&mut bus.clone(), 1_000_000 + k * 50_000) {
+            stuck = Some(e);
+            break;
+        }
+    }
+    assert_eq!(stuck, Some(ReadError::Stuck { readings: 40 }));
 }
 
 #[test]
@@ -127,7 +181,7 @@ fn in_suspend_only_0x4b_answers_and_chip_id_reads_0() {
 #[test]
 fn a_driver_that_does_not_wait_reads_chip_id_0_and_leaves_the_part_suspended() {
     let bus = bmm();
-    assert_eq!(run(&bus, 0.0), Err(Bmm150Error::WrongId(0x00)));
+    assert_eq!(run(&bus, 0.0).err(), Some(ReadError::WrongId(0x00)));
     let m = bus.0.borrow();
     assert_eq!(m.blocked_reads, 1);
     // WrongId writes 0x4B back as it was found: power bit clear again.
@@ -166,12 +220,12 @@ fn the_drivers_wait_also_covers_a_part_that_does_not_answer_while_starting() {
     let bus = bmm();
     bus.0.borrow_mut().nack_while_starting = true;
     run(&bus, 1.0).unwrap();
-    assert!(bus.0.borrow().suspended());
+    assert_eq!(bus.0.borrow().mode(), Mode::Normal);
     assert_eq!(bus.0.borrow().startup_nacks, 0);
     // Without the wait, the CHIP_ID read is not acknowledged.
     let bus = bmm();
     bus.0.borrow_mut().nack_while_starting = true;
-    assert_eq!(run(&bus, 0.0), Err(Bmm150Error::Bus(BusFault::Nack)));
+    assert_eq!(run(&bus, 0.0).err(), Some(ReadError::Bus(BusFault::Nack)));
     assert_eq!(bus.0.borrow().startup_nacks, 1);
 }
 
@@ -179,8 +233,8 @@ fn the_drivers_wait_also_covers_a_part_that_does_not_answer_while_starting() {
 fn nothing_at_0x10_is_a_nack() {
     // A Rev1 board (LSM9DS1 only): nothing acknowledges 0x10.
     let bus = board(Board::Rev1);
-    assert_eq!(run(&bus, 1.0), Err(Bmm150Error::Bus(BusFault::Nack)));
-    assert_eq!(Bmm150Error::Bus(BusFault::Nack).to_string(), "no BMM150: nothing acknowledges 0x10");
+    assert_eq!(run(&bus, 1.0).err(), Some(ReadError::Bus(BusFault::Nack)));
+    assert_eq!(ReadError::Bus(BusFault::Nack).to_string(), "BMM150: nothing acknowledges 0x10");
     // A lone BMM150 model does not answer another address either.
     let mut m = Bmm150Model::new(0.0);
     assert!(m.write(0x11, &[bmm150::reg::POWER_CONTROL, 0x01]).is_err());
@@ -191,22 +245,14 @@ fn nothing_at_0x10_is_a_nack() {
 fn another_chip_id_is_named_and_0x4b_restored() {
     let bus = bmm();
     bus.0.borrow_mut().chip_id = 0x33;
-    let e = run(&bus, 1.0);
-    assert_eq!(e, Err(Bmm150Error::WrongId(0x33)));
-    assert_eq!(e.unwrap_err().to_string(), "CHIP_ID 0x33 at 0x10 is not a BMM150 (0x32)");
+    let e = run(&bus, 1.0).err();
+    assert_eq!(e, Some(ReadError::WrongId(0x33)));
+    assert_eq!(e.map(|e| e.to_string()).unwrap_or_default(), "BMM150: CHIP_ID 0x33 at 0x10 (expected 0x32)");
     assert_eq!(bus.0.borrow().power_control(), 0x00);
 }
 
 #[test]
-fn a_part_that_stays_awake_is_reported() {
-    let bus = bmm();
-    bus.0.borrow_mut().stuck_awake = true;
-    assert_eq!(run(&bus, 1.0), Err(Bmm150Error::NotSuspended(0x01)));
-    assert!(!bus.0.borrow().suspended());
-}
-
-#[test]
-fn a_rev2_board_acks_0x10_and_the_driver_leaves_its_bmm150_suspended() {
+fn a_rev2_board_acks_0x10_and_the_driver_runs_its_bmm150() {
     let rev1 = board(Board::Rev1);
     assert!(!rev1.0.borrow().acks(bmm150::ADDR));
     assert!(rev1.0.borrow().bmm().is_none());
@@ -220,8 +266,8 @@ fn a_rev2_board_acks_0x10_and_the_driver_leaves_its_bmm150_suspended() {
     {
         let b = rev2.0.borrow();
         let m = b.bmm().unwrap();
-        assert!(m.suspended());
-        assert_eq!((m.wakes, m.suspends, m.transactions, m.blocked_reads), (1, 1, 6, 0));
+        assert_eq!(m.mode(), Mode::Normal);
+        assert_eq!((m.wakes, m.suspends, m.transactions, m.blocked_reads), (1, 0, 12, 0));
     }
     // The BMI270 still answers at 0x68 with its CHIP_ID.
     let mut b = [0u8];
