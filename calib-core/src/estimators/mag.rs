@@ -23,6 +23,9 @@ pub const MAX_MAG_SAMPLES: usize = 192;
 pub const MAX_MAG_POSES: usize = 32;
 /// Distance (µT) from the last kept sample below which a raw sample adds nothing new.
 pub const MIN_SPACING_UT: f32 = 5.0;
+/// Readings within this distance (µT, raw) of a pose's mean are that pose's, left out with it
+/// when a disturbed pose is looked for.
+const EXCLUDE_UT: f32 = 2.0 * MIN_SPACING_UT;
 /// Samples the ellipsoid needs (9 unknowns, with room to spare).
 pub const MIN_SAMPLES: usize = 30;
 /// Poses the alignment needs (4 unknowns).
@@ -227,14 +230,22 @@ impl MagCalibrator {
 
     /// The ellipsoid alone (`A` symmetric, no alignment): what the usual tools fit.
     pub fn fit_ellipsoid(&self) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
-        let n = self.samples();
+        self.fit_ellipsoid_without(None)
+    }
+
+    /// [`Self::fit_ellipsoid`] without the points within [`EXCLUDE_UT`] of `near` (µT, raw): a
+    /// disturbed pose's readings.
+    fn fit_ellipsoid_without(&self, near: Option<[f32; 3]>) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
+        let kept = |m: &[f32; 3]| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT);
+        let points = || self.points().filter(move |(m, _)| kept(m));
+        let n = points().count();
         if n < MIN_SAMPLES {
             return Err(self.too_few());
         }
         // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
-        let c = self.points().fold(Vector3::zeros(), |s, (m, _)| s + to_f64(m)) / n as f64;
+        let c = points().fold(Vector3::zeros(), |s, (m, _)| s + to_f64(m)) / n as f64;
         let mut ne = NormalEquations::<9>::new();
-        for (m, k) in self.points() {
+        for (m, k) in points() {
             let p = (to_f64(m) - c) / 50.0;
             let (x, y, z) = (p[0], p[1], p[2]);
             ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
@@ -278,24 +289,11 @@ impl MagCalibrator {
         let angle = angle_of(&r);
         // Per pose: field strength and dip against the fit's.
         if let Err(e) = self.check_poses(&a, &o, field, dip, None, limits) {
-            // A magnet near one pose pulls the alignment towards it, so that others deviate
-            // too: name the pose without which the rest agree, if there is one.
-            let culprit = (0..self.poses.len()).find(|&k| {
-                self.align(&a_s, &o, Some(k)).is_ok_and(|(rk, sk)| {
-                    let dip_k = asin(-sk.x[3]);
-                    self.check_poses(&(rk * a_s), &o, field, dip_k, Some(k), limits).is_ok()
-                })
-            });
-            return Err(match culprit {
-                Some(k) => {
-                    let (rk, sk) = self.align(&a_s, &o, Some(k))?;
-                    let p = &self.poses[k];
-                    let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(rk * a_s * (to_f64(p.1) - o)));
-                    let dip_k = asin(-sk.x[3]);
-                    check(k as u8, b, pose_dip, field, dip_k, limits).err().unwrap_or(e)
-                }
-                None => e,
-            });
+            // A magnet near one pose pulls the ellipsoid and the alignment towards it, so that
+            // others deviate too: name the pose without whose readings the rest agree, if there
+            // is one (the fits again without each pose: on the MCU ~0.1 s each, on this error
+            // path only).
+            return Err((0..self.poses.len()).find_map(|k| self.blame(k, limits)).unwrap_or(e));
         }
         let (mut sum, mut sum2) = (0.0, 0.0);
         for p in &self.poses {
@@ -334,6 +332,17 @@ impl MagCalibrator {
             samples: self.samples() as u16,
             poses: self.poses.len() as u8,
         })
+    }
+
+    /// The error of pose `k` when the others, fitted without it and its readings, agree.
+    fn blame(&self, k: usize, limits: &MagLimits) -> Option<Error> {
+        let p = self.poses[k];
+        let (a_s, o, field) = self.fit_ellipsoid_without(Some(p.1)).ok()?;
+        let (r, sol) = self.align(&a_s, &o, Some(k)).ok()?;
+        let dip = asin(-sol.x[3]);
+        self.check_poses(&(r * a_s), &o, field, dip, Some(k), limits).ok()?;
+        let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(r * a_s * (to_f64(p.1) - o)));
+        check(k as u8, b, pose_dip, field, dip, limits).err()
     }
 
     /// The die's rotation `R` and the fit (`x[3]` = `−sin(dip)`) from the gravity–field angle

@@ -45,6 +45,9 @@ impl Procedure {
         }
         // Gravity's direction in the raw accelerometer's axes until it is calibrated.
         if capture.mag.count() > 0 {
+            if self.mag.poses() == 0 {
+                self.mag_first_pose = (self.accel_poses.len() - 1) as u8;
+            }
             if let Err(e) = self.mag.add_pose(a, capture.mag.mean().map(|v| v as f32)) {
                 return self.fail(e);
             }
@@ -126,7 +129,13 @@ impl Procedure {
         }
         let accel = self.accel_cal;
         self.mag.map_poses(|f| accel.apply(f));
-        let cal = self.mag.solve(&MagLimits::default())?;
+        // A disturbed pose is named by its hand-held pose number (the field is read from pose 1 on).
+        let cal = self.mag.solve(&MagLimits::default()).map_err(|e| match e {
+            Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => {
+                Error::MagDisturbed { pose: pose.saturating_add(self.mag_first_pose), field_ut, expected_ut, dip_deg, expected_dip_deg }
+            }
+            e => e,
+        })?;
         self.mag_cal = Some(cal);
         self.push(Command::Report(Report::Mag(cal)));
         Ok(())

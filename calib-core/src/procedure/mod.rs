@@ -288,6 +288,8 @@ pub struct Procedure {
     mag_cal: Option<MagCal>,
     /// The hand-held step ended: the magnetometer's fit is due (at the next sample).
     mag_pending: bool,
+    /// The hand-held pose number of the magnetometer's first pose.
+    mag_first_pose: u8,
     /// The bias-free gyro turn since then (hand-held phase only).
     window_turn: PoseTurn,
     gbar: Option<(Vec3, f32)>,
@@ -328,6 +330,7 @@ impl Procedure {
             mag: MagCalibrator::new(),
             mag_cal: None,
             mag_pending: false,
+            mag_first_pose: 0,
             window_turn: PoseTurn::new(),
             gbar: None,
             temp: Welford3::new(),

@@ -36,6 +36,9 @@ pub struct Faults {
     /// The shell stops draining the command queue for this many samples once the procedure is
     /// in this phase (it drains again after them).
     pub no_drain_in: Option<(Phase, usize)>,
+    /// A magnet (or a laptop) near the board while it is held at hand-held pose `k`: a stray
+    /// field (µT, in W) from that pose until the next.
+    pub magnet_at_hand_pose: Option<(usize, [f64; 3])>,
 }
 
 /// What a run produced.
@@ -141,6 +144,8 @@ impl Shell for SimBoard<'_> {
             Report::Phase(Phase::HandHeld) | Report::AccelPose { .. } if self.handheld => {
                 if let Some(q) = self.attitudes.get(self.next_pose) {
                     self.rig.detach_to(*q, 1.0);
+                    let stray = self.faults.magnet_at_hand_pose.filter(|(k, _)| *k == self.next_pose).map_or([0.0; 3], |(_, f)| f);
+                    self.rig.set_stray_field_ut(Vector3::from(stray));
                     self.next_pose += 1;
                 }
             }
