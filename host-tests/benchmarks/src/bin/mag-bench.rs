@@ -4,7 +4,8 @@
 //! ellipsoid alone that the usual tools fit, on simulated one-servo rigs with the board's
 //! magnetometer (the site's field 40–60 µT at a dip of 50–70°, hard iron ±40 µT, soft iron ±5 %,
 //! the die turned up to 2°, the servo's motor magnet near the board on the shaft): the scripted
-//! one-servo protocol's logs and the logs of the firmware's own procedure. `--setup bmi270`: the
+//! one-servo protocol's logs and the logs of the firmware's own procedure, and that procedure's
+//! own fit (the magnetometer of the record it stores, as the firmware computes it). `--setup bmi270`: the
 //! Rev2's BMM150 (0.3 µT resolution). `--json`: the last line is a JSON summary.
 //!
 //! `cargo run --profile host -p benchmarks --target host-tuple --bin mag-bench [--rigs N] [--setup S] [--json]`
@@ -49,6 +50,7 @@ fn main() {
     let mut table = vec![];
     for (row, name) in ["one servo + 12 hand-held (script)", "firmware procedure's log"].iter().enumerate() {
         let (mut ours, mut ell, mut failed, mut left_out) = (vec![], vec![], vec![], 0usize);
+        let (mut board, mut board_failed) = (vec![], vec![]);
         for run in 0..args.rigs {
             let seed = args.seed + run as u64;
             let cfg = args.setup.rig(pan_tilt::rig_config(args.seed + row as u64, run), seed);
@@ -57,7 +59,17 @@ fn main() {
                 0 => pan_tilt::log_at(&mut rig, true, &[0.0]),
                 _ => {
                     let mut p = Procedure::new(Config { setup: args.setup.setup(), ..Config::DEFAULT }, None);
-                    let text = record_log(&mut rig, &mut p, Faults::default(), "").0;
+                    let (text, out) = record_log(&mut rig, &mut p, Faults::default(), "");
+                    match out.stored.first().map(|r| (r, r.mag)) {
+                        Some((r, Some(m))) => board.extend(heading_error(
+                            &Applied { accel_m: r.accel_m, accel_o: r.accel_offset_g, mag_a: m.a, mag_o: m.offset_ut },
+                            &rig,
+                            ATTITUDES,
+                            seed,
+                        )),
+                        Some((_, None)) => board_failed.push("a record without a magnetometer".to_string()),
+                        None => board_failed.push(out.error.map_or("nothing stored".into(), |e| e.to_string())),
+                    }
                     // The setup comment the firmware's raw log holds after its header.
                     let mut setup = String::new();
                     let _ = calib_core::formats::log::write_setup(&mut setup, &args.setup.setup());
@@ -102,6 +114,24 @@ fn main() {
         }
         table.push(json!({"log": name, "rigs": ours.len(), "failed": failed, "rms_deg": rms(&ours), "max_deg": max(&ours),
             "ellipsoid_rms_deg": rms(&ell), "ellipsoid_max_deg": max(&ell), "rig_readings_left_out_per_log": left_out / args.rigs.max(1)}));
+        if row == 1 {
+            // The same runs' records: the procedure's own fit, from the hand-held step alone.
+            let name = "firmware procedure's record";
+            println!(
+                "{name:<34}{:>14.3}{:>10.3}{:>16.3}{:>10.3}{:>7}{:>9}",
+                rms(&board),
+                max(&board),
+                rms(&ell),
+                max(&ell),
+                board.len(),
+                0
+            );
+            if !board_failed.is_empty() {
+                println!("    failed {}: {board_failed:?}", board_failed.len());
+            }
+            table.push(json!({"log": name, "rigs": board.len(), "failed": board_failed, "rms_deg": rms(&board), "max_deg": max(&board),
+                "ellipsoid_rms_deg": rms(&ell), "ellipsoid_max_deg": max(&ell), "rig_readings_left_out_per_log": 0}));
+        }
     }
     if args.json {
         println!(
