@@ -153,7 +153,7 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
     );
     s += &format!("| `cargo demo -- --no-probe` | {}, stored {} |\n", full(&np), field(&np, "stored"));
     s += &format!(
-        "| `cargo demo -- --rev2` (Rev2: BMI270, BMM150 suspended; its z→x coupling is cross-axis) | {}, {}, stored {}, board {} |\n\n",
+        "| `cargo demo -- --rev2` (Rev2: BMI270 + BMM150; its z→x coupling is cross-axis) | {}, {}, stored {}, board {} |\n\n",
         full(&r2),
         mag(&r2),
         field(&r2, "stored"),
