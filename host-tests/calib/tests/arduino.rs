@@ -60,6 +60,10 @@ struct Loaded {
     said: String,
     values: std::collections::HashMap<String, Vec<f32>>,
     outs: Vec<[f32; 6]>,
+    /// `mag_out` lines: calibrated fields (µT).
+    mags: Vec<[f32; 3]>,
+    /// `refreshed` lines: ok, field, residual, moved, offset.
+    refreshed: Vec<[f32; 7]>,
 }
 
 /// Runs the library on `region` (with `setup`: refusing another), then on each input line
@@ -89,6 +93,8 @@ fn load(region: &[u8], setup: Option<[f32; 4]>, inputs: &[(&str, [f32; 6])]) -> 
             }
             "says" => l.said = rest.to_string(),
             "out" => l.outs.push(std::array::from_fn(|i| words[i].parse().unwrap())),
+            "mag_out" => l.mags.push(std::array::from_fn(|i| words[i].parse().unwrap())),
+            "refreshed" => l.refreshed.push(std::array::from_fn(|i| words[i].parse().unwrap())),
             _ => {
                 l.values.insert(key.to_string(), words.iter().map(|w| w.parse().unwrap()).collect());
             }
@@ -124,6 +130,11 @@ fn same_as_calib_core(l: &Loaded, rec: &Record, page: usize, inputs: &[[f32; 6]]
     close(v("temp"), &[rec.temp_c.unwrap_or(0.0)], "temp");
     assert_eq!(v("tempco_known")[0] == 1.0, rec.tempco.is_some());
     close(v("tempco"), &rec.tempco.map_or([0.0; 3], |t| t.dps_per_c), "tempco");
+    assert_eq!(v("mag_known")[0] == 1.0, rec.mag.is_some());
+    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    close(v("mag_a"), rec.mag.as_ref().map_or(&identity[..], |m| m.a.as_flattened()), "A");
+    close(v("mag_offset"), &rec.mag.map_or([0.0; 3], |m| m.offset_ut), "magnetometer offset");
+    close(&[v("mag_field")[0], v("mag_dip")[0]], &rec.mag.map_or([0.0; 2], |m| [m.field_ut, m.dip_deg]), "field and dip");
     assert_eq!(l.outs.len(), inputs.len());
     for (out, i) in l.outs.iter().zip(inputs) {
         let want = [rec.apply_gyro([i[0], i[1], i[2]]), rec.accel().apply([i[3], i[4], i[5]])].concat();
@@ -318,4 +329,68 @@ fn a_rev2_record_applies_to_arduino_bmi270_readings_and_never_to_an_lsm9ds1_s() 
     // The same numbers on an LSM9DS1 (a program for a Rev1 board): refused.
     let l = load(&region, Some([100.0, 2000.0, 4.0, 0.0]), &[]);
     assert!(!l.ok && l.status == 2, "{l:?}");
+}
+
+#[test]
+fn the_magnetometer_applies_as_calib_core_and_its_offset_refreshes_in_the_sketch() {
+    let rec = record();
+    let mag = rec.mag.expect("calib's record of a simulated log holds the magnetometer");
+    let region = region::image(rec).unwrap();
+    let fields = [[20.0f32, -35.5, 41.0], [-60.0, 12.25, -3.0]];
+    // Arduino_LSM9DS1's readMagneticField() of counts (400/32768 uT each, the magnetometer's axes).
+    let counts = [1000.0f32, -2000.0, 3000.0];
+    let mut inputs: Vec<(&str, [f32; 6])> = fields.iter().map(|f| ("mag", [f[0], f[1], f[2], 0.0, 0.0, 0.0])).collect();
+    inputs.push(("lmag", [counts[0] * 400.0 / 32768.0, counts[1] * 400.0 / 32768.0, counts[2] * 400.0 / 32768.0, 0.0, 0.0, 0.0]));
+    let l = load(&region, None, &inputs);
+    same_as_calib_core(&l, rec, 0, &[]);
+    let datasheet = [-counts[0] * 0.014, counts[1] * 0.014, counts[2] * 0.014];
+    for (out, f) in l.mags.iter().zip(fields.iter().chain([&datasheet])) {
+        close(out, &mag.apply(*f), "calibrated field");
+    }
+    // The robot adds its own hard iron: a tumble's readings refit the offset, A kept.
+    let a = nalgebra::Matrix3::from_fn(|i, j| mag.a[i][j] as f64);
+    let a_inv = a.try_inverse().unwrap();
+    let extra = nalgebra::Vector3::new(6.5, -4.0, 9.25);
+    let o = nalgebra::Vector3::new(mag.offset_ut[0] as f64, mag.offset_ut[1] as f64, mag.offset_ut[2] as f64) + extra;
+    let raw = |u: nalgebra::Vector3<f64>| {
+        let m = a_inv * (u * 48.0) + o;
+        [m[0] as f32, m[1] as f32, m[2] as f32, 0.0, 0.0, 0.0]
+    };
+    // 200 directions over the sphere (a Fibonacci lattice), and 60 on one circle.
+    let sphere: Vec<_> = (0..200)
+        .map(|i| {
+            let z = 1.0 - (2 * i + 1) as f64 / 200.0;
+            let phi = i as f64 * 2.399_963;
+            ("tumble", raw(nalgebra::Vector3::new((1.0 - z * z).sqrt() * phi.cos(), (1.0 - z * z).sqrt() * phi.sin(), z)))
+        })
+        .collect();
+    let circle: Vec<_> =
+        (0..60).map(|i| ("tumble", raw(nalgebra::Vector3::new((i as f64 * 0.1).cos(), (i as f64 * 0.1).sin(), 0.0)))).collect();
+    let end = ("refresh", [0.0; 6]);
+    let mut script: Vec<(&str, [f32; 6])> = sphere[..49].to_vec();
+    script.push(end);
+    script.extend(circle);
+    script.push(end);
+    script.extend(sphere.iter().copied());
+    script.push(end);
+    let l = load(&region, None, &script);
+    let [few, flat, tumble] = [l.refreshed[0], l.refreshed[1], l.refreshed[2]];
+    let stored = mag.offset_ut;
+    assert_eq!((few[0], &few[4..]), (0.0, &stored[..]), "49 readings: refused, offset kept");
+    assert_eq!((flat[0], &flat[4..]), (0.0, &stored[..]), "one plane: refused, offset kept");
+    assert_eq!(tumble[0], 1.0, "{tumble:?}");
+    assert!((tumble[1] - 48.0).abs() < 0.01 && tumble[2] < 0.01, "field {} uT, residual {} uT", tumble[1], tumble[2]);
+    assert!((tumble[3] as f64 - extra.norm()).abs() < 0.01, "moved {} uT", tumble[3]);
+    for k in 0..3 {
+        assert!((tumble[4 + k] as f64 - o[k]).abs() < 0.01, "offset {:?} vs {o:?}", &tumble[4..]);
+    }
+    // A record without a magnetometer: the identity, and no refresh.
+    let none = Record { mag: None, ..*rec };
+    let mut script = vec![("mag", [1.0, 2.0, 3.0, 0.0, 0.0, 0.0])];
+    script.extend(sphere.iter().copied());
+    script.push(end);
+    let l = load(&region::image(&none).unwrap(), None, &script);
+    same_as_calib_core(&l, &none, 0, &[]);
+    assert_eq!(l.mags, [[1.0, 2.0, 3.0]]);
+    assert_eq!(l.refreshed[0][0], 0.0);
 }

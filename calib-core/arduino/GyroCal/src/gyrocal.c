@@ -269,6 +269,134 @@ void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]) {
     mag_ut[2] *= k;
 }
 
+void gyrocal_mag_refresh_begin(struct gyrocal_mag_refresh *f) {
+    memset(f, 0, sizeof *f);
+}
+
+void gyrocal_mag_refresh_add(struct gyrocal_mag_refresh *f, const struct gyrocal *cal, const float raw_ut[3]) {
+    /* u = A m: |u - c|^2 = B^2 with c = A o, i.e. 2 u.c + (B^2 - c.c) = u.u, linear in c and
+     * k = B^2 - c.c. */
+    double u[3], x[4], y;
+    for (int i = 0; i < 3; i++) {
+        u[i] = (double)cal->mag_a[i][0] * raw_ut[0] + (double)cal->mag_a[i][1] * raw_ut[1] + (double)cal->mag_a[i][2] * raw_ut[2];
+        x[i] = 2.0 * u[i];
+    }
+    x[3] = 1.0;
+    y = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+    for (int i = 0; i < 4; i++) {
+        for (int j = 0; j < 4; j++) {
+            f->n[i][j] += x[i] * x[j];
+        }
+        f->r[i] += x[i] * y;
+    }
+    f->yy += y * y;
+    f->count++;
+}
+
+/* The square root of `x` (0 for x <= 0) by Newton's iteration: no libm. */
+static double root(double x) {
+    double g = x > 1.0 ? x : 1.0;
+    if (!(x > 0.0)) {
+        return 0.0;
+    }
+    for (int i = 0; i < 200; i++) {
+        double next = 0.5 * (g + x / g);
+        if (next >= g) {
+            break;
+        }
+        g = next;
+    }
+    return g;
+}
+
+/* Solves the 3x3 `m x = b` by Cramer's rule; false when singular. */
+static bool solve3(float m[3][3], const double b[3], double x[3]) {
+    double d = m[0][0] * ((double)m[1][1] * m[2][2] - (double)m[1][2] * m[2][1]) -
+               m[0][1] * ((double)m[1][0] * m[2][2] - (double)m[1][2] * m[2][0]) +
+               m[0][2] * ((double)m[1][0] * m[2][1] - (double)m[1][1] * m[2][0]);
+    if (!(d > 1e-9 || d < -1e-9)) {
+        return false;
+    }
+    for (int k = 0; k < 3; k++) {
+        double c[3][3];
+        for (int i = 0; i < 3; i++) {
+            for (int j = 0; j < 3; j++) {
+                c[i][j] = j == k ? b[i] : m[i][j];
+            }
+        }
+        x[k] = (c[0][0] * (c[1][1] * c[2][2] - c[1][2] * c[2][1]) - c[0][1] * (c[1][0] * c[2][2] - c[1][2] * c[2][0]) +
+                c[0][2] * (c[1][0] * c[2][1] - c[1][1] * c[2][0])) / d;
+    }
+    return true;
+}
+
+bool gyrocal_mag_refresh_end(struct gyrocal_mag_refresh *f, struct gyrocal *cal) {
+    double a[4][5], s[4], o[3], c[3];
+    if (!cal->mag_known || f->count < GYROCAL_MAG_REFRESH_MIN) {
+        return false;
+    }
+    /* Gaussian elimination with partial pivoting; a pivot below 1e-9 of the largest diagonal
+     * element is a fit the readings do not determine (all in one plane). */
+    double scale = 0.0;
+    for (int i = 0; i < 4; i++) {
+        for (int j = 0; j < 4; j++) {
+            a[i][j] = f->n[i][j];
+        }
+        a[i][4] = f->r[i];
+        scale = a[i][i] > scale ? a[i][i] : scale;
+    }
+    for (int col = 0; col < 4; col++) {
+        int p = col;
+        for (int i = col + 1; i < 4; i++) {
+            if ((a[i][col] < 0 ? -a[i][col] : a[i][col]) > (a[p][col] < 0 ? -a[p][col] : a[p][col])) {
+                p = i;
+            }
+        }
+        for (int j = 0; j < 5; j++) {
+            double t = a[col][j];
+            a[col][j] = a[p][j];
+            a[p][j] = t;
+        }
+        if (!((a[col][col] < 0 ? -a[col][col] : a[col][col]) > 1e-9 * scale)) {
+            return false;
+        }
+        for (int i = col + 1; i < 4; i++) {
+            double k = a[i][col] / a[col][col];
+            for (int j = col; j < 5; j++) {
+                a[i][j] -= k * a[col][j];
+            }
+        }
+    }
+    for (int i = 3; i >= 0; i--) {
+        double v = a[i][4];
+        for (int j = i + 1; j < 4; j++) {
+            v -= a[i][j] * s[j];
+        }
+        s[i] = v / a[i][i];
+    }
+    double b2 = s[3] + s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+    if (!(b2 > 0.0)) {
+        return false;
+    }
+    c[0] = s[0];
+    c[1] = s[1];
+    c[2] = s[2];
+    if (!solve3(cal->mag_a, c, o)) {
+        return false;
+    }
+    /* The residual of the linear fit (u.u units) over 2B: |m| - B to first order. */
+    double rss = f->yy - (s[0] * f->r[0] + s[1] * f->r[1] + s[2] * f->r[2] + s[3] * f->r[3]);
+    double field = root(b2), moved = 0.0;
+    for (int i = 0; i < 3; i++) {
+        moved += (o[i] - cal->mag_offset_ut[i]) * (o[i] - cal->mag_offset_ut[i]);
+        cal->mag_offset_ut[i] = (float)o[i];
+    }
+    f->field_ut = (float)field;
+    f->residual_ut = (float)(root(rss / f->count) / (2.0 * field));
+    f->moved_ut = (float)root(moved);
+    return true;
+}
+
 const char *gyrocal_status_str(enum gyrocal_status status) {
     switch (status) {
     case GYROCAL_OK: return "calibration loaded";

@@ -128,6 +128,34 @@ void gyrocal_mag_ut(const struct gyrocal *cal, const float raw_ut[3], float out_
  *  accelerometer's axes (its x is the accelerometer's -x: DocID025715 Figure 1). In place. */
 void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]);
 
+/** An in-sketch refresh of the magnetometer's offset (hard iron) for the robot the board is
+ *  built into, which adds its own: A (soft iron and the die's alignment) is kept, the offset
+ *  refitted from readings spread over a tumble (turn the robot through as many orientations as
+ *  it allows; at least GYROCAL_MAG_REFRESH_MIN readings). O(1) memory: no readings are kept. */
+struct gyrocal_mag_refresh {
+    double n[4][4];      /**< normal equations of |A (m - o)|^2 = B^2, linear in A o and B */
+    double r[4];
+    double yy;
+    uint32_t count;      /**< readings added */
+    float field_ut;      /**< after gyrocal_mag_refresh_end(): the field strength fitted (uT) */
+    float residual_ut;   /**< ... and the RMS of |m| - field over the readings (uT) */
+    float moved_ut;      /**< ... and how far the offset moved (uT) */
+};
+
+/** Readings a refresh needs at least. */
+#define GYROCAL_MAG_REFRESH_MIN 50u
+
+/** Starts a refresh (clears `f`). */
+void gyrocal_mag_refresh_begin(struct gyrocal_mag_refresh *f);
+
+/** Adds a raw reading (uT, the accelerometer's axes: as gyrocal_mag_ut() takes it). */
+void gyrocal_mag_refresh_add(struct gyrocal_mag_refresh *f, const struct gyrocal *cal, const float raw_ut[3]);
+
+/** Fits the offset and, when the fit is determined (enough readings spread over more than a
+ *  plane, a record with a magnetometer calibration), writes it into `cal->mag_offset_ut` and
+ *  returns true; `f` then holds the fit's figures. False leaves `cal` as it was. */
+bool gyrocal_mag_refresh_end(struct gyrocal_mag_refresh *f, struct gyrocal *cal);
+
 /** The record's status as a sentence. */
 const char *gyrocal_status_str(enum gyrocal_status status);
 

@@ -2,7 +2,10 @@
  * gyrocal_check REGION [ODR GYRO_RANGE ACCEL_RANGE SENSOR]: loads the 8 KiB region (with the
  * setup, SENSOR 0 LSM9DS1 or 1 BMI270: as gyrocal_load_for) and prints what it loaded; then each
  * stdin line `raw g0 g1 g2 a0 a1 a2` (datasheet units), `lib ...` (Arduino_LSM9DS1's readings) or
- * `bmi ...` (Arduino_BMI270_BMM150's) is printed calibrated. */
+ * `bmi ...` (Arduino_BMI270_BMM150's) is printed calibrated; `mag m0 m1 m2 0 0 0` (uT) and `lmag ...`
+ * (Arduino_LSM9DS1's readMagneticField()) print `mag_out` through gyrocal_mag_ut(); `tumble m0 m1 m2
+ * 0 0 0` adds a reading to an offset refresh and `refresh 0 0 0 0 0 0` ends it, printing `refreshed
+ * OK FIELD RESIDUAL MOVED O0 O1 O2`. */
 #include "gyrocal.h"
 
 #include <stdio.h>
@@ -55,9 +58,35 @@ int main(int argc, char **argv) {
     floats("bias", cal.gyro_bias_dps, 3);
     floats("m", &cal.accel_m[0][0], 9);
     floats("offset", cal.accel_offset_g, 3);
+    printf("mag_known %d\n", cal.mag_known);
+    floats("mag_a", &cal.mag_a[0][0], 9);
+    floats("mag_offset", cal.mag_offset_ut, 3);
+    floats("mag_field", &cal.mag_field_ut, 1);
+    floats("mag_dip", &cal.mag_dip_deg, 1);
     char kind[8];
     float in[6];
+    struct gyrocal_mag_refresh refresh;
+    gyrocal_mag_refresh_begin(&refresh);
     while (scanf("%7s %f %f %f %f %f %f", kind, &in[0], &in[1], &in[2], &in[3], &in[4], &in[5]) == 7) {
+        if (strcmp(kind, "mag") == 0 || strcmp(kind, "lmag") == 0) {
+            if (kind[0] == 'l') {
+                gyrocal_from_arduino_lsm9ds1_mag(in);
+            }
+            gyrocal_mag_ut(&cal, in, in);
+            floats("mag_out", in, 3);
+            continue;
+        }
+        if (strcmp(kind, "tumble") == 0) {
+            gyrocal_mag_refresh_add(&refresh, &cal, in);
+            continue;
+        }
+        if (strcmp(kind, "refresh") == 0) {
+            bool done = gyrocal_mag_refresh_end(&refresh, &cal);
+            printf("refreshed %d %.9g %.9g %.9g %.9g %.9g %.9g\n", done, (double)refresh.field_ut, (double)refresh.residual_ut,
+                   (double)refresh.moved_ut, (double)cal.mag_offset_ut[0], (double)cal.mag_offset_ut[1], (double)cal.mag_offset_ut[2]);
+            gyrocal_mag_refresh_begin(&refresh);
+            continue;
+        }
         if (strcmp(kind, "lib") == 0) {
             gyrocal_from_arduino_lsm9ds1(in, in + 3);
         } else if (strcmp(kind, "bmi") == 0) {
