@@ -2,18 +2,23 @@
 //! firmware stored at 0xF8000 (the pages survive the upload of this program), runs the LSM9DS1
 //! at the setup the record was made at, and logs over RTT once a second the calibrated rate
 //! `K (g − b)` (°/s, 1 s mean) and the angle turned since boot (°, the calibrated rate
-//! integrated). Without a valid record, or one made at a setup this driver cannot run, it says
-//! so and logs the raw rate instead.
+//! integrated), and with the record's magnetometer calibration the tilt-compensated heading
+//! (°, clockwise from magnetic north: the calibrated accelerometer's 1 s mean and the
+//! calibrated field, `calib_core::estimators::mag::heading_deg`). Without a valid record, or one
+//! made at a setup this driver cannot run, it says so and logs the raw rate instead.
 //!
 //! `cargo run --release --bin calibrated-rates` (probe), or its .bin through the bootloader.
 #![no_std]
 #![no_main]
 
+use calib_core::estimators::mag::heading_deg;
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::region::{self, ADDRESS, PAGE, SLOTS};
 use calib_core::math::stats::Welford3;
+use calib_core::math::vec3::to_f64;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
 use gyrocal_fw::stamp::Stamper;
 use hal::pac::{self, interrupt};
 use nrf52840_hal as hal;
@@ -96,6 +101,17 @@ fn main() -> ! {
     let setup: SensorSetup = config.setup();
     let mut stamper = Stamper::new(setup.odr_hz);
     let (mut rate, mut turned_deg, mut last_t) = (Welford3::new(), [0.0f64; 3], None::<f64>);
+    // The heading needs the record's magnetometer calibration and the part.
+    let mag_cal = rec.and_then(|r| r.mag);
+    let t_us = clock.now_us();
+    let mut mag = mag_cal.and_then(|_| match LsmMag::init(sensor.bus_mut(), lsm9ds1_mag::Config::DEFAULT, &mut Wait(&mut clock), t_us) {
+        Ok(m) => Some(m),
+        Err(e) => {
+            defmt::warn!("{}: no heading", e);
+            None
+        }
+    });
+    let (mut gravity, mut field) = (Welford3::new(), None::<[f32; 3]>);
     let mut next_line = clock.now_us() + 1_000_000;
     loop {
         board::sleep();
@@ -112,6 +128,16 @@ fn main() -> ! {
             stamper.restart();
             last_t = None;
         }
+        if let Some(m) = mag.as_mut() {
+            match m.read(sensor.bus_mut(), now) {
+                Ok(Some(r)) => field = Some(r),
+                Ok(None) => {}
+                Err(e) => {
+                    defmt::warn!("{}: no heading from now on", e);
+                    mag = None;
+                }
+            }
+        }
         let n = status.level.min(FIFO_DEPTH) as usize;
         let batch = stamper.batch(clock.now_s(), n);
         for i in 0..n {
@@ -122,8 +148,11 @@ fn main() -> ! {
                 last_t = None;
                 break;
             };
-            let (_, gyro_dps) = sensor.convert(&slot);
+            let (accel_g, gyro_dps) = sensor.convert(&slot);
             let w = apply(gyro_dps);
+            if let Some(r) = rec.as_ref() {
+                gravity.add(r.accel().apply(accel_g));
+            }
             let t = batch.stamp(i);
             if let Some(t0) = last_t {
                 for k in 0..3 {
@@ -148,6 +177,13 @@ fn main() -> ! {
                 turned_deg[2]
             );
             rate = Welford3::new();
+            if let (Some(c), Some(m), true) = (mag_cal, field, gravity.count() > 0) {
+                let f = gravity.mean().map(|v| v as f32);
+                if let Some(h) = heading_deg(to_f64(f), to_f64(c.apply(m))) {
+                    defmt::info!("heading {=f64} deg (tilt-compensated, clockwise from magnetic north)", h);
+                }
+            }
+            gravity = Welford3::new();
         }
     }
 }

@@ -303,9 +303,29 @@ fn header(w: &mut impl Write, r: &Record, frame: DataFrame, open: &str, close: &
     num(w, r.setup.accel_range_g, 0, "?", " g")?;
     writeln!(w, "{close}")?;
     match r.tempco {
-        None => writeln!(w, "{open}Gyro bias tempco unknown: the calibration's temperature did not span enough.{close}"),
-        Some(t) => tempco_comment(w, &t, open, close),
+        None => writeln!(w, "{open}Gyro bias tempco unknown: the calibration's temperature did not span enough.{close}")?,
+        Some(t) => tempco_comment(w, &t, open, close)?,
     }
+    match &r.mag {
+        None => writeln!(w, "{open}No magnetometer calibration (none read, or a pan/tilt run).{close}"),
+        Some(m) => {
+            writeln!(w, "{open}Mag:   m = A (r - o): r magnetometer reading (uT, the accelerometer's axes), o = MAG_OFFSET_UT{close}")?;
+            write!(w, "{open}(uT), m calibrated (uT) in the frame of K and M; field ")?;
+            num(w, m.field_ut, 2, "?", " uT, dip ")?;
+            num(w, m.dip_deg, 2, "?", " deg")?;
+            writeln!(w, "{close}")
+        }
+    }
+}
+
+/// The magnetometer's constants (when the record has them).
+fn mag_consts(w: &mut impl Write, r: &Record, s: &Syntax, a_decl: &str, o_decl: &str) -> fmt::Result {
+    let Some(m) = &r.mag else { return Ok(()) };
+    w.write_str("\n")?;
+    matrix(w, s, a_decl, &m.a)?;
+    w.write_str(o_decl)?;
+    array(w, s, &m.offset_ut, D_MAG)?;
+    w.write_str(";")
 }
 
 /// The tempco's comment line: `b(T) = b + c (T - T_cal)`, `c` and its range.
@@ -341,7 +361,8 @@ fn c(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
         "        out_dps[i] = GYRO_K[i][0] * d[0] + GYRO_K[i][1] * d[1] + GYRO_K[i][2] * d[2];\n",
         "    }\n",
         "}",
-    ))
+    ))?;
+    mag_consts(w, r, s, "static const float MAG_A[3][3]", "static const float MAG_OFFSET_UT[3] = ")
 }
 
 fn rust(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
@@ -355,7 +376,11 @@ fn rust(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
     matrix(w, s, "pub const ACCEL_M: [[f32; 3]; 3]", &r.accel_m)?;
     w.write_str("/// Accelerometer offset o (g).\npub const ACCEL_OFFSET_G: [f32; 3] = ")?;
     array(w, s, &r.accel_offset_g, D_OFFSET)?;
-    w.write_str(";")
+    w.write_str(";")?;
+    if r.mag.is_some() {
+        w.write_str("\n/// Magnetometer matrix A (row-major) and offset (uT): m = A (r - o).")?;
+    }
+    mag_consts(w, r, s, "pub const MAG_A: [[f32; 3]; 3]", "pub const MAG_OFFSET_UT: [f32; 3] = ")
 }
 
 pub use crate::formats::record::NotFinite;
@@ -714,6 +739,13 @@ mod tests {
         let r = text(&rec, Format::Rust);
         assert!(r.contains("pub const GYRO_K: [[f32; 3]; 3] = [\n    [1.0123457, -0.0023456, 0.0001000],\n"), "{r}");
         assert!(r.contains("pub const ACCEL_OFFSET_G: [f32; 3] = [0.010000, -0.020000, 0.015000];"), "{r}");
+        // The magnetometer's constants and comment when the record has them, none without.
+        assert!(c.contains("static const float MAG_A[3][3] = {\n    {1.0200000f, 0.0100000f, -0.0200000f},\n"), "{c}");
+        assert!(c.contains("static const float MAG_OFFSET_UT[3] = {12.500f, -30.250f, 4.000f};"), "{c}");
+        assert!(c.contains("field 48.50 uT, dip 61.25 deg"), "{c}");
+        assert!(r.contains("pub const MAG_OFFSET_UT: [f32; 3] = [12.500, -30.250, 4.000];"), "{r}");
+        let none = text(&Record { mag: None, ..rec }, Format::C);
+        assert!(!none.contains("MAG_A") && none.contains("No magnetometer calibration"), "{none}");
         assert!(c.contains("/* Part: LSM9DS1 */\n/* Data: raw sensor axes, datasheet units (nothing applied) */"), "{c}");
         let bmi = Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: false }, ..SensorSetup::DEFAULT }, ..rec };
         let mut ard = String::new();

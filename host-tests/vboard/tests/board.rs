@@ -265,6 +265,10 @@ fn a_program_uploaded_after_the_calibration_finds_its_record_and_measures_turns_
     let said = |what: &str| b.mcu.log.iter().any(|l| l.contains(what));
     assert!(said(&format!("record {} loaded: K made at 119.0 Hz, +-500.0 dps, +-2.0 g", rec.seq)), "{:#?}", b.mcu.log);
     assert_eq!(b.stored(), Some(rec), "the record is untouched");
+    // The record's magnetometer calibration gives a tilt-compensated heading once a second.
+    let headings: Vec<f64> =
+        b.mcu.log.iter().filter_map(|l| vboard::testbed::message(l).strip_prefix("heading ")?.split(' ').next()?.parse().ok()).collect();
+    assert!(!headings.is_empty() && headings.iter().all(|h| (0.0..360.0).contains(h)), "{headings:?}");
     // The board turns on the shaft; the program's angle (the rate at rest before the turn taken
     // off as its bias) against the shaft's true turn.
     let shaft = |b: &Testbed| b.mcu.periph.borrow().sensor.rig().truth().shaft_deg;
