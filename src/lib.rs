@@ -3,8 +3,8 @@
 //!
 //! - [`bootloader`]: which Arduino bootloader, and whether the record pages are safe to write.
 //! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C;
-//!   [`lsm9ds1_mag`]: its magnetometer; [`bmi270`]: the Rev2 board's IMU brought up as Bosch's API does it; [`bmm150`]: its
-//!   magnetometer, found and left in suspend.
+//!   [`lsm9ds1_mag`]: its magnetometer; [`bmi270`]: the Rev2 board's IMU brought up as Bosch's
+//!   API does it; [`bmm150`]: its magnetometer, with Bosch's trim compensation.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
