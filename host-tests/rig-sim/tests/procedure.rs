@@ -362,6 +362,13 @@ fn the_magnetometer_is_calibrated_from_the_hand_and_a_magnet_is_named() {
     assert!(out.stored.is_empty() && out.applied.is_empty());
     let said = out.error.map(|e| e.to_string()).unwrap_or_default();
     assert!(said.starts_with("magnetometer: the field at pose 6 is ") && said.contains("a magnet, a laptop or the servo"), "{said}");
+    // A second calibration reuses the stored accelerometer (no hand-held step): the stored
+    // magnetometer, made in that accelerometer's frame, goes on with it.
+    let (first, _) = calibrate(Variant::Hobby.config(12, 0), Config::default(), None, Faults::default());
+    let first = first.stored[0];
+    let (again, _) = calibrate(Variant::Hobby.config(12, 0), Config::default(), Some(first), Faults::default());
+    let again = again.stored.first().copied().unwrap_or_else(|| panic!("{:?}", again.error));
+    assert_eq!((again.seq, again.mag, again.accel_m), (first.seq + 1, first.mag, first.accel_m));
     // A rig without a magnetometer: the calibration as before, no magnetometer in the record.
     let mut cfg = Variant::Hobby.config(11, 0);
     cfg.mag = None;
