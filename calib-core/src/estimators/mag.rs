@@ -144,6 +144,19 @@ fn check(index: u8, b: f64, dip: f64, field: f64, expected_dip: f64, limits: &Ma
     })
 }
 
+/// A move between two of the magnetometer's still poses as the calibrated gyro measured it:
+/// `r` takes a vector in the body frame at pose `to` to the frame at pose `from`
+/// ([`crate::estimators::rotation::Rotations::rotation`]); the field must follow it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MagMove {
+    /// Start pose (the magnetometer's pose index).
+    pub from: u8,
+    /// End pose.
+    pub to: u8,
+    /// The rotation (row-major).
+    pub r: Mat3,
+}
+
 /// Raw magnetometer samples and still poses of the hand-held step, fitted at the end.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct MagCalibrator {
@@ -334,6 +347,55 @@ impl MagCalibrator {
         })
     }
 
+    /// `cal` (from [`Self::solve`]) with its alignment refined by the gyro's rotations between
+    /// the poses beside the gravity–field angle: `û_from = R û_to` for every move, i.e.
+    /// `û_i − R û_j + (R [û_j]× − [û_i]×) θ = 0` with the angle rows of [`Self::solve`]
+    /// (re-linearised, three steps). The rotation about the field's own direction, which the
+    /// angle leaves weakest, is what the moves add. Hard and soft iron, field and residual stay.
+    pub fn refine(&self, cal: &MagCal, moves: &[MagMove]) -> Result<MagCal, Error> {
+        let (a0, o) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut));
+        let n = self.poses.len();
+        let (mut rot, mut sol) = (Matrix3::<f64>::identity(), None);
+        for _ in 0..3 {
+            let a = rot * a0;
+            let u = |i: usize| -> Vector3<f64> { (a * (to_f64(self.poses[i].1) - o)).normalize() };
+            let mut ne = NormalEquations::<4>::new();
+            for (i, p) in self.poses.iter().enumerate() {
+                let (f, ui) = (to_f64(p.0).normalize(), u(i));
+                let x = ui.cross(&f);
+                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&ui), 1.0)?;
+            }
+            for m in moves.iter().filter(|m| (m.from as usize) < n && (m.to as usize) < n) {
+                let (ui, uj, r) = (u(m.from as usize), u(m.to as usize), mat_to_f64(&m.r));
+                let res = ui - r * uj;
+                let h = r * uj.cross_matrix() - ui.cross_matrix();
+                for row in 0..3 {
+                    ne.add_row(&[h[(row, 0)], h[(row, 1)], h[(row, 2)], 0.0], -res[row], 1.0)?;
+                }
+            }
+            let s = ne.solve()?;
+            rot = cayley(&Vector3::new(s.x[0], s.x[1], s.x[2])) * rot;
+            sol = Some(s);
+        }
+        let sol = sol.ok_or(Error::MagFitFailed)?;
+        let a = rot * a0;
+        // The die's rotation: A's polar factor, A (AᵀA)^(−1/2).
+        let ata = a.transpose() * a;
+        let m: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| ata[(i, j)]));
+        let (vals, vecs) = sym_eigen(&m);
+        let v = Matrix3::from_fn(|r, k| vecs[r][k]);
+        let inv_sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| 1.0 / libm::sqrt(vals[i].max(1e-12)))) * v.transpose();
+        let c = sol.x[3];
+        Ok(MagCal {
+            a: core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)),
+            dip_deg: asin(-c).to_degrees() as f32,
+            sigma_dip_deg: (sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6))).to_degrees() as f32,
+            alignment_deg: angle_of(&(a * inv_sqrt)).to_degrees() as f32,
+            sigma_alignment_deg: (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max).to_degrees() as f32,
+            ..*cal
+        })
+    }
+
     /// The error of pose `k` when the others, fitted without it and its readings, agree.
     fn blame(&self, k: usize, limits: &MagLimits) -> Option<Error> {
         let p = self.poses[k];
@@ -504,6 +566,32 @@ mod tests {
             max = max.max(e.abs());
         }
         (libm::sqrt(ss / 500.0), max)
+    }
+
+    #[test]
+    fn the_gyro_s_rotations_between_poses_refine_the_alignment() {
+        let part = Part::new();
+        let c = session(&part, None);
+        let cal = c.solve(&MagLimits::default()).unwrap();
+        // The session's poses (its first draws) and the moves between them as an exact gyro
+        // would measure them: body at the next pose to body at this one.
+        let mut g = Gaussian::new(0x5eed_1234_abcd_0001);
+        let poses: [UnitQuaternion<f64>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
+        let moves: [MagMove; 11] = core::array::from_fn(|i| {
+            let r = (poses[i].inverse() * poses[i + 1]).to_rotation_matrix().into_inner();
+            MagMove { from: i as u8, to: i as u8 + 1, r: core::array::from_fn(|a| core::array::from_fn(|b| r[(a, b)] as f32)) }
+        });
+        let refined = c.refine(&cal, &moves).unwrap();
+        let o = to_f64(cal.offset_ut);
+        let (before, _) = heading_error(&part, &mat_to_f64(&cal.a), &o);
+        let (after, max) = heading_error(&part, &mat_to_f64(&refined.a), &o);
+        assert!(after <= before * 1.05 && after < 0.2 && max < 0.6, "{before:.3} -> {after:.3} deg RMS ({max:.3} max)");
+        assert!((refined.alignment_deg - 1.5).abs() < 0.3, "die {} deg", refined.alignment_deg);
+        assert!(refined.sigma_alignment_deg < cal.sigma_alignment_deg, "{} vs {}", refined.sigma_alignment_deg, cal.sigma_alignment_deg);
+        assert_eq!((refined.field_ut, refined.offset_ut, refined.residual_ut), (cal.field_ut, cal.offset_ut, cal.residual_ut));
+        // Without moves: the angle alone again.
+        let alone = c.refine(&cal, &[]).unwrap();
+        assert!((alone.alignment_deg - cal.alignment_deg).abs() < 0.01 && (alone.dip_deg - cal.dip_deg).abs() < 0.01);
     }
 
     #[test]

@@ -696,6 +696,14 @@ impl Rotations {
         (r.map(|v| v as f64), j.map(|row| row.map(|v| v as f64)))
     }
 
+    /// The rotation of move `m` at `K` (row-major): `R` takes a vector in the body frame at its
+    /// end pose to the frame at its start pose (`R g_to ≈ g_from`). `None` for a singular `K`.
+    pub fn rotation(&self, m: &RotationMove, k: &Mat3) -> Option<Matrix3<f64>> {
+        let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
+        let cof = cofactor(&km)?;
+        Some(self.compose(m, &km, &cof).0)
+    }
+
     /// Adds the rows of every kept move, linearised at `k` (vec `K`), as rows linear in vec `K`:
     /// `H·k' ≈ H·k − r`. Returns the weighted residual sum at `k`, and the unweighted one (rad²)
     /// of the rotation rows with their count (a vertical turn's rows are in the weighted sum only).

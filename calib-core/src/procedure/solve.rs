@@ -1,6 +1,7 @@
 //! The estimators at the end of the rig, the record built from their result, and the store.
 
 use super::*;
+use crate::estimators::mag::MagMove;
 
 impl Procedure {
     /// The end of the pan/tilt plan: the accelerometer from the rig poses, the poses calibrated
@@ -99,6 +100,9 @@ impl Procedure {
         }
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
         if let Some(full) = solved.full {
+            if let Ok(f) = &full {
+                self.refine_mag(&f.k);
+            }
             // Each move's misfit at the solution (none without one).
             let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
             let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
@@ -111,6 +115,30 @@ impl Procedure {
                 self.store(record, t_s);
             }
             Err(e) => self.fail(e),
+        }
+    }
+
+    /// The magnetometer's alignment refined with the hand-held moves as the full `K` turns them
+    /// ([`MagCalibrator::refine`]) and reported again, when this run fitted it and every
+    /// hand-held pose from its first has its field (so that the moves' poses are its poses); else
+    /// the fit at the re-clamp stays.
+    fn refine_mag(&mut self, k: &crate::Mat3) {
+        let Some(cal) = self.mag_cal.filter(|_| self.mag.poses() > 0) else { return };
+        let first = self.mag_first_pose;
+        if self.mag.poses() + first as usize != self.accel_poses.len() {
+            return;
+        }
+        let mut moves = heapless::Vec::<MagMove, MAX_ROTATION_MOVES>::new();
+        for m in self.rotations.moves() {
+            let (Some(from), Some(to)) = (m.from.checked_sub(first), m.to.checked_sub(first)) else { continue };
+            if let Some(r) = self.rotations.rotation(m, k) {
+                let r = core::array::from_fn(|i| core::array::from_fn(|j| r[(i, j)] as f32));
+                let _ = moves.push(MagMove { from, to, r });
+            }
+        }
+        if let Ok(c) = self.mag.refine(&cal, &moves) {
+            self.mag_cal = Some(c);
+            self.push(Command::Report(Report::Mag(c)));
         }
     }
 
