@@ -64,6 +64,11 @@ pub struct Plots {
     /// The magnetometer's invariant per hand-held pose: the dip (°) through the ellipsoid alone
     /// and through the calibration with the die's alignment.
     pub mag_dip: Option<Plot>,
+    /// The heading error per hand-held move (°), before (the ellipsoid alone) and after: the
+    /// tilt-compensated heading at the move's end against the one its start predicts through the
+    /// calibrated gyro's rotation (the log has no true heading; the gyro, calibrated to a few
+    /// 1e-4, is the reference).
+    pub mag_heading: Option<Plot>,
 }
 
 fn unit(v: [f32; 3]) -> Vector3<f64> {
@@ -229,14 +234,16 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
     let x = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.0)));
     let y = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.1)));
     let bias = scatter("Each rest's gyro bias minus the calibration's (the log has no temperature)", ("time (s)", x), ("°/s", y), &series)?;
-    let (mag, mag_dip) = mag_plots(rows, c)?;
-    Ok(Plots { sphere, invariant, residuals, bias, mag, mag_dip })
+    let (mag, mag_dip, mag_heading) = mag_plots(rows, c, &k)?;
+    Ok(Plots { sphere, invariant, residuals, bias, mag, mag_dip, mag_heading })
 }
 
-/// [`Plots::mag`] and [`Plots::mag_dip`], when the log's magnetometer was calibrated.
-fn mag_plots(rows: &[Row], c: &Calibration) -> Result<(Option<Plot>, Option<Plot>), String> {
+/// [`Plots::mag`], [`Plots::mag_dip`] and [`Plots::mag_heading`], when the log's magnetometer
+/// was calibrated; `k` the gyro's `K`.
+type MagPlots = (Option<Plot>, Option<Plot>, Option<Plot>);
+fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots, String> {
     let Some((outcome, cal, (ea, eo))) = c.mag.as_ref().and_then(|m| Some((m, m.cal.as_ref().ok()?, m.ellipsoid?))) else {
-        return Ok((None, None));
+        return Ok((None, None, None));
     };
     let (a, o, ea, eo) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut), mat_to_f64(&ea), to_f64(eo));
     let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(to_f64).collect();
@@ -279,7 +286,45 @@ fn mag_plots(rows: &[Row], c: &Calibration) -> Result<(Option<Plot>, Option<Plot
         ("dip (°)", y),
         &[(BEFORE, "ellipsoid alone", before), (AFTER, "with the die's alignment", after)],
     )?;
-    Ok((Some(field), Some(dips)))
+    // Per move between consecutive poses of the fit: the gyro's rotation (K (g − b) integrated
+    // as a rotation), the field at the start carried to the end, both headings at the end.
+    let poses: Vec<&Segment> = c.phases.segments.iter().filter(|s| !s.is_rig_pose() && first <= s.first && s.last <= last).collect();
+    let mean_field = |s: &Segment| {
+        let r: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_f64).collect();
+        (!r.is_empty()).then(|| r.iter().sum::<Vector3<f64>>() / r.len() as f64)
+    };
+    let bias = to_f64(c.bias.bias_dps);
+    let heading_error = |a: &Matrix3<f64>, o: &Vector3<f64>| {
+        poses
+            .windows(2)
+            .filter_map(|w| {
+                let (mi, mj) = (mean_field(w[0])?, mean_field(w[1])?);
+                // Body at the end to body at the start: from the start pose's middle to the end's.
+                let (from, to) = ((w[0].first + w[0].last) / 2, (w[1].first + w[1].last) / 2);
+                let mut q = nalgebra::UnitQuaternion::identity();
+                for p in rows[from..=to].windows(2) {
+                    let w_rad = (k * (to_f64(p[1].gyro_dps) - bias)).map(f64::to_radians);
+                    q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t_s - p[0].t_s));
+                }
+                let fj = direction(c, w[1]);
+                let predicted = q.inverse() * (a * (mi - o));
+                let h = |m: Vector3<f64>| calib_core::estimators::mag::heading_deg(fj, m);
+                let e = (h(a * (mj - o))? - h(predicted)? + 540.0) % 360.0 - 180.0;
+                Some(e)
+            })
+            .enumerate()
+            .map(|(i, e)| (i as f64, e))
+            .collect::<Vec<_>>()
+    };
+    let (before, after) = (heading_error(&ea, &eo), heading_error(&a, &o));
+    let y = span(before.iter().chain(&after).map(|p| p.1).chain([0.0]));
+    let headings = scatter(
+        "Heading error per hand-held move: the end's heading against the start's carried by the gyro",
+        ("move of the fit", -0.5..before.len().max(1) as f64 - 0.5),
+        ("heading error (°)", y),
+        &[(BEFORE, "ellipsoid alone", before), (AFTER, "with the die's alignment", after)],
+    )?;
+    Ok((Some(field), Some(dips), Some(headings)))
 }
 
 fn escape(s: &str) -> String {
@@ -353,9 +398,17 @@ pub fn html(name: &str, rows: &[Row], c: &Calibration) -> Result<String, String>
             m.field_ut, m.sigma_field_ut, m.dip_deg, m.sigma_dip_deg, m.alignment_deg, m.sigma_alignment_deg, m.residual_ut, m.coverage * 100.0, m.samples, m.poses
         );
     }
-    for plot in [Some(&p.sphere), p.invariant.as_ref(), p.residuals.as_ref(), Some(&p.bias), p.mag.as_ref(), p.mag_dip.as_ref()]
-        .into_iter()
-        .flatten()
+    for plot in [
+        Some(&p.sphere),
+        p.invariant.as_ref(),
+        p.residuals.as_ref(),
+        Some(&p.bias),
+        p.mag.as_ref(),
+        p.mag_dip.as_ref(),
+        p.mag_heading.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
     {
         h += &format!("<figure>{}</figure>\n", plot.svg);
     }

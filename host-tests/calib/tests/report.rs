@@ -106,7 +106,7 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     let text = simulated_log(Variant::Hobby.config(9, 0)).0;
     let log = csvlog::parse(&text).unwrap();
     let c = calibrate_log(&log, &Default::default(), None).unwrap();
-    let Plots { sphere, invariant, residuals, bias, mag, mag_dip } = report::plots(&log.rows, &c).unwrap();
+    let Plots { sphere, invariant, residuals, bias, mag, mag_dip, mag_heading } = report::plots(&log.rows, &c).unwrap();
     // A marker per pose, where the data puts it.
     let rig = c.phases.segments.iter().filter(|s| s.is_rig_pose()).count();
     let hand = c.phases.segments.len() - rig;
@@ -153,6 +153,15 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     let (before, after) = (spread(&dip.markers[0]), spread(&dip.markers[1]));
     println!("dip: ellipsoid alone over {before} px, aligned over {after} px");
     assert!(dip.markers[0].len() == cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
+    // The heading error per move (the gyro's rotation as the reference): smaller with the die's
+    // alignment than through the ellipsoid alone.
+    let headings = mag_heading.expect("a heading plot");
+    let img = render(&headings.svg);
+    drawn_as_placed(&img, BEFORE, &headings.markers[0], &headings.markers[1], "heading, ellipsoid alone");
+    drawn_as_placed(&img, AFTER, &headings.markers[1], &[], "heading, aligned");
+    let (before, after) = (spread(&headings.markers[0]), spread(&headings.markers[1]));
+    println!("heading error per move: ellipsoid alone over {before} px, aligned over {after} px");
+    assert!(headings.markers[0].len() + 1 == cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
 }
 
 #[test]
@@ -166,7 +175,7 @@ fn calib_writes_a_self_contained_page_with_k_and_its_plots() {
     assert!(out.contains("\"gyro\""), "the usual JSON stays on stdout");
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.starts_with("<!DOCTYPE html>") && html.contains("± ") && html.contains("What to do"));
-    assert_eq!(html.matches("<svg").count(), 6, "sphere, invariant, residuals, bias, the magnetometer's field and dip");
+    assert_eq!(html.matches("<svg").count(), 7, "sphere, invariant, residuals, bias, the magnetometer's field, dip and heading");
     assert!(html.contains("<h2>Magnetometer</h2>") && html.contains("dip of"));
     assert!(!html.contains("src=\"http") && !html.contains("<script"), "self-contained");
     let (code, _, err) = calib(&[log.to_str().unwrap(), "--report", dir.join("no/such/dir/r.html").to_str().unwrap()]);
