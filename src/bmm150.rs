@@ -11,6 +11,7 @@
 //! `bmm150_set_op_mode(BMM150_POWERMODE_SUSPEND)`).
 
 use crate::lsm9ds1::BusFault;
+use crate::watch::Watch;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -187,9 +188,7 @@ impl core::fmt::Display for ReadError {
 pub struct Bmm150 {
     cfg: Config,
     trim: Trim,
-    last: [i16; 4],
-    same: u16,
-    last_new_us: u64,
+    watch: Watch,
     /// Readings Bosch's compensation calls overflow (skipped).
     pub overflows: u32,
 }
@@ -232,7 +231,7 @@ impl Bmm150 {
                 return Err(ReadError::ConfigMismatch { reg: r, wrote: v, read });
             }
         }
-        Ok(Self { cfg, trim, last: [0; 4], same: 0, last_new_us: now_us, overflows: 0 })
+        Ok(Self { cfg, trim, watch: Watch::new(now_us), overflows: 0 })
     }
 
     /// The trim values read at start-up.
@@ -246,25 +245,16 @@ impl Bmm150 {
     /// burst.
     pub fn read<I: I2c>(&mut self, i2c: &mut I, now_us: u64) -> Result<Option<[f32; 3]>, ReadError> {
         let b: [u8; 8] = read_n(i2c, reg::DATA)?;
+        let limit_ms = self.cfg.stall_ms;
         if b[6] & 0x01 == 0 {
-            let ms = (now_us.saturating_sub(self.last_new_us) / 1000).min(u32::MAX as u64) as u32;
-            if ms > self.cfg.stall_ms {
-                return Err(ReadError::Stalled { ms, limit_ms: self.cfg.stall_ms });
-            }
-            return Ok(None);
+            return self.watch.idle(now_us, limit_ms).map(|()| None).map_err(|ms| ReadError::Stalled { ms, limit_ms });
         }
         // Bosch's `bmm150_read_mag_data`: the MSB (signed) above the LSB's top bits.
         let x = ((b[1] as i8 as i16) * 32) | (b[0] >> 3) as i16;
         let y = ((b[3] as i8 as i16) * 32) | (b[2] >> 3) as i16;
         let z = ((b[5] as i8 as i16) * 128) | (b[4] >> 1) as i16;
         let rhall = ((b[7] as u16) << 6) | (b[6] >> 2) as u16;
-        self.last_new_us = now_us;
-        let c = [x, y, z, rhall as i16];
-        self.same = if c == self.last { self.same.saturating_add(1) } else { 1 };
-        self.last = c;
-        if self.same >= self.cfg.stuck_readings {
-            return Err(ReadError::Stuck { readings: self.same });
-        }
+        self.watch.reading([x, y, z, rhall as i16], now_us, self.cfg.stuck_readings).map_err(|readings| ReadError::Stuck { readings })?;
         let m = self.trim.compensate(x, y, z, rhall);
         if m.is_none() {
             self.overflows = self.overflows.saturating_add(1);

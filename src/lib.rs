@@ -5,6 +5,7 @@
 //! - [`lsm9ds1`]: sensor identity, configuration, FIFO and conversion over embedded-hal I2C;
 //!   [`lsm9ds1_mag`]: its magnetometer; [`bmi270`]: the Rev2 board's IMU brought up as Bosch's
 //!   API does it; [`bmm150`]: its magnetometer, with Bosch's trim compensation.
+//! - [`watch`]: the magnetometers' stopped and stuck checks.
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
@@ -31,3 +32,4 @@ pub mod stamp;
 pub mod storage;
 #[cfg(target_os = "none")]
 pub mod usb;
+pub mod watch;

@@ -8,6 +8,7 @@
 //! the bus.
 
 use crate::lsm9ds1::BusFault;
+use crate::watch::Watch;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -186,11 +187,7 @@ impl core::fmt::Display for Error {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LsmMag {
     cfg: Config,
-    /// The last new reading's counts (part axes) and how many in a row had them.
-    last: [i16; 3],
-    same: u16,
-    /// MCU time of the last new reading (µs).
-    last_new_us: u64,
+    watch: Watch,
 }
 
 fn bus<E: embedded_hal::i2c::Error>(e: E) -> Error {
@@ -236,7 +233,7 @@ impl LsmMag {
                 return Err(Error::ConfigMismatch { reg: r, wrote: v, read });
             }
         }
-        Ok(Self { cfg, last: [0; 3], same: 0, last_new_us: now_us })
+        Ok(Self { cfg, watch: Watch::new(now_us) })
     }
 
     /// The settings.
@@ -249,22 +246,14 @@ impl LsmMag {
     /// `now_us`; `Ok(None)` if not yet. Two transfers at most; [`Error::Stalled`] or
     /// [`Error::Stuck`] when the part stopped or stuck.
     pub fn read<I: I2c>(&mut self, i2c: &mut I, now_us: u64) -> Result<Option<[f32; 3]>, Error> {
+        let limit_ms = self.cfg.stall_ms;
         if read1(i2c, reg::STATUS)? & ZYXDA == 0 {
-            let ms = (now_us.saturating_sub(self.last_new_us) / 1000).min(u32::MAX as u64) as u32;
-            if ms > self.cfg.stall_ms {
-                return Err(Error::Stalled { ms, limit_ms: self.cfg.stall_ms });
-            }
-            return Ok(None);
+            return self.watch.idle(now_us, limit_ms).map(|()| None).map_err(|ms| Error::Stalled { ms, limit_ms });
         }
         let mut b = [0u8; 6];
         i2c.write_read(ADDR, &[reg::OUT_X_L | AUTO_INCREMENT], &mut b).map_err(bus)?;
         let c = [i16::from_le_bytes([b[0], b[1]]), i16::from_le_bytes([b[2], b[3]]), i16::from_le_bytes([b[4], b[5]])];
-        self.last_new_us = now_us;
-        self.same = if c == self.last { self.same.saturating_add(1) } else { 1 };
-        self.last = c;
-        if self.same >= self.cfg.stuck_readings {
-            return Err(Error::Stuck { readings: self.same });
-        }
+        self.watch.reading([c[0], c[1], c[2], 0], now_us, self.cfg.stuck_readings).map_err(|readings| Error::Stuck { readings })?;
         Ok(Some(to_accel_axes_ut(c)))
     }
 }
