@@ -69,7 +69,7 @@ pub enum DecodeError {
     UnsupportedVersion(u8),
     /// The checksum does not match: torn write or corruption.
     BadCrc { stored: u32, computed: u32 },
-    /// A field is NaN/infinite or an enum value is unknown.
+    /// A field is NaN/infinite or beyond what a part can have, or an enum value is unknown.
     InvalidField,
 }
 
@@ -569,10 +569,36 @@ impl Record {
                 return Err(DecodeError::InvalidField);
             }
         }
-        if !r.all_finite {
+        if !r.all_finite || !rec.plausible() {
             return Err(DecodeError::InvalidField);
         }
         Ok(rec)
+    }
+
+    /// Whether the fields applied to readings are within what a part can have (far wider than
+    /// any acceptance, so that only a crafted or corrupted record with a right CRC fails): `K`
+    /// and `M` within 0.5 of the identity, the gyro bias within 4000 °/s and its tempco within
+    /// 1 °/s/°C, the accelerometer's offset within 32 g, the temperature within −60..150 °C, the
+    /// magnetometer's `A` within 10 and its offset within 5000 µT, the setup's rate within
+    /// 0..10 kHz and its ranges within 0..4000 °/s and 0..32 g. Readings within a full scale then
+    /// stay finite through every correction (a fuzzed `K` of 3.4e38 gave infinite rates).
+    fn plausible(&self) -> bool {
+        let near_identity = |m: &Mat3| (0..9).all(|i| (m[i / 3][i % 3] - if i % 4 == 0 { 1.0 } else { 0.0 }).abs() <= 0.5);
+        let within = |v: &[f32], limit: f32| v.iter().all(|x| x.abs() <= limit);
+        let s = &self.setup;
+        near_identity(&self.gyro_k)
+            && near_identity(&self.accel_m)
+            && within(&self.gyro_bias_dps, 4000.0)
+            && within(&self.accel_offset_g, 32.0)
+            && self.temp_c.is_none_or(|t| (-60.0..=150.0).contains(&t))
+            && self.tempco.is_none_or(|c| within(&c.dps_per_c, 1.0))
+            && self.mag.is_none_or(|m| within(m.a.as_flattened(), 10.0) && within(&m.offset_ut, 5000.0))
+            && s.odr_hz > 0.0
+            && s.odr_hz <= 10_000.0
+            && s.gyro_range_dps > 0.0
+            && s.gyro_range_dps <= 4000.0
+            && s.accel_range_g > 0.0
+            && s.accel_range_g <= 32.0
     }
 }
 
@@ -775,6 +801,20 @@ pub(crate) mod tests {
         let mut bytes = sample().encode().unwrap();
         bytes[36..40].copy_from_slice(&f32::NAN.to_le_bytes());
         assert_eq!(Record::decode(&re_crc(bytes)), Err(DecodeError::InvalidField));
+    }
+
+    #[test]
+    fn a_finite_field_beyond_what_a_part_can_have_is_never_decoded() {
+        // Found by the record fuzz target (host-tests/fuzz): K[0][1] = 3.4e38 with a good CRC
+        // loaded, and turned every reading into an infinite rate.
+        for (at, v) in [(24, f32::MAX), (20, 1.6), (56, 4001.0), (72, 0.6), (16, 151.0)] {
+            let mut bytes = sample().encode().unwrap();
+            bytes[at..at + 4].copy_from_slice(&v.to_le_bytes());
+            assert_eq!(Record::decode(&re_crc(bytes)), Err(DecodeError::InvalidField), "{v} at {at}");
+        }
+        let mut bytes = sample().encode().unwrap();
+        bytes[20..24].copy_from_slice(&1.4f32.to_le_bytes());
+        assert!(Record::decode(&re_crc(bytes)).is_ok(), "a K of 1.4 is a part's");
     }
 
     #[test]

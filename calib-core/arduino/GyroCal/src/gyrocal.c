@@ -71,6 +71,39 @@ static void identity(struct gyrocal *cal, enum gyrocal_status status) {
     }
 }
 
+static bool within(const float *v, int n, float limit) {
+    for (int i = 0; i < n; i++) {
+        if (!(v[i] <= limit && v[i] >= -limit)) {
+            return false;
+        }
+    }
+    return true;
+}
+
+static bool near_identity(const float m[3][3]) {
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) {
+            float d = m[i][j] - (i == j ? 1.0f : 0.0f);
+            if (!(d <= 0.5f && d >= -0.5f)) {
+                return false;
+            }
+        }
+    }
+    return true;
+}
+
+/* The fields applied to readings within what a part can have, as calib-core's
+ * Record::plausible: readings within a full scale then stay finite through every correction. */
+static bool plausible(const struct gyrocal *cal) {
+    const struct gyrocal_setup *s = &cal->setup;
+    return near_identity(cal->gyro_k) && near_identity(cal->accel_m) && within(cal->gyro_bias_dps, 3, 4000.0f) &&
+           within(cal->accel_offset_g, 3, 32.0f) && (!cal->temp_known || (cal->temp_c >= -60.0f && cal->temp_c <= 150.0f)) &&
+           (!cal->tempco_known || within(cal->tempco_dps_per_c, 3, 1.0f)) &&
+           (!cal->mag_known || (within(&cal->mag_a[0][0], 9, 10.0f) && within(cal->mag_offset_ut, 3, 5000.0f))) &&
+           s->odr_hz > 0.0f && s->odr_hz <= 10000.0f && s->gyro_range_dps > 0.0f && s->gyro_range_dps <= 4000.0f &&
+           s->accel_range_g > 0.0f && s->accel_range_g <= 32.0f;
+}
+
 /* Decodes one page into `cal`; false when it holds no valid record. */
 static bool decode(const uint8_t *b, struct gyrocal *cal) {
     static const uint8_t magic[4] = {'G', 'Y', 'R', 'C'};
@@ -171,7 +204,7 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
             }
         }
     }
-    return r.finite;
+    return r.finite && plausible(cal);
 }
 
 static bool erased(const uint8_t *b) {
