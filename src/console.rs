@@ -3,7 +3,7 @@
 
 use super::COMMANDS_PER_TICK;
 use calib_core::formats::export::Format;
-use calib_core::formats::protocol::{self, RecordLine};
+use calib_core::formats::protocol::{self, Ignored, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::text::Level as Log;
 use calib_core::procedure::{Report, Sample};
@@ -33,6 +33,10 @@ pub(crate) struct Console {
     usb_dropped_reported: u32,
     /// When the dropped bytes were last reported (s).
     usb_dropped_at: f64,
+    /// Commands not carried out since boot, the counts last logged, and when (s).
+    ignored: Ignored,
+    ignored_reported: Ignored,
+    ignored_at: f64,
 }
 
 // The methods are `#[inline(never)]`: inlined at each call site they cost 1.5 KiB of flash.
@@ -40,7 +44,17 @@ impl Console {
     /// No USB yet: it starts once VBUS is present.
     pub(crate) fn new(usbd: pac::USBD, ficr: &pac::FICR) -> Self {
         let serial = usb::serial_number(ficr);
-        Self { usb: None, usbd: Some(usbd), link: Link::new(), serial, usb_dropped_reported: 0, usb_dropped_at: f64::NEG_INFINITY }
+        Self {
+            usb: None,
+            usbd: Some(usbd),
+            link: Link::new(),
+            serial,
+            usb_dropped_reported: 0,
+            usb_dropped_at: f64::NEG_INFINITY,
+            ignored: Ignored::default(),
+            ignored_reported: Ignored::default(),
+            ignored_at: f64::NEG_INFINITY,
+        }
     }
 
     /// The port while its link is up.
@@ -111,6 +125,33 @@ impl Console {
         }
     }
 
+    /// `c` presses that did nothing: a calibration was running.
+    pub(crate) fn ignored_running(&mut self, n: u32) {
+        self.ignored.running += n;
+    }
+
+    /// A command that did not fit in this tick (the button's press took its place).
+    pub(crate) fn ignored_beyond_tick(&mut self, n: u32) {
+        self.ignored.beyond_tick += n;
+    }
+
+    /// Logs the commands ignored since boot when they changed, at most once a second, until a
+    /// line of them reached the RTT buffer whole (a frame the full buffer dropped is said again).
+    #[inline(never)]
+    pub(crate) fn report_ignored(&mut self, now: f64) {
+        if self.ignored == self.ignored_reported || now - self.ignored_at < 1.0 {
+            return;
+        }
+        let mut line = heapless::String::<LINE>::new();
+        let _ = protocol::ignored(&mut line, self.ignored, COMMANDS_PER_TICK as u32);
+        let dropped = gyrocal_fw::rtt::dropped_bytes();
+        self.send(Log::Warn, &line);
+        if gyrocal_fw::rtt::dropped_bytes() == dropped {
+            self.ignored_reported = self.ignored;
+        }
+        self.ignored_at = now;
+    }
+
     /// The stored calibration (`s`): its line, the JSON line, the C snippet.
     #[inline(never)]
     pub(crate) fn stored(&mut self, rec: Option<&Record>) {
@@ -158,9 +199,7 @@ impl Console {
             defmt::info!("USB: 1200-baud touch: entering the bootloader (System OFF, wake at once)");
             usb::enter_bootloader(power);
         }
-        if refused > 0 {
-            self.say(Log::Warn, format_args!("USB: {refused} command(s) ignored: more than {} in one tick", COMMANDS_PER_TICK));
-        }
+        self.ignored.beyond_tick += refused;
         let Some(u) = self.port() else { return };
         let (dropped, idle) = (u.out.dropped(), u.out.is_empty() && u.listening());
         if dropped != self.usb_dropped_reported && idle && now - self.usb_dropped_at >= 1.0 {

@@ -422,9 +422,10 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
         if commands.insert(0, c).is_err() {
             commands.pop();
             let _ = commands.insert(0, c);
-            io.console.send(Log::Warn, "USB: a command ignored: the button press came in the same tick");
+            io.console.ignored_beyond_tick(1);
         }
     }
+    let mut ignored = 0u32;
     for c in commands {
         match c {
             Command::Calibrate => {
@@ -434,7 +435,9 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
                     let _ = protocol::plan(&mut line, rig as usize, hand as usize);
                     io.console.send(Log::Info, &line);
                 }
-                procedure.handle_button(now);
+                if !procedure.handle_button(now) {
+                    ignored += 1;
+                }
             }
             Command::RawLog => {
                 sensing.raw = !sensing.raw;
@@ -462,6 +465,8 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
             Command::Help => serial::HELP.iter().for_each(|l| io.console.send(Log::Info, l)),
         }
     }
+    io.console.ignored_running(ignored);
+    io.console.report_ignored(now);
 }
 
 /// The periodic status lines: the calibrated rate once a second, and the RTT bytes dropped while

@@ -25,6 +25,7 @@
 //!   enters the bootloader with [`enter_bootloader`].
 
 use crate::serial::{Command, Outbox, Touch, GPREGRET_SERIAL_BOOTLOADER};
+use core::sync::atomic::{compiler_fence, Ordering};
 use nrf52840_hal::pac;
 use usb_device::bus::UsbBusAllocator;
 use usb_device::device::{StringDescriptors, UsbDevice, UsbDeviceBuilder, UsbDeviceState, UsbVidPid};
@@ -90,6 +91,33 @@ pub fn vbus(power: &pac::POWER) -> bool {
 fn usbd() -> &'static pac::usbd::RegisterBlock {
     // SAFETY: register accesses only; the USBD's state machine is this module's alone.
     unsafe { &*pac::USBD::ptr() }
+}
+
+/// Reads the packet waiting at bulk OUT endpoint `ep` (1–7), if one does, as embassy-nrf does
+/// since embassy-rs/embassy#6688: the end of its EasyDMA (ENDEPOUT) arms the endpoint for the
+/// next packet by itself, so SIZE.EPOUT is not written after it. nrf-usbd 0.3's `read` writes
+/// it, and that discards a packet the host delivered in between (silent loss under a fast host:
+/// 4 of 11 back-to-back packets on the virtual board). The DMA of ≤ 64 bytes is waited for a
+/// bounded number of polls.
+fn read_out(ep: usize, buf: &mut [u8; PACKET]) -> Option<usize> {
+    let r = usbd();
+    if ep == 0 || ep > 7 || r.epdatastatus.read().bits() & (1 << (16 + ep)) == 0 {
+        return None;
+    }
+    let size = (r.size.epout[ep].read().bits() as usize).min(PACKET);
+    // SAFETY: write-1-to-clear of this endpoint's bit; the DMA targets `buf`, which outlives it
+    // (it is waited for below), with MAXCNT = SIZE as the PS requires.
+    r.epdatastatus.write(|w| unsafe { w.bits(1 << (16 + ep)) });
+    let dma = [&r.epout0, &r.epout1, &r.epout2, &r.epout3, &r.epout4, &r.epout5, &r.epout6, &r.epout7][ep];
+    dma.ptr.write(|w| unsafe { w.bits(buf.as_mut_ptr() as u32) });
+    dma.maxcnt.write(|w| unsafe { w.bits(size as u32) });
+    compiler_fence(Ordering::Release);
+    r.events_endepout[ep].reset();
+    r.tasks_startepout[ep].write(|w| w.tasks_startepout().set_bit());
+    let done = (0..10_000).any(|_| r.events_endepout[ep].read().bits() != 0);
+    r.events_endepout[ep].reset();
+    compiler_fence(Ordering::Acquire);
+    done.then_some(size)
 }
 
 /// The undocumented registers of nrfx's USBD errata workarounds (nrf52_erratas.h).
@@ -307,7 +335,7 @@ impl Usb {
             self.awaiting_reset = false;
         }
         let mut buf = [0u8; PACKET];
-        if let Ok(n) = self.acm.read_packet(&mut buf) {
+        if let Some(n) = read_out(self.acm.read_ep().address().index(), &mut buf) {
             buf[..n].iter().filter_map(|&b| Command::decode(b)).for_each(&mut command);
         }
         if !self.listening() {

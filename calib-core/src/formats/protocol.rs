@@ -119,6 +119,13 @@ pub enum Event<'a> {
         /// Bytes.
         bytes: u32,
     },
+    /// [`ignored`].
+    Ignored {
+        /// The counts since boot.
+        n: Ignored,
+        /// The commands one loop tick takes.
+        limit: u32,
+    },
     /// [`sensor_ready`].
     SensorReady {
         /// Output data rate (Hz).
@@ -190,6 +197,32 @@ pub fn usb_dropped(w: &mut impl Write, bytes: u32) -> fmt::Result {
 fn parse_usb_dropped(l: &str) -> Option<Event<'_>> {
     let n = between(l, "USB: ", " bytes dropped since boot (the host was not reading)")?;
     Some(Event::UsbDropped { bytes: n.parse().ok()? })
+}
+
+/// Commands received and not carried out, since boot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Ignored {
+    /// Beyond the commands one loop tick takes (a host sending faster than the board reads).
+    pub beyond_tick: u32,
+    /// `c` (or the button) while a calibration ran and was not waiting for the re-clamp.
+    pub running: u32,
+}
+
+/// Writes the commands ignored since boot (`limit`: the commands one loop tick takes). Counts
+/// since boot, so that a later line makes up for one a full log dropped.
+pub fn ignored(w: &mut impl Write, n: Ignored, limit: u32) -> fmt::Result {
+    write!(w, "commands ignored since boot: {} beyond the {limit} a loop tick takes, {} c {IGNORED_RUNNING}", n.beyond_tick, n.running)
+}
+
+const IGNORED_RUNNING: &str = "while a calibration ran (a press only ends its re-clamp step)";
+
+fn parse_ignored(l: &str) -> Option<Event<'_>> {
+    let rest = between(l, "commands ignored since boot: ", IGNORED_RUNNING)?;
+    let (beyond, rest) = rest.split_once(" beyond the ")?;
+    let (limit, running) = rest.split_once(" a loop tick takes, ")?;
+    let running = running.strip_suffix(" c ")?;
+    let n = Ignored { beyond_tick: beyond.parse().ok()?, running: running.parse().ok()? };
+    Some(Event::Ignored { n, limit: limit.parse().ok()? })
 }
 
 /// Writes `LSM9DS1 ready: <odr> Hz, +-<gyro> dps, +-<accel> g`.
@@ -334,7 +367,9 @@ pub fn parse(line: &str) -> Option<Event<'_>> {
 
 /// The lines that start with fixed words and go on with numbers or text.
 fn parse_prefixed(l: &str) -> Option<Event<'_>> {
-    [parse_failed, parse_phase, parse_pose, parse_plan, parse_usb_dropped, parse_sensor_ready, parse_record].iter().find_map(|p| p(l))
+    [parse_failed, parse_phase, parse_pose, parse_plan, parse_usb_dropped, parse_ignored, parse_sensor_ready, parse_record]
+        .iter()
+        .find_map(|p| p(l))
 }
 
 #[cfg(test)]
@@ -402,6 +437,10 @@ mod tests {
     fn the_usb_and_sensor_lines_round_trip() {
         for bytes in [0, 4096, u32::MAX] {
             assert_eq!(parse(&line(|s| usb_dropped(s, bytes))), Some(Event::UsbDropped { bytes }));
+        }
+        for (beyond_tick, running) in [(0, 0), (56, 1), (u32::MAX, u32::MAX)] {
+            let n = Ignored { beyond_tick, running };
+            assert_eq!(parse(&line(|s| ignored(s, n, 8))), Some(Event::Ignored { n, limit: 8 }));
         }
         let l = line(|s| sensor_ready(s, 119, 500, 2));
         assert_eq!(l, "LSM9DS1 ready: 119 Hz, +-500 dps, +-2 g");

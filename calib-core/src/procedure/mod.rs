@@ -392,19 +392,25 @@ impl Procedure {
     }
 
     /// The button was pressed: starts a calibration (from idle, done or failed) or confirms
-    /// that the board is back on the shaft.
-    pub fn handle_button(&mut self, t_s: f64) {
-        match self.step {
-            Step::Idle | Step::Finished(_) => self.start(t_s),
+    /// that the board is back on the shaft. False: a press that does nothing in this phase (a
+    /// calibration is running and not waiting for the re-clamp), for the shell to report.
+    pub fn handle_button(&mut self, t_s: f64) -> bool {
+        let acted = match self.step {
+            Step::Idle | Step::Finished(_) => {
+                self.start(t_s);
+                true
+            }
             Step::Reattach => {
                 self.fit_mag_pending();
                 if self.running() {
                     self.begin_rig(t_s);
                 }
+                true
             }
-            _ => {}
-        }
+            _ => false,
+        };
         self.settle();
+        acted
     }
 
     /// The sensor now runs at `setup` (a console command reconfigured it): the calibrations from

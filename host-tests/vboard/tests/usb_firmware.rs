@@ -357,3 +357,146 @@ fn calib_port_on_the_pty_calibrates_the_board_and_reads_back_its_json_line() {
     export::write(&mut c, &stored, Format::C).unwrap();
     assert_eq!(lines[1..].iter().take(c.lines().count()).copied().collect::<Vec<_>>(), c.lines().collect::<Vec<_>>(), "{text}");
 }
+
+/// Bytes of a xorshift64* stream (the same every run).
+fn noise(state: &mut u64, n: usize) -> Vec<u8> {
+    (0..n)
+        .map(|_| {
+            *state ^= *state >> 12;
+            *state ^= *state << 25;
+            *state ^= *state >> 27;
+            (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 56) as u8
+        })
+        .collect()
+}
+
+/// The last count of ignored commands in the board's RTT log (zeros before the first).
+fn last_ignored(b: &Testbed) -> protocol::Ignored {
+    b.mcu
+        .log
+        .iter()
+        .rev()
+        .find_map(|l| match protocol::parse(message(l)) {
+            Some(Event::Ignored { n, limit: 8 }) => Some(n),
+            _ => None,
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn random_bytes_at_full_speed_for_60_s_of_a_calibration_reset_nothing_spoil_nothing_and_every_ignored_command_is_said() {
+    const PER_TICK: usize = 8;
+    let (mut b, host) = usb_bench();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    assert!(matches!(b.calibrate(600.0), vboard::testbed::Outcome::Done));
+    let stored = b.stored().expect("a record to keep");
+    host.read();
+    b.press(0.2);
+    // The press is taken at its release: a tick later, before the flood.
+    b.run_for(0.2);
+    let (before, packets_from) = (last_ignored(&b), host.with(|h| h.out_packets.len()));
+    let (mut state, mut sent) = (0x9E37_79B9_7F4A_7C15u64, Vec::new());
+    let t0 = b.mcu.now();
+    let mut next_c = 0.0;
+    while b.mcu.now() - t0 < 60.0 {
+        if host.with(|h| h.pending_tx()) < 1024 {
+            // Random bytes but `c`, which starts the next calibration once this one is done;
+            // one `c` every 2 s of the first 20 (the calibration runs): ignored, and said.
+            let mut chunk: Vec<u8> = noise(&mut state, 4096)
+                .into_iter()
+                .map(|x| if Command::decode(x) == Some(Command::Calibrate) { b'x' } else { x })
+                .collect();
+            if b.mcu.now() - t0 >= next_c && next_c < 20.0 {
+                chunk[0] = Command::Calibrate.byte();
+                next_c += 2.0;
+            }
+            host.write(&chunk);
+            sent.extend(chunk);
+        }
+        assert_eq!(b.run_for(0.05), vboard::mcu::Stop::Time, "the board stopped");
+        host.read();
+    }
+    let flood_s = b.mcu.now() - t0;
+    while host.with(|h| h.pending_tx()) > 0 && b.mcu.now() - t0 < 70.0 {
+        b.run_for(0.05);
+        host.read();
+    }
+    // The counts are logged at most once a second.
+    b.run_for(2.0);
+    assert_eq!(b.mcu.watchdog_resets, 0, "the watchdog reset the board");
+    let packets: Vec<u16> = host.with(|h| h.out_packets[packets_from..].to_vec());
+    let accepted: usize = packets.iter().map(|&n| n as usize).sum();
+    // Each packet is read in one loop tick: its first 8 commands are taken, the rest refused.
+    let (mut at, mut refused, mut c_taken) = (0, 0u64, 0u64);
+    for &n in &packets {
+        let cmds: Vec<Command> = sent[at..at + n as usize].iter().filter_map(|&x| Command::decode(x)).collect();
+        refused += cmds.len().saturating_sub(PER_TICK) as u64;
+        c_taken += cmds.iter().take(PER_TICK).filter(|&&c| c == Command::Calibrate).count() as u64;
+        at += n as usize;
+    }
+    let after = last_ignored(&b);
+    let (said_too_many, said_running) = ((after.beyond_tick - before.beyond_tick) as u64, (after.running - before.running) as u64);
+    println!(
+        "MEASURED usb flood: {accepted} B in {flood_s:.1} s of board time ({:.1} kB/s, {} packets); {refused} commands refused, {said_too_many} said; {said_running} of {c_taken} c said ignored while running",
+        accepted as f64 / flood_s / 1e3,
+        packets.len()
+    );
+    // One 64-byte packet per loop tick (~5 ms): ~12 kB/s.
+    assert!(accepted as f64 / flood_s > 8e3, "the console took {accepted} B in {flood_s:.1} s");
+    assert_eq!(said_too_many, refused, "every command over a tick's 8 is said, by count");
+    assert_eq!(said_running, c_taken, "every c taken while the calibration ran is said");
+    assert!(c_taken >= 5, "{c_taken} c taken");
+    // The calibration the button started (the stored accelerometer calibration is reused: no
+    // hand-held step) ends and stores one record, sound; nothing else was stored.
+    assert!(b.run_until_done(120.0), "the calibration did not end");
+    let now = b.stored().expect("a record");
+    assert_eq!(now.seq, stored.seq + 1, "one record stored");
+    // The same calibration without the flood (the emulation is deterministic): K within 3σ.
+    let (mut quiet, quiet_host) = usb_bench();
+    quiet_host.wait_enumerated(&mut quiet.mcu, 5.0).unwrap();
+    assert!(matches!(quiet.calibrate(600.0), vboard::testbed::Outcome::Done));
+    quiet.press(0.2);
+    assert!(quiet.run_until_done(180.0));
+    let clean = quiet.stored().unwrap();
+    for i in 0..3 {
+        let (k, k0, s) = (now.gyro_k[i][i], clean.gyro_k[i][i], clean.sigma_k[i][i]);
+        assert!((k - k0).abs() <= 3.0 * s, "axis {i}: K {k} with the flood, {k0} without (1σ {s})");
+    }
+    // The flood's answers overflowed the outbox: the host is told how much it missed, and the
+    // console still answers.
+    let text = read_for(&mut b, &host, 2.0);
+    assert!(events(&text).iter().any(|e| matches!(e, Some(Event::UsbDropped { bytes }) if *bytes > 0)), "{text:?}");
+    host.write(&[Command::Stored.byte()]);
+    let text = read_for(&mut b, &host, 1.0);
+    assert!(events(&text).contains(&Some(Event::Record { line: RecordLine::Stored, seq: now.seq, method: now.method })), "{text:?}");
+}
+
+#[test]
+fn a_host_that_opens_and_closes_the_port_200_times_resets_nothing_and_is_answered_after() {
+    let (mut b, host) = usb_bench();
+    host.wait_enumerated(&mut b.mcu, 5.0).unwrap();
+    let loops = b.mcu.instructions();
+    for i in 0..200 {
+        // As a terminal program does: line coding (never 1200 baud), DTR up, a command, DTR down.
+        host.set_line_coding([115_200, 9_600, 57_600, 230_400][i % 4]);
+        host.set_dtr(true);
+        if i % 10 == 0 {
+            host.write(&[Command::Help.byte()]);
+        }
+        assert_eq!(b.run_for(0.02), vboard::mcu::Stop::Time);
+        host.read();
+        host.set_dtr(false);
+        assert_eq!(b.run_for(0.01), vboard::mcu::Stop::Time);
+    }
+    assert_eq!(b.mcu.watchdog_resets, 0);
+    assert!(b.mcu.instructions() - loops > 1_000_000, "the firmware kept running");
+    assert!(host.errors().is_empty(), "{:?}", host.errors());
+    host.set_line_coding(115_200);
+    host.set_dtr(true);
+    b.run_for(0.1);
+    host.read();
+    host.write(&[Command::Help.byte()]);
+    let text = read_for(&mut b, &host, 0.5);
+    assert!(events(&text).starts_with(&help()), "{text:?}");
+    assert_eq!(b.stored(), None, "nothing was stored");
+}

@@ -116,6 +116,7 @@ impl Host {
                 self.out_toggle = !self.out_toggle;
                 self.tx.drain(..n);
                 self.tx_total += n as u64;
+                self.out_packets.push(n as u16);
                 self.out_next = Next::At(self.now + txn_s(n));
             }
             Handshake::Nak => self.out_next = Next::AfterChange(dev.generation),

@@ -132,6 +132,8 @@ pub struct Host {
     pub rx_total: u64,
     /// Bytes sent to the device so far.
     pub tx_total: u64,
+    /// The size of each bulk OUT packet the device acknowledged, in order (B).
+    pub out_packets: Vec<u16>,
     /// IN packets ignored because their data toggle repeated the last one.
     pub toggle_errors: u32,
     /// Enumerations completed.
@@ -187,6 +189,7 @@ impl Host {
             log: vec![],
             rx_total: 0,
             tx_total: 0,
+            out_packets: Vec::new(),
             toggle_errors: 0,
             enumerations: 0,
             line: (0, 0),
