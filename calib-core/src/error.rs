@@ -228,7 +228,7 @@ impl fmt::Display for Error {
                 "{count} sample(s) lost (FIFO overrun or a failed read): the gyro integral has a gap; keep the host reading and rerun"
             ),
             Error::SensorFault => f.write_str("the sensor stopped answering during the calibration (I2C error): check the board, rerun"),
-            Error::ResultNotFinite => f.write_str("the result holds a NaN or an infinite number: not stored"),
+            Error::ResultNotFinite => f.write_str("the result holds a NaN, an infinite number or a value beyond what a part can have: not stored"),
             Error::TooFewAxes { have, need } => write!(
                 f,
                 "moves about {have} rotation axes, the full K needs {need} non-coplanar: use at least 2 tilt settings with tilt moves between them"

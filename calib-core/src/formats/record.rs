@@ -89,14 +89,15 @@ pub enum StoreError {
     NotFinite,
 }
 
-/// A record holding a NaN or an infinite number: never encoded, stored, applied or exported.
+/// A record holding a NaN, an infinite number or a value beyond what a part can have
+/// ([`Record::check_finite`]): never encoded, stored, applied or exported.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct NotFinite;
 
 impl core::fmt::Display for NotFinite {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str("a field of the record is NaN or infinite")
+        f.write_str("a field of the record is NaN, infinite or beyond what a part can have")
     }
 }
 
@@ -171,7 +172,7 @@ impl core::fmt::Display for StoreError {
             StoreError::Verify => "the record read back differs from the one written",
             StoreError::RegionTooSmall => "the storage region is smaller than two pages",
             StoreError::Unavailable => "no storage available",
-            StoreError::NotFinite => "the record holds a NaN or an infinite number",
+            StoreError::NotFinite => "the record holds a NaN, an infinite number or a value beyond what a part can have",
         })
     }
 }
@@ -334,7 +335,9 @@ impl Record {
         core::array::from_fn(|i| self.gyro_k[i][0] * d[0] + self.gyro_k[i][1] * d[1] + self.gyro_k[i][2] * d[2])
     }
 
-    /// Every `f32` field (the temperature and the tempco if known) is finite.
+    /// Every `f32` field (the temperature and the tempco if known) is finite, and the fields
+    /// applied to readings are within what a part can have ([`Record::plausible`]): what is
+    /// stored is what loads.
     pub fn check_finite(&self) -> Result<(), NotFinite> {
         let tempco = self.tempco_f32s();
         let scalars = [
@@ -362,7 +365,7 @@ impl Record {
             &tempco,
             &mag,
         ];
-        if all.iter().all(|s| s.iter().all(|v| v.is_finite())) {
+        if all.iter().all(|s| s.iter().all(|v| v.is_finite())) && self.plausible() {
             Ok(())
         } else {
             Err(NotFinite)
@@ -400,7 +403,8 @@ impl Record {
         v
     }
 
-    /// Encodes to the version-5 layout; a record with a NaN or infinite field is refused.
+    /// Encodes to the version-5 layout; a record with a NaN, infinite or implausible field is
+    /// refused ([`Record::check_finite`]).
     pub fn encode(&self) -> Result<[u8; LEN], NotFinite> {
         self.check_finite()?;
         let mut w = Writer { buf: [0; LEN], at: 0 };
@@ -569,7 +573,7 @@ impl Record {
                 return Err(DecodeError::InvalidField);
             }
         }
-        if !r.all_finite || !rec.plausible() {
+        if !r.all_finite || rec.check_finite().is_err() {
             return Err(DecodeError::InvalidField);
         }
         Ok(rec)
@@ -582,7 +586,7 @@ impl Record {
     /// magnetometer's `A` within 10 and its offset within 5000 µT, the setup's rate within
     /// 0..10 kHz and its ranges within 0..4000 °/s and 0..32 g. Readings within a full scale then
     /// stay finite through every correction (a fuzzed `K` of 3.4e38 gave infinite rates).
-    fn plausible(&self) -> bool {
+    pub fn plausible(&self) -> bool {
         let near_identity = |m: &Mat3| (0..9).all(|i| (m[i / 3][i % 3] - if i % 4 == 0 { 1.0 } else { 0.0 }).abs() <= 0.5);
         let within = |v: &[f32], limit: f32| v.iter().all(|x| x.abs() <= limit);
         let s = &self.setup;

@@ -11,17 +11,36 @@ fn finite() -> impl Strategy<Value = f32> {
     prop::num::f32::NORMAL | prop::num::f32::ZERO | prop::num::f32::SUBNORMAL
 }
 
+/// A 3×3 matrix within `d` of the identity (`Record::plausible`'s 0.5).
+fn near_identity(d: f32) -> impl Strategy<Value = [f32; 9]> {
+    prop::array::uniform9(-d..=d).prop_map(|mut v| {
+        for i in [0, 4, 8] {
+            v[i] += 1.0;
+        }
+        v
+    })
+}
+
 prop_compose! {
+    /// Any record a part can have: the fields applied to readings within `Record::plausible`'s
+    /// bounds, every other field any finite number.
     fn any_record()(
-        seq in any::<u32>(), temp_c in prop::option::of(finite()), k in prop::array::uniform9(finite()),
-        b in prop::array::uniform3(finite()), m in prop::array::uniform9(finite()),
-        o in prop::array::uniform3(finite()), s in prop::array::uniform9(finite()),
+        seq in any::<u32>(), temp_c in prop::option::of(-60.0f32..=150.0), k in near_identity(0.5),
+        b in prop::array::uniform3(-4000.0f32..=4000.0), m in near_identity(0.5),
+        o in prop::array::uniform3(-32.0f32..=32.0), s in prop::array::uniform9(finite()),
         q in prop::array::uniform8(finite()), method in 0u8..3, model in 0u8..3,
-        poses in any::<u8>(), rows in any::<u16>(), setup in prop::array::uniform3(finite()),
-        tempco in prop::option::of(prop::array::uniform8(finite())),
+        poses in any::<u8>(), rows in any::<u16>(),
+        setup in (1e-3f32..=10_000.0, 1e-3f32..=4000.0, 1e-3f32..=32.0),
+        tempco in prop::option::of((prop::array::uniform3(-1.0f32..=1.0), prop::array::uniform5(finite()))),
         part in prop::option::of((-64i8..64, any::<bool>())),
-        mag in prop::option::of((prop::array::uniform20(finite()), any::<u16>(), any::<u8>())),
+        mag in prop::option::of((prop::array::uniform9(-10.0f32..=10.0), prop::array::uniform3(-5000.0f32..=5000.0), prop::array::uniform8(finite()), any::<u16>(), any::<u8>())),
     ) -> Record {
+        let setup = [setup.0, setup.1, setup.2];
+        let tempco = tempco.map(|(c, t)| [c[0], c[1], c[2], t[0], t[1], t[2], t[3], t[4]]);
+        let mag = mag.map(|(a, o, q, samples, poses)| {
+            let v: [f32; 20] = core::array::from_fn(|i| if i < 9 { a[i] } else if i < 12 { o[i - 9] } else { q[i - 12] });
+            (v, samples, poses)
+        });
         Record {
             seq, temp_c,
             gyro_k: [[k[0], k[1], k[2]], [k[3], k[4], k[5]], [k[6], k[7], k[8]]],
@@ -61,6 +80,13 @@ proptest! {
         // Every truncation is reported as such.
         let truncated = matches!(Record::decode(&bytes[..LEN - 1]), Err(DecodeError::Truncated { .. }));
         prop_assert!(truncated);
+    }
+
+    #[test]
+    fn a_record_beyond_what_a_part_can_have_is_never_encoded(r in any_record(), at in 0usize..9, v in 1.01f32..1e30) {
+        let mut bad = r;
+        bad.gyro_k[at / 3][at % 3] += if at % 4 == 0 { v } else { -v };
+        prop_assert!(bad.encode().is_err());
     }
 
     #[test]
