@@ -299,8 +299,10 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
     let field = |i: usize| text.split(',').nth(i).unwrap_or("").trim();
     let num = |c: usize| -> Result<f64, LogError> {
         let i = if c == 8 { cols.tilt.unwrap_or(usize::MAX) } else { cols.idx[c] };
+        // Finite as the `f32` the row holds too (1e300 is a finite `f64`, an infinite `f32`:
+        // found by the log reader's fuzz target).
         match field(i).parse::<f64>() {
-            Ok(v) if v.is_finite() => Ok(v),
+            Ok(v) if (v as f32).is_finite() => Ok(v),
             _ => Err(LogError::BadNumber { line, column: COLUMNS[c] }),
         }
     };
@@ -324,7 +326,7 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
             let mut m = [0.0f32; 3];
             for ((v, &i), column) in m.iter_mut().zip(&idx).zip(MAG_COLUMNS) {
                 *v = match field(i).parse::<f64>() {
-                    Ok(x) if x.is_finite() => x as f32,
+                    Ok(x) if (x as f32).is_finite() => x as f32,
                     _ => return Err(LogError::BadNumber { line, column }),
                 };
             }

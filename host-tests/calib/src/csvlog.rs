@@ -192,6 +192,9 @@ mod tests {
         assert!(matches!(parse(&format!("{h}0,1,2\n")), Err(LogError::ShortRow { line: 2, .. })));
         assert_eq!(parse(&format!("{h}0,a,0,1,0,0,0,,\n")), Err(LogError::BadNumber { line: 2, column: "ax_g" }));
         assert_eq!(parse(&format!("{h}0,NaN,0,1,0,0,0,,\n")), Err(LogError::BadNumber { line: 2, column: "ax_g" }));
+        // Finite as an f64, infinite as the f32 a row holds (found by the log reader's fuzz target).
+        assert_eq!(parse(&format!("{h}0,-1e300,0,1,0,0,0,,\n")), Err(LogError::BadNumber { line: 2, column: "ax_g" }));
+        assert_eq!(parse(&format!("{h}0,0,0,1,0,0,4e38,,\n")), Err(LogError::BadNumber { line: 2, column: "gz_dps" }));
         assert_eq!(parse(&format!("{h}1,0,0,1,0,0,0,,\n1,0,0,1,0,0,0,,\n")), Err(LogError::NonMonotonicTime { line: 3 }));
     }
 
