@@ -57,7 +57,9 @@ fn run_all(runs: &[Run]) -> Result<Vec<String>, String> {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
                 let Some(r) = runs.get(i) else { break };
                 eprintln!("results: {} {}", r.bin, r.args.join(" "));
+                let t0 = std::time::Instant::now();
                 let res = Command::new(dir.join(r.bin)).args(&r.args).current_dir(root()).output();
+                eprintln!("results: {} {}: {:.1} s", r.bin, r.args.join(" "), t0.elapsed().as_secs_f64());
                 let res = match res {
                     Ok(o) if o.status.success() => {
                         let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
