@@ -14,6 +14,11 @@ struct Job {
     emulator: bool,
     /// Builds the firmware: flip-link.
     firmware: bool,
+    /// Run this binary of the build (beside this one) with the arguments, rather than `cargo
+    /// run`: `cargo` then only builds, with the package set the binary itself builds with, so
+    /// that the two share one feature resolution (a `cargo run -p benchmarks` would compile the
+    /// shared crates a second time).
+    exec: Option<&'static str>,
     /// What a first run of an emulator job compiles besides the firmware, and how long it took
     /// on 2 cores (docs/testing.md#a-fresh-machine).
     first_build: Option<&'static str>,
@@ -27,6 +32,7 @@ const JOBS: [Job; 4] = [
         cargo: &["run", "-p", "vboard", "--bin", "demo", "--"],
         emulator: true,
         firmware: true,
+        exec: None,
         first_build: Some("the host crates and the Unicorn emulator from its C sources (about 2 min on 2 cores)"),
     },
     Job {
@@ -50,13 +56,16 @@ const JOBS: [Job; 4] = [
         ],
         emulator: true,
         firmware: true,
+        exec: None,
         first_build: Some("the host crates, the Unicorn emulator from its C sources and the tests (about 4 min on 2 cores)"),
     },
     Job {
         name: "results",
-        cargo: &["run", "-p", "benchmarks", "--bin", "results", "--"],
+        // The package set `results` builds the benchmarks and the demo with.
+        cargo: &["build", "-p", "benchmarks", "-p", "vboard", "--bins"],
         emulator: true,
         firmware: true,
+        exec: Some("results"),
         first_build: Some("the host crates, the Unicorn emulator from its C sources and the benchmarks (about 3 min on 2 cores)"),
     },
     Job {
@@ -64,6 +73,7 @@ const JOBS: [Job; 4] = [
         cargo: &["run", "-p", "calib", "--bin", "gyrocal-flash", "--"],
         emulator: false,
         firmware: true,
+        exec: None,
         first_build: None,
     },
 ];
@@ -115,7 +125,21 @@ fn main() -> ExitCode {
     };
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut cmd = Command::new(cargo);
-    cmd.arg(job.cargo[0]).args(HOST).args(&job.cargo[1..]).args(&rest).current_dir(root()).env("PATH", path);
+    cmd.arg(job.cargo[0]).args(HOST).args(&job.cargo[1..]).current_dir(root()).env("PATH", &path);
+    if let Some(bin) = job.exec {
+        match cmd.status() {
+            Ok(s) if s.success() => {}
+            Ok(s) => return ExitCode::from(s.code().unwrap_or(1).clamp(1, 255) as u8),
+            Err(e) => {
+                eprintln!("gyrocal-setup: cannot run cargo: {e}");
+                return ExitCode::from(1);
+            }
+        }
+        let dir = std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf)).unwrap_or_default();
+        cmd = Command::new(dir.join(bin));
+        cmd.current_dir(root()).env("PATH", &path);
+    }
+    cmd.args(&rest);
     // `cargo run`'s package variables are this crate's, not the command's.
     for (k, _) in std::env::vars_os() {
         let k = k.to_string_lossy();
