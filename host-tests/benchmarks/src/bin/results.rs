@@ -214,7 +214,8 @@ fn paper_section(j: &Value) -> String {
     s += "\nTable III (estimated scale factor under gyro noise):\n\n| axis | noise (°/s) | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n";
     for r in j["table3"]["rows"].as_array().into_iter().flatten() {
         s += &format!(
-            "| {} | {} | {:.4} / {:.4} | {} / {} |\n",
+            // The paper prints its means with 3 decimals.
+            "| {} | {} | {:.4} / {:.3} | {} / {} |\n",
             r["axis"].as_str().unwrap_or("?"),
             f(&r["noise_sd_dps"]),
             f(&r["ours"]["mean"]),
@@ -244,18 +245,25 @@ fn paper_section(j: &Value) -> String {
 
 fn calib_bench_section(j: &Value) -> String {
     let mut s = format!(
-        "## Calib bench\n\n`calib-bench --logs {}`: `gyrocal-calib`'s offline path on simulated logs (diagonal K, scale error in %).\n\n\
-         | servo | ODR (Hz) | RMS | max | mean | failed |\n|---|---|---|---|---|---|\n",
-        j["logs_per_row"]
+        "## Calib bench\n\n`calib-bench --logs {}` (rigs `Variant::HobbyMisaligned` seed {}: servo scale error U(−3, 3) %, gyro \
+         cross-axis misalignment ±0.2°, accelerometer ±0.1°; noise seeds {} + log): `gyrocal-calib`'s offline path on simulated logs of \
+         the procedure, scored on the record it gives (what it prints and exports: the full K its replay of the firmware's procedure \
+         stores, else the diagonal one): `E = Qᵀ K̂ K⁻¹ − I` (RMS over the 9 elements, mean over the logs; the largest |E_ij|); full K: the logs \
+         that gave one; failed: the logs that gave no gyro calibration. The continuous servo's rows replay calib-core's procedure \
+         with a continuous servo, which no firmware build has.\n\n\
+         | servo | ODR (Hz) | path | RMS of E | largest | full K | failed |\n|---|---|---|---|---|---|---|\n",
+        j["logs_per_row"], j["rig_seed"], j["noise_seed"]
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
-            "| {} | {} | {:.4} | {:.4} | {:.4} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} / {} | {} |\n",
             r["servo"].as_str().unwrap_or("?"),
             f(&r["odr_hz"]),
-            f(&r["rms_pct"]),
-            f(&r["max_pct"]),
-            f(&r["mean_pct"]),
+            r["path"].as_str().unwrap_or("?"),
+            e3(f(&r["rms_mean"])),
+            e3(f(&r["max"])),
+            r["full_k"],
+            r["scored"],
             count(&r["failed"])
         );
     }
@@ -350,7 +358,7 @@ fn drift_section(heading: &str, j: &Value) -> String {
 
 `drift-bench` (seed {}, {} rigs per row, {}): the firmware's procedure with the gyro bias constant, drifting as on a \
          board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
-         warm-up wait; E as above, time from the button to the store plus the wait; the bias's temperature coefficient: the runs \
+         warm-up wait; E as above, time from power-on to the store (the harness presses the button 1 s in) plus the wait; the bias's temperature coefficient: the runs \
          that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth; the stored \
          bias (applied with the tempco at the run's last temperature, as a sketch does) against the truth at the run's end, RMS over \
          axes, beside the first rest's alone (what records held before).\n\n\
