@@ -36,7 +36,10 @@ fn positional_servo_at_every_odr_and_several_mounts() {
         let rec = out.stored[0];
         assert_eq!((rec.seq, out.applied.len()), (1, 1));
         let err = max_rel_error(&rec, &rig);
-        assert!(err < 0.003, "ODR {odr}: max scale error {:.4} %", err * 100.0);
+        println!("MEASURED positional ODR {odr}: max scale error {:.4} %", err * 100.0);
+        // 0.003-0.039 % here; the firmware's full K reaches |E| 8.0e-4 on the worst of
+        // rotation-bench's 20 rigs: twice that.
+        assert!(err < 0.0015, "ODR {odr}: max scale error {:.4} %", err * 100.0);
         // Both diagonal estimators ran and reported their quality; with the hand-held moves the
         // full K was stored, each of its 9 elements with a 1σ.
         assert_eq!(out.gyro_results().len(), 2);
@@ -89,6 +92,9 @@ fn second_run_reuses_the_stored_accelerometer_calibration() {
     assert!(first.reports.contains(&Report::Phase(Phase::HandHeld)));
     assert_eq!(second.stored.len(), 1);
     assert_eq!(second.stored[0].seq, 2);
+    // 0.037 % here: a diagonal sweep K (no hand-held step); the sweep's worst over calib-bench's
+    // 10 logs at 119 Hz was 0.16 % (when it scored the sweep): about twice that.
+    println!("MEASURED reused accelerometer: max scale error {:.4} %", max_rel_error(&second.stored[0], &rig) * 100.0);
     assert!(max_rel_error(&second.stored[0], &rig) < 0.003);
 }
 
@@ -102,6 +108,9 @@ fn continuous_rotation_servo() {
         let (out, rig) = calibrate(cfg, pcfg, None, Faults::default());
         assert_eq!(out.error, None, "{:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>());
         let err = max_rel_error(&out.stored[0], &rig);
+        println!("MEASURED continuous seed {seed}: max scale error {:.4} %", err * 100.0);
+        // 0.036-0.038 % here; the same path's worst over calib-bench's 10 continuous logs is
+        // |E| 9.0e-4 (docs/results.md): about three times that.
         assert!(err < 0.003, "seed {seed}: max scale error {:.4} %", err * 100.0);
         // The paper estimator, fed the rate measured from the accelerometer, also works here.
         let paper = out.gyro_results().into_iter().find(|c| c.method == calib_core::estimators::gyro::Method::Paper).unwrap();

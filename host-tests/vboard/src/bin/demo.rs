@@ -184,8 +184,10 @@ fn main() -> ExitCode {
     let ok = stored.is_some() && outcome == Outcome::Done;
     let mag = mag_fields(stored.as_ref(), testbed.mcu.periph.borrow().sensor.rig(), seed);
     // The raw log through the offline path of `calib` (the same code): the same K as the
-    // firmware's record within 0.05 %, and within 0.1 % of the truth (of a full K every element
-    // against the record, E's diagonal against the truth).
+    // firmware's record within 0.005 % (the log's six decimals leave ~1e-4 % between them; a
+    // replay that drifts from the firmware's code breaks this), and within 0.1 % of the truth (of
+    // a full K every element against the record, E's diagonal against the truth; the firmware's
+    // full K reaches 0.08 % on the worst of rotation-bench's 20 rigs).
     if let (Some(text), Some(rec)) = (&raw_text, &stored) {
         // calib's full K when it gives one (the record is then a full K too), else its diagonal.
         let k = calib::csvlog::parse(text)
@@ -211,7 +213,7 @@ fn main() -> ExitCode {
                     ((0..3).map(|i| (k[i][i] as f64 / truth[(i, i)] - 1.0).abs() * 100.0).fold(0.0, f64::max), f64::NAN)
                 };
                 println!("ROUNDTRIP calib_vs_firmware_max_pct={vs_fw:.4} calib_scale_error_pct={vs_truth:.4} calib_cross_axis_error_pct={cross:.4}");
-                if vs_fw > 0.05 || vs_truth > 0.1 {
+                if vs_fw > 0.005 || vs_truth > 0.1 {
                     return ExitCode::from(1);
                 }
             }
