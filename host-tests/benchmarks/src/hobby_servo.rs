@@ -1,5 +1,5 @@
 //! The realistic benchmark of `paper-tables`: the firmware's procedure (the code that ships) on
-//! simulated hobby-servo rigs (servo angle-scale error up to ±3 %, ODR −4 %, accelerometer
+//! simulated hobby-servo rigs (servo angle-scale error up to ±3 %, ODR error U(−5, −2) %, accelerometer
 //! calibrated by the 9-parameter fit on 12 hand-held poses), both gyro estimators compared.
 
 use crate::moments::Moments;
@@ -53,7 +53,7 @@ pub fn trial(cfg: RigConfig, seed: u64) -> Result<Trial, Error> {
 /// Runs `runs` random realistic rigs under each [`Variant`] and prints both estimators side by
 /// side (scale-factor error in %). Returns the JSON summary.
 pub fn compare(runs: usize, seed: u64) -> Value {
-    println!("\nHobby-servo rig ({runs} random rigs per variant; simulated LSM9DS1 at 119 Hz with ODR -4 %, scale,");
+    println!("\nHobby-servo rig ({runs} random rigs per variant; simulated LSM9DS1 at 119 Hz with ODR error U(-5, -2) %, scale,");
     println!("bias, noise, quantisation; servo lag, slew, dead band, vibration; MCU timestamps; accelerometer by our");
     println!("9-parameter fit on 12 hand-held poses). The firmware's procedure (calib-core, default configuration),");
     println!("with a simulated operator: rest and bias; 12 hand-held poses; on the shaft, static poses 0..180..0 deg, moves");

@@ -98,7 +98,8 @@ fn a_log_that_moves_or_is_short_is_named_and_the_cli_writes_json_and_kalibr_yaml
     let mut stuck = rows(cfg, 42, 300.0);
     stuck.iter_mut().for_each(|r| r.gyro_dps[1] = 0.5);
     let a = analyse(&stuck).unwrap();
-    assert!(a.gyro.noise_density[1].value == 0.0 && a.gyro.noise_density[0].value > 0.0, "{:?}", a.gyro.noise_density);
+    // 0 up to rounding (the jittered time stamps leave ~1e-16), finite.
+    assert!(a.gyro.noise_density[1].value.abs() < 1e-12 && a.gyro.noise_density[0].value > 0.0, "{:?}", a.gyro.noise_density);
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("allan");
     std::fs::create_dir_all(&dir).unwrap();
     let (log, yaml) = (dir.join("still.csv"), dir.join("imu.yaml"));

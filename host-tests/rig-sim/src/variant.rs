@@ -32,7 +32,6 @@ impl Variant {
     pub fn config(self, seed: u64, run: usize) -> RigConfig {
         let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(run as u64));
         let mut cfg = RigConfig::realistic(&mut rng);
-        cfg.odr_error = -0.04;
         if self != Variant::HobbyMisaligned {
             cfg.gyro.misalignment = Matrix3::zeros();
             cfg.accel.misalignment = Matrix3::zeros();

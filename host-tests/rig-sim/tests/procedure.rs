@@ -37,7 +37,7 @@ fn positional_servo_at_every_odr_and_several_mounts() {
         assert_eq!((rec.seq, out.applied.len()), (1, 1));
         let err = max_rel_error(&rec, &rig);
         println!("MEASURED positional ODR {odr}: max scale error {:.4} %", err * 100.0);
-        // 0.003-0.039 % here; the firmware's full K reaches |E| 8.0e-4 on the worst of
+        // 0.003-0.039 % here; the firmware's full K reaches |E| 7.5e-4 on the worst of
         // rotation-bench's 20 rigs: twice that.
         assert!(err < 0.0015, "ODR {odr}: max scale error {:.4} %", err * 100.0);
         // Both diagonal estimators ran and reported their quality; with the hand-held moves the

@@ -127,10 +127,10 @@ fn no_sample_lost_at_952_hz_and_values_exact() {
         }
     }
     assert!(m.history().iter().any(|(_, g)| g.iter().any(|v| v.abs() > 10.0)), "the servo never turned");
-    // Timestamps: measured period, within 0.5 % of the true one (ODR −4 %), increasing.
+    // Timestamps: measured period, within 0.5 % of the true one (the rig's ODR error), increasing.
     let n = samples.len();
     let period = (samples[n - 1].2 - samples[n / 2].2) / (n - 1 - n / 2) as f64;
-    let true_period = 1.0 / (952.0 * 0.96);
+    let true_period = 1.0 / m.rig().config().actual_odr_hz();
     assert!((period / true_period - 1.0).abs() < 0.005, "period {period} vs {true_period}");
     assert!(samples.windows(2).all(|w| w[1].2 > w[0].2 - 1e-9));
 }

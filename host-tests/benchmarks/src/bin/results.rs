@@ -579,7 +579,8 @@ fn page(quick_set: bool) -> Result<String, String> {
          CI runs `cargo results -- --check`. Do not edit. -->\n\nEvery figure below comes from a run with a fixed seed: \
          `cargo results` reruns them all and rewrites this page. No board was used: the demos run the firmware ELF on the \
          emulated board, the benchmarks run calib-core on simulated rigs ([the virtual board](../host-tests/vboard/README.md), \
-         [testing](testing.md)).\n\n",
+         [testing](testing.md)). Every rig draws its sensor's ODR error: U(−5, −2) % for the LSM9DS1, U(−2, 2) % for the \
+         BMI270 (neither from a datasheet: [limits](limits.md)).\n\n",
     );
     s += &demo_section(&out[4], &out[5], &out[6], &out[7], &out[11], &budgets)?;
     s += "\n";

@@ -187,7 +187,7 @@ fn main() -> ExitCode {
     // firmware's record within 0.005 % (the log's six decimals leave ~1e-4 % between them; a
     // replay that drifts from the firmware's code breaks this), and within 0.1 % of the truth (of
     // a full K every element against the record, E's diagonal against the truth; the firmware's
-    // full K reaches 0.08 % on the worst of rotation-bench's 20 rigs).
+    // full K reaches 0.075 % on the worst of rotation-bench's 20 rigs).
     if let (Some(text), Some(rec)) = (&raw_text, &stored) {
         // calib's full K when it gives one (the record is then a full K too), else its diagonal.
         let k = calib::csvlog::parse(text)
