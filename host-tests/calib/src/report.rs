@@ -294,23 +294,28 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
         (!r.is_empty()).then(|| r.iter().sum::<Vector3<f64>>() / r.len() as f64)
     };
     let bias = to_f64(c.bias.bias_dps);
+    // Per move, once: both poses' mean fields, the gyro's rotation from the start pose's middle
+    // to the end's (body at the end to body at the start), the direction at the end.
+    let moves: Vec<_> = poses
+        .windows(2)
+        .filter_map(|w| {
+            let (mi, mj) = (mean_field(w[0])?, mean_field(w[1])?);
+            let (from, to) = ((w[0].first + w[0].last) / 2, (w[1].first + w[1].last) / 2);
+            let mut q = nalgebra::UnitQuaternion::identity();
+            for p in rows[from..=to].windows(2) {
+                let w_rad = (k * (to_f64(p[1].gyro_dps) - bias)).map(f64::to_radians);
+                q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t_s - p[0].t_s));
+            }
+            Some((mi, mj, q, direction(c, w[1])))
+        })
+        .collect();
     let heading_error = |a: &Matrix3<f64>, o: &Vector3<f64>| {
-        poses
-            .windows(2)
-            .filter_map(|w| {
-                let (mi, mj) = (mean_field(w[0])?, mean_field(w[1])?);
-                // Body at the end to body at the start: from the start pose's middle to the end's.
-                let (from, to) = ((w[0].first + w[0].last) / 2, (w[1].first + w[1].last) / 2);
-                let mut q = nalgebra::UnitQuaternion::identity();
-                for p in rows[from..=to].windows(2) {
-                    let w_rad = (k * (to_f64(p[1].gyro_dps) - bias)).map(f64::to_radians);
-                    q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t_s - p[0].t_s));
-                }
-                let fj = direction(c, w[1]);
+        moves
+            .iter()
+            .filter_map(|(mi, mj, q, fj)| {
                 let predicted = q.inverse() * (a * (mi - o));
-                let h = |m: Vector3<f64>| calib_core::estimators::mag::heading_deg(fj, m);
-                let e = (h(a * (mj - o))? - h(predicted)? + 540.0) % 360.0 - 180.0;
-                Some(e)
+                let h = |m: Vector3<f64>| calib_core::estimators::mag::heading_deg(*fj, m);
+                Some((h(a * (mj - o))? - h(predicted)? + 540.0) % 360.0 - 180.0)
             })
             .enumerate()
             .map(|(i, e)| (i as f64, e))

@@ -90,59 +90,40 @@ impl Platform {
 
     /// The one-line command that installs `missing` on this platform.
     pub fn install_line(self, missing: &[SystemTool]) -> String {
-        let has = |t| missing.contains(&t);
-        let compiler = has(SystemTool::CCompiler) || has(SystemTool::Make);
-        let mut pkgs: Vec<&str> = Vec::new();
-        match self {
-            Platform::Debian => {
-                if compiler {
-                    pkgs.push("build-essential");
-                }
-                if has(SystemTool::Cmake) {
-                    pkgs.push("cmake");
-                }
-                if has(SystemTool::Libclang) {
-                    pkgs.push("libclang-dev");
-                }
-                format!("sudo apt-get update && sudo apt-get install -y {}", pkgs.join(" "))
-            }
-            Platform::Fedora => {
-                if has(SystemTool::CCompiler) {
-                    pkgs.push("gcc");
-                }
-                if has(SystemTool::Make) {
-                    pkgs.push("make");
-                }
-                if has(SystemTool::Cmake) {
-                    pkgs.push("cmake");
-                }
-                if has(SystemTool::Libclang) {
-                    pkgs.push("clang-devel");
-                }
-                format!("sudo dnf install -y {}", pkgs.join(" "))
-            }
-            Platform::Arch => {
-                if compiler {
-                    pkgs.push("base-devel");
-                }
-                if has(SystemTool::Cmake) {
-                    pkgs.push("cmake");
-                }
-                if has(SystemTool::Libclang) {
-                    pkgs.push("clang");
-                }
-                format!("sudo pacman -S --needed {}", pkgs.join(" "))
-            }
+        use SystemTool::*;
+        let command = match self {
+            Platform::Debian => "sudo apt-get update && sudo apt-get install -y",
+            Platform::Fedora => "sudo dnf install -y",
+            Platform::Arch => "sudo pacman -S --needed",
             Platform::MacOs => {
                 // The command-line tools bring clang, libclang and make; Homebrew brings cmake.
-                let xcode = compiler || has(SystemTool::Libclang);
-                match (xcode, has(SystemTool::Cmake)) {
+                let xcode = missing.iter().any(|t| *t != Cmake);
+                return match (xcode, missing.contains(&Cmake)) {
                     (true, true) => "xcode-select --install && brew install cmake".into(),
                     (true, false) => "xcode-select --install".into(),
                     _ => "brew install cmake".into(),
-                }
+                };
+            }
+        };
+        // The package of each tool on this Linux platform (Debian's and Arch's compiler and make
+        // share one), each named once, in the order of `missing`.
+        let mut packages: Vec<&str> = Vec::new();
+        for &tool in missing {
+            let package = match (self, tool) {
+                (Platform::Debian, CCompiler | Make) => "build-essential",
+                (Platform::Fedora, CCompiler) => "gcc",
+                (Platform::Fedora, Make) => "make",
+                (_, CCompiler | Make) => "base-devel",
+                (_, Cmake) => "cmake",
+                (Platform::Debian, Libclang) => "libclang-dev",
+                (Platform::Fedora, Libclang) => "clang-devel",
+                (_, Libclang) => "clang",
+            };
+            if !packages.contains(&package) {
+                packages.push(package);
             }
         }
+        format!("{command} {}", packages.join(" "))
     }
 }
 
