@@ -187,11 +187,71 @@ fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back()
         RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
         RestBias { t_s: t_end + 1.0, residual_dps: [(drift * (t_end + 1.0)) as f32; 3] },
     );
-    r.settle_bias(&before, &after);
+    r.settle_bias(&before, &after, None);
     let settled = e_of(&r);
     println!("MEASURED stale predictions E {stale:.2e}, settled {settled:.2e}");
     assert!(stale > 1e-3 && settled < 2e-5, "stale {stale:.2e}, settled {settled:.2e}");
     // Settled once: a second pair of rests changes nothing.
-    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after);
+    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after, None);
     assert_eq!(e_of(&r), settled);
+}
+
+#[test]
+fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
+    // The gyro sees the Earth's rate (latitude 50°, world y north, z up) in every attitude; the
+    // hand-held poses are too shaky to measure the bias, so each takes the bias of a rest in
+    // the first pose's attitude (holding the Earth's rate of that attitude) until a rest in the
+    // last pose's attitude settles them. Slow moves (6 s): the Earth's rate left in is ≈ 0.025°
+    // per move, ≈ 3e-4 of K. The data have no noise: each move's integral is weighted as such
+    // (0.001°), so that the Earth's rate's prior (|w| = 1) does not hold its estimate back.
+    let limits = RotationLimits { gamma_sigma_deg: 0.001, ..RotationLimits::DEFAULT };
+    let (lat, hz) = (50f64.to_radians(), 238.0);
+    let earth_w = V3::new(0.0, lat.cos(), lat.sin()) * 7.292_115e-5f64.to_degrees();
+    let atts = attitudes(false);
+    let kinv = k_true().try_inverse().unwrap();
+    let in_body = |q: &UnitQuaternion<f64>| q.inverse() * earth_w;
+    let f32s = |v: V3| [v[0] as f32, v[1] as f32, v[2] as f32];
+    let solve = |attitudes: bool| {
+        let mut r = Rotations::new();
+        let first = in_body(&atts[0]);
+        // Frame 0 is the first rest's (the first pose's attitude).
+        let frame = |q: &UnitQuaternion<f64>| (atts[0].inverse() * q).to_rotation_matrix().into_inner().map(|v| v as f32);
+        let mut t = 0.0;
+        let push = |r: &mut Rotations, q: &UnitQuaternion<f64>, t: f64| {
+            let a = q.inverse() * V3::z();
+            let rest = RestBias::new(t, t, f32s(first), [0.0; 3]);
+            let i = r.push_pose(f32s(a), 1e-5, PoseRest { bias: rest, predicted: true, ..PoseRest::default() }).unwrap();
+            if attitudes {
+                r.push_attitude(i, frame(q));
+            }
+            i
+        };
+        let mut prev = push(&mut r, &atts[0], t);
+        for w in atts.windows(2) {
+            let (qa, qb) = (w[0], w[1]);
+            let n = (6.0 * hz) as usize;
+            r.begin(prev);
+            let att = |x: f64| qa.slerp(&qb, x * x * (3.0 - 2.0 * x));
+            for s in 0..=n + 1 {
+                let (x0, x) = ((s.max(1) - 1).min(n) as f64 / n as f64, s.min(n) as f64 / n as f64);
+                let omega = (att(x0).inverse() * att(x)).scaled_axis() * hz;
+                let g = kinv * (omega.map(f64::to_degrees) + in_body(&att(x)));
+                r.add(t, f32s(g), false);
+                t += 1.0 / hz;
+            }
+            let next = push(&mut r, &qb, t - 1.0 / hz);
+            assert_eq!(r.end(next, &limits), Ok(()));
+            prev = next;
+        }
+        let last = atts.last().unwrap();
+        let (before, after) =
+            (RestBias::new(-1.0, -1.0, f32s(first), [0.0; 3]), RestBias::new(t + 1.0, t + 1.0, f32s(in_body(last)), [0.0; 3]));
+        r.settle_bias(&before, &after, attitudes.then(|| frame(last)));
+        let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &limits))).expect("the full K");
+        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+        (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
+    };
+    let (without, with) = (solve(false), solve(true));
+    println!("MEASURED the Earth's rate left in: E {without:.2e}; estimated with K: {with:.2e}");
+    assert!(without > 1e-4 && with < 0.1 * without, "E {without:.2e} without the attitudes, {with:.2e} with");
 }

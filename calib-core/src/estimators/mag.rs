@@ -282,7 +282,7 @@ impl MagCalibrator {
         // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
         let v = Matrix3::from_fn(|r, k| vecs[r][k]);
         let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
-        let field = 50.0 / libm::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
+        let field = 50.0 / crate::math::linalg::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
         let a_s = sqrt * (field / 50.0);
         Ok((a_s, c + centre * 50.0, field))
     }

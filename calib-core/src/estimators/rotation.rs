@@ -23,6 +23,16 @@
 //!
 //! Noise (1σ per row, rad): `σ² = σ_i² + σ_j² + σ_Γ²`, `σ_i` the direction noise of pose `i`
 //! (its mean's noise per component over `|f|`), `σ_Γ` the gyro integral's noise over one move.
+//!
+//! The Earth's rate (DESIGN §4.5): a hand-held pose too shaky to measure the bias takes it from
+//! the rests, which hold the Earth's rate in *their* poses' frames, so a move's integral keeps
+//! `ε = Ω G w` (rad, in its start pose's frame): `w` the Earth's rate in the frame of the first
+//! rest over its magnitude `Ω`, `G = Δt Aᵢᵀ − P Mᵢ − Q Mⱼ` (s) with `A` a pose's attitude in that
+//! frame ([`Rotations::push_attitude`]), `M` the part of its bias that is Earth's rate
+//! ([`Rotations::settle_bias`]), `P`, `Q` the move's bias weights rotated into its start frame.
+//! Up to `Ω` × 4 s ≈ 0.02° per move, 2e-4 of a 90° turn. `w` is estimated with the moves, its
+//! prior `N(0, I/3)` per component (`|w| = 1`), and marginalised out of the normal equations of
+//! `K` (their σ includes it); poses without an attitude (a log, a lost track) add no such term.
 
 use crate::estimators::accel::AccelCal;
 use crate::estimators::axis::{Poses, MAX_POSES};
@@ -39,6 +49,12 @@ pub const MAX_ROTATION_MOVES: usize = 32;
 /// Chunks of all moves together (32 B each): 384 of the gyro's, and each kept move's two turns
 /// inside its poses ([`PoseRest::rise_deg`]).
 pub const MAX_CHUNKS: usize = 384 + 2 * MAX_ROTATION_MOVES;
+/// Poses whose attitude is kept for the Earth's rate ([`Rotations::push_attitude`]): the
+/// firmware's hand-held step has 12; later poses' moves go without the Earth's term.
+pub const EARTH_POSES: usize = 16;
+/// The Earth's rate (rad/s).
+pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
+
 /// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
 /// below 1e-5 rad per chunk.
 pub const CHUNK_DEG: f64 = 5.0;
@@ -304,6 +320,11 @@ pub struct Rotations {
     /// Per reason, the largest offending value (see [`Rotations::worst`]).
     worst: [f32; REJECTED_REASONS],
     bias_jump: Option<BiasJump>,
+    /// Per pose ([`EARTH_POSES`]): its attitude's transpose `Aᵀ` and the Earth's-rate part of
+    /// its bias `M` (its bias holds `M w`), when known.
+    earth: [Option<(Matrix3<f32>, Matrix3<f32>)>; EARTH_POSES],
+    /// `M` of the latest measured rest (the first rest: `I`, it defines the frame).
+    rest_earth: Option<Matrix3<f32>>,
 }
 
 /// The largest bias change between the two rests of a move rejected as
@@ -358,7 +379,7 @@ fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns ≤ [`CHUNK_DEG`] = 0.09 rad
 /// raw; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
 /// of the Cortex-M4F composes a move 100× faster than soft `f64`, to ≈ 1e-6 rad (tested).
-fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
+pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
     let t2 = phi.norm_squared();
     let s = skew(phi);
     let s2 = s * s;
@@ -383,6 +404,8 @@ impl Rotations {
             rejected: [0; REJECTED_REASONS],
             worst: [0.0; REJECTED_REASONS],
             bias_jump: None,
+            earth: [None; EARTH_POSES],
+            rest_earth: Some(Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)),
         }
     }
 
@@ -405,16 +428,36 @@ impl Rotations {
         Ok(i)
     }
 
+    /// Pose `pose`'s attitude (rotation from its body frame to the first rest's, from the gyro
+    /// with `K = I`): its moves get the Earth's-rate term of the module doc. Its bias holds the
+    /// Earth's rate of the latest measured rest (a prediction from it, or itself measured).
+    pub fn push_attitude(&mut self, pose: u8, attitude: Matrix3<f32>) {
+        if let Some(e) = self.earth.get_mut(pose as usize) {
+            *e = self.rest_earth.map(|m| (attitude.transpose(), m));
+        }
+    }
+
     /// Two measured rests `before` and `after` bound poses whose bias was predicted: their bias
     /// becomes the line between the two at their times, and the kept moves into and out of them
-    /// lose the difference (the bias integrals are linear in it).
-    pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias) {
+    /// lose the difference (the bias integrals are linear in it). `after_attitude`: the
+    /// attitude of `after` as in [`Self::push_attitude`] (`None`: unknown, the poses settled lose
+    /// their Earth's-rate term).
+    pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias, after_attitude: Option<Matrix3<f32>>) {
+        let after_earth = after_attitude.map(|a| a.transpose());
         for p in 0..self.poses.len().min(MAX_POSES) {
             let old = self.rest[p].bias;
             if !self.rest[p].predicted || old.t_s < before.t_s || old.t_s > after.t_s {
                 continue;
             }
             let new = before.between(after, old.t_s);
+            if let Some(e) = self.earth.get_mut(p) {
+                let span = after.t_s - before.t_s;
+                let f = if span > 0.0 { ((old.t_s - before.t_s) / span) as f32 } else { 0.0 };
+                *e = match (*e, self.rest_earth, after_earth) {
+                    (Some((at, _)), Some(mb), Some(ma)) => Some((at, mb * (1.0 - f) + ma * f)),
+                    _ => None,
+                };
+            }
             let delta: Vec3 = core::array::from_fn(|k| new.residual_dps[k] - old.residual_dps[k]);
             for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
                 let only =
@@ -428,6 +471,7 @@ impl Rotations {
             self.rest[p].bias = new;
             self.rest[p].predicted = false;
         }
+        self.rest_earth = after_earth;
     }
 
     /// A turn known as a whole (°, sensor frame, less the reference bias) as a chunk of the open
@@ -672,11 +716,22 @@ impl Rotations {
         self.chunks.get(first..first + m.n as usize).unwrap_or_default()
     }
 
-    /// `R` and `J` (3×9, rad per unit of `vec K`) of move `m` at `K`, composed in `f32`.
-    fn compose(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> (Matrix3<f64>, [[f64; 9]; 3]) {
+    /// `R` and `J` (3×9, rad per unit of `vec K`) of move `m` at `K`, composed in `f32`, and
+    /// the Earth's-rate gain `G` of the module doc (s; zero without both poses' attitudes).
+    fn compose(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> (Matrix3<f64>, [[f64; 9]; 3], Matrix3<f64>) {
         let (k, cof) = (k.map(|v| v as f32), cof.map(|v| v as f32));
         let (mut r, mut j) = (Matrix3::<f32>::identity(), [[0.0f32; 9]; 3]);
+        // Σ R_<c s_c (1 − f_c), Σ R_<c s_c f_c and Σ s_c over the chunks (s_c its signed length,
+        // f_c where its middle lies between the two rests, as `RestBias::integral_deg` weighs it).
+        let (mut p, mut q, mut dt) = (Matrix3::<f32>::zeros(), Matrix3::<f32>::zeros(), 0.0f32);
+        let (ta, tb) = (self.rest[m.from as usize % MAX_POSES].bias.t_s, self.rest[m.to as usize % MAX_POSES].bias.t_s);
         for c in self.chunks_of(m) {
+            let s = c.span_s[1] - c.span_s[0];
+            let mid = m.t0_s + 0.5 * (c.span_s[0] + c.span_s[1]) as f64;
+            let f = if tb > ta { ((mid - ta) / (tb - ta)) as f32 } else { 0.5 };
+            p += r * (s * (1.0 - f));
+            q += r * (s * f);
+            dt += s;
             let gamma = Vector3::from(c.gamma).map(f32::to_radians);
             let coning = Vector3::from(c.coning).map(|v| v.to_radians().to_radians());
             let phi = k * gamma + cof * coning * 0.5;
@@ -693,7 +748,11 @@ impl Rotations {
             j = next;
             r *= e;
         }
-        (r.map(|v| v as f64), j.map(|row| row.map(|v| v as f64)))
+        let g = match (self.earth.get(m.from as usize).copied().flatten(), self.earth.get(m.to as usize).copied().flatten()) {
+            (Some((ai, mi)), Some((_, mj))) => ai * dt - p * mi - q * mj,
+            _ => Matrix3::zeros(),
+        };
+        (r.map(|v| v as f64), j.map(|row| row.map(|v| v as f64)), g.map(|v| v as f64))
     }
 
     /// The rotation of move `m` at `K` (row-major): `R` takes a vector in the body frame at its
@@ -705,13 +764,21 @@ impl Rotations {
     }
 
     /// Adds the rows of every kept move, linearised at `k` (vec `K`), as rows linear in vec `K`:
-    /// `H·k' ≈ H·k − r`. Returns the weighted residual sum at `k`, and the unweighted one (rad²)
-    /// of the rotation rows with their count (a vertical turn's rows are in the weighted sum only).
+    /// `H·k' ≈ H·k − r`, with the Earth's rate `w` of the module doc marginalised out. Returns the
+    /// weighted residual sum at `k`, and the unweighted one (rad²) of the rotation rows with their
+    /// count (a vertical turn's rows are in the weighted sum only), all at `w = 0`.
     pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64, usize), Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::estimators::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
         let (mut wrss, mut rss, mut n) = (0.0, 0.0, 0);
+        // The rows' `w` parts: Σ w h xᵀ, and the normal equations of `w` alone with its prior.
+        let (mut cross, mut earth) = ([[0.0; 3]; 9], NormalEquations::<3>::new());
+        for b in 0..3 {
+            let mut unit = [0.0; 3];
+            unit[b] = 1.0;
+            earth.add_row(&unit, 0.0, 3.0)?;
+        }
         for m in self.moves() {
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
             let (gi, gj) = (pi.normalize(), pj.normalize());
@@ -744,7 +811,7 @@ impl Rotations {
             }
             n += 2;
             let w = 1.0 / s2;
-            let (r, j) = self.compose(m, &km, &cof);
+            let (r, j, g) = self.compose(m, &km, &cof);
             let rg = r * gj;
             let a = -(r * skew(&gj)); // ∂(R g_j)/∂(J δk) = −R [g_j]×
             for e in tangent_basis(&gi) {
@@ -753,10 +820,19 @@ impl Rotations {
                 let h: [f64; 9] = core::array::from_fn(|c| (0..3).map(|i| ea[i] * j[i][c]).sum());
                 let y = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - res;
                 ne.add_row(&h, y, w)?;
+                // The residual's part `ε·(R g_j × e)` from `ε = Ω G w`.
+                let x: [f64; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
+                for (c, row) in cross.iter_mut().enumerate() {
+                    for b in 0..3 {
+                        row[b] += w * h[c] * x[b];
+                    }
+                }
+                earth.add_row(&x, y, w)?;
                 wrss += w * res * res;
                 rss += res * res;
             }
         }
+        ne.eliminate(&cross, &earth)?;
         Ok((wrss, rss, n))
     }
 
@@ -875,7 +951,7 @@ mod tests {
         assert_eq!(r.moves()[0].n, 17);
         let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
         let cof = cofactor(&k).unwrap();
-        let (rot, _) = r.compose(&r.moves()[0], &k, &cof);
+        let (rot, _, _) = r.compose(&r.moves()[0], &k, &cof);
         let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).into_inner();
         // Stored and composed in f32: 17 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
         assert!((rot - expect).amax() < 1e-6, "{rot} vs {expect}");

@@ -102,6 +102,25 @@ impl<const N: usize> NormalEquations<N> {
         Ok(cholesky_solve(&l, &self.xty))
     }
 
+    /// Marginalises `M` more unknowns `z` out of equations whose rows were `x·β + c·z ≈ y`, given
+    /// `Σ w x cᵀ` (`cross`) and the rows `c·z ≈ y` alone (`nuisance`, positive definite: a prior
+    /// added): what is left are the normal equations of `β` alone (the Schur complement), whose
+    /// solution and covariance are those of the joint solve.
+    pub fn eliminate<const M: usize>(&mut self, cross: &[[f64; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
+        let l = cholesky(&nuisance.xtx, 1e-13).ok_or(Error::Singular)?;
+        let dot = |a: &[f64; M], b: &[f64; M]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
+        let cy = &nuisance.xty;
+        for i in 0..N {
+            let s = cholesky_solve(&l, &cross[i]);
+            for j in 0..=i {
+                self.xtx[i][j] -= dot(&cross[j], &s);
+            }
+            self.xty[i] -= dot(&s, cy);
+        }
+        self.yty -= dot(cy, &cholesky_solve(&l, cy));
+        Ok(())
+    }
+
     /// Solves by Cholesky. Errors: fewer rows than unknowns, a singular or ill-conditioned matrix.
     pub fn solve(&self) -> Result<Solution<N>, Error> {
         let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);

@@ -18,6 +18,7 @@ impl Procedure {
                     self.servo_deg = None;
                     self.last_pulse = None;
                     self.push(Command::ServoOff { channel: 0 });
+                    self.attitude = Some(Matrix3::identity());
                     self.enter(Step::HandHeld { capture: Capture::default() }, t_s);
                 } else {
                     self.begin_rig(t_s);
@@ -58,7 +59,11 @@ impl Procedure {
         let (bias, predicted) = self.hand_rest(capture);
         let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
         let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32 };
-        match self.rotations.push_pose(a, sigma, rest) {
+        let pushed = self.rotations.push_pose(a, sigma, rest);
+        if let (Ok(to), Some(att)) = (pushed, self.attitude) {
+            self.rotations.push_attitude(to, att);
+        }
+        match pushed {
             Ok(to) if to > 0 => {
                 let rejected = self.rotations.end(to, &self.cfg.rotation).err();
                 let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
@@ -103,10 +108,14 @@ impl Procedure {
     }
 
     /// A rest of the calibration: its bias joins the drift and the temperature fit, and settles
-    /// the predicted bias of the hand-held poses since the previous rest.
+    /// the predicted bias of the hand-held poses since the previous rest. The first rig rest
+    /// after the hand-held step ends the attitude's tracking.
     pub(super) fn note_rest(&mut self, capture: &Capture, rest: RestBias) {
         if let Some(before) = self.drift.last() {
-            self.rotations.settle_bias(&before, &rest);
+            self.rotations.settle_bias(&before, &rest, self.attitude);
+        }
+        if !matches!(self.step, Step::HandHeld { .. }) {
+            self.attitude = None;
         }
         self.drift.add(rest);
         self.temp_fit.add(capture.temp_c(), &rest);

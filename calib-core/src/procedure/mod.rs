@@ -40,7 +40,7 @@ use crate::estimators::full::{Axes, FullAxis, FullCal};
 use crate::estimators::gyro::Method;
 use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
-use crate::estimators::rotation::{PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
+use crate::estimators::rotation::{self, PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
 use crate::estimators::sweep;
 use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
@@ -49,6 +49,7 @@ use crate::math::vec3::{sub, to_f64 as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
 use crate::{Error, Vec3};
 use heapless::Deque;
+use nalgebra::{Matrix3, Vector3};
 
 /// One IMU sample as the shell delivers it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -292,6 +293,11 @@ pub struct Procedure {
     mag_first_pose: u8,
     /// The bias-free gyro turn since then (hand-held phase only).
     window_turn: PoseTurn,
+    /// The board's attitude from the bias rest to the first rig rest after the hand-held step
+    /// (rotation from the body frame to the bias rest's, gyro at `K = I`): the Earth's rate in
+    /// the hand-held poses ([`Rotations::push_attitude`]); `None` outside it or once a sample
+    /// saturated.
+    attitude: Option<Matrix3<f32>>,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
@@ -332,6 +338,7 @@ impl Procedure {
             mag_pending: false,
             mag_first_pose: 0,
             window_turn: PoseTurn::new(),
+            attitude: None,
             gbar: None,
             temp: Welford3::new(),
             overflow: false,
@@ -530,6 +537,10 @@ impl Procedure {
         if matches!(self.step, Step::HandHeld { .. }) {
             self.window_turn.add(s.t_s, dt, g);
         }
+        if let Some(a) = self.attitude {
+            let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
+            self.attitude = (!saturated).then(|| a * rotation::exp_jr(&phi).0);
+        }
         let wt = if window.is_some() { core::mem::take(&mut self.window_read) } else { WindowReadings::default() };
         let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
         if window.is_some() {
@@ -662,6 +673,7 @@ impl Procedure {
         self.mag_pending = false;
         self.mag_cal = self.stored.filter(|_| !self.cfg.pan_tilt && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
+        self.attitude = None;
         self.gbar = None;
         self.temp = Welford3::new();
         if let Some(acc) = self.stored_accel() {
