@@ -318,9 +318,12 @@ pub const MIN_SCATTER_DOF: f64 = 3.0;
 
 /// Least temperature span (°C) over the rests for [`TempFit`] to give a coefficient.
 pub const MIN_TEMP_SPAN_C: f32 = 1.0;
-/// Bias rate random walk of a part of this class (°/s/√s), in the 1σ of [`TempCo`]: a walk over
-/// the calibration is indistinguishable from a temperature trend when the temperature rises
-/// steadily.
+/// Standard errors of the walk's estimate added to it in [`TempCo`]'s 1σ ([`TempFit`]): with
+/// 0.5, 93–100 % of the coefficients lie within 2σ for walks from none to 4e-3 °/s/√s (tested).
+pub const WALK_UPPER_Z: f64 = 0.5;
+
+/// Bias rate random walk (°/s/√s) assumed by [`Drift::predict`] from the latest rest to the
+/// record's time (seconds: a small term); [`TempFit`] measures the calibration's own.
 pub const BIAS_WALK_DPS_RTSEC: f32 = 5e-4;
 
 /// The zero rate's temperature coefficient: `b(T) = b₀ + c (T − T₀)`.
@@ -330,14 +333,30 @@ pub const BIAS_WALK_DPS_RTSEC: f32 = 5e-4;
 pub struct TempCo {
     /// `c` per sensor axis (°/s per °C).
     pub dps_per_c: Vec3,
-    /// Its 1σ (°/s per °C): the fit's scatter and a bias walk of [`BIAS_WALK_DPS_RTSEC`].
+    /// Its 1σ (°/s per °C): the rests' white scatter and their bias walk ([`TempFit::finish`]).
     pub sigma_dps_per_c: Vec3,
     /// Lowest and highest rest temperature (°C).
     pub range_c: [f32; 2],
 }
 
 /// Fits [`TempCo`] over the rests of a calibration, each with its mean temperature (bounded
-/// sums, no buffer).
+/// sums, no buffer), and measures the bias's random walk from the rests' scatter.
+///
+/// The rests' biases about the fitted line are white noise of variance `s_w²` (a rest mean's
+/// noise, the Earth's rate in its pose) plus a random walk of density `q` over the MCU time `t`.
+/// Two sums tell them apart: the residuals' squares, `E = (n − 2) s_w² + e q²`, and their
+/// consecutive differences', `E = 2 (n − 1) s_w² + Σ Δt q²` (a walk moves little from one rest to
+/// the next but far over the run); `e = Σ Δtⱼ (n − kⱼ)(1 − (n − kⱼ)/n) − V / Sxx` is a walk's exact
+/// share of the residual sum over these rests (`kⱼ` rests before rest `j`), and the walk's
+/// variance in the slope is `q² V / Sxx²` with `V = Σ Δtⱼ (kⱼ T̄ − Pⱼ)²` (`Pⱼ` the sum of the
+/// temperatures before rest `j`): what a steadily rising temperature cannot tell from a tempco.
+///
+/// One run shows its walk poorly: the residuals keep only its part off the temperature curve,
+/// a few degrees of freedom, and the rests' white noise leaves a floor (30 rests of 0.007 °/s
+/// cannot exclude a walk of ≈ 1e-3 °/s/√s). The 1σ therefore takes `q²` plus
+/// [`WALK_UPPER_Z`] standard errors of its estimate: the white sums' (`2 n^1.5 s_w² / |det|`,
+/// i.i.d. rests) and the walk's own (`√(2/ν) q²`, `ν ≈ 2.5`: a Brownian bridge's energy lies in its
+/// first modes).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TempFit {
     n: u32,
@@ -348,12 +367,37 @@ pub struct TempFit {
     sbb: [f64; 3],
     t_range: [f32; 2],
     time_range: [f64; 2],
+    /// The latest rest: time (s), temperature (°C from the first rest's) and bias (°/s).
+    last: (f64, f64, [f64; 3]),
+    /// `Σ Δt`, `Σ Δt k`, `Σ Δt k²`, `Σ Δt k P`, `Σ Δt P²` (temperatures from the first rest's).
+    walk: [f64; 5],
+    /// `Σ` of the temperatures so far, from the first rest's (°C).
+    prefix_c: f64,
+    /// Per axis `Σ Δb²`, `Σ Δb ΔT`; and `Σ ΔT²`, over consecutive rests.
+    dbb: [f64; 3],
+    dbt: [f64; 3],
+    dtt: f64,
 }
 
 impl TempFit {
     /// No rest yet.
     pub const fn new() -> Self {
-        Self { n: 0, st: 0.0, stt: 0.0, sb: [0.0; 3], stb: [0.0; 3], sbb: [0.0; 3], t_range: [0.0; 2], time_range: [0.0; 2] }
+        Self {
+            n: 0,
+            st: 0.0,
+            stt: 0.0,
+            sb: [0.0; 3],
+            stb: [0.0; 3],
+            sbb: [0.0; 3],
+            t_range: [0.0; 2],
+            time_range: [0.0; 2],
+            last: (0.0, 0.0, [0.0; 3]),
+            walk: [0.0; 5],
+            prefix_c: 0.0,
+            dbb: [0.0; 3],
+            dbt: [0.0; 3],
+            dtt: 0.0,
+        }
     }
 
     /// A rest and its mean temperature (°C); a non-finite temperature is left out.
@@ -365,6 +409,24 @@ impl TempFit {
             self.t_range = [temp_c; 2];
             self.time_range = [rest.t_s; 2];
         }
+        let b = rest.residual_dps.map(|v| v as f64);
+        let rel = temp_c as f64 - self.t_range[0] as f64;
+        if self.n > 0 {
+            let (t_last, rel_last, b_last) = self.last;
+            let (dt, k, p) = ((rest.t_s - t_last).max(0.0), self.n as f64, self.prefix_c);
+            for (s, v) in self.walk.iter_mut().zip([1.0, k, k * k, k * p, p * p]) {
+                *s += dt * v;
+            }
+            let d_t = rel - rel_last;
+            self.dtt += d_t * d_t;
+            for k in 0..3 {
+                let d_b = b[k] - b_last[k];
+                self.dbb[k] += d_b * d_b;
+                self.dbt[k] += d_b * d_t;
+            }
+        }
+        self.last = (rest.t_s, rel, b);
+        self.prefix_c += rel;
         self.t_range = [self.t_range[0].min(temp_c), self.t_range[1].max(temp_c)];
         self.time_range = [self.time_range[0].min(rest.t_s), self.time_range[1].max(rest.t_s)];
         let t = temp_c as f64;
@@ -391,6 +453,22 @@ impl TempFit {
     /// The coefficient, or `None` when fewer than 4 rests or a span below [`MIN_TEMP_SPAN_C`]
     /// leave it unknown.
     pub fn finish(&self) -> Option<TempCo> {
+        let (c, sigma, _) = self.fit()?;
+        c.iter().chain(sigma.iter()).all(|v| v.is_finite()).then_some(TempCo {
+            dps_per_c: c,
+            sigma_dps_per_c: sigma,
+            range_c: self.t_range,
+        })
+    }
+
+    /// The bias's random walk the rests show (°/s/√s, the largest axis'; the type doc), `None`
+    /// while the coefficient is unknown.
+    pub fn walk_dps_rtsec(&self) -> Option<f32> {
+        self.fit().map(|(_, _, q)| q)
+    }
+
+    /// Per axis the coefficient and its 1σ (°/s per °C), and the walk (the type doc).
+    fn fit(&self) -> Option<(Vec3, Vec3, f32)> {
         let span = self.t_range[1] - self.t_range[0];
         if self.n < 4 || !(span >= MIN_TEMP_SPAN_C) {
             return None;
@@ -400,24 +478,33 @@ impl TempFit {
         if !(sxx > 0.0) {
             return None;
         }
-        // The least-squares slope in time of a random walk of density q over `T` seconds has the
-        // variance 6 q² / (5 T); over a temperature that rose by `span` in that time its slope in
-        // temperature is `T / span` times that.
-        let walk = BIAS_WALK_DPS_RTSEC as f64 * libm::sqrt(1.2 * (self.time_range[1] - self.time_range[0])) / span as f64;
-        let (mut c, mut sigma) = ([0.0f32; 3], [0.0f32; 3]);
+        let [s_dt, s_dtk, a, b, c2] = self.walk;
+        let mean = self.st / n - self.t_range[0] as f64;
+        let v = (mean * mean * a - 2.0 * mean * b + c2).max(0.0);
+        // A walk's share of the residual sum: Σ Δt (n − k) − Σ Δt (n − k)² / n − V / Sxx.
+        let e = ((n * s_dt - s_dtk) - (n * n * s_dt - 2.0 * n * s_dtk + a) / n - v / sxx).max(0.0);
+        let det = (n - 2.0) * s_dt - 2.0 * (n - 1.0) * e;
+        let (mut c, mut sigma, mut q_max) = ([0.0f32; 3], [0.0f32; 3], 0.0f32);
         for k in 0..3 {
             let sxy = self.stb[k] - self.st * self.sb[k] / n;
             let syy = self.sbb[k] - self.sb[k] * self.sb[k] / n;
             let slope = sxy / sxx;
-            let s2 = ((syy - slope * sxy) / (n - 2.0)).max(0.0);
+            let ss = (syy - slope * sxy).max(0.0);
+            let dd = (self.dbb[k] - 2.0 * slope * self.dbt[k] + slope * slope * self.dtt).max(0.0);
+            // (white, q²) from the two sums, each kept ≥ 0.
+            let q2 = if det != 0.0 && e > 0.0 { ((n - 2.0) * dd - 2.0 * (n - 1.0) * ss) / det } else { 0.0 };
+            let (white, q2) = match q2 {
+                q2 if !(q2 > 0.0) => (ss / (n - 2.0), 0.0),
+                q2 if ss < e * q2 => (0.0, ss / e),
+                q2 => ((ss - e * q2) / (n - 2.0), q2),
+            };
+            let se = if det != 0.0 { 2.0 * n * libm::sqrt(n) * white / det.abs() } else { 0.0 };
+            let upper = q2 + WALK_UPPER_Z * libm::sqrt(se * se + 0.8 * q2 * q2);
             c[k] = slope as f32;
-            sigma[k] = libm::sqrt(s2 / sxx + walk * walk) as f32;
+            sigma[k] = libm::sqrt(white / sxx + upper * v / (sxx * sxx)) as f32;
+            q_max = q_max.max(libm::sqrt(q2) as f32);
         }
-        c.iter().chain(sigma.iter()).all(|v| v.is_finite()).then_some(TempCo {
-            dps_per_c: c,
-            sigma_dps_per_c: sigma,
-            range_c: self.t_range,
-        })
+        Some((c, sigma, q_max))
     }
 }
 
@@ -602,8 +689,40 @@ mod tests {
         let c = fit.finish().expect("10 rests over 2.7 C");
         assert!((c.dps_per_c[0] - 0.04).abs() < 2e-3 && (c.dps_per_c[1] + 0.03).abs() < 1e-5, "{c:?}");
         assert_eq!(c.range_c, [25.0, 27.7]);
-        // 1σ: the scatter on x, the walk floor (5e-4 √(1.2·90) / 2.7 = 1.9e-3) on every axis.
-        assert!(c.sigma_dps_per_c[0] > c.sigma_dps_per_c[1] && (c.sigma_dps_per_c[1] - 1.92e-3).abs() < 1e-4, "{c:?}");
+        // 1σ: x's white scatter (alternating: no walk measured) is 8.1e-4 alone; with the walk
+        // that 10 rests of it cannot exclude, 2.3e-3. y's exact line: none.
+        assert!((c.sigma_dps_per_c[0] - 2.34e-3).abs() < 1e-5 && c.sigma_dps_per_c[1] < 1e-6, "{c:?}");
+        assert_eq!(fit.walk_dps_rtsec(), Some(0.0));
+    }
+
+    #[test]
+    fn the_walk_is_measured_from_the_rests_and_the_tempco_covers_it() {
+        extern crate std;
+        use std::{println, vec};
+        // 30 rests 3 s apart on a warm-up of 4 °C (τ = 90 s), rest means of 0.007 °/s noise, a
+        // tempco of 0.04 °/s/°C and a random walk from none to 16× the former assumed 5e-4.
+        let mut noise = crate::math::test_noise::Gaussian::new(7);
+        for q in [0.0, 2.5e-4, 1e-3, 4e-3] {
+            let (mut within, mut walks, trials) = (0, vec![], 400);
+            for _ in 0..trials {
+                let (mut fit, mut walk) = (TempFit::new(), 0.0);
+                for i in 0..30 {
+                    let t = 3.0 * i as f64;
+                    walk += q * libm::sqrt(3.0) * noise.next();
+                    let temp = 25.0 + 4.0 * (1.0 - libm::exp(-t / 90.0));
+                    let b = 0.04 * (temp - 25.0) + walk + 0.007 * noise.next();
+                    fit.add(temp as f32, &RestBias { t_s: t, residual_dps: [b as f32, 0.0, 0.0] });
+                }
+                let c = fit.finish().unwrap();
+                within += usize::from((c.dps_per_c[0] - 0.04).abs() <= 2.0 * c.sigma_dps_per_c[0]);
+                walks.push(fit.walk_dps_rtsec().unwrap() as f64);
+            }
+            walks.sort_by(f64::total_cmp);
+            let (cover, median) = (within as f64 / trials as f64, walks[trials / 2]);
+            println!("MEASURED walk {q:.1e}: tempco within 2 sigma {:.0} %, median walk measured {median:.1e}", 100.0 * cover);
+            assert!(cover >= 0.92, "walk {q:e}: {cover}");
+            assert!(q < 1e-3 || (median / q - 1.0).abs() < 0.3, "walk {q:e}: median measured {median:e}");
+        }
     }
 
     #[test]

@@ -195,6 +195,12 @@ impl Procedure {
         Some(Bias { bias_dps, sigma_dps: sigma, ..first })
     }
 
+    /// The gyro bias's random walk the rests of this calibration show (°/s/√s,
+    /// [`crate::estimators::bias::TempFit::walk_dps_rtsec`]), `None` while the tempco is unknown.
+    pub fn bias_walk_dps_rtsec(&self) -> Option<f32> {
+        self.temp_fit.walk_dps_rtsec()
+    }
+
     /// The record's calibration-independent part (sequence, temperature, bias, accelerometer) at
     /// MCU time `t_s` ([`Self::bias_at`]).
     pub(super) fn context(&self, t_s: f64) -> record::Context {

@@ -80,16 +80,23 @@ fn expected_blobs(centres: &[(i32, i32)]) -> usize {
     (0..centres.len()).filter(|&i| root(&mut group, i) == i).count()
 }
 
-/// Every marker centre is drawn in its colour unless a marker of a series drawn later
-/// (`later`) covers it, and the plot has as many marker blobs of the colour as the centres make
-/// (+ the legend's; exactly when nothing covers them).
+/// Every marker is drawn in its colour (most of its disc: a 1-px line drawn over the markers may
+/// cross it) unless a marker of a series drawn later (`later`) covers it, and the plot has as
+/// many marker blobs of the colour as the centres make (+ the legend's; exactly when nothing
+/// covers them).
 fn drawn_as_placed(img: &(usize, Vec<[u8; 4]>), c: RGBColor, centres: &[(i32, i32)], later: &[(i32, i32)], what: &str) {
     let (w, px) = img;
     let reach = (2 * report::MARKER + 1) as i32;
     let covered = |p: &(i32, i32)| later.iter().any(|q| (p.0 - q.0).pow(2) + (p.1 - q.1).pow(2) <= reach * reach);
     let open: Vec<(i32, i32)> = centres.iter().copied().filter(|p| !covered(p)).collect();
+    let r = report::MARKER as i32 - 1;
     for &(x, y) in &open {
-        assert_eq!(px[y as usize * w + x as usize], [c.0, c.1, c.2, 255], "{what}: no marker at ({x}, {y})");
+        let disc: Vec<[u8; 4]> = (-r..=r)
+            .flat_map(|dy| (-r..=r).filter(move |dx| dx * dx + dy * dy <= r * r).map(move |dx| (x + dx, y + dy)))
+            .map(|(x, y)| px[y as usize * w + x as usize])
+            .collect();
+        let own = disc.iter().filter(|p| **p == [c.0, c.1, c.2, 255]).count();
+        assert!(2 * own > disc.len(), "{what}: no marker at ({x}, {y}): {own} of {} pixels {c:?}", disc.len());
     }
     let found = markers(img, c).len();
     let (least, most) = (expected_blobs(&open) + 1, expected_blobs(centres) + 1 + (centres.len() - open.len()));

@@ -7,7 +7,10 @@
 //! elements, mean over the rigs, and the largest element) of the stored results, the rig time
 //! (button to store, plus the wait), the bias's temperature coefficient (in how many runs it was
 //! reported, and the fraction of its axes within 2σ of the truth), and the runs that fail with
-//! their errors; `--json`: the last line is a JSON summary. `--setup arduino-lsm9ds1`: the sensor
+//! their errors. Each drifting rig draws its bias random walk from `BIAS_WALK_RANGE`; a second
+//! table runs the drifting rigs at the range's ends and middle and gives the tempco's coverage
+//! (1σ, 2σ) and the walk the calibration measured (median, `TempFit::walk_dps_rtsec`).
+//! `--json`: the last line is a JSON summary. `--setup arduino-lsm9ds1`: the sensor
 //! at ±2000 °/s and ±4 g (70 m°/s and 0.122 mg per count), as Arduino_LSM9DS1 runs it; `--setup
 //! bmi270`: the Rev2's BMI270 at the firmware's Rev2 setup (`RigConfig::on_bmi270`: 100 Hz,
 //! ±500 °/s, ±2 g, its noise densities), `arduino-bmi270` at Arduino_BMI270_BMM150's (±2000 °/s,
@@ -21,7 +24,7 @@ use calib_core::procedure::{Config, Procedure, Report};
 use clap::Parser;
 use rig_sim::harness::{run, Faults};
 use rig_sim::pan_tilt;
-use rig_sim::sim::{Rig, RigConfig};
+use rig_sim::sim::{Rig, RigConfig, BIAS_WALK_RANGE};
 use rig_sim::variant::Variant;
 use serde_json::json;
 
@@ -53,6 +56,60 @@ enum Bias {
     Waited,
 }
 
+/// The tempco's coverage: runs that reported it, axes within 1σ and 2σ, axes, their 1σ
+/// (°/s/°C); the walks the calibrations measured (°/s/√s).
+#[derive(Default)]
+struct TempcoScore {
+    runs: usize,
+    within: [usize; 2],
+    axes: usize,
+    sigmas: Vec<f64>,
+    walks: Vec<f64>,
+}
+
+impl TempcoScore {
+    /// A run's reports against the rig's true coefficient, and the walk it measured.
+    fn add(&mut self, reports: &[Report], truth: &nalgebra::Vector3<f64>, walk: Option<f32>) {
+        for r in reports {
+            if let Report::TempCo(Some(c)) = r {
+                self.runs += 1;
+                for k in 0..3 {
+                    self.axes += 1;
+                    let off = (c.dps_per_c[k] as f64 - truth[k]).abs();
+                    self.sigmas.push(c.sigma_dps_per_c[k] as f64);
+                    for (n, w) in self.within.iter_mut().enumerate() {
+                        *w += usize::from(off <= (n + 1) as f64 * c.sigma_dps_per_c[k] as f64);
+                    }
+                }
+            }
+        }
+        self.walks.extend(walk.map(|q| q as f64));
+    }
+
+    /// Within 1σ and 2σ (fractions; 0 without a run).
+    fn cover(&self) -> [f64; 2] {
+        self.within.map(|w| if self.axes > 0 { w as f64 / self.axes as f64 } else { 0.0 })
+    }
+
+    /// The medians of the 1σ and of the walk measured (0 without one).
+    fn medians(&mut self) -> [f64; 2] {
+        [&mut self.sigmas, &mut self.walks].map(|v| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        })
+    }
+}
+
+/// The rig and the procedure's configuration of `plan` for rig `i`.
+fn configs(plan: &str, args: &Args, i: usize) -> (RigConfig, Config) {
+    let setup = args.setup.setup();
+    let (base, cfg): (RigConfig, Config) = match plan {
+        "one-servo" => (Variant::Hobby.config(args.seed, i), Config { setup, ..Config::DEFAULT }),
+        _ => (pan_tilt::rig_config(args.seed, i), Config { setup, ..Config::PAN_TILT }),
+    };
+    (args.setup.rig(base, args.seed.wrapping_mul(31).wrapping_add(i as u64)), cfg)
+}
+
 fn main() {
     let args = Args::parse_from(calib::cli_args());
     let mut rows = vec![];
@@ -68,15 +125,11 @@ fn main() {
     for plan in ["one-servo", "pan-tilt"] {
         for bias in [Bias::Constant, Bias::Drifting, Bias::Waited] {
             let (mut rms, mut largest, mut times, mut failed) = (vec![], vec![], vec![], vec![]);
-            let (mut tempco_runs, mut within, mut axes) = (0, 0, 0);
+            let mut tempco = TempcoScore::default();
             // Squared bias errors at the run's end (°/s, per axis): the record's, the first rest's.
             let (mut bias_sq, mut first_sq) = (vec![], vec![]);
             for i in 0..args.rigs {
-                let (mut base, cfg): (RigConfig, Config) = match plan {
-                    "one-servo" => (Variant::Hobby.config(args.seed, i), Config { setup, ..Config::DEFAULT }),
-                    _ => (pan_tilt::rig_config(args.seed, i), Config { setup, ..Config::PAN_TILT }),
-                };
-                base = args.setup.rig(base, args.seed.wrapping_mul(31).wrapping_add(i as u64));
+                let (base, cfg) = configs(plan, &args, i);
                 let mut rig_cfg = if bias == Bias::Constant { base.constant_bias() } else { base };
                 let wait = if bias == Bias::Waited { args.wait_s } else { 0.0 };
                 if let Some(w) = rig_cfg.warmup.as_mut() {
@@ -85,16 +138,7 @@ fn main() {
                 let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
                 let mut p = Procedure::new(cfg, None);
                 let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
-                let truth = rig_cfg.gyro.bias_tempco_dps_per_c;
-                for r in &out.reports {
-                    if let Report::TempCo(Some(c)) = r {
-                        tempco_runs += 1;
-                        for k in 0..3 {
-                            axes += 1;
-                            within += usize::from((c.dps_per_c[k] as f64 - truth[k]).abs() <= 2.0 * c.sigma_dps_per_c[k] as f64);
-                        }
-                    }
-                }
+                tempco.add(&out.reports, &rig_cfg.gyro.bias_tempco_dps_per_c, p.bias_walk_dps_rtsec());
                 let t = rig.truth();
                 if let (Some(rec), Some(first)) =
                     (out.stored.first(), out.reports.iter().find_map(|r| if let Report::Bias(b) = r { Some(b.bias_dps) } else { None }))
@@ -127,7 +171,7 @@ fn main() {
                 Bias::Waited => format!("drifting, {:.0} s wait", args.wait_s),
             };
             let (r, m, t) = (Moments::of(&rms).mean, largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&times).mean);
-            let cover = if axes > 0 { within as f64 / axes as f64 } else { 0.0 };
+            let (tempco_runs, cover) = (tempco.runs, tempco.cover()[1]);
             let (bias_rms, first_rms) = (Moments::of(&bias_sq).mean.sqrt(), Moments::of(&first_sq).mean.sqrt());
             println!(
                 "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
@@ -143,7 +187,37 @@ fn main() {
                 "tempco_runs": tempco_runs, "tempco_within_2sigma": cover, "bias_rms_dps": bias_rms, "first_rest_bias_rms_dps": first_rms}));
         }
     }
+    // The tempco's coverage over the walk's range: its ends and middle, and the per-rig draw.
+    let (lo, hi) = BIAS_WALK_RANGE;
+    println!(
+        "\nthe bias's temperature coefficient by random walk (drifting rigs, the walk drawn log-uniform over {lo:.2e}..{hi:.2e} dps/rt s)"
+    );
+    println!("{:<10}{:>14}{:>8}{:>10}{:>10}{:>12}{:>16}", "plan", "walk", "tempco", "in 1 sig", "in 2 sig", "1 sig", "walk measured");
+    let mut walk_rows = vec![];
+    for plan in ["one-servo", "pan-tilt"] {
+        for walk in [Some(lo), Some((lo * hi).sqrt()), Some(hi), None] {
+            let mut tempco = TempcoScore::default();
+            for i in 0..args.rigs {
+                let (mut rig_cfg, cfg) = configs(plan, &args, i);
+                if let Some(q) = walk {
+                    rig_cfg.bias_rw_dps_rtsec = q;
+                }
+                let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
+                let mut p = Procedure::new(cfg, None);
+                let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+                tempco.add(&out.reports, &rig_cfg.gyro.bias_tempco_dps_per_c, p.bias_walk_dps_rtsec());
+            }
+            let name = walk.map_or("drawn".to_string(), |q| format!("{q:.2e}"));
+            let ([one, two], [sigma, median]) = (tempco.cover(), tempco.medians());
+            println!("{plan:<10}{name:>14}{:>8}{:>9.0}%{:>9.0}%{sigma:>12.4}{median:>16.2e}", tempco.runs, 100.0 * one, 100.0 * two);
+            walk_rows.push(json!({"plan": plan, "walk": walk, "tempco_runs": tempco.runs, "within_1sigma": one, "within_2sigma": two,
+                "sigma_median": sigma, "walk_measured_median": median}));
+        }
+    }
     if args.json {
-        println!("{}", json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": rows}));
+        println!(
+            "{}",
+            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": rows, "walk_range": [lo, hi], "walks": walk_rows})
+        );
     }
 }

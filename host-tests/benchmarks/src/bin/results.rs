@@ -357,7 +357,8 @@ fn drift_section(heading: &str, j: &Value) -> String {
         "## {heading}
 
 `drift-bench` (seed {}, {} rigs per row, {}): the firmware's procedure with the gyro bias constant, drifting as on a \
-         board just powered up (warm-up, bias and scale tempco, random walk, Earth rate; the bias tracked between rests; K scored at the run's mean temperature), and drifting after a \
+         board just powered up (warm-up, bias and scale tempco, a random walk drawn per rig log-uniform over {:.2e}..{:.2e} °/s/√s, Earth rate; \
+         the bias tracked between rests, the Earth's rate in the hand-held poses estimated with K; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from power-on to the store (the harness presses the button 1 s in) plus the wait; the bias's temperature coefficient: the runs \
          that reported it (the others: a span below 1 °C, unknown) and the fraction of its axes within 2σ of the truth; the stored \
          bias (applied with the tempco at the run's last temperature, as a sketch does) against the truth at the run's end, RMS over \
@@ -365,7 +366,9 @@ fn drift_section(heading: &str, j: &Value) -> String {
          | plan | bias | RMS of E | largest | time (s) | stored | failed | tempco runs | tempco within 2σ | bias error (°/s) | first rest's |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
-        sensor_of(j)
+        sensor_of(j),
+        f(&j["walk_range"][0]),
+        f(&j["walk_range"][1])
     );
     for r in j["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -381,6 +384,24 @@ fn drift_section(heading: &str, j: &Value) -> String {
             if r["tempco_runs"].as_u64() == Some(0) { "–".to_string() } else { percent(&r["tempco_within_2sigma"]) },
             f(&r["bias_rms_dps"]),
             f(&r["first_rest_bias_rms_dps"])
+        );
+    }
+    s += "\nThe bias's temperature coefficient over the walk's range: the same drifting rigs with the walk at the range's ends and middle, \
+          and drawn per rig. Its 1σ counts the walk the rests' scatter shows (`TempFit`: the scatter about the fitted line beside \
+          that of consecutive rests) plus half a standard error of that estimate, which one run leaves large; \
+          \"walk measured\" is that estimate (median), which takes every slow misfit of the rests for walk: the Earth's rate that \
+          differs from pose to pose, the temperature register's steps (1/16 °C on the LSM9DS1: ±1.2e-3 °/s at 0.04 °/s/°C).\n\n\
+          | plan | walk (°/s/√s) | tempco runs | within 1σ | within 2σ | median 1σ (°/s/°C) | walk measured (median) |\n|---|---|---|---|---|---|---|\n";
+    for r in j["walks"].as_array().into_iter().flatten() {
+        s += &format!(
+            "| {} | {} | {} | {} | {} | {:.4} | {:.2e} |\n",
+            r["plan"].as_str().unwrap_or("?"),
+            r["walk"].as_f64().map_or("drawn".to_string(), |q| format!("{q:.2e}")),
+            r["tempco_runs"],
+            percent(&r["within_1sigma"]),
+            percent(&r["within_2sigma"]),
+            f(&r["sigma_median"]),
+            f(&r["walk_measured_median"])
         );
     }
     s

@@ -82,6 +82,11 @@ pub struct Warmup {
 /// The Earth's rotation rate (rad/s).
 pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
 
+/// The range a drifting rig's gyro bias rate random walk is drawn from (°/s/√s, log-uniform):
+/// a quarter to four times 5e-4, the single value rigs had before (issue 35). Neither the
+/// LSM9DS1's nor the BMI270's datasheet states one.
+pub const BIAS_WALK_RANGE: (f64, f64) = (1.25e-4, 2e-3);
+
 impl RigConfig {
     /// Temperature change from t = 0 to true time `t_s` (°C): the linear drift and the warm-up.
     pub fn delta_temp_c(&self, t_s: f64) -> f64 {
@@ -172,10 +177,10 @@ impl RigConfig {
     /// board warming itself by U(2, 6) °C along 1 − e^(−t/τ), τ U(60, 150) s, the calibration
     /// starting U(5, 30) s after power-on (the user plugs the board in, then presses the
     /// button); a zero-rate tempco of U(0.03, 0.05) °/s/°C per axis with a random sign (ST's
-    /// I3G4250D: ±0.03 °/s/°C; x-io measured 0.015 on a BMI088); a bias rate random walk of
-    /// 5e-4 °/s/√s; the Earth's rotation at a latitude U(−60°, 60°); each gyro axis' scale
-    /// moving by U(±0.02 %)/°C (a datasheet-class sensitivity tempco). Replaces the linear
-    /// temperature drift.
+    /// I3G4250D: ±0.03 °/s/°C; x-io measured 0.015 on a BMI088); the Earth's rotation at a
+    /// latitude U(−60°, 60°); each gyro axis' scale moving by U(±0.02 %)/°C (a datasheet-class
+    /// sensitivity tempco); a bias rate random walk log-uniform over [`BIAS_WALK_RANGE`] (neither
+    /// part's datasheet gives one). Replaces the linear temperature drift.
     pub fn drifting(mut self, rng: &mut impl Rng) -> Self {
         self.warmup = Some(Warmup {
             rise_c: rng.random_range(2.0..6.0),
@@ -187,9 +192,10 @@ impl RigConfig {
             let m: f64 = rng.random_range(0.03..0.05);
             self.gyro.bias_tempco_dps_per_c[a] = if rng.random_bool(0.5) { m } else { -m };
         }
-        self.bias_rw_dps_rtsec = 5e-4;
         self.latitude_deg = Some(rng.random_range(-60.0..60.0));
         self.gyro.scale_tempco_per_c = Vector3::from_fn(|_, _| rng.random_range(-2e-4..2e-4));
+        let (lo, hi) = BIAS_WALK_RANGE;
+        self.bias_rw_dps_rtsec = lo * (hi / lo).powf(rng.random_range(0.0..1.0));
         self
     }
 

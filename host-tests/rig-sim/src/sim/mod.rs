@@ -19,7 +19,7 @@ mod rig;
 mod sensor;
 mod servo;
 
-pub use config::{RigConfig, TiltStage, Warmup, EARTH_RATE_RAD_S};
+pub use config::{RigConfig, TiltStage, Warmup, BIAS_WALK_RANGE, EARTH_RATE_RAD_S};
 pub use hand::{Hand, HandLevel};
 pub use kinematics::{tilted_axis, G0};
 pub use mag::{MagPart, MagTruth, Magnetometer};
