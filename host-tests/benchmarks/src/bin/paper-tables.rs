@@ -244,6 +244,9 @@ fn main() {
     let t3 = table3(&args, &mut rng, &proto);
     let rig = hobby_servo::compare(args.rig_runs, args.seed);
     if args.json {
-        println!("{}", json!({"seed": args.seed, "table1": t1, "table2": t2, "table3": t3, "hobby_servo": rig}));
+        println!(
+            "{}",
+            json!({"seed": args.seed, "runs": args.runs, "noise_runs": args.noise_runs, "table1": t1, "table2": t2, "table3": t3, "hobby_servo": rig})
+        );
     }
 }

@@ -132,7 +132,8 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
     let t = fields(tilt, "RESULT")?;
     let rt = fields(raw, "ROUNDTRIP")?;
     let np = fields(no_probe, "RESULT")?;
-    let mut s = String::from("## Demo\n\nThe firmware ELF on the emulated board (`cargo demo`, seed 1; `host-tests/vboard`).\n\n");
+    let mut s = String::from("## Demo\n\nThe firmware ELF on the emulated board (`cargo demo`, seed 1; `host-tests/vboard`; the one-servo runs' rig without \
+     cross-axis coupling, `--tilt`'s with U(±1 %) and the accelerometer's misalignment U(±0.3 %)); each run stores one record or says why not.\n\n");
     s += "| run | result |\n|---|---|\n";
     // A full K's errors: scale, cross-axis, largest |E|.
     let full = |f: &[(String, String)]| {
@@ -185,9 +186,14 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
 }
 
 fn paper_section(j: &Value) -> String {
-    let mut s = String::from(
-        "## Paper tables\n\n`cargo paper-tables` (seed 2024): the paper's simulation (Li et al.) with calib-core's estimator, ours beside \
-         the paper's.\n\nTable I (scale-factor error after calibration, 100 runs):\n\n| axis | status | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n",
+    let failed = |t: &str| count(&j[t]["failed"]);
+    let mut s = format!(
+        "## Paper tables\n\n`cargo paper-tables` (seed {}): the paper's simulation (Li et al.: its rates, noise and poses, none of the \
+         physics above) with calib-core's estimators directly, ours beside the paper's.\n\nTable I (scale-factor error after \
+         calibration, {} runs, {} failed):\n\n| axis | status | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n",
+        j["seed"],
+        j["runs"],
+        failed("table1")
     );
     for r in j["table1"]["rows"].as_array().into_iter().flatten() {
         s += &format!(
@@ -200,7 +206,8 @@ fn paper_section(j: &Value) -> String {
             e3(f(&r["paper"]["variance"]))
         );
     }
-    s += "\nTable II (RMS error of the scale factors):\n\n| axis | uncalibrated | with accel error | accel pre-calibrated | without accel error |\n|---|---|---|---|---|\n";
+    s += &format!("\nTable II (RMS error of the scale factors, {} runs per case, {} failed):\n\n", j["runs"], failed("table2"));
+    s += "| axis | uncalibrated | with accel error | accel pre-calibrated | without accel error |\n|---|---|---|---|---|\n";
     for r in j["table2"]["rows"].as_array().into_iter().flatten() {
         s += &format!(
             "| {} | {} | {} | {} | {} |\n",
@@ -211,7 +218,12 @@ fn paper_section(j: &Value) -> String {
             e3(f(&r["rms_without_accel_error"]))
         );
     }
-    s += "\nTable III (estimated scale factor under gyro noise):\n\n| axis | noise (°/s) | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n";
+    s += &format!(
+        "\nTable III (estimated scale factor under gyro noise, {} runs per noise level, {} failed):\n\n",
+        j["noise_runs"],
+        failed("table3")
+    );
+    s += "| axis | noise (°/s) | mean (ours / paper) | variance (ours / paper) |\n|---|---|---|---|\n";
     for r in j["table3"]["rows"].as_array().into_iter().flatten() {
         s += &format!(
             // The paper prints its means with 3 decimals.
@@ -224,7 +236,8 @@ fn paper_section(j: &Value) -> String {
             e3(f(&r["paper"]["variance"]))
         );
     }
-    s += "\nThe paper's estimator (known servo speed) against the speed-free sweep on simulated rigs (scale error, %):\n\n\
+    s += "\nThe paper's estimator (known servo speed) against the speed-free sweep on simulated rigs (calib-core's estimators on \
+          rig-sim's rigs, one servo; \"misaligned\": gyro cross-axis ±0.2°, accelerometer ±0.1°, the others none; scale error, %):\n\n\
           | rig | paper RMS | paper max | sweep RMS | sweep max | failed (paper / sweep) |\n|---|---|---|---|---|---|\n";
     for (k, name) in
         [("exact_servo", "exact servo speed"), ("hobby_servo", "hobby servo"), ("hobby_servo_misaligned", "hobby servo, misaligned")]
@@ -284,8 +297,10 @@ fn sensor_of(j: &Value) -> String {
 
 fn full_k_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
-        "## {heading}\n\n`full-k-bench` (seed {}, {} pan/tilt rigs, {}): every element of `E = Qᵀ K̂ K⁻¹ − I`; rig time {:.1} s mean, {:.1} s max; \
-         the diagonal rows are the sweep `K` reported beside the full one; failed: rigs without that `K`.\n\n\
+        "## {heading}\n\n`full-k-bench` (seed {}, {} pan/tilt rigs, {}; gyro cross-axis coupling U(±1 %), accelerometer misalignment \
+         U(±0.3 %)): every element of `E = Qᵀ K̂ K⁻¹ − I`; rig time {:.1} s mean, {:.1} s max. Paths: \"firmware\" rows are the firmware's \
+         procedure (the `tilt-servo` build's pan/tilt plan), \"calib\" rows `gyrocal-calib` on logs of a scripted pan/tilt protocol with 12 \
+         hand-held poses; the diagonal rows are the sweep `K` reported beside the full one; failed: rigs without that `K`.\n\n\
          | method | RMS of E (mean over rigs) | largest | rigs | failed |\n|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
@@ -315,7 +330,9 @@ fn rotation_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
         "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}, the hand-held poses held by a {} hand): the full K with and without \
          the rotation constraints of the moves between static poses (one servo without them gives no full K: that row scores the diagonal \
-         sweep K against rigs with ±1 % cross-axis coupling); E as above; failed: rigs without that K. Coverage: the share of the full K's elements whose error \
+         sweep K); every rig with gyro cross-axis coupling U(±1 %) and accelerometer misalignment U(±0.3 %); E as above; failed: rigs without \
+         that K. Paths: \"(firmware)\" rows are the firmware's procedure (one servo, the simulated operator's 12 hand-held poses), the others \
+         `gyrocal-calib`'s data-driven path on simulated logs. Coverage: the share of the full K's elements whose error \
          `E_ij` lies within their reported 1σ and 2σ (honest: 60–75 % and ≥ 92 %).\n\n| rig | rotations | RMS of E | largest | rigs | failed | within 1σ | within 2σ |\n|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
@@ -356,7 +373,8 @@ fn drift_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
         "## {heading}
 
-`drift-bench` (seed {}, {} rigs per row, {}): the firmware's procedure with the gyro bias constant, drifting as on a \
+`drift-bench` (seed {}, {} rigs per row, {}; one-servo rigs without cross-axis coupling, pan/tilt rigs with U(±1 %)): the \
+         firmware's procedure on simulated rigs with the gyro bias constant, drifting as on a \
          board just powered up (warm-up, bias and scale tempco, a random walk drawn per rig log-uniform over {:.2e}..{:.2e} °/s/√s, Earth rate; \
          the bias tracked between rests, the Earth's rate in the hand-held poses estimated with K; K scored at the run's mean temperature), and drifting after a \
          warm-up wait; E as above, time from power-on to the store (the harness presses the button 1 s in) plus the wait; the bias's temperature coefficient: the runs \
@@ -451,7 +469,8 @@ fn mag_section(rev1: &Value, rev2: &Value) -> String {
     let mut s = format!(
         "## Magnetometer\n\n`mag-bench` (seed {}, {} rigs per row, {} random attitudes each): `gyrocal-calib`'s magnetometer \
          calibration from the hand-held step (hard and soft iron, and the die's rotation onto the calibrated accelerometer \
-         from the gravity–field angle) beside the ellipsoid alone that the usual tools fit, on one-servo rigs with the \
+         from the gravity–field angle) beside the ellipsoid alone that the usual tools fit, on one-servo rigs (gyro cross-axis \
+         coupling U(±1 %), accelerometer misalignment U(±0.3 %)) with the \
          board's magnetometer (the site's field 40–60 µT at a dip of 50–70°, hard iron ±40 µT, soft iron ±5 %, the die \
          turned up to 2°, the servo's motor magnet near the board on the shaft; a braced hand): the tilt-compensated \
          heading error against the truth, in the calibrated accelerometer's frame; rig readings: those of each log left \
@@ -499,7 +518,7 @@ fn ahrs_section(rev1: &Value, rev2: &Value) -> String {
         "## What it buys an AHRS filter\n\n`ahrs-bench` (seed {}, {} rigs each, {} failed / {} failed): Madgwick's filter (the `ahrs` crate, \
          beta {}) fed {} s of a hand turning the board between random attitudes right after its calibration, as raw readings, \
          with only the gyro calibrated, with the magnetometer's ellipsoid alone (gyro and accelerometer calibrated) and fully \
-         calibrated (`gyrocal-calib` on the scripted one-servo log: `K`, bias, `M`, the magnetometer's `A` with the die's \
+         calibrated (`gyrocal-calib` on the scripted one-servo log of rigs with gyro cross-axis coupling U(±1 %): `K`, bias, `M`, the magnetometer's `A` with the die's \
          alignment); the heading error of the filter's body x axis against the truth after {} s of settling, while that axis \
          is within 60° of the horizon (its heading is defined). The filter starts at its own first readings' attitude.\n\n\
          | fed | LSM9DS1 (Rev1): RMS | largest | BMI270 + BMM150 (Rev2): RMS | largest |\n|---|---|---|---|---|\n",
@@ -600,8 +619,14 @@ fn page(quick_set: bool) -> Result<String, String> {
          CI runs `cargo results -- --check`. Do not edit. -->\n\nEvery figure below comes from a run with a fixed seed: \
          `cargo results` reruns them all and rewrites this page. No board was used: the demos run the firmware ELF on the \
          emulated board, the benchmarks run calib-core on simulated rigs ([the virtual board](../host-tests/vboard/README.md), \
-         [testing](testing.md)). Every rig draws its sensor's ODR error: U(−5, −2) % for the LSM9DS1, U(−2, 2) % for the \
-         BMI270 (neither from a datasheet: [limits](limits.md)).\n\n",
+         [testing](testing.md)). Each table says its path: the firmware ELF on the emulated board, the firmware's procedure \
+         (calib-core's `Procedure`, the code the ELF runs) on a simulated rig, `gyrocal-calib` on a simulated log, or calib-core's \
+         estimators directly; its seeds, its failures and the cross-axis coupling of its rigs. The rest of the physics every rig \
+         draws (rig-sim's `RigConfig::realistic`) unless a table says otherwise: the sensor's ODR error, U(−5, −2) % for the \
+         LSM9DS1 and U(−2, 2) % for the BMI270; a gyro bias that moves as on a board just powered up (a warm-up of U(2, 6) °C along \
+         1 − e^(−t/τ), τ U(60, 150) s, a zero-rate tempco of ±U(0.03, 0.05) °/s/°C, a scale tempco of U(±0.02 %)/°C, a random walk \
+         log-uniform over 1.25e-4–2e-3 °/s/√s, the Earth's rate at a latitude of U(−60°, 60°)); the servo's angle-scale error U(±3 %). \
+         Neither datasheet gives the ODR tolerance or the walk: [limits](limits.md).\n\n",
     );
     s += &demo_section(&out[4], &out[5], &out[6], &out[7], &out[11], &budgets)?;
     s += "\n";
