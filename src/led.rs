@@ -3,10 +3,10 @@
 //! | pattern | D13 (yellow) | RGB |
 //! |---|---|---|
 //! | idle, waiting for the button | off | green blink 0.1 s every 2 s |
-//! | busy in phase n | n flashes every 2 s | blue on |
+//! | busy in phase n | n flashes, then a pause (every 2 s up to 4) | blue on |
 //! | user action needed (hand-held poses, re-clamp) | off | yellow (red + green) blink 2 Hz |
 //! | done: calibration stored and applied | on | green on |
-//! | error of class n | n flashes every 2 s | red on |
+//! | error of class n | n flashes, then a pause (every 2 s up to 4) | red on |
 //!
 //! Phase numbers: wait-rest 1, bias 2, accelerometer poses (hand-held or tilt servo) 3,
 //! reattach 4, rig-poses 5, spin 6, storing the record 7.
@@ -53,9 +53,10 @@ fn class_number(c: ErrorClass) -> u8 {
     }
 }
 
-/// `n` flashes of 150 ms on / 150 ms off at the start of every 2 s cycle.
+/// `n` flashes of 150 ms on / 150 ms off, then at least 0.8 s off: a cycle of 2 s up to 4
+/// flashes, longer beyond (7 flashes in 2 s left 50 ms between two groups: uncountable).
 fn flashes(n: u8, t_ms: u64) -> bool {
-    let x = t_ms % 2000;
+    let x = t_ms % (n as u64 * 300 + 800).max(2000);
     x / 300 < n as u64 && x % 300 < 150
 }
 

@@ -34,7 +34,7 @@ pub fn build_firmware(features: &[&str]) -> Result<Vec<u8>, String> {
 pub enum Outcome {
     /// The LEDs show "done: stored and applied" (green, D13 on).
     Done,
-    /// The LEDs show an error (red): its class, the number of D13 flashes every 2 s (1 sensor,
+    /// The LEDs show an error (red): its class, the number of D13 flashes in a group (1 sensor,
     /// 2 motion, 3 servo, 4 geometry, 5 result, 6 timeout, 7 storage).
     Failed(u8),
     /// The emulation stopped.
@@ -136,17 +136,28 @@ impl Testbed {
         self.mcu.periph.borrow().leds()
     }
 
-    /// Watches D13 for one 2 s pattern cycle and returns the number of its flashes (the phase
-    /// number while blue, the error class while red).
+    /// Watches D13 for one group of flashes and returns their number (the phase number while
+    /// blue, the error class while red; 0 when D13 stays off or on).
     pub fn flashes(&mut self) -> Result<u8, Stop> {
-        let (mut n, mut was) = (0u8, self.leds().d13);
-        for _ in 0..80 {
+        // One whole group: from a pause (D13 off for 0.5 s: the flashes are 0.15 s apart) to the
+        // next, as a person counts them (at most 2 of the longest cycle, 2.9 s, in 25 ms steps).
+        let (mut n, mut was, mut off_s, mut started) = (0u8, self.leds().d13, 0.0, false);
+        for _ in 0..240 {
             let stop = self.run_for(0.025);
             if stop != Stop::Time {
                 return Err(stop);
             }
             let on = self.leds().d13;
-            n += u8::from(on && !was);
+            off_s = if on { 0.0 } else { off_s + 0.025 };
+            if started && on && !was {
+                n += 1;
+            }
+            if off_s >= 0.5 {
+                if started && n > 0 {
+                    break;
+                }
+                started = true;
+            }
             was = on;
         }
         Ok(n)
