@@ -8,7 +8,7 @@
 
 use calib_core::estimators::bias::RestBias;
 use calib_core::estimators::full::{Axes, FullLimits};
-use calib_core::estimators::rotation::{PoseRest, Rejected, RotationLimits, Rotations};
+use calib_core::estimators::rotation::{PoseRest, Rejected, RotationLimits, Rotations, EARTH_RATE_RAD_S};
 use calib_core::Error;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -206,7 +206,7 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
     // (0.001°), so that the Earth's rate's prior (|w| = 1) does not hold its estimate back.
     let limits = RotationLimits { gamma_sigma_deg: 0.001, ..RotationLimits::DEFAULT };
     let (lat, hz) = (50f64.to_radians(), 238.0);
-    let earth_w = V3::new(0.0, lat.cos(), lat.sin()) * 7.292_115e-5f64.to_degrees();
+    let earth_w = V3::new(0.0, lat.cos(), lat.sin()) * EARTH_RATE_RAD_S.to_degrees();
     let atts = attitudes(false);
     let kinv = k_true().try_inverse().unwrap();
     let in_body = |q: &UnitQuaternion<f64>| q.inverse() * earth_w;

@@ -430,7 +430,9 @@ impl Rotations {
 
     /// Pose `pose`'s attitude (rotation from its body frame to the first rest's, from the gyro
     /// with `K = I`): its moves get the Earth's-rate term of the module doc. Its bias holds the
-    /// Earth's rate of the latest measured rest (a prediction from it, or itself measured).
+    /// Earth's rate of the latest measured rest: exactly when it is that rest; a prediction
+    /// (`Drift::at`'s line over the rests so far) until [`Self::settle_bias`] puts it on the line
+    /// between two rests.
     pub fn push_attitude(&mut self, pose: u8, attitude: Matrix3<f32>) {
         if let Some(e) = self.earth.get_mut(pose as usize) {
             *e = self.rest_earth.map(|m| (attitude.transpose(), m));

@@ -295,8 +295,8 @@ pub struct Procedure {
     window_turn: PoseTurn,
     /// The board's attitude from the bias rest to the first rig rest after the hand-held step
     /// (rotation from the body frame to the bias rest's, gyro at `K = I`): the Earth's rate in
-    /// the hand-held poses ([`Rotations::push_attitude`]); `None` outside it, or once a sample
-    /// saturated or turned more than 0.25 rad from the last (a gap).
+    /// the hand-held poses ([`Rotations::push_attitude`]); `None` outside it, or once a gyro
+    /// sample saturated or turned more than 0.25 rad from the last (a gap).
     attitude: Option<Matrix3<f32>>,
     gbar: Option<(Vec3, f32)>,
     temp: Welford3,
@@ -524,8 +524,8 @@ impl Procedure {
         }
         let dt = self.last_sample_t.map_or(0.0, |last| s.t_s - last);
         self.last_sample_t = Some(s.t_s);
-        let saturated = s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g)
-            || s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
+        let gyro_saturated = s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
+        let saturated = gyro_saturated || s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g);
         self.tainted |= saturated;
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
             self.temp.add([t, 0.0, 0.0]);
@@ -538,9 +538,10 @@ impl Procedure {
             self.window_turn.add(s.t_s, dt, g);
         }
         if let Some(a) = self.attitude {
-            // A clipped sample, or a step beyond `exp_jr`'s series (a gap in the samples): lost.
+            // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the samples):
+            // lost. (A knock that clips only the accelerometer turns nothing unseen.)
             let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
-            self.attitude = (!saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp_jr(&phi).0);
+            self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp_jr(&phi).0);
         }
         let wt = if window.is_some() { core::mem::take(&mut self.window_read) } else { WindowReadings::default() };
         let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
