@@ -434,10 +434,9 @@ impl TempFit {
         self.st += t;
         self.stt += t * t;
         for k in 0..3 {
-            let b = rest.residual_dps[k] as f64;
-            self.sb[k] += b;
-            self.stb[k] += t * b;
-            self.sbb[k] += b * b;
+            self.sb[k] += b[k];
+            self.stb[k] += t * b[k];
+            self.sbb[k] += b[k] * b[k];
         }
     }
 

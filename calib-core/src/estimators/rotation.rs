@@ -750,7 +750,8 @@ impl Rotations {
             j = next;
             r *= e;
         }
-        let g = match (self.earth.get(m.from as usize).copied().flatten(), self.earth.get(m.to as usize).copied().flatten()) {
+        let earth = |pose: u8| self.earth.get(pose as usize).copied().flatten();
+        let g = match (earth(m.from), earth(m.to)) {
             (Some((ai, mi)), Some((_, mj))) => ai * dt - p * mi - q * mj,
             _ => Matrix3::zeros(),
         };
