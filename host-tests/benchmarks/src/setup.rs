@@ -4,7 +4,7 @@
 use calib_core::formats::record::{Sensor, SensorSetup};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rig_sim::sim::{AccelRange, GyroRange, RigConfig};
+use rig_sim::sim::{AccelRange, GyroRange, RigConfig, BMI270_ODR_ERROR, LSM9DS1_ODR_ERROR};
 
 /// The simulated sensor and its settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -33,6 +33,14 @@ impl Setup {
             Setup::ArduinoLsm9ds1 => SensorSetup::ARDUINO_LSM9DS1,
             Setup::Bmi270 => bmi(500.0, 2.0),
             Setup::ArduinoBmi270 => bmi(2000.0, 4.0),
+        }
+    }
+
+    /// The range of the part's relative ODR error the rigs draw from.
+    pub fn odr_error_range(self) -> (f64, f64) {
+        match self {
+            Setup::Default | Setup::ArduinoLsm9ds1 => LSM9DS1_ODR_ERROR,
+            Setup::Bmi270 | Setup::ArduinoBmi270 => BMI270_ODR_ERROR,
         }
     }
 

@@ -1,9 +1,10 @@
 //! Drives the calib-core procedure with the simulated rig and a simulated operator, from button
 //! press to stored record: the end-to-end harness of the tests and of `calib --simulate`.
 //!
-//! The operator presses the button, holds the board in the 12 icosahedron orientations when
-//! asked (moving to the next one after each captured pose), clamps it back on the shaft and
-//! presses again. Faults are injected through [`Faults`].
+//! The operator presses the button, holds the board near the 12 icosahedron orientations when
+//! asked, each at a heading of its own ([`operator_attitudes`]; moving to the next one after each
+//! captured pose), clamps it back on the shaft and presses again. Faults are injected through
+//! [`Faults`].
 
 use crate::sim::{Reading, Rig, RigConfig};
 use calib_core::estimators::gyro::GyroCal;
@@ -12,6 +13,8 @@ use calib_core::formats::record::{Record, StoreError};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
 use calib_core::Error;
 use nalgebra::{UnitQuaternion, Vector3};
+use rand::Rng;
+use std::f64::consts::TAU;
 
 /// Faults to inject.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -94,6 +97,24 @@ pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
         .map(|v| {
             UnitQuaternion::rotation_between(v, &Vector3::z())
                 .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI))
+        })
+        .collect()
+}
+
+/// The attitudes (body → world) a person holds the board in when asked for 12 clearly different
+/// orientations turned about varied axes, drawn from `rng`: each icosahedron vertex pointed up
+/// within 10° (a random direction; the vertices stay ≥ 43° apart, beyond the procedure's 30°),
+/// at a heading uniform over the turn. A person turns the board about the vertical as readily
+/// as they tilt it; [`handheld_attitudes`] (no heading: tilts only) leaves the body axis that is
+/// vertical unturned between two poses.
+pub fn operator_attitudes(rng: &mut impl Rng) -> Vec<UnitQuaternion<f64>> {
+    handheld_attitudes()
+        .into_iter()
+        .map(|q| {
+            let aim = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(0.0..TAU));
+            let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), rng.random_range(0.0f64..10.0).to_radians());
+            let heading = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(0.0..TAU));
+            heading * aim * tilt * aim.inverse() * q
         })
         .collect()
 }
@@ -182,7 +203,8 @@ impl Shell for SimBoard<'_> {
 /// Runs `proc` on `rig` until it is done or failed (or `max_s` of MCU time passed).
 /// `log` sees every delivered sample with the commanded rotation and tilt angles.
 pub fn run(rig: &mut Rig, proc: &mut Procedure, faults: Faults, max_s: f64, log: impl FnMut(&Reading, Option<f32>, Option<f32>)) -> Run {
-    run_posed(rig, proc, faults, max_s, handheld_attitudes(), log)
+    let attitudes = operator_attitudes(rig.operator_rng());
+    run_posed(rig, proc, faults, max_s, attitudes, log)
 }
 
 /// A fresh rig (seed 5) and procedure, with the operator holding the board at `attitude(i)`

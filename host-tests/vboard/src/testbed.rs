@@ -6,7 +6,7 @@ use crate::mcu::{Mcu, Stop};
 use crate::periph::{Leds, Periph};
 use crate::pty::PtyBridge;
 use calib_core::formats::record::Record;
-use rig_sim::harness::handheld_attitudes;
+use rig_sim::harness::operator_attitudes;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
 use rig_sim::nor::NorSim;
 use rig_sim::sim::{Rig, RigConfig};
@@ -209,13 +209,13 @@ impl Testbed {
 
     /// Presses the button and plays an operator who goes by the LEDs only, never by the log:
     /// yellow blinking (red + green together) means "your turn": they hold the board in the
-    /// hand-held orientations one after the other, 4 s each (a pose is captured after 2 s of
+    /// hand-held orientations one after the other (`operator_attitudes`), 4 s each (a pose is captured after 2 s of
     /// stillness), then clamp it back and press the button until the yellow stops; green with
     /// D13 lit is done, red without green an error, its class the D13 flashes. `inject(event,
     /// periph)` sees what the operator does (fault injection).
     pub fn calibrate_with(&mut self, max_s: f64, mut inject: impl FnMut(Event, &mut Periph)) -> Outcome {
         const HOLD_S: f64 = 4.0;
-        let attitudes = handheld_attitudes();
+        let attitudes = operator_attitudes(self.mcu.periph.borrow_mut().sensor.rig_mut().operator_rng());
         let t_end = self.mcu.now() + max_s;
         // With `calib --port`, calib starts the calibration itself.
         if matches!(self.go, Go::Button) {

@@ -9,7 +9,9 @@
 //! reported, and the fraction of its axes within 2σ of the truth), and the runs that fail with
 //! their errors. Each drifting rig draws its bias random walk from `BIAS_WALK_RANGE`; a second
 //! table runs the drifting rigs at the range's ends and middle and gives the tempco's coverage
-//! (1σ, 2σ) and the walk the calibration measured (median, `TempFit::walk_dps_rtsec`).
+//! (1σ, 2σ) and the walk the calibration measured (median, `TempFit::walk_dps_rtsec`); a third
+//! runs them at fixed ODR errors, the ends and middle of the range the rigs draw from
+//! (`Setup::odr_error_range`).
 //! `--json`: the last line is a JSON summary. `--setup arduino-lsm9ds1`: the sensor
 //! at ±2000 °/s and ±4 g (70 m°/s and 0.122 mg per count), as Arduino_LSM9DS1 runs it; `--setup
 //! bmi270`: the Rev2's BMI270 at the firmware's Rev2 setup (`RigConfig::on_bmi270`: 100 Hz,
@@ -100,6 +102,48 @@ impl TempcoScore {
     }
 }
 
+/// E's RMS and largest element of every stored run, each element over the 1σ the record gives
+/// it, the times (s) and the failures.
+#[derive(Default)]
+struct Scores {
+    rms: Vec<f64>,
+    largest: Vec<f64>,
+    z: Vec<f64>,
+    times: Vec<f64>,
+    failed: Vec<String>,
+}
+
+impl Scores {
+    /// A run on `rig` (`wait_s` before the press).
+    fn add(&mut self, out: &rig_sim::harness::Run, rig: &Rig, wait_s: f64) {
+        match (out.stored.first(), out.error) {
+            (Some(rec), _) => match pan_tilt::k_error_matrix(rec.gyro_k, rec.accel_m, rig) {
+                Some(e) => {
+                    self.rms.push((e.norm_squared() / 9.0).sqrt());
+                    self.largest.push(e.amax());
+                    self.z.extend((0..9).map(|i| e[(i / 3, i % 3)].abs() / rec.sigma_k[i / 3][i % 3] as f64));
+                    self.times.push(out.end_s - rig_sim::harness::PRESS_AT_S + wait_s);
+                }
+                None => self.failed.push("no error matrix".to_string()),
+            },
+            (None, e) => self.failed.push(format!("{e:?}")),
+        }
+    }
+
+    /// The mean RMS of E, its largest element over the runs and the mean time (s).
+    fn summary(&self) -> (f64, f64, f64) {
+        (Moments::of(&self.rms).mean, self.largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&self.times).mean)
+    }
+
+    /// The fraction of E's elements within 2σ of the record's (0 without a run).
+    fn within_2sigma(&self) -> f64 {
+        if self.z.is_empty() {
+            return 0.0;
+        }
+        self.z.iter().filter(|z| **z <= 2.0).count() as f64 / self.z.len() as f64
+    }
+}
+
 /// The rig and the procedure's configuration of `plan` for rig `i`.
 fn configs(plan: &str, args: &Args, i: usize) -> (RigConfig, Config) {
     let setup = args.setup.setup();
@@ -119,12 +163,12 @@ fn main() {
         args.rigs, args.seed, setup.odr_hz, setup.gyro_range_dps, setup.accel_range_g
     );
     println!(
-        "{:<10}{:<22}{:>12}{:>14}{:>10}{:>8}{:>8}{:>8}{:>10}",
-        "plan", "bias", "RMS of E", "largest |E|", "time s", "stored", "failed", "tempco", "in 2 sig"
+        "{:<10}{:<22}{:>12}{:>14}{:>12}{:>10}{:>8}{:>8}{:>8}{:>10}",
+        "plan", "bias", "RMS of E", "largest |E|", "E in 2 sig", "time s", "stored", "failed", "tempco", "in 2 sig"
     );
     for plan in ["one-servo", "pan-tilt"] {
         for bias in [Bias::Constant, Bias::Drifting, Bias::Waited] {
-            let (mut rms, mut largest, mut times, mut failed) = (vec![], vec![], vec![], vec![]);
+            let mut scores = Scores::default();
             let mut tempco = TempcoScore::default();
             // Squared bias errors at the run's end (°/s, per axis): the record's, the first rest's.
             let (mut bias_sq, mut first_sq) = (vec![], vec![]);
@@ -153,37 +197,29 @@ fn main() {
                         first_sq.push((*first_k as f64 - t.gyro_bias_dps[k]).powi(2));
                     }
                 }
-                match (out.stored.first(), out.error) {
-                    (Some(rec), _) => match pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
-                        Some((mx, r)) => {
-                            rms.push(r);
-                            largest.push(mx);
-                            times.push(out.end_s - rig_sim::harness::PRESS_AT_S + wait);
-                        }
-                        None => failed.push("no error matrix".to_string()),
-                    },
-                    (None, e) => failed.push(format!("{e:?}")),
-                }
+                scores.add(&out, &rig, wait);
             }
             let name = match bias {
                 Bias::Constant => "constant".to_string(),
                 Bias::Drifting => "drifting".to_string(),
                 Bias::Waited => format!("drifting, {:.0} s wait", args.wait_s),
             };
-            let (r, m, t) = (Moments::of(&rms).mean, largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&times).mean);
+            let (r, m, t) = scores.summary();
             let (tempco_runs, cover) = (tempco.runs, tempco.cover()[1]);
             let (bias_rms, first_rms) = (Moments::of(&bias_sq).mean.sqrt(), Moments::of(&first_sq).mean.sqrt());
+            let e_cover = scores.within_2sigma();
             println!(
-                "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
-                rms.len(),
-                failed.len(),
+                "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{:>11.0}%{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
+                100.0 * e_cover,
+                scores.rms.len(),
+                scores.failed.len(),
                 100.0 * cover
             );
             println!("  bias error at the end {bias_rms:.4} dps RMS (the first rest's alone: {first_rms:.4})");
-            for f in &failed {
+            for f in &scores.failed {
                 println!("  failed: {f}");
             }
-            rows.push(json!({"plan": plan, "bias": name, "rms_mean": r, "max": m, "time_s": t, "stored": rms.len(), "failed": failed,
+            rows.push(json!({"plan": plan, "bias": name, "rms_mean": r, "max": m, "e_within_2sigma": e_cover, "time_s": t, "stored": scores.rms.len(), "failed": scores.failed,
                 "tempco_runs": tempco_runs, "tempco_within_2sigma": cover, "bias_rms_dps": bias_rms, "first_rest_bias_rms_dps": first_rms}));
         }
     }
@@ -214,10 +250,41 @@ fn main() {
                 "sigma_median": sigma, "walk_measured_median": median}));
         }
     }
+    // The accuracy across the part's ODR error: every rig at one fixed error.
+    let (odr_lo, odr_hi) = args.setup.odr_error_range();
+    println!(
+        "\nE at fixed ODR errors (drifting rigs, every rig at the error; the rigs above draw it over {:+.1}..{:+.1} %)",
+        100.0 * odr_lo,
+        100.0 * odr_hi
+    );
+    println!("{:<10}{:>10}{:>12}{:>14}{:>12}{:>8}{:>8}", "plan", "ODR err", "RMS of E", "largest |E|", "E in 2 sig", "stored", "failed");
+    let mut odr_rows = vec![];
+    for plan in ["one-servo", "pan-tilt"] {
+        for odr_error in [odr_lo, 0.5 * (odr_lo + odr_hi), odr_hi] {
+            let mut scores = Scores::default();
+            for i in 0..args.rigs {
+                let (mut rig_cfg, cfg) = configs(plan, &args, i);
+                rig_cfg.odr_error = odr_error;
+                let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
+                let mut p = Procedure::new(cfg, None);
+                let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+                scores.add(&out, &rig, 0.0);
+            }
+            let ((r, m, _), cover) = (scores.summary(), scores.within_2sigma());
+            let pct = 100.0 * odr_error;
+            println!("{plan:<10}{pct:>9.1}%{r:>12.2e}{m:>14.2e}{:>11.0}%{:>8}{:>8}", 100.0 * cover, scores.rms.len(), scores.failed.len());
+            for f in &scores.failed {
+                println!("  failed: {f}");
+            }
+            odr_rows.push(json!({"plan": plan, "odr_error_pct": pct, "rms_mean": r, "max": m, "e_within_2sigma": cover,
+                "stored": scores.rms.len(), "failed": scores.failed}));
+        }
+    }
     if args.json {
         println!(
             "{}",
-            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": rows, "walk_range": [lo, hi], "walks": walk_rows})
+            json!({"rigs": args.rigs, "seed": args.seed, "setup": args.setup.json(), "rows": rows, "walk_range": [lo, hi], "walks": walk_rows,
+                "odr_range_pct": [100.0 * odr_lo, 100.0 * odr_hi], "odr_rows": odr_rows})
         );
     }
 }

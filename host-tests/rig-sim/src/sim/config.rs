@@ -86,6 +86,11 @@ pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
 /// a quarter to four times 5e-4, the single value rigs had before (issue 35). Neither the
 /// LSM9DS1's nor the BMI270's datasheet states one.
 pub const BIAS_WALK_RANGE: (f64, f64) = (1.25e-4, 2e-3);
+/// The LSM9DS1's relative ODR error drawn per rig (its datasheet states no tolerance: see
+/// docs/limits.md).
+pub const LSM9DS1_ODR_ERROR: (f64, f64) = (-0.05, -0.02);
+/// The BMI270's relative ODR error drawn per rig (none found in its datasheet either).
+pub const BMI270_ODR_ERROR: (f64, f64) = (-0.02, 0.02);
 
 impl RigConfig {
     /// Temperature change from t = 0 to true time `t_s` (°C): the linear drift and the warm-up.
@@ -149,7 +154,7 @@ impl RigConfig {
         let twist_deg = rng.random_range(0.0..360.0);
         Self {
             odr_hz: 119.0,
-            odr_error: rng.random_range(-0.05..-0.02),
+            odr_error: rng.random_range(LSM9DS1_ODR_ERROR.0..LSM9DS1_ODR_ERROR.1),
             gyro: GyroSensor::realistic(rng),
             accel: AccelSensor::realistic(rng),
             servo: ServoModel::Positional(PositionalServo::realistic(rng)),
@@ -210,7 +215,7 @@ impl RigConfig {
     pub fn on_bmi270(mut self, gyro_dps: u16, accel_g: u8, rng: &mut impl Rng) -> Self {
         self.gyro.misalignment[(0, 2)] += crate::bmi_model::GYR_CAS as f64 / 512.0;
         self.odr_hz = 100.0;
-        self.odr_error = rng.random_range(-0.02..0.02);
+        self.odr_error = rng.random_range(BMI270_ODR_ERROR.0..BMI270_ODR_ERROR.1);
         self.gyro.noise_dps_rthz = 0.007;
         self.accel.noise_ug_rthz = 160.0;
         self.gyro.range = GyroRange::Bmi270(gyro_dps);

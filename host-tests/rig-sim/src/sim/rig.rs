@@ -110,6 +110,8 @@ pub struct Rig {
     /// The magnetometer and its noise stream.
     mag: Option<Magnetometer>,
     mag_rng: ChaCha8Rng,
+    /// The stream of the operator's choices ([`Rig::operator_rng`]).
+    operator_rng: ChaCha8Rng,
 }
 
 impl Rig {
@@ -158,6 +160,7 @@ impl Rig {
             temp_sum: (0.0, 0),
             mag: cfg.mag.map(|part| Magnetometer::draw(part, &mut stream(8))),
             mag_rng: stream(9),
+            operator_rng: stream(10),
         };
         rig.force_b = rig.specific_force(&rig.q_wb, 0.0);
         rig
@@ -359,6 +362,12 @@ impl Rig {
             temp_c: self.cfg.temp_c + delta_temp_c,
             mag: self.mag.as_ref().map(Magnetometer::truth),
         }
+    }
+
+    /// A stream of `seed` of its own for the operator's choices (which attitudes the board is
+    /// held in): drawing from it leaves every other stream unchanged.
+    pub fn operator_rng(&mut self) -> &mut ChaCha8Rng {
+        &mut self.operator_rng
     }
 
     /// The rig's configuration.
