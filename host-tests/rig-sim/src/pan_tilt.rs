@@ -116,6 +116,13 @@ pub fn k_error_matrix(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> 
     Some(q.transpose() * m(k_hat) * rig.truth().gyro_k.try_inverse()? - Matrix3::identity())
 }
 
+/// `|E_ij| / σ_ij` (row-major) of [`k_error_matrix`] against the 1σ `sigma` a result gives each
+/// element of `K̂` (`E ≈ K̂ − K` for `K ≈ I`, so `σ(E_ij) ≈ σ(K_ij)`).
+pub fn k_error_z(k_hat: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<[f64; 9]> {
+    let e = k_error_matrix(k_hat, m_hat, rig)?;
+    Some(core::array::from_fn(|i| e[(i / 3, i % 3)].abs() / sigma[i / 3][i % 3] as f64))
+}
+
 /// (largest |E_ij|, RMS over the 9) of [`k_error_matrix`].
 pub fn k_error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<(f64, f64)> {
     let e = k_error_matrix(k_hat, m_hat, rig)?;

@@ -121,7 +121,7 @@ impl Scores {
                 Some(e) => {
                     self.rms.push((e.norm_squared() / 9.0).sqrt());
                     self.largest.push(e.amax());
-                    self.z.extend((0..9).map(|i| e[(i / 3, i % 3)].abs() / rec.sigma_k[i / 3][i % 3] as f64));
+                    self.z.extend(pan_tilt::k_error_z(rec.gyro_k, rec.sigma_k, rec.accel_m, rig).into_iter().flatten());
                     self.times.push(out.end_s - rig_sim::harness::PRESS_AT_S + wait_s);
                 }
                 None => self.failed.push("no error matrix".to_string()),

@@ -50,13 +50,11 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
     }
 }
 
-/// How many of a full `K̂`'s 9 elements have their error `E_ij` ([`pan_tilt::k_error_matrix`])
-/// within 1σ and within 2σ of their reported 1σ (`E ≈ K̂ − K` for `K ≈ I`, so `σ(E_ij) ≈
-/// σ(K_ij)`).
+/// How many of a full `K̂`'s 9 elements have their error within 1σ and within 2σ of their
+/// reported 1σ ([`pan_tilt::k_error_z`]).
 fn covered(k: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m: [[f32; 3]; 3], rig: &Rig) -> [usize; 2] {
-    let Some(e) = pan_tilt::k_error_matrix(k, m, rig) else { return [0; 2] };
-    let within = |n: f64| (0..9).filter(|&i| e[(i / 3, i % 3)].abs() <= n * sigma[i / 3][i % 3] as f64).count();
-    [within(1.0), within(2.0)]
+    let Some(z) = pan_tilt::k_error_z(k, sigma, m, rig) else { return [0; 2] };
+    [1.0, 2.0].map(|n| z.iter().filter(|z| **z <= n).count())
 }
 
 /// The fractions of elements within 1σ and 2σ from the counts over `rigs` full `K`s.
