@@ -431,6 +431,10 @@ fn slipped_board_is_named() {
                 Err(e) => {
                     println!("slip {deg}° about #{i}: {e}");
                     assert!(matches!(e, Error::AxisNotFixed { .. } | Error::MovesInconsistent { .. }), "{e:?}");
+                    // The message's numbers are the ones compared: the value beyond its limit.
+                    if let Error::AxisNotFixed { plane_rms_g, limit_g } = e {
+                        assert!(plane_rms_g > limit_g, "{e}");
+                    }
                 }
             }
         }

@@ -3,7 +3,7 @@
 //! four tilt settings pan poses 0–180° every 45° and back, with the tilt moves at pan 0 (always
 //! reached from 45°: a hobby servo's dead band lands it where it came from).
 
-use crate::harness::handheld_attitudes;
+use crate::harness::operator_attitudes;
 use crate::sim::{Reading, Rig, RigConfig, TiltStage};
 use crate::variant::Variant;
 use calib_core::formats::log::{self, Row};
@@ -77,7 +77,7 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     if handheld {
         // As the firmware asks (about 4 s a pose): 1 s to turn, 3 s held, of which a hand's
         // pose averages 2 s once it has settled.
-        for q in handheld_attitudes() {
+        for q in operator_attitudes(s.rig.operator_rng()) {
             s.rig.detach_to(q, 1.0);
             s.hold(4.0, false);
         }
@@ -116,11 +116,20 @@ pub fn k_error_matrix(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> 
     Some(q.transpose() * m(k_hat) * rig.truth().gyro_k.try_inverse()? - Matrix3::identity())
 }
 
-/// `|E_ij| / σ_ij` (row-major) of [`k_error_matrix`] against the 1σ `sigma` a result gives each
-/// element of `K̂` (`E ≈ K̂ − K` for `K ≈ I`, so `σ(E_ij) ≈ σ(K_ij)`).
-pub fn k_error_z(k_hat: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<[f64; 9]> {
-    let e = k_error_matrix(k_hat, m_hat, rig)?;
-    Some(core::array::from_fn(|i| e[(i / 3, i % 3)].abs() / sigma[i / 3][i % 3] as f64))
+/// `|E_ij| / σ_ij` (row-major) of an error matrix `e` ([`k_error_matrix`]) against the 1σ `sigma`
+/// a result gives each element of `K̂` (`E ≈ K̂ − K` for `K ≈ I`, so `σ(E_ij) ≈ σ(K_ij)`); an
+/// element with no 1σ is 0 when exact, else infinite.
+pub fn k_error_z(e: &Matrix3<f64>, sigma: [[f32; 3]; 3]) -> [f64; 9] {
+    core::array::from_fn(|i| {
+        let (e, s) = (e[(i / 3, i % 3)].abs(), sigma[i / 3][i % 3] as f64);
+        if s > 0.0 {
+            e / s
+        } else if e == 0.0 {
+            0.0
+        } else {
+            f64::INFINITY
+        }
+    })
 }
 
 /// (largest |E_ij|, RMS over the 9) of [`k_error_matrix`].

@@ -254,6 +254,9 @@ fn a_board_that_slips_on_the_bracket_is_caught() {
         let faults = Faults { slip_after_pose: Some(pose), ..Faults::default() };
         let e = pan_tilt_failure(pan_tilt::rig_config(34, 0), Config::PAN_TILT, faults);
         assert!(matches!(e, Error::AxisNotFixed { .. } | Error::MovesInconsistent { .. }), "slip after pose {pose}: {e:?}");
+        if let Error::AxisNotFixed { plane_rms_g, limit_g } = e {
+            assert!(plane_rms_g > limit_g, "the numbers named are the ones compared: {e}");
+        }
     }
 }
 

@@ -101,9 +101,10 @@ impl Axes {
         let sigma_a = pose_noise(&fits, limits);
         // A plane much noisier than the others: the board slipped (or the shaft wobbles) on that axis.
         for f in fits.iter().flatten().filter(|f| f.dof >= MIN_NOISE_DOF) {
-            let limit_g = limits.max_plane_noise_ratio as f64 * sigma_a;
-            if libm::sqrt(f.ss / f.dof as f64) > limit_g {
-                return Err(Error::AxisNotFixed { plane_rms_g: f.plane_rms_g as f32, limit_g: limit_g as f32 });
+            let (noise_g, limit_g) = (libm::sqrt(f.ss / f.dof as f64), limits.max_plane_noise_ratio as f64 * sigma_a);
+            if noise_g > limit_g {
+                // The value compared is reported (the plane's RMS over its poses is smaller).
+                return Err(Error::AxisNotFixed { plane_rms_g: noise_g as f32, limit_g: limit_g as f32 });
             }
         }
         for a in 0..MAX_AXES {

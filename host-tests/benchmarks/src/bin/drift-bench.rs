@@ -121,7 +121,7 @@ impl Scores {
                 Some(e) => {
                     self.rms.push((e.norm_squared() / 9.0).sqrt());
                     self.largest.push(e.amax());
-                    self.z.extend(pan_tilt::k_error_z(rec.gyro_k, rec.sigma_k, rec.accel_m, rig).into_iter().flatten());
+                    self.z.extend(pan_tilt::k_error_z(&e, rec.sigma_k));
                     self.times.push(out.end_s - rig_sim::harness::PRESS_AT_S + wait_s);
                 }
                 None => self.failed.push("no error matrix".to_string()),
@@ -135,13 +135,15 @@ impl Scores {
         (Moments::of(&self.rms).mean, self.largest.iter().fold(0.0f64, |a, b| a.max(*b)), Moments::of(&self.times).mean)
     }
 
-    /// The fraction of E's elements within 2σ of the record's (0 without a run).
-    fn within_2sigma(&self) -> f64 {
-        if self.z.is_empty() {
-            return 0.0;
-        }
-        self.z.iter().filter(|z| **z <= 2.0).count() as f64 / self.z.len() as f64
+    /// The fraction of E's elements within 2σ of the record's (none without a run).
+    fn within_2sigma(&self) -> Option<f64> {
+        (!self.z.is_empty()).then(|| self.z.iter().filter(|z| **z <= 2.0).count() as f64 / self.z.len() as f64)
     }
+}
+
+/// A fraction as a percentage, "-" for none.
+fn pct(x: Option<f64>) -> String {
+    x.map_or("-".into(), |x| format!("{:.0}%", 100.0 * x))
 }
 
 /// The rig and the procedure's configuration of `plan` for rig `i`.
@@ -209,8 +211,8 @@ fn main() {
             let (bias_rms, first_rms) = (Moments::of(&bias_sq).mean.sqrt(), Moments::of(&first_sq).mean.sqrt());
             let e_cover = scores.within_2sigma();
             println!(
-                "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{:>11.0}%{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
-                100.0 * e_cover,
+                "{plan:<10}{name:<22}{r:>12.2e}{m:>14.2e}{:>12}{t:>10.0}{:>8}{:>8}{tempco_runs:>8}{:>9.0}%",
+                pct(e_cover),
                 scores.rms.len(),
                 scores.failed.len(),
                 100.0 * cover
@@ -271,12 +273,12 @@ fn main() {
                 scores.add(&out, &rig, 0.0);
             }
             let ((r, m, _), cover) = (scores.summary(), scores.within_2sigma());
-            let pct = 100.0 * odr_error;
-            println!("{plan:<10}{pct:>9.1}%{r:>12.2e}{m:>14.2e}{:>11.0}%{:>8}{:>8}", 100.0 * cover, scores.rms.len(), scores.failed.len());
+            let odr_pct = 100.0 * odr_error;
+            println!("{plan:<10}{odr_pct:>9.1}%{r:>12.2e}{m:>14.2e}{:>12}{:>8}{:>8}", pct(cover), scores.rms.len(), scores.failed.len());
             for f in &scores.failed {
                 println!("  failed: {f}");
             }
-            odr_rows.push(json!({"plan": plan, "odr_error_pct": pct, "rms_mean": r, "max": m, "e_within_2sigma": cover,
+            odr_rows.push(json!({"plan": plan, "odr_error_pct": odr_pct, "rms_mean": r, "max": m, "e_within_2sigma": cover,
                 "stored": scores.rms.len(), "failed": scores.failed}));
         }
     }

@@ -322,6 +322,11 @@ fn full_k_section(heading: &str, j: &Value) -> String {
 }
 
 /// A share as a whole percentage, `–` when there is none.
+/// A signed number with one decimal and a true minus sign.
+fn signed(x: f64) -> String {
+    format!("{x:+.1}").replace('-', "−")
+}
+
 fn percent(v: &Value) -> String {
     v.as_f64().map_or("–".into(), |x| format!("{:.0} %", 100.0 * x))
 }
@@ -333,7 +338,7 @@ fn rotation_section(heading: &str, j: &Value) -> String {
          sweep K); every rig with gyro cross-axis coupling U(±1 %) and accelerometer misalignment U(±0.3 %); E as above; failed: rigs without \
          that K. Paths: \"(firmware)\" rows are the firmware's procedure (one servo, the simulated operator's 12 hand-held poses), the others \
          `gyrocal-calib`'s data-driven path on simulated logs. Coverage: the share of the full K's elements whose error \
-         `E_ij` lies within their reported 1σ and 2σ (honest: 60–75 % and ≥ 92 %).\n\n| rig | rotations | RMS of E | largest | rigs | failed | within 1σ | within 2σ |\n|---|---|---|---|---|---|---|---|\n",
+         `E_ij` lies within their reported 1σ and 2σ (a true 1σ gives 68 % and 95 %).\n\n| rig | rotations | RMS of E | largest | rigs | failed | within 1σ | within 2σ |\n|---|---|---|---|---|---|---|---|\n",
         j["seed"],
         j["rigs"],
         sensor_of(j),
@@ -425,18 +430,19 @@ fn drift_section(heading: &str, j: &Value) -> String {
     }
     s += &format!(
         "\nE across the part's ODR error: the same drifting rigs, every one at a fixed error, at the ends and the middle of the \
-         range the rows above draw from ({:+.1}..{:+.1} %). The largest |E| is the largest of the runs' 9 elements; over 20 runs \
+         range the rows above draw from ({}..{} %). The largest |E| is the largest of the runs' 9 elements; over {} runs \
          it is the tail of the plan's noise (on one servo: its 12 hand moves, and which moves the operator made), not of the \
          ODR error ([limits](limits.md)); \"E in 2σ\" says whether the record's 1σ covers it.\n\n\
          | plan | ODR error | RMS of E | largest | E in 2σ | stored | failed |\n|---|---|---|---|---|---|---|\n",
-        f(&j["odr_range_pct"][0]),
-        f(&j["odr_range_pct"][1])
+        signed(f(&j["odr_range_pct"][0])),
+        signed(f(&j["odr_range_pct"][1])),
+        j["rigs"]
     );
     for r in j["odr_rows"].as_array().into_iter().flatten() {
         s += &format!(
-            "| {} | {:+.1} % | {} | {} | {} | {} | {} |\n",
+            "| {} | {} % | {} | {} | {} | {} | {} |\n",
             r["plan"].as_str().unwrap_or("?"),
-            f(&r["odr_error_pct"]),
+            signed(f(&r["odr_error_pct"])),
             e3(f(&r["rms_mean"])),
             e3(f(&r["max"])),
             percent(&r["e_within_2sigma"]),

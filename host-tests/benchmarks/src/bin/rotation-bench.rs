@@ -53,7 +53,8 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
 /// How many of a full `K̂`'s 9 elements have their error within 1σ and within 2σ of their
 /// reported 1σ ([`pan_tilt::k_error_z`]).
 fn covered(k: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m: [[f32; 3]; 3], rig: &Rig) -> [usize; 2] {
-    let Some(z) = pan_tilt::k_error_z(k, sigma, m, rig) else { return [0; 2] };
+    let Some(e) = pan_tilt::k_error_matrix(k, m, rig) else { return [0; 2] };
+    let z = pan_tilt::k_error_z(&e, sigma);
     [1.0, 2.0].map(|n| z.iter().filter(|z| **z <= n).count())
 }
 
