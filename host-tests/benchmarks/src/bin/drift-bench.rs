@@ -156,6 +156,17 @@ fn configs(plan: &str, args: &Args, i: usize) -> (RigConfig, Config) {
     (args.setup.rig(base, args.seed.wrapping_mul(31).wrapping_add(i as u64)), cfg)
 }
 
+/// The firmware's procedure of `plan` on rig `i`, its configuration changed by `edit` first: the
+/// run, the rig after it and the bias walk the calibration measured (°/s/√s).
+fn calibrate(plan: &str, args: &Args, i: usize, edit: impl FnOnce(&mut RigConfig)) -> (rig_sim::harness::Run, Rig, Option<f32>) {
+    let (mut rig_cfg, cfg) = configs(plan, args, i);
+    edit(&mut rig_cfg);
+    let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
+    let mut p = Procedure::new(cfg, None);
+    let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+    (out, rig, p.bias_walk_dps_rtsec())
+}
+
 fn main() {
     let args = Args::parse_from(calib::cli_args());
     let mut rows = vec![];
@@ -175,16 +186,16 @@ fn main() {
             // Squared bias errors at the run's end (°/s, per axis): the record's, the first rest's.
             let (mut bias_sq, mut first_sq) = (vec![], vec![]);
             for i in 0..args.rigs {
-                let (base, cfg) = configs(plan, &args, i);
-                let mut rig_cfg = if bias == Bias::Constant { base.constant_bias() } else { base };
                 let wait = if bias == Bias::Waited { args.wait_s } else { 0.0 };
-                if let Some(w) = rig_cfg.warmup.as_mut() {
-                    w.since_power_on_s += wait;
-                }
-                let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
-                let mut p = Procedure::new(cfg, None);
-                let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
-                tempco.add(&out.reports, &rig_cfg.gyro.bias_tempco_dps_per_c, p.bias_walk_dps_rtsec());
+                let (out, rig, walk) = calibrate(plan, &args, i, |c| {
+                    if bias == Bias::Constant {
+                        *c = c.constant_bias();
+                    }
+                    if let Some(w) = c.warmup.as_mut() {
+                        w.since_power_on_s += wait;
+                    }
+                });
+                tempco.add(&out.reports, &rig.config().gyro.bias_tempco_dps_per_c, walk);
                 let t = rig.truth();
                 if let (Some(rec), Some(first)) =
                     (out.stored.first(), out.reports.iter().find_map(|r| if let Report::Bias(b) = r { Some(b.bias_dps) } else { None }))
@@ -236,14 +247,12 @@ fn main() {
         for walk in [Some(lo), Some((lo * hi).sqrt()), Some(hi), None] {
             let mut tempco = TempcoScore::default();
             for i in 0..args.rigs {
-                let (mut rig_cfg, cfg) = configs(plan, &args, i);
-                if let Some(q) = walk {
-                    rig_cfg.bias_rw_dps_rtsec = q;
-                }
-                let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
-                let mut p = Procedure::new(cfg, None);
-                let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
-                tempco.add(&out.reports, &rig_cfg.gyro.bias_tempco_dps_per_c, p.bias_walk_dps_rtsec());
+                let (out, rig, measured) = calibrate(plan, &args, i, |c| {
+                    if let Some(q) = walk {
+                        c.bias_rw_dps_rtsec = q;
+                    }
+                });
+                tempco.add(&out.reports, &rig.config().gyro.bias_tempco_dps_per_c, measured);
             }
             let name = walk.map_or("drawn".to_string(), |q| format!("{q:.2e}"));
             let ([one, two], [sigma, median]) = (tempco.cover(), tempco.medians());
@@ -265,11 +274,7 @@ fn main() {
         for odr_error in [odr_lo, 0.5 * (odr_lo + odr_hi), odr_hi] {
             let mut scores = Scores::default();
             for i in 0..args.rigs {
-                let (mut rig_cfg, cfg) = configs(plan, &args, i);
-                rig_cfg.odr_error = odr_error;
-                let mut rig = Rig::new(rig_cfg, args.seed + i as u64);
-                let mut p = Procedure::new(cfg, None);
-                let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
+                let (out, rig, _) = calibrate(plan, &args, i, |c| c.odr_error = odr_error);
                 scores.add(&out, &rig, 0.0);
             }
             let ((r, m, _), cover) = (scores.summary(), scores.within_2sigma());
