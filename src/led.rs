@@ -4,7 +4,8 @@
 //! |---|---|---|
 //! | idle, waiting for the button | off | green blink 0.1 s every 2 s |
 //! | busy in phase n | n flashes, then a pause (every 2 s up to 4) | blue on |
-//! | user action needed (hand-held poses, re-clamp) | off | yellow (red + green) blink 2 Hz |
+//! | user action needed: hand-held poses | off | yellow (red + green) blink 2 Hz |
+//! | user action needed: re-clamp and press | on | yellow (red + green) blink 2 Hz |
 //! | done: calibration stored and applied | on | green on |
 //! | error of class n | n flashes, then a pause (every 2 s up to 4) | red on |
 //!
@@ -66,9 +67,9 @@ pub fn render(led: Led, t_ms: u64) -> Lights {
     match led {
         Led::Idle => Lights { green: blink(2000, 100), ..Lights::default() },
         Led::Busy(p) => Lights { d13: flashes(phase_number(p), t_ms), blue: true, ..Lights::default() },
-        Led::WaitUser => {
+        Led::WaitUser(p) => {
             let on = blink(500, 250);
-            Lights { red: on, green: on, ..Lights::default() }
+            Lights { d13: p == Phase::Reattach, red: on, green: on, ..Lights::default() }
         }
         Led::Done => Lights { d13: true, green: true, ..Lights::default() },
         Led::Error(c) => Lights { d13: flashes(class_number(c), t_ms), red: true, ..Lights::default() },

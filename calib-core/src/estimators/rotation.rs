@@ -865,6 +865,16 @@ impl Rotations {
         self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<f64>>().map(f64::to_radians)
     }
 
+    /// The 1σ of `K`'s least determined element from the kept moves alone, by their rows'
+    /// noise model linearised at `K = I` (unscaled by a residual): what the hand-held step's
+    /// moves add before the rig's axis joins them. `None` while they leave an element free.
+    pub fn k_sigma(&self, limits: &RotationLimits) -> Option<f32> {
+        let mut ne = NormalEquations::<9>::new();
+        self.add_rows(&mut ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits).ok()?;
+        let inv = ne.inverse().ok()?;
+        Some(libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32)
+    }
+
     /// Smallest eigenvalue (of 1) of the mean `n nᵀ` over the kept moves' raw rotation axes:
     /// 1/3 for axes spread evenly in three dimensions, 0 for coplanar ones.
     pub fn axis_spread(&self) -> f32 {

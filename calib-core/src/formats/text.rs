@@ -67,6 +67,14 @@ pub fn level(r: &Report) -> Level {
     }
 }
 
+/// `; K to <σ> 1 sigma by the moves (goal <σ>)` once the hand-held moves give `K` a 1σ.
+fn k_sigma_goal(w: &mut impl Write, k_sigma: f32, goal: f32) -> fmt::Result {
+    match k_sigma.is_finite() {
+        true => write!(w, "; K to {} 1 sigma by the moves (goal {})", Fixed(k_sigma as f64, 6), Fixed(goal as f64, 6)),
+        false => Ok(()),
+    }
+}
+
 /// Writes a report as one line (no line ending).
 pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
     match r {
@@ -128,14 +136,20 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             Fixed(*residual_rms_deg as f64, 4),
             Fixed(*condition as f64, 0)
         ),
-        Report::HandMove { from, to, rejected: None, turn_deg, spread, need } => write!(
-            w,
-            "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
-            Fixed(*turn_deg as f64, 1),
-            Fixed(*spread as f64, 3),
-            Fixed(*need as f64, 3)
-        ),
-        Report::HandMove { from, to, rejected: Some(why), .. } => write!(w, "hand-held move {from} -> {to} not used: {}", why.describe()),
+        Report::HandMove { from, to, rejected: None, turn_deg, spread, need, k_sigma, goal } => {
+            write!(
+                w,
+                "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
+                Fixed(*turn_deg as f64, 1),
+                Fixed(*spread as f64, 3),
+                Fixed(*need as f64, 3)
+            )?;
+            k_sigma_goal(w, *k_sigma, *goal)
+        }
+        Report::HandMove { from, to, rejected: Some(why), k_sigma, goal, .. } => {
+            write!(w, "hand-held move {from} -> {to} not used: {}", why.describe())?;
+            k_sigma_goal(w, *k_sigma, *goal)
+        }
         Report::Rotations { moves, rejected: r, residual_deg } => {
             write!(w, "rotation constraints: {moves} moves, misfit [")?;
             for (i, m) in residual_deg[..(*moves as usize).min(residual_deg.len())].iter().enumerate() {

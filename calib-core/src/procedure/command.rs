@@ -16,8 +16,9 @@ pub enum Led {
     Idle,
     /// Working on a phase.
     Busy(Phase),
-    /// The user must act: hold the board still in a new orientation, or re-clamp it and press.
-    WaitUser,
+    /// The user must act in this phase: hold the board still in a new orientation
+    /// ([`Phase::HandHeld`]), or re-clamp it and press ([`Phase::Reattach`]).
+    WaitUser(Phase),
     /// Calibration stored and applied.
     Done,
     /// Failed; the class tells what to check.
@@ -99,7 +100,8 @@ pub enum Report {
     Phase(Phase),
     /// Gyro bias measured.
     Bias(Bias),
-    /// A hand-held accelerometer pose was captured (raw mean, g).
+    /// A hand-held pose was captured (raw mean, g); from [`super::Config::accel_poses`] on it
+    /// adds a move only.
     AccelPose { index: u8, accel_g: Vec3 },
     /// The accelerometer calibration.
     Accel(AccelCal),
@@ -119,8 +121,19 @@ pub enum Report {
     FullK { k: Mat3, sigma_k: Mat3, condition: f32, non_coplanar_deg: f32, residual_rms_deg: f32, axes: u8, moves: u16 },
     /// A hand-held move was kept for the rotation constraints: its raw turn (°) and the spread
     /// of the kept moves' axes so far (smallest eigenvalue of their mean `n nᵀ`, 1/3 at best;
-    /// `need` is the least accepted), or rejected (`rejected` says why; counted).
-    HandMove { from: u8, to: u8, rejected: Option<crate::estimators::rotation::Rejected>, turn_deg: f32, spread: f32, need: f32 },
+    /// `need` is the least accepted), or rejected (`rejected` says why; counted). From
+    /// [`super::Config::accel_poses`] poses on, `k_sigma` is the 1σ the moves alone give `K`
+    /// and `goal` the one that ends the step ([`super::Config::hand_k_sigma`]); NaN before.
+    HandMove {
+        from: u8,
+        to: u8,
+        rejected: Option<crate::estimators::rotation::Rejected>,
+        turn_deg: f32,
+        spread: f32,
+        need: f32,
+        k_sigma: f32,
+        goal: f32,
+    },
     /// The rotation constraints used in the full `K`: the misfit (°) of each of the `moves`
     /// kept moves at the solution (0 when none was solved), and the moves rejected by reason
     /// ([`crate::estimators::rotation::Rejected`]).

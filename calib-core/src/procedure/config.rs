@@ -78,6 +78,13 @@ pub struct Config {
     pub bias_s: f32,
     /// Hand-held accelerometer poses to capture (≥ 6; ≥ 9 fits 9 parameters).
     pub accel_poses: u8,
+    /// The hand-held step goes on past `accel_poses` (each further pose adds a move, not an
+    /// accelerometer pose) until its moves alone give every element of `K` this 1σ
+    /// ([`crate::estimators::rotation::Rotations::k_sigma`]), or it holds `max_hand_poses`.
+    pub hand_k_sigma: f32,
+    /// Most hand-held poses: the bias between the rests that bound the step is predicted, and
+    /// its error grows with the step's length.
+    pub max_hand_poses: u8,
     /// Smallest angle between two hand-held poses (°).
     pub accel_min_separation_deg: f32,
     /// Pan/tilt bracket (firmware feature `tilt-servo`): a tilt servo on channel 1 rides on the
@@ -142,6 +149,8 @@ impl Config {
         hand_pose_s: 2.0,
         bias_s: 2.0,
         accel_poses: 12,
+        hand_k_sigma: 1.6e-4,
+        max_hand_poses: 20,
         accel_min_separation_deg: 30.0,
         pan_tilt: false,
         tilt_settings_deg: [-60.0, -20.0, 20.0, 60.0],

@@ -32,8 +32,13 @@ impl Procedure {
         let a = capture.accel_mean();
         let min_sep = self.cfg.accel_min_separation_deg as f64;
         let new = v64(a);
-        let distinct = (0..self.accel_poses.len()).all(|i| {
-            let old = self.accel_poses.pose(i);
+        let need = self.cfg.accel_poses.max(6) as usize;
+        // The accelerometer's poses lie apart from each other; a pose after them (a move only)
+        // from the one before it. The rotations hold the raw poses of the step so far.
+        let extra = self.accel_poses.len() >= need;
+        let poses = self.rotations.poses();
+        let distinct = (if extra { poses.len() - 1 } else { 0 }..poses.len()).all(|i| {
+            let old = poses.get(i);
             libm::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
         });
         self.step = Step::HandHeld { capture: Capture::default() };
@@ -41,40 +46,46 @@ impl Procedure {
             return;
         }
         let sigma = capture.accel.radial_std_of_mean() as f32;
-        if let Err(e) = self.accel_poses.add_pose(a, sigma) {
-            return self.fail(e);
-        }
-        // Gravity's direction in the raw accelerometer's axes until it is calibrated.
-        if capture.mag.count() > 0 {
-            if self.mag.poses() == 0 {
-                self.mag_first_pose = (self.accel_poses.len() - 1) as u8;
-            }
-            if let Err(e) = self.mag.add_pose(a, capture.mag.mean().map(|v| v as f32)) {
+        if !extra {
+            if let Err(e) = self.accel_poses.add_pose(a, sigma) {
                 return self.fail(e);
             }
+            // Gravity's direction in the raw accelerometer's axes until it is calibrated.
+            if capture.mag.count() > 0 {
+                if self.mag.poses() == 0 {
+                    self.mag_first_pose = (self.accel_poses.len() - 1) as u8;
+                }
+                if let Err(e) = self.mag.add_pose(a, capture.mag.mean().map(|v| v as f32)) {
+                    return self.fail(e);
+                }
+            }
         }
-        let index = (self.accel_poses.len() - 1) as u8;
-        self.push(Command::Report(Report::AccelPose { index, accel_g: a }));
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let (bias, predicted) = self.hand_rest(capture);
         let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
         let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32 };
-        let pushed = self.rotations.push_pose(a, sigma, rest);
-        if let (Ok(to), Some(att)) = (pushed, self.attitude) {
+        let to = match self.rotations.push_pose(a, sigma, rest) {
+            Ok(to) => to,
+            Err(e) => return self.fail(e),
+        };
+        if let Some(att) = self.attitude {
             self.rotations.push_attitude(to, att);
         }
-        match pushed {
-            Ok(to) if to > 0 => {
-                let rejected = self.rotations.end(to, &self.cfg.rotation).err();
-                let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
-                let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
-                self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need }));
-                self.rotations.begin(to);
+        self.push(Command::Report(Report::AccelPose { index: to, accel_g: a }));
+        let (mut k_sigma, goal, mut room) = (f32::NAN, self.cfg.hand_k_sigma, true);
+        if to > 0 {
+            let rejected = self.rotations.end(to, &self.cfg.rotation).err();
+            room = rejected != Some(rotation::Rejected::Full);
+            let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
+            if extra || self.accel_poses.len() == need {
+                k_sigma = self.rotations.k_sigma(&self.cfg.rotation).unwrap_or(f32::NAN);
             }
-            Ok(to) => self.rotations.begin(to),
-            Err(e) => return self.fail(e),
+            let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
+            self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));
         }
-        if self.accel_poses.len() < self.cfg.accel_poses.max(6) as usize {
+        self.rotations.begin(to);
+        // Further poses while the moves leave K short of the goal (and there is room for them).
+        if self.accel_poses.len() < need || (!(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room) {
             return;
         }
         // The hand-held moves must turn about three dimensions to give the full K.

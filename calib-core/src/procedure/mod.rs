@@ -695,7 +695,7 @@ impl Procedure {
         let phase = self.phase();
         self.push(Command::Report(Report::Phase(phase)));
         let led = match phase {
-            Phase::HandHeld | Phase::Reattach => Led::WaitUser,
+            p @ (Phase::HandHeld | Phase::Reattach) => Led::WaitUser(p),
             p => Led::Busy(p),
         };
         self.push(Command::Led(led));

@@ -56,7 +56,7 @@ pub fn compare(runs: usize, seed: u64) -> Value {
     println!("\nHobby-servo rig ({runs} random rigs per variant; simulated LSM9DS1 at 119 Hz with ODR error U(-5, -2) %, scale,");
     println!("bias, noise, quantisation; servo lag, slew, dead band, vibration; MCU timestamps; accelerometer by our");
     println!("9-parameter fit on 12 hand-held poses). The firmware's procedure (calib-core, default configuration),");
-    println!("with a simulated operator: rest and bias; 12 hand-held poses; on the shaft, static poses 0..180..0 deg, moves");
+    println!("with a simulated operator: rest and bias; 12 to 20 hand-held poses; on the shaft, static poses 0..180..0 deg, moves");
     println!("commanded at 30 deg/s (sweep); rotation commanded at 20 deg/s (paper, w_n = 20 deg/s). Error of diag(K), in %:");
     println!("{:<24}{:<8}{:>10}{:>10}{:>10}{:>8}", "variant", "method", "RMS", "max|e|", "mean", "failed");
     let mut out = serde_json::Map::new();

@@ -341,7 +341,7 @@ pub fn run(
         let Some(l) = link.line(waiting_for)? else { continue };
         match protocol::parse(&l) {
             Some(Event::Plan { rig_poses, handheld_poses }) => {
-                progress.total = (rig_poses + handheld_poses) as usize;
+                progress.plan = (rig_poses as usize, handheld_poses as usize);
                 ui.say(&l);
             }
             Some(Event::Phase { phase, instruction }) => {
@@ -526,12 +526,20 @@ impl<'a> Link<'a> {
     }
 }
 
-/// Poses announced and captured so far.
+/// Poses announced (`plan`: rig, hand-held) and captured so far.
 #[derive(Debug, Default)]
 struct Progress {
-    total: usize,
+    plan: (usize, usize),
     handheld: usize,
     rig: usize,
+}
+
+impl Progress {
+    /// The poses to take: the hand-held step goes on past its planned count until its moves
+    /// give `K` their goal, so the count grows with it.
+    fn total(&self) -> usize {
+        self.plan.0 + self.plan.1.max(self.handheld)
+    }
 }
 
 /// The user's output: messages, and the progress bar between them.
@@ -554,12 +562,12 @@ impl Ui<'_> {
     fn bar(&mut self, p: &Progress) {
         const WIDTH: usize = 30;
         let done = p.handheld + p.rig;
-        let fill = (done * WIDTH).checked_div(p.total).unwrap_or(0).min(WIDTH);
+        let fill = (done * WIDTH).checked_div(p.total()).unwrap_or(0).min(WIDTH);
         let bar = format!(
             "[{}{}] {done}/{} poses ({} hand-held, {} rig)",
             "#".repeat(fill),
             "-".repeat(WIDTH - fill),
-            p.total,
+            p.total(),
             p.handheld,
             p.rig
         );

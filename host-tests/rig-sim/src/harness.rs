@@ -1,8 +1,8 @@
 //! Drives the calib-core procedure with the simulated rig and a simulated operator, from button
 //! press to stored record: the end-to-end harness of the tests and of `calib --simulate`.
 //!
-//! The operator presses the button, holds the board near the 12 icosahedron orientations when
-//! asked, each at a heading of its own ([`operator_attitudes`]; moving to the next one after each
+//! The operator presses the button, holds the board near the icosahedron's orientations when
+//! asked (as many as the procedure asks for, 12 to 20), each at a heading of its own ([`operator_attitudes`]; moving to the next one after each
 //! captured pose), clamps it back on the shaft and presses again. Faults are injected through
 //! [`Faults`].
 
@@ -101,16 +101,19 @@ pub fn handheld_attitudes() -> Vec<UnitQuaternion<f64>> {
         .collect()
 }
 
-/// The attitudes (body → world) a person holds the board in when asked for 12 clearly different
-/// orientations turned about varied axes, drawn from `rng`: each icosahedron vertex pointed up
-/// within 10° (a random direction; the vertices stay ≥ 43° apart, beyond the procedure's 30°),
-/// at a heading uniform over the turn. A person turns the board about the vertical as readily
+/// The attitudes (body → world) a person holds the board in when asked for clearly different
+/// orientations turned about varied axes, drawn from `rng`: the icosahedron's 12 vertices twice
+/// over (24, beyond the procedure's `max_hand_poses`), each pointed up within 10° (a random
+/// direction; the vertices stay ≥ 43° apart, beyond the procedure's 30°), at a heading uniform
+/// over the turn. A person turns the board about the vertical as readily
 /// as they tilt it; [`handheld_attitudes`] (no heading: tilts only) leaves the body axis that is
 /// vertical unturned between two poses.
 pub fn operator_attitudes(rng: &mut impl Rng) -> Vec<UnitQuaternion<f64>> {
-    handheld_attitudes()
-        .into_iter()
-        .map(|q| {
+    let round = handheld_attitudes();
+    round
+        .iter()
+        .chain(&round)
+        .map(|&q| {
             let aim = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(0.0..TAU));
             let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), rng.random_range(0.0f64..10.0).to_radians());
             let heading = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(0.0..TAU));

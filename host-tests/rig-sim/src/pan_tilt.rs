@@ -75,9 +75,9 @@ pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
     s.rig.set_tilt_pulse_us(pulse(90.0));
     s.hold(3.0, true);
     if handheld {
-        // As the firmware asks (about 4 s a pose): 1 s to turn, 3 s held, of which a hand's
-        // pose averages 2 s once it has settled.
-        for q in operator_attitudes(s.rig.operator_rng()) {
+        // 12 poses, about 4 s each as the firmware asks: 1 s to turn, 3 s held, of which a
+        // hand's pose averages 2 s once it has settled.
+        for q in operator_attitudes(s.rig.operator_rng()).into_iter().take(12) {
             s.rig.detach_to(q, 1.0);
             s.hold(4.0, false);
         }

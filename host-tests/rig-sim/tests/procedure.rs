@@ -160,6 +160,37 @@ fn nearly_vertical_axis_is_rejected_without_hand_held_moves_and_needs_none_with_
     assert!(second.stored.is_empty());
 }
 
+/// The hand-held step's poses and the 1σ its moves gave `K` after each (NaN before
+/// `accel_poses`).
+fn hand_poses(out: &Run) -> (usize, Vec<f32>) {
+    let poses = out.reports.iter().filter(|r| matches!(r, Report::AccelPose { .. })).count();
+    let sigmas = out.reports.iter().filter_map(|r| if let Report::HandMove { k_sigma, .. } = r { Some(*k_sigma) } else { None }).collect();
+    (poses, sigmas)
+}
+
+#[test]
+fn the_hand_held_step_goes_on_until_its_moves_give_k_the_goal() {
+    let rig = || Variant::Hobby.config(23, 0);
+    let cfg = Config::default();
+    // A goal met at once: the 12 accelerometer poses, the 1σ reported from the 12th on.
+    let (met, _) = calibrate(rig(), Config { hand_k_sigma: 1.0, ..cfg }, None, Faults::default());
+    let (poses, sigmas) = hand_poses(&met);
+    assert_eq!((poses, met.error), (12, None));
+    assert!(sigmas[..10].iter().all(|s| s.is_nan()) && sigmas[10] > 0.0, "{sigmas:?}");
+    // A goal out of reach: poses up to the most allowed, each adding a move, the 1σ falling.
+    let (capped, _) = calibrate(rig(), Config { hand_k_sigma: 1e-6, ..cfg }, None, Faults::default());
+    let (poses, more) = hand_poses(&capped);
+    assert_eq!((poses, capped.error), (usize::from(cfg.max_hand_poses), None));
+    assert!(more[more.len() - 1] < 0.85 * sigmas[10], "{:?} after 12 poses, {more:?}", sigmas[10]);
+    assert!(capped.stored[0].sigma_k.iter().flatten().fold(0.0f32, |m, s| m.max(*s)) > 0.0);
+    // The default goal: the step ends at the first pose that meets it (or at the most).
+    let (run, _) = calibrate(rig(), cfg, None, Faults::default());
+    let (poses, sigmas) = hand_poses(&run);
+    assert_eq!(run.error, None);
+    let first = sigmas.iter().position(|s| *s <= cfg.hand_k_sigma).map_or(usize::from(cfg.max_hand_poses), |i| i + 2);
+    assert_eq!(poses, first.max(12), "{sigmas:?}");
+}
+
 #[test]
 fn hand_held_moves_about_one_axis_are_named_while_the_user_holds_the_board() {
     // Every hand-held attitude a turn about one body axis: no full K, a named error before the

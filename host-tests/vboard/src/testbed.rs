@@ -208,9 +208,10 @@ impl Testbed {
     }
 
     /// Presses the button and plays an operator who goes by the LEDs only, never by the log:
-    /// yellow blinking (red + green together) means "your turn": they hold the board in the
-    /// hand-held orientations one after the other (`operator_attitudes`), 4 s each (a pose is captured after 2 s of
-    /// stillness), then clamp it back and press the button until the yellow stops; green with
+    /// yellow blinking (red + green together) means "your turn": with D13 dark they hold the
+    /// board in the hand-held orientations one after the other (`operator_attitudes`), 4 s each
+    /// (a pose is captured after 2 s of stillness); with D13 lit they clamp it back and press
+    /// the button until the yellow stops; green with
     /// D13 lit is done, red without green an error, its class the D13 flashes. `inject(event,
     /// periph)` sees what the operator does (fault injection).
     pub fn calibrate_with(&mut self, max_s: f64, mut inject: impl FnMut(Event, &mut Periph)) -> Outcome {
@@ -249,9 +250,10 @@ impl Testbed {
             if !yellow_seen {
                 continue;
             }
-            // The user's turn: hand-held poses on a timeline, then re-clamp and press.
-            if next < attitudes.len() {
-                if now >= next_at {
+            // The user's turn: hand-held poses on a timeline while D13 is dark, then (D13 lit)
+            // re-clamp and press.
+            if reattached_at.is_none() && !l.d13 {
+                if next < attitudes.len() && now >= next_at {
                     let mut p = self.mcu.periph.borrow_mut();
                     p.sensor.rig_mut().detach_to(attitudes[next], 1.0);
                     inject(Event::HandHeldPose(next), &mut p);

@@ -336,7 +336,7 @@ fn rotation_section(heading: &str, j: &Value) -> String {
         "## {heading}\n\n`rotation-bench` (seed {}, {} rigs per row, {}, the hand-held poses held by a {} hand): the full K with and without \
          the rotation constraints of the moves between static poses (one servo without them gives no full K: that row scores the diagonal \
          sweep K); every rig with gyro cross-axis coupling U(±1 %) and accelerometer misalignment U(±0.3 %); E as above; failed: rigs without \
-         that K. Paths: \"(firmware)\" rows are the firmware's procedure (one servo, the simulated operator's 12 hand-held poses), the others \
+         that K. Paths: \"(firmware)\" rows are the firmware's procedure (one servo, the simulated operator's hand-held poses: 12, and more while the moves leave K short of its goal, up to 20), the others \
          `gyrocal-calib`'s data-driven path on simulated logs. Coverage: the share of the full K's elements whose error \
          `E_ij` lies within their reported 1σ and 2σ (a true 1σ gives 68 % and 95 %).\n\n| rig | rotations | RMS of E | largest | rigs | failed | within 1σ | within 2σ |\n|---|---|---|---|---|---|---|---|\n",
         j["seed"],
@@ -431,7 +431,7 @@ fn drift_section(heading: &str, j: &Value) -> String {
     s += &format!(
         "\nE across the part's ODR error: the same drifting rigs, every one at a fixed error, at the ends and the middle of the \
          range the rows above draw from ({}..{} %). The largest |E| is the largest of the runs' 9 elements; over {} runs \
-         it is the tail of the plan's noise (on one servo: its 12 hand moves, and which moves the operator made), not of the \
+         it is the tail of the plan's noise (on one servo: its hand moves, 11 to 19, and which moves the operator made), not of the \
          ODR error ([limits](limits.md)); \"E in 2σ\" says whether the record's 1σ covers it.\n\n\
          | plan | ODR error | RMS of E | largest | E in 2σ | stored | failed |\n|---|---|---|---|---|---|---|\n",
         signed(f(&j["odr_range_pct"][0])),

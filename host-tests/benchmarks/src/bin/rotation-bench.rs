@@ -3,7 +3,7 @@
 //! (gyro cross-axis U(±1 %), accelerometer misalignment U(±0.3 %), servo angle-scale error
 //! U(±3 %), LSM9DS1 noise and ODR error): one servo + 12 hand-held poses, pan/tilt + 12
 //! hand-held poses, 12 hand-held poses and no servo; and the firmware's own procedure (default
-//! configuration, one servo, the simulated operator's 12 hand-held poses) on the same kind of
+//! configuration, one servo, the simulated operator's 12 to 20 hand-held poses) on the same kind of
 //! rigs; the board held by a braced hand (`--hand free|none` for the others). Error
 //! `E = Qᵀ K̂ K⁻¹ − I` after aligning the
 //! calibrated accelerometer frame to the simulator's. `--json`: the last line is a JSON summary.
@@ -202,7 +202,7 @@ fn main() {
             None => diag_failed.push("no sweep K reported".into()),
         }
     }
-    let name = "one servo + 12 hand-held (firmware)";
+    let name = "one servo + 12..20 hand-held (firmware)";
     for (label, rms, mx, failed) in [("on", &full, max, &failed), ("off: diagonal K (sweep)", &diag, dmax, &diag_failed)] {
         let mean = Moments::of(rms).mean;
         println!("{name:<38}{label:<24}{mean:>12.2e}{mx:>12.2e}{:>7}", rms.len());
