@@ -771,6 +771,19 @@ impl Rotations {
     /// weighted residual sum at `k`, and the unweighted one (rad²) of the rotation rows with their
     /// count (a vertical turn's rows are in the weighted sum only), all at `w = 0`.
     pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64, usize), Error> {
+        self.rows(ne, k, limits, 0, true)
+    }
+
+    /// [`Self::add_rows`] of the kept moves from the `first` on, the Earth's rate marginalised
+    /// out if `earth`.
+    fn rows(
+        &self,
+        ne: &mut NormalEquations<9>,
+        k: &[f64; 9],
+        limits: &RotationLimits,
+        first: usize,
+        earth_rate: bool,
+    ) -> Result<(f64, f64, usize), Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::estimators::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
@@ -782,7 +795,7 @@ impl Rotations {
             unit[b] = 1.0;
             earth.add_row(&unit, 0.0, 3.0)?;
         }
-        for m in self.moves() {
+        for m in self.moves().get(first..).unwrap_or_default() {
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
             let (gi, gj) = (pi.normalize(), pj.normalize());
             let dir = |p: &Vector3<f64>, i: u8| (self.sigma_g[i as usize] as f64 / p.norm()).max(limits.min_direction_sigma as f64);
@@ -835,7 +848,9 @@ impl Rotations {
                 rss += res * res;
             }
         }
-        ne.eliminate(&cross, &earth)?;
+        if earth_rate {
+            ne.eliminate(&cross, &earth)?;
+        }
         Ok((wrss, rss, n))
     }
 
@@ -865,14 +880,13 @@ impl Rotations {
         self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<f64>>().map(f64::to_radians)
     }
 
-    /// The 1σ of `K`'s least determined element from the kept moves alone, by their rows'
-    /// noise model linearised at `K = I` (unscaled by a residual): what the hand-held step's
-    /// moves add before the rig's axis joins them. `None` while they leave an element free.
-    pub fn k_sigma(&self, limits: &RotationLimits) -> Option<f32> {
-        let mut ne = NormalEquations::<9>::new();
-        self.add_rows(&mut ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits).ok()?;
-        let inv = ne.inverse().ok()?;
-        Some(libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32)
+    /// Adds the rows of the kept moves from the `first` on at `K = I`, without the Earth's
+    /// rate (kept moves do not change, so a caller adds each once): the normal equations whose
+    /// inverse is the 1σ the moves alone give `K`, before the rig's axis joins them. Returns
+    /// the number of kept moves.
+    pub fn add_rows_at_identity(&self, ne: &mut NormalEquations<9>, first: usize, limits: &RotationLimits) -> usize {
+        let _ = self.rows(ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits, first, false);
+        self.moves.len()
     }
 
     /// Smallest eigenvalue (of 1) of the mean `n nᵀ` over the kept moves' raw rotation axes:

@@ -77,8 +77,11 @@ impl Procedure {
             let rejected = self.rotations.end(to, &self.cfg.rotation).err();
             room = rejected != Some(rotation::Rejected::Full);
             let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
+            // Each kept move's rows once (a pose's work stays within the sensor FIFO's time).
+            let (ne, added) = &mut self.hand_rows;
+            *added = self.rotations.add_rows_at_identity(ne, *added, &self.cfg.rotation);
             if extra || self.accel_poses.len() == need {
-                k_sigma = self.rotations.k_sigma(&self.cfg.rotation).unwrap_or(f32::NAN);
+                k_sigma = ne.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
             }
             let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
             self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));

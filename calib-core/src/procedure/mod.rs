@@ -44,6 +44,7 @@ use crate::estimators::rotation::{self, PoseRest, PoseTurn, Rotations, MAX_ROTAT
 use crate::estimators::sweep;
 use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
+use crate::math::lsq::NormalEquations;
 use crate::math::stats::Welford3;
 use crate::math::vec3::{sub, to_f64 as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
@@ -274,6 +275,9 @@ pub struct Procedure {
     moves: Moves,
     axes: Axes,
     rotations: Rotations,
+    /// The hand-held moves' rows at `K = I` and how many moves they hold
+    /// ([`Rotations::add_rows_at_identity`]).
+    hand_rows: (NormalEquations<9>, usize),
     full: Option<FullCal>,
     integ: Integrator,
     /// The rests so far (bias, poses): the bias tracked between them.
@@ -328,6 +332,7 @@ impl Procedure {
             moves: Moves::new(),
             axes: Axes::new(),
             rotations: Rotations::new(),
+            hand_rows: (NormalEquations::new(), 0),
             full: None,
             integ: Integrator::new(),
             drift: Drift::new(),
@@ -666,6 +671,7 @@ impl Procedure {
         self.moves.clear();
         self.axes.clear();
         self.rotations.clear();
+        self.hand_rows = (NormalEquations::new(), 0);
         self.full = None;
         self.integ = Integrator::new();
         self.drift = Drift::new();
