@@ -50,8 +50,9 @@ pub const MAX_ROTATION_MOVES: usize = 32;
 /// inside its poses ([`PoseRest::rise_deg`]).
 pub const MAX_CHUNKS: usize = 384 + 2 * MAX_ROTATION_MOVES;
 /// Poses whose attitude is kept for the Earth's rate ([`Rotations::push_attitude`]): the
-/// firmware's hand-held step has 12; later poses' moves go without the Earth's term.
-pub const EARTH_POSES: usize = 16;
+/// firmware's hand-held step has up to 20 (`Config::max_hand_poses`); later poses' moves go
+/// without the Earth's term.
+pub const EARTH_POSES: usize = 20;
 /// The Earth's rate (rad/s).
 pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
 
@@ -881,9 +882,10 @@ impl Rotations {
     }
 
     /// Adds the rows of the kept moves from the `first` on at `K = I`, without the Earth's
-    /// rate (kept moves do not change, so a caller adds each once): the normal equations whose
-    /// inverse is the 1σ the moves alone give `K`, before the rig's axis joins them. Returns
-    /// the number of kept moves.
+    /// rate: the normal equations whose inverse is the 1σ the moves alone give `K`, before the
+    /// rig's axis joins them. A caller adds each move once (a later [`Self::settle_bias`]
+    /// changes its bias by far less than its noise; a row that is not finite is left out).
+    /// Returns the number of kept moves.
     pub fn add_rows_at_identity(&self, ne: &mut NormalEquations<9>, first: usize, limits: &RotationLimits) -> usize {
         let _ = self.rows(ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits, first, false);
         self.moves.len()

@@ -84,12 +84,14 @@ impl Shell for Collect {
 }
 
 /// The configurations tried, in order: the firmware's default build, its `tilt-servo` build (the
-/// pan/tilt plan), and a continuous-rotation servo; each at the sensor `setup` the log states.
-fn configs(setup: SensorSetup) -> [(&'static str, Config); 3] {
+/// pan/tilt plan), a continuous-rotation servo, and the default with exactly 12 hand-held poses
+/// (firmware before the hand-held step's goal); each at the sensor `setup` the log states.
+fn configs(setup: SensorSetup) -> [(&'static str, Config); 4] {
     [
         ("default", Config { setup, ..Config::DEFAULT }),
         ("tilt-servo", Config { setup, ..Config::PAN_TILT }),
         ("continuous servo", Config { servo: ServoKind::CONTINUOUS, setup, ..Config::DEFAULT }),
+        ("default, 12 hand-held poses", Config { hand_k_sigma: f32::INFINITY, setup, ..Config::DEFAULT }),
     ]
 }
 

@@ -122,6 +122,7 @@ fn the_report_draws_one_marker_per_pose_and_the_invariant_flattened_by_the_calib
     let text = record_log(&mut rig, &mut p, Faults::default(), "# test log\n").0;
     let log = csvlog::parse(&text).unwrap();
     let c = calibrate_log(&log, &Default::default(), None).unwrap();
+    assert_eq!(c.replayed, Some("default, 12 hand-held poses"));
     let Plots { sphere, invariant, residuals, bias, mag, mag_dip, mag_heading } = report::plots(&log.rows, &c).unwrap();
     // A marker per pose, where the data puts it.
     let rig = c.phases.segments.iter().filter(|s| s.is_rig_pose()).count();

@@ -182,7 +182,13 @@ fn the_hand_held_step_goes_on_until_its_moves_give_k_the_goal() {
     let (poses, more) = hand_poses(&capped);
     assert_eq!((poses, capped.error), (usize::from(cfg.max_hand_poses), None));
     assert!(more[more.len() - 1] < 0.85 * sigmas[10], "{:?} after 12 poses, {more:?}", sigmas[10]);
-    assert!(capped.stored[0].sigma_k.iter().flatten().fold(0.0f32, |m, s| m.max(*s)) > 0.0);
+    // The full K takes every kept move; the accelerometer its 12 poses.
+    assert!(capped.reports.iter().any(|r| matches!(r, Report::Rotations { moves, .. } if usize::from(*moves) + 2 >= poses)));
+    assert!(
+        capped.reports.iter().any(|r| matches!(r, Report::Accel(a) if a.poses == 12)),
+        "{:?}",
+        capped.reports.iter().find(|r| matches!(r, Report::Accel(_)))
+    );
     // The default goal: the step ends at the first pose that meets it (or at the most).
     let (run, _) = calibrate(rig(), cfg, None, Faults::default());
     let (poses, sigmas) = hand_poses(&run);
