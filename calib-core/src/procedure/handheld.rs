@@ -87,15 +87,19 @@ impl Procedure {
             self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));
         }
         self.rotations.begin(to);
-        // Further poses while the moves leave K short of the goal (and there is room for them).
-        if self.accel_poses.len() < need || (!(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room) {
+        if self.accel_poses.len() < need {
             return;
         }
-        // The hand-held moves must turn about three dimensions to give the full K.
-        // (Counting the moves dropped for a changing bias: `fail` names the drift then.)
+        // The hand-held moves must turn about three dimensions to give the full K: named at
+        // once, not after further poses. (Counting the moves dropped for a changing bias:
+        // `fail` names the drift then.)
         let spread = self.rotations.axis_spread();
         if self.rotations.moves_before_drift() >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
             return self.fail(Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread });
+        }
+        // Further poses while the moves leave K short of the goal (and there is room for them).
+        if !(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room {
+            return;
         }
         match self.fit_accel() {
             Ok(()) => {

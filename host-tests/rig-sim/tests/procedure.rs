@@ -207,6 +207,8 @@ fn hand_held_moves_about_one_axis_are_named_while_the_user_holds_the_board() {
     });
     assert!(matches!(out.error, Some(Error::RotationAxesCoplanar { .. })), "{:?}", out.error);
     assert!(!out.reports.contains(&Report::Phase(Phase::Reattach)) && out.stored.is_empty());
+    // Named at the accelerometer's last pose, not after poses its goal would ask for.
+    assert_eq!(out.reports.iter().filter(|r| matches!(r, Report::AccelPose { .. })).count(), 6);
     assert!(out.reports.iter().any(|r| matches!(r, Report::HandMove { rejected: None, .. })));
 }
 
