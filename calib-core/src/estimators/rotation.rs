@@ -881,14 +881,12 @@ impl Rotations {
         self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<f64>>().map(f64::to_radians)
     }
 
-    /// Adds the rows of the kept moves from the `first` on at `K = I`, without the Earth's
-    /// rate: the normal equations whose inverse is the 1σ the moves alone give `K`, before the
-    /// rig's axis joins them. A caller adds each move once (a later [`Self::settle_bias`]
-    /// changes its bias by far less than its noise; a row that is not finite is left out).
-    /// Returns the number of kept moves.
-    pub fn add_rows_at_identity(&self, ne: &mut NormalEquations<9>, first: usize, limits: &RotationLimits) -> usize {
-        let _ = self.rows(ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits, first, false);
-        self.moves.len()
+    /// Adds the rows of the latest kept move at `K = I`, without the Earth's rate: called as
+    /// each move is kept, the normal equations whose inverse is the 1σ the moves alone give `K`,
+    /// before the rig's axis joins them (a later [`Self::settle_bias`] changes a move's bias by
+    /// far less than its noise; a row that is not finite is left out).
+    pub fn add_last_at_identity(&self, ne: &mut NormalEquations<9>, limits: &RotationLimits) {
+        let _ = self.rows(ne, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], limits, self.moves.len().saturating_sub(1), false);
     }
 
     /// Smallest eigenvalue (of 1) of the mean `n nᵀ` over the kept moves' raw rotation axes:

@@ -80,7 +80,7 @@ pub struct Config {
     pub accel_poses: u8,
     /// The hand-held step goes on past `accel_poses` (each further pose adds a move, not an
     /// accelerometer pose) until its moves alone give every element of `K` this 1σ
-    /// ([`crate::estimators::rotation::Rotations::add_rows_at_identity`]), or it holds `max_hand_poses`.
+    /// ([`crate::estimators::rotation::Rotations::add_last_at_identity`]), or it holds `max_hand_poses`.
     pub hand_k_sigma: f32,
     /// Most hand-held poses: the bias between the rests that bound the step is predicted, and
     /// its error grows with the step's length.

@@ -37,7 +37,7 @@ impl Procedure {
         // from the one before it. The rotations hold the raw poses of the step so far.
         let extra = self.accel_poses.len() >= need;
         let poses = self.rotations.poses();
-        let distinct = (if extra { poses.len() - 1 } else { 0 }..poses.len()).all(|i| {
+        let distinct = (if extra { poses.len().saturating_sub(1) } else { 0 }..poses.len()).all(|i| {
             let old = poses.get(i);
             libm::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
         });
@@ -78,10 +78,11 @@ impl Procedure {
             room = rejected != Some(rotation::Rejected::Full);
             let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
             // Each kept move's rows once (a pose's work stays within the sensor FIFO's time).
-            let (ne, added) = &mut self.hand_rows;
-            *added = self.rotations.add_rows_at_identity(ne, *added, &self.cfg.rotation);
+            if rejected.is_none() {
+                self.rotations.add_last_at_identity(&mut self.hand_rows, &self.cfg.rotation);
+            }
             if extra || self.accel_poses.len() == need {
-                k_sigma = ne.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
+                k_sigma = self.hand_rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
             }
             let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
             self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));

@@ -275,9 +275,8 @@ pub struct Procedure {
     moves: Moves,
     axes: Axes,
     rotations: Rotations,
-    /// The hand-held moves' rows at `K = I` and how many moves they hold
-    /// ([`Rotations::add_rows_at_identity`]).
-    hand_rows: (NormalEquations<9>, usize),
+    /// The kept hand-held moves' rows at `K = I` ([`Rotations::add_last_at_identity`]).
+    hand_rows: NormalEquations<9>,
     full: Option<FullCal>,
     integ: Integrator,
     /// The rests so far (bias, poses): the bias tracked between them.
@@ -332,7 +331,7 @@ impl Procedure {
             moves: Moves::new(),
             axes: Axes::new(),
             rotations: Rotations::new(),
-            hand_rows: (NormalEquations::new(), 0),
+            hand_rows: NormalEquations::new(),
             full: None,
             integ: Integrator::new(),
             drift: Drift::new(),
@@ -671,7 +670,7 @@ impl Procedure {
         self.moves.clear();
         self.axes.clear();
         self.rotations.clear();
-        self.hand_rows = (NormalEquations::new(), 0);
+        self.hand_rows = NormalEquations::new();
         self.full = None;
         self.integ = Integrator::new();
         self.drift = Drift::new();
