@@ -85,6 +85,14 @@ impl Clock {
         self.high + v as u64
     }
 
+    /// Milliseconds since [`Clock::start`], wrapping at 2³² ms (49.7 days), by 32-bit division
+    /// (`2³² µs = 4 294 967 ms + 296 µs`; no 64-bit division linked).
+    pub fn now_ms(&mut self) -> u32 {
+        let us = self.now_us();
+        let (h, l) = ((us >> 32) as u32, us as u32);
+        h.wrapping_mul(4_294_967).wrapping_add(l / 1000).wrapping_add(h.wrapping_mul(296).wrapping_add(l % 1000) / 1000)
+    }
+
     /// Seconds since [`Clock::start`].
     pub fn now_s(&mut self) -> f64 {
         self.now_us() as f64 * 1e-6
@@ -96,7 +104,7 @@ pub struct Wait<'a>(pub &'a mut Clock);
 
 impl DelayNs for Wait<'_> {
     fn delay_ns(&mut self, ns: u32) {
-        let end = self.0.now_us() + (ns as u64).div_ceil(1000);
+        let end = self.0.now_us() + ns.div_ceil(1000) as u64;
         while self.0.now_us() < end {}
     }
 }

@@ -56,14 +56,15 @@ fn class_number(c: ErrorClass) -> u8 {
 
 /// `n` flashes of 150 ms on / 150 ms off, then at least 0.8 s off: a cycle of 2 s up to 4
 /// flashes, longer beyond (7 flashes in 2 s left 50 ms between two groups: uncountable).
-fn flashes(n: u8, t_ms: u64) -> bool {
-    let x = t_ms % (n as u64 * 300 + 800).max(2000);
-    x / 300 < n as u64 && x % 300 < 150
+fn flashes(n: u8, t_ms: u32) -> bool {
+    let x = t_ms % (n as u32 * 300 + 800).max(2000);
+    x / 300 < n as u32 && x % 300 < 150
 }
 
-/// The LED states of a pattern at time `t_ms` (ms).
-pub fn render(led: Led, t_ms: u64) -> Lights {
-    let blink = |period: u64, on: u64| t_ms % period < on;
+/// The LED states of a pattern at time `t_ms` (ms, wrapping at 2³²: a beat is skipped once in
+/// 49.7 days; 32-bit arithmetic, no 64-bit division linked).
+pub fn render(led: Led, t_ms: u32) -> Lights {
+    let blink = |period: u32, on: u32| t_ms % period < on;
     match led {
         Led::Idle => Lights { green: blink(2000, 100), ..Lights::default() },
         Led::Busy(p) => Lights { d13: flashes(phase_number(p), t_ms), blue: true, ..Lights::default() },

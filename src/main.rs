@@ -52,9 +52,11 @@ const PWM_TOP: u16 = 20_000;
 /// A servo pulse change waits until the PWM period in progress is this far along (µs): nrf-hal's
 /// `set_duty_off` restarts the period (SEQSTART), so a restart earlier would hand the servo a
 /// frame shorter than 16 ms or stretch the pulse it is outputting (≤ 2.5 ms).
-const SERVO_UPDATE_FROM_US: u64 = 16_000;
+const SERVO_UPDATE_FROM_US: u32 = 16_000;
 /// … and no later than this (µs): a margin before the next period's rising edge.
-const SERVO_UPDATE_UNTIL_US: u64 = PWM_TOP as u64 - 500;
+const SERVO_UPDATE_UNTIL_US: u32 = PWM_TOP as u32 - 500;
+/// Whole PWM periods (µs) by which [`Io::flush_servos`] moves the period's start on.
+const PWM_WHOLE_US: u64 = 50 * PWM_TOP as u64;
 
 /// This firmware's own sensor settings: 119 Hz (952 Hz with `--features odr952`), ±500 °/s, ±2 g.
 const OWN: SensorConfig = SensorConfig { odr: if cfg!(feature = "odr952") { Odr::Hz952 } else { Odr::Hz119 }, ..SensorConfig::DEFAULT };
@@ -111,8 +113,15 @@ impl Io {
     /// restarts the period): the servos only ever see whole 16–20 ms frames and whole pulses.
     /// Called every loop tick (2 ms, inside the 3.5 ms window); a change waits ≤ 20 ms.
     fn flush_servos(&mut self, now_us: u64) {
+        // The period's start moves on by whole periods (1 s) so that its phase is 32-bit
+        // arithmetic (no 64-bit division linked); this runs every ≤ 1 s.
+        if let Some(t0) = self.pwm_restart_us.as_mut() {
+            if now_us.saturating_sub(*t0) >= PWM_WHOLE_US {
+                *t0 += PWM_WHOLE_US;
+            }
+        }
         let due = self.pwm_restart_us.is_none_or(|t0| {
-            let into = (now_us - t0) % PWM_TOP as u64;
+            let into = (now_us.saturating_sub(t0).min(u32::MAX as u64) as u32) % PWM_TOP as u32;
             (SERVO_UPDATE_FROM_US..SERVO_UPDATE_UNTIL_US).contains(&into)
         });
         if !due {
@@ -608,7 +617,7 @@ fn main() -> ! {
 
         let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());
         status.lines(now, &mut io.console, applied && !sensing.raw, &mut sensing.rate);
-        leds.show(render(io.led, clock.now_us() / 1000));
+        leds.show(render(io.led, clock.now_ms()));
         board::sleep();
     }
 }

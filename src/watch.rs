@@ -19,7 +19,7 @@ impl Watch {
 
     /// No new reading at `now_us`: `Err(ms)` since the last one when that exceeds `stall_ms`.
     pub fn idle(&self, now_us: u64, stall_ms: u32) -> Result<(), u32> {
-        let ms = (now_us.saturating_sub(self.last_new_us) / 1000).min(u32::MAX as u64) as u32;
+        let ms = now_us.saturating_sub(self.last_new_us).min(u32::MAX as u64) as u32 / 1000;
         if ms > stall_ms {
             Err(ms)
         } else {

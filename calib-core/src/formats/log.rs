@@ -75,8 +75,9 @@ pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
             buf[n] = b'.';
             n += 1;
         }
-        buf[n] = b'0' + (m % 10) as u8;
-        m /= 10;
+        let (q, digit) = div10(m);
+        buf[n] = b'0' + digit as u8;
+        m = q;
         n += 1;
     }
     if r < 0 {
@@ -84,6 +85,18 @@ pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
         n += 1;
     }
     buf[..n].iter().rev().try_for_each(|&b| w.write_char(b as char))
+}
+
+/// `m / 10` and `m % 10` by long division in 16-bit steps: 32-bit arithmetic, no 64-bit
+/// division linked into the firmware.
+fn div10(m: u64) -> (u64, u32) {
+    let (mut q, mut r) = (0u64, 0u32);
+    for shift in [48, 32, 16, 0] {
+        let cur = (r << 16) | ((m >> shift) as u32 & 0xFFFF);
+        q |= ((cur / 10) as u64) << shift;
+        r = cur % 10;
+    }
+    (q, r)
 }
 
 /// `v` rounded to `decimals` as [`fixed`] writes it (half away from zero), as the nearest `f32`.
@@ -372,5 +385,25 @@ pub fn parse_line(text: &str, cols: &Columns, line: u32) -> Result<Line, LogErro
         Ok(Line::Message)
     } else {
         parse_row(t, cols, line).map(Line::Row)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_division_by_ten_matches_u64_division() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for m in [0, 9, 10, 65_535, 655_359, u32::MAX as u64, 1 << 48, 9_200_000_000_000_000_000, u64::MAX].into_iter().chain(
+            (0..1000).map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x
+            }),
+        ) {
+            assert_eq!(div10(m), (m / 10, (m % 10) as u32), "{m}");
+        }
     }
 }
