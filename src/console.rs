@@ -251,10 +251,10 @@ impl Console {
 
     #[inline(never)]
     pub(crate) fn raw_row(&mut self, s: &Sample, mag_ut: Option<[f32; 3]>, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
-        use calib_core::formats::log::{write_mag, write_row, Row, MAX_ROW};
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut };
+        use calib_core::formats::log::{write_mag, write_row, write_temp, Row, MAX_ROW};
+        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut, temp_c: s.temp_c };
         let mut line = heapless::String::<MAX_ROW>::new();
-        if write_row(&mut line, &row).and_then(|_| write_mag(&mut line, mag_ut)).is_ok() {
+        if write_row(&mut line, &row).and_then(|_| write_mag(&mut line, mag_ut)).and_then(|_| write_temp(&mut line, s.temp_c)).is_ok() {
             self.raw(&line);
         }
     }

@@ -401,7 +401,7 @@ fn feed(
     io: &mut Io,
 ) {
     let (accel_g, gyro_dps) = calib_core::formats::log::as_logged(sample.accel_g, sample.gyro_dps);
-    let sample = Sample { accel_g, gyro_dps, ..sample };
+    let sample = Sample { accel_g, gyro_dps, temp_c: calib_core::formats::log::temp_as_logged(sample.temp_c), ..sample };
     let mag_ut = mag_ut.map(calib_core::formats::log::mag_as_logged);
     if raw {
         io.console.raw_row(&sample, mag_ut, procedure.servo_deg(), procedure.tilt_deg());

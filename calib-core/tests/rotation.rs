@@ -38,19 +38,20 @@ fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
 }
 
 /// Records poses and the moves between them at `hz` into `r`, with `rate` times the nominal
-/// angular rate; pose `bad_bias` (if any) sees a gyro offset; the bias moves by `drift` (°/s per
-/// s, every axis) from t = 0, and each pose's rest measures it.
+/// angular rate; pose `bad_bias` (if any) sees a gyro offset; no bias.
 fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, bad_bias: Option<usize>) -> Vec<Result<(), Rejected>> {
-    record_drifting(r, atts, hz, rate, bad_bias, 0.0, false)
+    record_drifting(r, atts, hz, rate, bad_bias, &|_| 0.0, false)
 }
 
+/// [`record`] with a bias `bias(t)` (°/s, every axis) that each pose's rest measures, or that a
+/// `predicted` pose takes from t = 0 (its temperature, [`PoseRest::warm_c`], being `bias(t)`).
 fn record_drifting(
     r: &mut Rotations,
     atts: &[UnitQuaternion<f64>],
     hz: f64,
     rate: f64,
     bad_bias: Option<usize>,
-    drift: f64,
+    bias: &dyn Fn(f64) -> f64,
     predicted: bool,
 ) -> Vec<Result<(), Rejected>> {
     let kinv = k_true().try_inverse().unwrap();
@@ -60,10 +61,13 @@ fn record_drifting(
     let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize, t: f64| {
         let a = q.inverse() * V3::z();
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
-        // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled.
-        let b = if predicted { 0.0 } else { (drift * t) as f32 };
+        // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled; its
+        // temperature is the bias's curve's (°C = °/s here: a tempco of 1 °/s/°C).
+        let b = if predicted { bias(0.0) as f32 } else { bias(t) as f32 };
         let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
-        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, PoseRest { bias: rest, predicted, ..PoseRest::default() }).unwrap()
+        let warm_c = if predicted { bias(t) as f32 } else { f32::NAN };
+        r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, PoseRest { bias: rest, predicted, warm_c, ..PoseRest::default() })
+            .unwrap()
     };
     let mut prev = pose(r, &atts[0], 0, t);
     for (i, w) in atts.windows(2).enumerate() {
@@ -77,7 +81,7 @@ fn record_drifting(
             // outputs it (0 at the move's first and last samples: the board rests at its poses).
             let (x0, x) = ((s.max(1) - 1).min(n) as f64 / n as f64, s.min(n) as f64 / n as f64);
             let omega = (att(x0).inverse() * att(x)).scaled_axis() * hz;
-            let g = kinv * omega.map(f64::to_degrees) + V3::repeat(drift * t);
+            let g = kinv * omega.map(f64::to_degrees) + V3::repeat(bias(t));
             r.add(t, [g[0] as f32, g[1] as f32, g[2] as f32], false);
             t += 1.0 / hz;
         }
@@ -119,7 +123,7 @@ fn a_bias_that_drifts_between_the_rests_is_tracked() {
     let truth = k_true();
     let solve = |drift: f64| {
         let mut r = Rotations::new();
-        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift, false).iter().all(|m| m.is_ok()));
+        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &|t| drift * t, false).iter().all(|m| m.is_ok()));
         let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
         let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
         (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax()
@@ -180,20 +184,47 @@ fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back()
     };
     let drift = 0.02;
     let mut r = Rotations::new();
-    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, drift, true).iter().all(|m| m.is_ok()));
+    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &|t| drift * t, true).iter().all(|m| m.is_ok()));
     let stale = e_of(&r);
     let t_end = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
     let (before, after) = (
         RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
         RestBias { t_s: t_end + 1.0, residual_dps: [(drift * (t_end + 1.0)) as f32; 3] },
     );
-    r.settle_bias(&before, &after, None);
+    r.settle_bias(&before, &after, None, [f32::NAN; 2]);
     let settled = e_of(&r);
     println!("MEASURED stale predictions E {stale:.2e}, settled {settled:.2e}");
     assert!(stale > 1e-3 && settled < 2e-5, "stale {stale:.2e}, settled {settled:.2e}");
     // Settled once: a second pair of rests changes nothing.
-    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after, None);
+    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after, None, [f32::NAN; 2]);
     assert_eq!(e_of(&r), settled);
+}
+
+#[test]
+fn settled_biases_follow_a_warm_up_by_the_temperature() {
+    // The bias follows the temperature, which rises along 1 − e^(−t/τ): a line in time between
+    // the two rests misses its curve; the poses' temperatures put it back (what is left: the
+    // curve inside each 1.5 s move, ≈ 3e-5 of a turn).
+    let e_of = |r: &Rotations| {
+        let cal = Axes::new().solve_from(&FullLimits::DEFAULT, Some((r, &RotationLimits::DEFAULT)), None).expect("the full K");
+        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+        (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
+    };
+    let curve = |t: f64| 0.3 * (1.0 - (-t / 5.0).exp());
+    let mut r = Rotations::new();
+    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &curve, true).iter().all(|m| m.is_ok()));
+    let t_end = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
+    let rest = |t: f64| RestBias { t_s: t, residual_dps: [curve(t) as f32; 3] };
+    let temps = [curve(-1.0) as f32, curve(t_end + 1.0) as f32];
+    r.settle_bias(&rest(-1.0), &rest(t_end + 1.0), None, temps);
+    let on_line = e_of(&r);
+    r.follow_warmup(&[1.0; 3]);
+    let followed = e_of(&r);
+    println!("MEASURED warm-up: bias on a line in time E {on_line:.2e}, following the temperature {followed:.2e}");
+    assert!(on_line > 1e-3 && followed < 1e-4, "line {on_line:.2e}, followed {followed:.2e}");
+    // Once: a second call changes nothing.
+    r.follow_warmup(&[1.0; 3]);
+    assert_eq!(e_of(&r), followed);
 }
 
 #[test]
@@ -246,7 +277,7 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
         let last = atts.last().unwrap();
         let (before, after) =
             (RestBias::new(-1.0, -1.0, f32s(first), [0.0; 3]), RestBias::new(t + 1.0, t + 1.0, f32s(in_body(last)), [0.0; 3]));
-        r.settle_bias(&before, &after, attitudes.then(|| frame(last)));
+        r.settle_bias(&before, &after, attitudes.then(|| frame(last)), [f32::NAN; 2]);
         let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &limits))).expect("the full K");
         let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
         (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()

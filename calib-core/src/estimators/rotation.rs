@@ -279,11 +279,15 @@ pub struct PoseRest {
     pub rise_deg: Vec3,
     /// Its length (s).
     pub span_s: f32,
+    /// Its mean temperature (°C; NaN unknown). Once [`Rotations::settle_bias`] puts a predicted
+    /// bias on the line between two rests, that temperature less the line between theirs: the
+    /// warm-up a line in time misses ([`Rotations::follow_warmup`]).
+    pub warm_c: f32,
 }
 
 impl From<RestBias> for PoseRest {
     fn from(bias: RestBias) -> Self {
-        Self { bias, ..Self::default() }
+        Self { bias, predicted: false, rise_deg: [0.0; 3], span_s: 0.0, warm_c: f32::NAN }
     }
 }
 
@@ -397,8 +401,13 @@ impl Rotations {
         Self {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
-            rest: [PoseRest { bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] }, predicted: false, rise_deg: [0.0; 3], span_s: 0.0 };
-                MAX_POSES],
+            rest: [PoseRest {
+                bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] },
+                predicted: false,
+                rise_deg: [0.0; 3],
+                span_s: 0.0,
+                warm_c: f32::NAN,
+            }; MAX_POSES],
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
@@ -444,37 +453,58 @@ impl Rotations {
     /// becomes the line between the two at their times, and the kept moves into and out of them
     /// lose the difference (the bias integrals are linear in it). `after_attitude`: the
     /// attitude of `after` as in [`Self::push_attitude`] (`None`: unknown, the poses settled lose
-    /// their Earth's-rate term).
-    pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias, after_attitude: Option<Matrix3<f32>>) {
+    /// their Earth's-rate term). `temps_c`: the two rests' mean temperatures (°C, NaN unknown).
+    pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias, after_attitude: Option<Matrix3<f32>>, temps_c: [f32; 2]) {
         let after_earth = after_attitude.map(|a| a.transpose());
         for p in 0..self.poses.len().min(MAX_POSES) {
-            let old = self.rest[p].bias;
-            if !self.rest[p].predicted || old.t_s < before.t_s || old.t_s > after.t_s {
+            let old = self.rest[p];
+            if !old.predicted || old.bias.t_s < before.t_s || old.bias.t_s > after.t_s {
                 continue;
             }
-            let new = before.between(after, old.t_s);
+            let new = before.between(after, old.bias.t_s);
+            let span = after.t_s - before.t_s;
+            let f = if span > 0.0 { ((old.bias.t_s - before.t_s) / span) as f32 } else { 0.0 };
             if let Some(e) = self.earth.get_mut(p) {
-                let span = after.t_s - before.t_s;
-                let f = if span > 0.0 { ((old.t_s - before.t_s) / span) as f32 } else { 0.0 };
                 *e = match (*e, self.rest_earth, after_earth) {
                     (Some((at, _)), Some(mb), Some(ma)) => Some((at, mb * (1.0 - f) + ma * f)),
                     _ => None,
                 };
             }
-            let delta: Vec3 = core::array::from_fn(|k| new.residual_dps[k] - old.residual_dps[k]);
-            for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
-                let only =
-                    |q: u8| RestBias { t_s: self.rest[q as usize].bias.t_s, residual_dps: if q as usize == p { delta } else { [0.0; 3] } };
-                let (da, db) = (only(m.from), only(m.to));
-                for c in &mut self.chunks[m.first as usize..(m.first + m.n) as usize] {
-                    let lost = da.integral_deg(&db, m.t0_s + c.span_s[0] as f64, m.t0_s + c.span_s[1] as f64);
-                    c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - lost[k]) as f32);
-                }
-            }
+            self.shift_bias(p, core::array::from_fn(|k| new.residual_dps[k] - old.bias.residual_dps[k]));
             self.rest[p].bias = new;
             self.rest[p].predicted = false;
+            self.rest[p].warm_c = old.warm_c - (temps_c[0] + (temps_c[1] - temps_c[0]) * f);
         }
         self.rest_earth = after_earth;
+    }
+
+    /// The settled poses' bias follows the warm-up: each moves by `c` times its temperature's
+    /// distance from the line of its two rests' ([`PoseRest::warm_c`]), `c` the zero rate's
+    /// temperature coefficient (°/s per °C) fitted over all the rests. A line in time misses the
+    /// curve of a warming part's bias (DESIGN §4.5, `b(T)`); the walk stays on the line. Once.
+    pub fn follow_warmup(&mut self, dps_per_c: &Vec3) {
+        for p in 0..self.poses.len().min(MAX_POSES) {
+            let warm_c = core::mem::replace(&mut self.rest[p].warm_c, f32::NAN);
+            if warm_c.is_finite() && !self.rest[p].predicted {
+                let delta = dps_per_c.map(|c| c * warm_c);
+                self.shift_bias(p, delta);
+                let r = &mut self.rest[p].bias.residual_dps;
+                *r = core::array::from_fn(|k| r[k] + delta[k]);
+            }
+        }
+    }
+
+    /// The kept moves into and out of pose `p` lose `delta` (°/s) more of its bias.
+    fn shift_bias(&mut self, p: usize, delta: Vec3) {
+        for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
+            let only =
+                |q: u8| RestBias { t_s: self.rest[q as usize].bias.t_s, residual_dps: if q as usize == p { delta } else { [0.0; 3] } };
+            let (da, db) = (only(m.from), only(m.to));
+            for c in &mut self.chunks[m.first as usize..(m.first + m.n) as usize] {
+                let lost = da.integral_deg(&db, m.t0_s + c.span_s[0] as f64, m.t0_s + c.span_s[1] as f64);
+                c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - lost[k]) as f32);
+            }
+        }
     }
 
     /// A turn known as a whole (°, sensor frame, less the reference bias) as a chunk of the open

@@ -7,6 +7,9 @@
 //!   servo is not commanded. Rows with both empty are hand-held.
 //! - Optional `mx_ut,my_ut,mz_ut` ([`MAG_COLUMNS`], all three or none): the raw magnetometer
 //!   (µT, in the accelerometer's axes), empty on rows without a new reading.
+//! - Optional `temp_c` ([`TEMP_COLUMN`]): the sensor's temperature the procedure saw with the
+//!   sample (°C, to 0.01 °C), empty without one. The bias's warm-up follows it, so that a replay
+//!   needs it to give the firmware's result.
 //! - Lines starting with `#` are comments. Lines before the header are ignored (a logger's
 //!   preamble); [`END`] ends the data (what follows is ignored). After the header, a line whose
 //!   first character cannot start a number is a log message (the firmware's other log lines in
@@ -21,8 +24,11 @@ use core::fmt::{self, Write};
 
 /// The header line.
 pub const HEADER: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg";
-/// The header with the magnetometer's columns ([`MAG_COLUMNS`]): the firmware's raw log.
+/// The header with the magnetometer's columns ([`MAG_COLUMNS`]): the raw log of firmware before
+/// the temperature column.
 pub const HEADER_MAG: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg,mx_ut,my_ut,mz_ut";
+/// The header with the magnetometer's and the temperature's columns: the firmware's raw log.
+pub const HEADER_RAW: &str = "t_s,ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps,servo_deg,tilt_deg,mx_ut,my_ut,mz_ut,temp_c";
 /// The comment line that ends a raw log (raw-log mode switched off).
 pub const END: &str = "# end of raw log";
 /// The comment that states the sensor setup the rows after it were sampled at ([`write_setup`]).
@@ -31,7 +37,9 @@ pub const SETUP: &str = "# sensor setup:";
 pub const COLUMNS: [&str; 9] = ["t_s", "ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "servo_deg", "tilt_deg"];
 /// The optional magnetometer columns, written after [`COLUMNS`] by [`write_mag`].
 pub const MAG_COLUMNS: [&str; 3] = ["mx_ut", "my_ut", "mz_ut"];
-/// Longest row [`write_row`] and [`write_mag`] write (bytes, without the newline).
+/// The optional temperature column, written after [`MAG_COLUMNS`] by [`write_temp`].
+pub const TEMP_COLUMN: &str = "temp_c";
+/// Longest row [`write_row`], [`write_mag`] and [`write_temp`] write (bytes, without the newline).
 pub const MAX_ROW: usize = 160;
 
 /// One IMU sample of a log.
@@ -49,12 +57,16 @@ pub struct Row {
     pub tilt_deg: Option<f32>,
     /// Raw magnetometer (µT, accelerometer axes); `None` without a new reading (or no columns).
     pub mag_ut: Option<[f32; 3]>,
+    /// Sensor temperature (°C); `None` without a reading (or no column).
+    pub temp_c: Option<f32>,
 }
 
 /// Decimals written per column group: time, accelerometer, gyro, servo angles.
 const DECIMALS: (u32, u32, u32, u32) = (6, 6, 5, 2);
 /// Decimals of the magnetometer (1 nT).
 const MAG_DECIMALS: u32 = 3;
+/// Decimals of the temperature (0.01 °C).
+const TEMP_DECIMALS: u32 = 2;
 
 /// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
 /// written as `nan`, which the parser rejects. Digits by hand: no `core::fmt` number code.
@@ -124,6 +136,12 @@ pub fn mag_as_logged(m_ut: [f32; 3]) -> [f32; 3] {
     m_ut.map(|v| on_grid(v, MAG_DECIMALS))
 }
 
+/// A temperature as a row holds it (to 0.01 °C; parses back to this `f32`; a non-finite one is
+/// none).
+pub fn temp_as_logged(temp_c: Option<f32>) -> Option<f32> {
+    temp_c.filter(|t| t.is_finite()).map(|t| on_grid(t, TEMP_DECIMALS))
+}
+
 /// Writes one row (no newline).
 pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
     let (dt, da, dg, ds) = DECIMALS;
@@ -155,6 +173,16 @@ pub fn write_mag(w: &mut impl Write, mag_ut: Option<[f32; 3]>) -> fmt::Result {
         }
     }
     Ok(())
+}
+
+/// Writes the temperature field of a row after [`write_mag`] (empty without one), for a log whose
+/// header ends with [`TEMP_COLUMN`].
+pub fn write_temp(w: &mut impl Write, temp_c: Option<f32>) -> fmt::Result {
+    w.write_char(',')?;
+    match temp_c {
+        Some(t) => fixed(w, t as f64, TEMP_DECIMALS),
+        None => Ok(()),
+    }
 }
 
 /// Writes the setup comment (no newline): `# sensor setup: odr_hz=119.0 gyro_range_dps=2000.0
@@ -266,6 +294,8 @@ pub struct Columns {
     tilt: Option<usize>,
     /// Field indices of [`MAG_COLUMNS`], if present.
     mag: Option<[usize; 3]>,
+    /// Field index of [`TEMP_COLUMN`], if present.
+    temp: Option<usize>,
     /// Fields in the header.
     count: usize,
 }
@@ -300,7 +330,7 @@ pub fn parse_header(line: &str) -> Result<Columns, LogError> {
         [None, None, None] => None,
         found => return Err(LogError::MissingColumn(MAG_COLUMNS[found.iter().position(Option::is_none).unwrap_or(0)])),
     };
-    Ok(Columns { idx, tilt, mag, count: line.split(',').count() })
+    Ok(Columns { idx, tilt, mag, temp: find(TEMP_COLUMN), count: line.split(',').count() })
 }
 
 /// Reads a data row (line number `line` for errors).
@@ -347,6 +377,13 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
         }
         _ => None,
     };
+    let temp_c = match cols.temp.map(field) {
+        Some(t) if !t.is_empty() => match t.parse::<f64>() {
+            Ok(x) if (x as f32).is_finite() => Some(x as f32),
+            _ => return Err(LogError::BadNumber { line, column: TEMP_COLUMN }),
+        },
+        _ => None,
+    };
     Ok(Row {
         t_s: num(0)?,
         accel_g: [num(1)? as f32, num(2)? as f32, num(3)? as f32],
@@ -354,6 +391,7 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
         servo_deg: opt(7)?,
         tilt_deg: opt(8)?,
         mag_ut,
+        temp_c,
     })
 }
 

@@ -13,7 +13,7 @@
 use crate::error::Error;
 use crate::estimators::accel::AccelModel;
 use crate::estimators::gyro::Method;
-use crate::formats::log::{self, Row, END, HEADER, HEADER_MAG};
+use crate::formats::log::{self, Row, END, HEADER, HEADER_MAG, HEADER_RAW};
 use crate::formats::record::Record;
 use crate::formats::text::{Fixed, M3, V3};
 use crate::procedure::Phase;
@@ -250,11 +250,11 @@ fn parse_record(l: &str) -> Option<Event<'_>> {
     Some(Event::Record { line, seq: seq.parse().ok()?, method: method(name)? })
 }
 
-/// The raw log's first line (`on`, [`HEADER_MAG`]: the magnetometer's columns empty on a board
+/// The raw log's first line (`on`, [`HEADER_RAW`]: the magnetometer's columns empty on a board
 /// without one) or its end marker ([`END`]).
 pub fn raw_log(on: bool) -> &'static str {
     if on {
-        HEADER_MAG
+        HEADER_RAW
     } else {
         END
     }
@@ -353,12 +353,17 @@ pub fn parse(line: &str) -> Option<Event<'_>> {
     Some(match l {
         USB_STARTED => Event::UsbStarted,
         NO_RECORD => Event::NoRecord,
-        HEADER | HEADER_MAG => Event::RawLogStart,
+        HEADER | HEADER_MAG | HEADER_RAW => Event::RawLogStart,
         END => Event::RawLogEnd,
         _ if l.starts_with(crate::formats::export::JSON_START) => Event::ResultJson(l),
         _ if l.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) => {
-            // A row of either header: with the magnetometer's three fields or without.
-            let header = if l.split(',').count() > log::COLUMNS.len() { HEADER_MAG } else { HEADER };
+            // A row of any header: with the magnetometer's three fields and the temperature's,
+            // with the magnetometer's only (older firmware), or neither.
+            let header = match l.split(',').count().saturating_sub(log::COLUMNS.len()) {
+                0 => HEADER,
+                1..=3 => HEADER_MAG,
+                _ => HEADER_RAW,
+            };
             Event::Row(log::parse_row(l, &log::parse_header(header).ok()?, 0).ok()?)
         }
         _ => return parse_prefixed(l),
@@ -475,14 +480,23 @@ mod tests {
             servo_deg: Some(30.0),
             tilt_deg: None,
             mag_ut: None,
+            temp_c: None,
         };
         assert_eq!(parse(&line(|s| log::write_row(s, &row))), Some(Event::Row(row)));
         let with = Row { mag_ut: Some([-12.5, 30.25, -41.0]), ..row };
         for r in [row, with] {
             assert_eq!(parse(&line(|s| log::write_row(s, &r).and_then(|_| log::write_mag(s, r.mag_ut)))), Some(Event::Row(r)));
         }
+        // The firmware's rows: the temperature after the field, each empty or not.
+        for r in [row, with, Row { temp_c: Some(31.25), ..row }, Row { temp_c: Some(-4.5), ..with }] {
+            let l = line(|s| log::write_row(s, &r).and_then(|_| log::write_mag(s, r.mag_ut)).and_then(|_| log::write_temp(s, r.temp_c)));
+            assert_eq!(parse(&l), Some(Event::Row(r)), "{l}");
+        }
         assert_eq!(HEADER_MAG, std::format!("{HEADER},{}", log::MAG_COLUMNS.join(",")));
-        assert_eq!(parse(HEADER), Some(Event::RawLogStart));
+        assert_eq!(HEADER_RAW, std::format!("{HEADER_MAG},{}", log::TEMP_COLUMN));
+        for h in [HEADER, HEADER_MAG, HEADER_RAW] {
+            assert_eq!(parse(h), Some(Event::RawLogStart));
+        }
     }
 
     #[test]

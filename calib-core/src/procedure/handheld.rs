@@ -63,7 +63,8 @@ impl Procedure {
         // The move from the previous pose to this one: a rotation constraint on the full K.
         let (bias, predicted) = self.hand_rest(capture);
         let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
-        let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32 };
+        let warm_c = if predicted { capture.temp_c() } else { f32::NAN };
+        let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32, warm_c };
         let to = match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) => to,
             Err(e) => return self.fail(e),
@@ -130,9 +131,11 @@ impl Procedure {
     /// the predicted bias of the hand-held poses since the previous rest. The first rig rest
     /// after the hand-held step ends the attitude's tracking.
     pub(super) fn note_rest(&mut self, capture: &Capture, rest: RestBias) {
+        let temp_c = capture.temp_c();
         if let Some(before) = self.drift.last() {
-            self.rotations.settle_bias(&before, &rest, self.attitude);
+            self.rotations.settle_bias(&before, &rest, self.attitude, [self.rest_temp_c, temp_c]);
         }
+        self.rest_temp_c = temp_c;
         if !matches!(self.step, Step::HandHeld { .. }) {
             self.attitude = None;
         }

@@ -283,6 +283,8 @@ pub struct Procedure {
     drift: Drift,
     /// The rests' biases against their temperatures.
     temp_fit: TempFit,
+    /// The latest rest's mean temperature (°C; NaN unknown).
+    rest_temp_c: f32,
     /// Temperatures and magnetometer readings since the rest detector's last window closed.
     window_read: WindowReadings,
     /// The hand-held step's magnetometer readings and still poses.
@@ -336,6 +338,7 @@ impl Procedure {
             integ: Integrator::new(),
             drift: Drift::new(),
             temp_fit: TempFit::new(),
+            rest_temp_c: f32::NAN,
             window_read: WindowReadings { temp: Welford3::new(), mag: Welford3::new() },
             mag: MagCalibrator::new(),
             mag_cal: None,
@@ -675,6 +678,7 @@ impl Procedure {
         self.integ = Integrator::new();
         self.drift = Drift::new();
         self.temp_fit = TempFit::new();
+        self.rest_temp_c = f32::NAN;
         self.window_read = WindowReadings::default();
         self.mag = MagCalibrator::new();
         self.mag_pending = false;

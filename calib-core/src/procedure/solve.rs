@@ -88,6 +88,9 @@ impl Procedure {
     }
 
     pub(super) fn solve(&mut self, t_s: f64) {
+        if let Some(tempco) = self.temp_fit.finish() {
+            self.rotations.follow_warmup(&tempco.dps_per_c);
+        }
         let rotations = Some((&self.rotations, &self.cfg.rotation));
         let limits = (&self.cfg.geometry, &self.cfg.full);
         let solved = OneAxis::solve(&self.poses, &self.moves, self.gbar, rotations, limits, &mut self.axes);

@@ -153,6 +153,7 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
                 (Some(x), Some(y), Some(z)) => Some([x as f32, y as f32, z as f32]),
                 _ => None,
             },
+            temp_c: None,
         };
         let _ = log::write_row(&mut out, &row);
         if mag {
@@ -234,8 +235,15 @@ mod tests {
 
     #[test]
     fn format_then_parse_round_trips_and_the_end_marker_ends_the_data() {
-        let r =
-            Row { t_s: 1.25, accel_g: [0.5, -0.25, 0.75], gyro_dps: [1.5, -2.0, 3.0], servo_deg: Some(30.0), tilt_deg: None, mag_ut: None };
+        let r = Row {
+            t_s: 1.25,
+            accel_g: [0.5, -0.25, 0.75],
+            gyro_dps: [1.5, -2.0, 3.0],
+            servo_deg: Some(30.0),
+            tilt_deg: None,
+            mag_ut: None,
+            temp_c: None,
+        };
         let mut s = header();
         format_row(&mut s, &r);
         format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, tilt_deg: Some(-25.0), ..r });
@@ -274,6 +282,7 @@ mod tests {
             servo_deg: None,
             tilt_deg: None,
             mag_ut: Some([21.5, -3.25, -40.125]),
+            temp_c: None,
         };
         for row in [r, Row { t_s: 1.01, mag_ut: None, ..r }] {
             let _ = log::write_row(&mut s, &row);
@@ -308,6 +317,7 @@ mod tests {
                 servo_deg: Some(-12.34),
                 tilt_deg: Some(90.0),
                 mag_ut: None,
+                temp_c: None,
             };
             let mut s = header();
             format_row(&mut s, &r);

@@ -651,7 +651,8 @@ mod tests {
 
     #[test]
     fn gaps_in_time_are_lost_rows() {
-        let row = |t_s| Row { t_s, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.0; 3], servo_deg: None, tilt_deg: None, mag_ut: None };
+        let row =
+            |t_s| Row { t_s, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.0; 3], servo_deg: None, tilt_deg: None, mag_ut: None, temp_c: None };
         let mut rows: Vec<Row> = (0..100).map(|i| row(i as f64 / 119.0)).collect();
         assert_eq!(lost_rows(&rows), 0);
         rows.drain(40..43);

@@ -134,8 +134,9 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
             p.handle_mag(r.t_s, m);
             p.drive(r.t_s, &mut out);
         }
-        // The log has no temperature; it only annotates the record, never the estimates.
-        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: None });
+        // The temperature the firmware saw, if the log has it (the hand-held poses' bias follows
+        // the warm-up with it; a log without it replays with the bias on lines in time).
+        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: r.temp_c });
         p.drive(r.t_s, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
             return Some((out, p.full().copied(), p.bias_at(r.t_s)));

@@ -235,7 +235,7 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
     let y = span(series.iter().flat_map(|s| s.2.iter().map(|p| p.1)));
     // Headroom above the markers for the legend's three rows (it covered a rest's marker otherwise).
     let y = y.start..y.end + 0.3 * (y.end - y.start);
-    let bias = scatter("Each rest's gyro bias minus the calibration's (the log has no temperature)", ("time (s)", x), ("°/s", y), &series)?;
+    let bias = scatter("Each rest's gyro bias minus the calibration's, against time", ("time (s)", x), ("°/s", y), &series)?;
     let (mag, mag_dip, mag_heading) = mag_plots(rows, c, &k)?;
     Ok(Plots { sphere, invariant, residuals, bias, mag, mag_dip, mag_heading })
 }

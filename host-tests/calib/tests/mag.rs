@@ -19,8 +19,7 @@ fn log(magnet_at: Option<usize>) -> (String, Rig) {
         let t0 = rig.truth().t_s;
         while rig.truth().t_s - t0 < secs {
             let s = rig.next_sample();
-            let row =
-                csvlog::Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: None, mag_ut: s.mag_ut };
+            let row = rig_sim::harness::log_row(&s, servo, None);
             write_log_row(text, &row, mag);
         }
     };

@@ -61,6 +61,7 @@ fn degenerate_logs_are_named_errors() {
             servo_deg: Some(0.0),
             tilt_deg: None,
             mag_ut: None,
+            temp_c: None,
         };
         csvlog::format_row(&mut text, &r);
     }
@@ -139,7 +140,7 @@ fn a_pan_tilt_firmware_log_is_replayed_to_the_firmware_s_full_k() {
     let mut p = Procedure::new(Config::PAN_TILT, None);
     let (log, out) = record_log(&mut rig, &mut p, Faults::default(), "");
     assert_eq!(out.error, None);
-    assert_eq!(log.lines().next().unwrap(), format!("{HEADER},mx_ut,my_ut,mz_ut"));
+    assert_eq!(log.lines().next().unwrap(), format!("{HEADER},mx_ut,my_ut,mz_ut,temp_c"));
     assert!(log.lines().skip(1).any(|l| !l.split(',').nth(8).unwrap_or("").is_empty()), "the tilt column is filled");
     let rec = out.stored[0];
     let c = offline::calibrate(&csvlog::parse(&log).unwrap().rows, None).unwrap();
@@ -330,12 +331,15 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let diff = (0..9).map(|i| (k[i / 3][i % 3] - stored.gyro_k[i / 3][i % 3]).abs()).fold(0.0f32, f32::max);
     println!("MEASURED calib_vs_procedure_max_abs_k_diff={diff:e}");
     assert!(diff <= 1e-6, "{diff}");
-    // The bias: the record's at its temperature moved by its tempco to the run's end (the log has
-    // no temperature column: the replay gives the bias at the end).
-    let shift = |k: usize| stored.tempco.zip(stored.temp_c).map_or(0.0, |(c, t0)| c.dps_per_c[k] * (rig.truth().temp_c as f32 - t0));
-    let off = (0..3).map(|k| (c.bias.bias_dps[k] - stored.gyro_bias_dps[k] - shift(k)).abs()).fold(0.0f32, f32::max);
+    // The bias, the temperature and the tempco: the record's (the log's temperature column gives
+    // the replay what the procedure saw).
+    let off = (0..3).map(|k| (c.bias.bias_dps[k] - stored.gyro_bias_dps[k]).abs()).fold(0.0f32, f32::max);
     println!("MEASURED replayed_bias_vs_record={off:e} tempco={:?}", stored.tempco);
-    assert!(off <= 3.0 * c.bias.sigma_dps.iter().fold(0.0f32, |m, s| m.max(*s)), "{off} {:?}", c.bias.sigma_dps);
+    assert!(off <= 1e-5, "{off}");
+    let (rec, close) = (c.record().unwrap(), |a: f32, b: f32| (a - b).abs() <= 1e-6 * b.abs().max(1.0));
+    let (t, st) = (rec.tempco.unwrap(), stored.tempco.unwrap());
+    assert!((0..3).all(|k| close(t.dps_per_c[k], st.dps_per_c[k]) && close(t.sigma_dps_per_c[k], st.sigma_dps_per_c[k])), "{t:?}");
+    assert!(close(rec.temp_c.unwrap(), stored.temp_c.unwrap()), "{rec:?}");
     // Rejected (a gyro scale the acceptance refuses): the same verdict, the same error.
     let mut cfg = Variant::Hobby.config(28, 0);
     cfg.gyro.scale.x = 1.3;

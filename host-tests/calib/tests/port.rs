@@ -185,12 +185,14 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
             p.drive(prev_t, &mut sh);
             started = true;
         }
+        // The board's temperature, as its raw log writes it (the simulated log's).
+        let temp_c = r.temp_c;
         if !f.drop_rows.is_some_and(|(a, b)| (a..b).contains(&i)) {
             let mut l = String::new();
-            log::write_row(&mut l, r).and_then(|_| log::write_mag(&mut l, r.mag_ut)).unwrap();
+            log::write_row(&mut l, r).and_then(|_| log::write_mag(&mut l, r.mag_ut)).and_then(|_| log::write_temp(&mut l, temp_c)).unwrap();
             sh.out.push(l);
         }
-        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: Some(25.0) });
+        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c });
         p.drive(r.t_s, &mut sh);
         if sh.out.len() >= 64 {
             send(&mut m, &mut sh.out)?;
@@ -243,8 +245,9 @@ fn a_session_saves_the_log_shows_the_phases_and_cross_checks() {
     assert!(!saved.contains('\r'));
     let (got, want) = (csvlog::parse(&saved).unwrap(), csvlog::parse(sim_log()).unwrap());
     assert!(got.rows.len() + 1 >= want.rows.len(), "{} of {} rows", got.rows.len(), want.rows.len());
-    // The fake board sends the rows as the firmware does, the magnetometer's fields included.
-    assert!(want.rows.iter().any(|r| r.mag_ut.is_some()));
+    // The fake board sends the rows as the firmware does, the magnetometer's and the
+    // temperature's fields included.
+    assert!(want.rows.iter().any(|r| r.mag_ut.is_some()) && want.rows.iter().all(|r| r.temp_c.is_some()));
     assert_eq!(got.rows[..], want.rows[..got.rows.len()]);
     assert!(got.messages > 20, "{} messages", got.messages);
     let events: Vec<_> = saved.lines().filter_map(protocol::parse).collect();

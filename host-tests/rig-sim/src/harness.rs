@@ -128,7 +128,7 @@ pub const PRESS_AT_S: f64 = 1.0;
 
 /// Converts a simulator sample to the procedure's input.
 pub fn to_input(s: &Reading) -> Sample {
-    Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: Some(s.temp_c) }
+    Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: log::temp_as_logged(Some(s.temp_c)) }
 }
 
 /// The simulated board's outputs and its operator: servo commands go to the rig, reports move
@@ -289,21 +289,29 @@ fn run_posed(
     out
 }
 
-/// The log's header for a rig: with the magnetometer's columns when it has one.
+/// The log's header for a rig: with the magnetometer's columns when it has one, then the
+/// temperature's.
 pub fn log_header(cfg: &RigConfig) -> String {
     match cfg.mag {
-        Some(_) => format!("{},{}", log::HEADER, log::MAG_COLUMNS.join(",")),
-        None => log::HEADER.to_string(),
+        Some(_) => log::HEADER_RAW.to_string(),
+        None => format!("{},{}", log::HEADER, log::TEMP_COLUMN),
     }
 }
 
-/// Appends a row (and its magnetometer fields when the log has them) and its newline.
+/// Appends a row (its magnetometer fields when the log has them, its temperature) and its
+/// newline.
 pub fn write_log_row(text: &mut String, row: &Row, mag: bool) {
     let _ = log::write_row(text, row);
     if mag {
         let _ = log::write_mag(text, row.mag_ut);
     }
+    let _ = log::write_temp(text, row.temp_c);
     text.push('\n');
+}
+
+/// A reading as a log's row holds it, with the commanded servo angles.
+pub fn log_row(s: &Reading, servo_deg: Option<f32>, tilt_deg: Option<f32>) -> Row {
+    Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut, temp_c: to_input(s).temp_c }
 }
 
 /// Runs like [`run`] and records the log ([`calib_core::formats::log`], `comments` first).
@@ -311,8 +319,7 @@ pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments:
     let mag = rig.config().mag.is_some();
     let mut text = format!("{comments}{}\n", log_header(rig.config()));
     let out = run(rig, proc, faults, 900.0, |s, servo_deg, tilt_deg| {
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut };
-        write_log_row(&mut text, &row, mag);
+        write_log_row(&mut text, &log_row(s, servo_deg, tilt_deg), mag);
     });
     (text, out)
 }

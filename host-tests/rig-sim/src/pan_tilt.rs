@@ -6,7 +6,7 @@
 use crate::harness::operator_attitudes;
 use crate::sim::{Reading, Rig, RigConfig, TiltStage};
 use crate::variant::Variant;
-use calib_core::formats::log::{self, Row};
+use calib_core::formats::log;
 use nalgebra::Matrix3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -33,8 +33,7 @@ struct Script<'a> {
 impl Script<'_> {
     fn sample(&mut self, servo: Option<f32>, tilt: Option<f32>) -> Reading {
         let s = self.rig.next_sample();
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: servo, tilt_deg: tilt, mag_ut: s.mag_ut };
-        crate::harness::write_log_row(&mut self.text, &row, self.rig.config().mag.is_some());
+        crate::harness::write_log_row(&mut self.text, &crate::harness::log_row(&s, servo, tilt), self.rig.config().mag.is_some());
         s
     }
 

@@ -263,8 +263,13 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
             turn.add(rows[i].t_s, rows[i].t_s - rows[i - 1].t_s, gyro(&rows[i]));
         }
         let (t_first, t_last) = (rows[s.first].t_s, rows[s.last].t_s);
-        let rest =
-            PoseRest { bias: log.rest(s), predicted: false, rise_deg: turn.rise_deg(t_first, t_last), span_s: (t_last - t_first) as f32 };
+        let rest = PoseRest {
+            bias: log.rest(s),
+            predicted: false,
+            rise_deg: turn.rise_deg(t_first, t_last),
+            span_s: (t_last - t_first) as f32,
+            warm_c: f32::NAN,
+        };
         let sigma = s.accel.max_std_of_mean();
         let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, rest) else { break };
         if let Some((from, p)) = prev {
