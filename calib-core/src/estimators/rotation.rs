@@ -46,9 +46,10 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Rotation moves kept.
 pub const MAX_ROTATION_MOVES: usize = 32;
-/// Chunks of all moves together (32 B each): 384 of the gyro's, and each kept move's two turns
-/// inside its poses ([`PoseRest::rise_deg`]).
-pub const MAX_CHUNKS: usize = 384 + 2 * MAX_ROTATION_MOVES;
+/// Chunks of all moves together (32 B each): 416 of the gyro's (a 180° hand move takes ≈ 35;
+/// with 384, one drifting one-servo run in seven of drift-bench's ran out before its hand-held
+/// goal), and each kept move's two turns inside its poses ([`PoseRest::rise_deg`]).
+pub const MAX_CHUNKS: usize = 416 + 2 * MAX_ROTATION_MOVES;
 /// Poses whose attitude is kept for the Earth's rate ([`Rotations::push_attitude`]): the
 /// firmware's hand-held step has up to 20 (`Config::max_hand_poses`); later poses' moves go
 /// without the Earth's term.
