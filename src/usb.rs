@@ -40,9 +40,9 @@ pub const MANUFACTURER: &str = "gyrocal";
 pub const PRODUCT: &str = "gyrocal Nano 33 BLE";
 /// Bulk and EP0 packet size (B; full speed).
 pub const PACKET: usize = 64;
-/// Outbox size (B): 0.75 s of raw-log rows at 119 Hz (8.2 KB/s), more than the longest call
-/// that does not poll USB as the virtual board counts it (the solve, ≈ 0.6 s: a lower bound, see
-/// docs/limits.md) with its report lines.
+/// Outbox size (B): 0.75 s of raw-log rows at 119 Hz (8.2 KB/s), for the longest call that does
+/// not poll USB (the solve: ≈ 0.6 s as the virtual board counts it, a lower bound, see
+/// docs/limits.md) and its report lines; lines that do not fit are dropped whole and counted.
 pub const OUTBOX: usize = 6144;
 /// Longest wait for READY and OUTPUTRDY after ENABLE (s): nrfx waits for READY without a
 /// bound; the regulator needs ~1 ms (nRF5340 PS t_USBPWRRDY; the nRF52840 PS gives no figure).

@@ -9,7 +9,7 @@
 //! `φ_c = K Γ_c + ½ det(K) K⁻ᵀ β_c` (exact for the cross product, `(K a) × (K b) = det K · K⁻ᵀ (a × b)`;
 //! the Bortz vector to second order), and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at
 //! every Gauss–Newton iterate: the result does not depend on where the iteration starts (no
-//! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 24 bytes.
+//! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 32 bytes.
 //!
 //! Jacobian (vec `K` column-major, [`crate::estimators::full::vec_index`]): composing
 //! `J ← Exp(φ_c)ᵀ J + J_r(φ_c) (Γ_cᵀ ⊗ I)` (the preintegration recursion; the coning term's small
@@ -268,7 +268,7 @@ impl PoseTurn {
 }
 
 /// A pose's rest as the moves see it.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseRest {
     /// Its bias.
     pub bias: RestBias,
@@ -280,15 +280,28 @@ pub struct PoseRest {
     pub rise_deg: Vec3,
     /// Its length (s).
     pub span_s: f32,
-    /// Its mean temperature (°C; NaN unknown). Once [`Rotations::settle_bias`] puts a predicted
-    /// bias on the line between two rests, that temperature less the line between theirs: the
-    /// warm-up a line in time misses ([`Rotations::follow_warmup`]).
+    /// A predicted bias's pose: its mean temperature (°C). Once [`Rotations::settle_bias`] puts
+    /// the bias on the line between two rests, that temperature less the line between theirs: the
+    /// warm-up a line in time misses ([`Rotations::follow_warmup`]). NaN for a measured bias, an
+    /// unknown temperature, and after [`Rotations::follow_warmup`].
     pub warm_c: f32,
+}
+
+impl PoseRest {
+    /// A measured bias of no time, no turn, no temperature.
+    const NONE: Self =
+        Self { bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] }, predicted: false, rise_deg: [0.0; 3], span_s: 0.0, warm_c: f32::NAN };
+}
+
+impl Default for PoseRest {
+    fn default() -> Self {
+        Self::NONE
+    }
 }
 
 impl From<RestBias> for PoseRest {
     fn from(bias: RestBias) -> Self {
-        Self { bias, predicted: false, rise_deg: [0.0; 3], span_s: 0.0, warm_c: f32::NAN }
+        Self { bias, ..Self::NONE }
     }
 }
 
@@ -402,13 +415,7 @@ impl Rotations {
         Self {
             poses: Poses::new(),
             sigma_g: [0.0; MAX_POSES],
-            rest: [PoseRest {
-                bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] },
-                predicted: false,
-                rise_deg: [0.0; 3],
-                span_s: 0.0,
-                warm_c: f32::NAN,
-            }; MAX_POSES],
+            rest: [PoseRest::NONE; MAX_POSES],
             chunks: heapless::Vec::new(),
             moves: heapless::Vec::new(),
             open: None,
