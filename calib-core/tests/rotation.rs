@@ -173,31 +173,35 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     assert_eq!(r.end(1, &RotationLimits::DEFAULT), Err(Rejected::Saturated));
 }
 
+/// The end of [`record_drifting`]'s nine moves between the varied attitudes at 238 Hz, nominal rate (s).
+const NINE_MOVES_END_S: f64 = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
+
+/// The largest element of `E` of the full `K` the moves of `r` give alone.
+fn largest_error(r: &Rotations) -> f64 {
+    let cal = Axes::new().solve_from(&FullLimits::DEFAULT, Some((r, &RotationLimits::DEFAULT)), None).expect("the full K");
+    let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
+    (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
+}
+
 #[test]
 fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back() {
     // The bias drifts 0.02 deg/s per s; every pose's bias is a stale prediction (that of t = 0)
     // until two measured rests around them settle it on their line, which is the truth here.
-    let e_of = |r: &Rotations| {
-        let cal = Axes::new().solve_from(&FullLimits::DEFAULT, Some((r, &RotationLimits::DEFAULT)), None).expect("the full K");
-        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
-        (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
-    };
     let drift = 0.02;
     let mut r = Rotations::new();
     assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &|t| drift * t, true).iter().all(|m| m.is_ok()));
-    let stale = e_of(&r);
-    let t_end = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
+    let stale = largest_error(&r);
     let (before, after) = (
         RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
-        RestBias { t_s: t_end + 1.0, residual_dps: [(drift * (t_end + 1.0)) as f32; 3] },
+        RestBias { t_s: NINE_MOVES_END_S + 1.0, residual_dps: [(drift * (NINE_MOVES_END_S + 1.0)) as f32; 3] },
     );
     r.settle_bias(&before, &after, None, [f32::NAN; 2]);
-    let settled = e_of(&r);
+    let settled = largest_error(&r);
     println!("MEASURED stale predictions E {stale:.2e}, settled {settled:.2e}");
     assert!(stale > 1e-3 && settled < 2e-5, "stale {stale:.2e}, settled {settled:.2e}");
     // Settled once: a second pair of rests changes nothing.
     r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after, None, [f32::NAN; 2]);
-    assert_eq!(e_of(&r), settled);
+    assert_eq!(largest_error(&r), settled);
 }
 
 #[test]
@@ -205,26 +209,20 @@ fn settled_biases_follow_a_warm_up_by_the_temperature() {
     // The bias follows the temperature, which rises along 1 − e^(−t/τ): a line in time between
     // the two rests misses its curve; the poses' temperatures put it back (what is left: the
     // curve inside each 1.5 s move, ≈ 3e-5 of a turn).
-    let e_of = |r: &Rotations| {
-        let cal = Axes::new().solve_from(&FullLimits::DEFAULT, Some((r, &RotationLimits::DEFAULT)), None).expect("the full K");
-        let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
-        (k * k_true().try_inverse().unwrap() - Matrix3::identity()).amax()
-    };
     let curve = |t: f64| 0.3 * (1.0 - (-t / 5.0).exp());
     let mut r = Rotations::new();
     assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &curve, true).iter().all(|m| m.is_ok()));
-    let t_end = 9.0 * (1.5 * 238.0 + 2.0) / 238.0;
     let rest = |t: f64| RestBias { t_s: t, residual_dps: [curve(t) as f32; 3] };
-    let temps = [curve(-1.0) as f32, curve(t_end + 1.0) as f32];
-    r.settle_bias(&rest(-1.0), &rest(t_end + 1.0), None, temps);
-    let on_line = e_of(&r);
+    let temps = [curve(-1.0) as f32, curve(NINE_MOVES_END_S + 1.0) as f32];
+    r.settle_bias(&rest(-1.0), &rest(NINE_MOVES_END_S + 1.0), None, temps);
+    let on_line = largest_error(&r);
     r.follow_warmup(&[1.0; 3]);
-    let followed = e_of(&r);
+    let followed = largest_error(&r);
     println!("MEASURED warm-up: bias on a line in time E {on_line:.2e}, following the temperature {followed:.2e}");
     assert!(on_line > 1e-3 && followed < 1e-4, "line {on_line:.2e}, followed {followed:.2e}");
     // Once: a second call changes nothing.
     r.follow_warmup(&[1.0; 3]);
-    assert_eq!(e_of(&r), followed);
+    assert_eq!(largest_error(&r), followed);
 }
 
 #[test]
