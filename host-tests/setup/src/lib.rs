@@ -1,11 +1,15 @@
-//! What the README's commands need before their long builds start, found or named.
+//! What the README's commands need before their long builds start, found or installed.
 //!
 //! `cargo demo`, `cargo test-host`, `cargo results` and `cargo flash-usb` run through
-//! `gyrocal-setup` (`.cargo/config.toml`): it looks for the system's build tools of the Unicorn
-//! emulator (cmake, a C compiler, make, libclang for bindgen) and for the firmware's linker
-//! (flip-link). What only the system's package manager has is named with its one-line install
-//! command for each platform, before anything is compiled; flip-link, which cargo can install, is
-//! installed into the project's own `target/tools` (never replaced by another linker).
+//! `gyrocal-setup` (`.cargo/config.toml`). Before anything is compiled it adds what
+//! `rust-toolchain.toml` asks of the toolchain and rustup has not installed (a toolchain that was
+//! already present keeps its own targets), finds the Unicorn emulator's build tools (cmake, a C
+//! compiler, make, libclang for bindgen) and the firmware's linker (flip-link), and installs what
+//! is missing: cmake and libclang from PyPI's wheels into the project's own `target/tools/py`
+//! (no root needed, nothing outside the project touched), else with apt where it runs as root or
+//! with password-less sudo on Debian/Ubuntu; flip-link with `cargo install` into `target/tools`
+//! (never replaced by another linker). What it cannot install (a C compiler, make) is named with
+//! its one-line install command for each platform.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -88,6 +92,30 @@ impl Platform {
         }
     }
 
+    /// The packages of `missing` on this Linux platform (Debian's and Arch's compiler and make
+    /// share one), each named once, in the order of `missing`; empty on macOS.
+    pub fn packages(self, missing: &[SystemTool]) -> Vec<&'static str> {
+        use SystemTool::*;
+        let mut packages: Vec<&str> = Vec::new();
+        for &tool in missing {
+            let package = match (self, tool) {
+                (Platform::MacOs, _) => continue,
+                (Platform::Debian, CCompiler | Make) => "build-essential",
+                (Platform::Fedora, CCompiler) => "gcc",
+                (Platform::Fedora, Make) => "make",
+                (_, CCompiler | Make) => "base-devel",
+                (_, Cmake) => "cmake",
+                (Platform::Debian, Libclang) => "libclang-dev",
+                (Platform::Fedora, Libclang) => "clang-devel",
+                (_, Libclang) => "clang",
+            };
+            if !packages.contains(&package) {
+                packages.push(package);
+            }
+        }
+        packages
+    }
+
     /// The one-line command that installs `missing` on this platform.
     pub fn install_line(self, missing: &[SystemTool]) -> String {
         use SystemTool::*;
@@ -105,25 +133,7 @@ impl Platform {
                 };
             }
         };
-        // The package of each tool on this Linux platform (Debian's and Arch's compiler and make
-        // share one), each named once, in the order of `missing`.
-        let mut packages: Vec<&str> = Vec::new();
-        for &tool in missing {
-            let package = match (self, tool) {
-                (Platform::Debian, CCompiler | Make) => "build-essential",
-                (Platform::Fedora, CCompiler) => "gcc",
-                (Platform::Fedora, Make) => "make",
-                (_, CCompiler | Make) => "base-devel",
-                (_, Cmake) => "cmake",
-                (Platform::Debian, Libclang) => "libclang-dev",
-                (Platform::Fedora, Libclang) => "clang-devel",
-                (_, Libclang) => "clang",
-            };
-            if !packages.contains(&package) {
-                packages.push(package);
-            }
-        }
-        format!("{command} {}", packages.join(" "))
+        format!("{command} {}", self.packages(missing).join(" "))
     }
 }
 
@@ -299,5 +309,88 @@ pub fn find_linker(probe: &Probe, tools: &Path) -> Linker {
         Linker::InProject(local)
     } else {
         Linker::Missing
+    }
+}
+
+/// What `rust-toolchain.toml` asks rustup for besides the channel.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ToolchainFile {
+    /// `components` (`clippy`, `llvm-tools`, …).
+    pub components: Vec<String>,
+    /// `targets` (`thumbv7em-none-eabihf`).
+    pub targets: Vec<String>,
+}
+
+impl ToolchainFile {
+    /// The `components` and `targets` arrays of a `rust-toolchain.toml` (`text`), on one line or
+    /// several; comments and other keys ignored.
+    pub fn parse(text: &str) -> ToolchainFile {
+        let lines: Vec<&str> = text.lines().map(|l| l.split('#').next().unwrap_or("")).collect();
+        let array = |key: &str| -> Vec<String> {
+            let Some(i) = lines.iter().position(|l| l.split_once('=').is_some_and(|(k, _)| k.trim() == key)) else {
+                return Vec::new();
+            };
+            let rest = lines[i..].join(" ");
+            let value = rest.split_once('=').map_or("", |(_, v)| v).trim_start();
+            let Some(inner) = value.strip_prefix('[').and_then(|v| v.split(']').next()) else { return Vec::new() };
+            inner.split(',').map(|v| v.trim().trim_matches(['"', '\'']).to_string()).filter(|v| !v.is_empty()).collect()
+        };
+        ToolchainFile { components: array("components"), targets: array("targets") }
+    }
+
+    /// The components and targets not in rustup's `component list --installed` (lines
+    /// `NAME-HOST`) and `target list --installed` (one target a line), for the toolchain's `host`.
+    pub fn missing(&self, installed_components: &str, installed_targets: &str, host: &str) -> (Vec<String>, Vec<String>) {
+        let has_component = |c: &str| installed_components.lines().any(|l| l.trim() == c || l.trim() == format!("{c}-{host}"));
+        let has_target = |t: &str| installed_targets.lines().any(|l| l.trim() == t);
+        (
+            self.components.iter().filter(|c| !has_component(c)).cloned().collect(),
+            self.targets.iter().filter(|t| !has_target(t)).cloned().collect(),
+        )
+    }
+}
+
+/// The wheels of PyPI that give the Unicorn build its cmake and bindgen its libclang without root,
+/// pinned to the versions tried (docs/testing.md#a-fresh-machine).
+pub const WHEELS: [&str; 2] = ["cmake==4.4.5", "libclang==18.1.1"];
+
+/// cmake and libclang from PyPI's wheels, installed with `pip install --target` into `dir`
+/// (`target/tools/py`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Wheels {
+    /// The `--target` directory.
+    pub dir: PathBuf,
+}
+
+impl Wheels {
+    /// The directory of the `cmake` wheel's executable (its `bin/cmake` is a Python launcher).
+    pub fn cmake_bin(&self) -> PathBuf {
+        self.dir.join("cmake/data/bin")
+    }
+
+    /// The directory of the `libclang` wheel's `libclang.so` (for `LIBCLANG_PATH`).
+    pub fn libclang_dir(&self) -> PathBuf {
+        self.dir.join("clang/native")
+    }
+
+    /// Both tools are in `dir`.
+    pub fn installed(&self) -> bool {
+        is_executable(&self.cmake_bin().join("cmake")) && libclang_in(&self.libclang_dir()).is_some()
+    }
+}
+
+/// The C headers every compiler ships itself (`stdbool.h`, `stddef.h`, `stdarg.h`), which a
+/// libclang without its own resource directory (the wheel's) cannot find: bindgen is pointed at
+/// the C compiler's (`cc -print-file-name=include`, `include`: its answer) with `-isystem`.
+pub fn compiler_headers(include: &Path) -> Result<PathBuf, String> {
+    let missing: Vec<&str> = ["stdbool.h", "stddef.h", "stdarg.h"].into_iter().filter(|h| !include.join(h).is_file()).collect();
+    if include.is_absolute() && missing.is_empty() {
+        Ok(include.to_path_buf())
+    } else {
+        Err(format!(
+            "the C compiler's own headers ({}) are not in {:?} (`cc -print-file-name=include`): the wheel's libclang has none of its own",
+            missing.join(", "),
+            include
+        ))
     }
 }
