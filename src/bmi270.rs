@@ -31,8 +31,9 @@ use embedded_hal::i2c::I2c;
 pub const ADDR: u8 = 0x68;
 /// CHIP_ID of a BMI270.
 pub const CHIP_ID: u8 = 0x24;
-/// Bosch's configuration file (8192 bytes; SHA-256 2d75e68e…178db, `docs/rev2-sources.md`).
-pub static CONFIG: &[u8; 8192] = include_bytes!("bmi270_config.bin");
+/// Bosch's configuration file (8192 bytes; SHA-256 2d75e68e…178db, `docs/rev2-sources.md`), from
+/// the `bmi2` crate, which ships it as `BMI270_CONFIG_FILE` (rig-sim's tests pin the hash).
+pub static CONFIG: &[u8; 8192] = &bmi2::config::BMI270_CONFIG_FILE;
 
 /// Register addresses (Bosch's `bmi2_defs.h`; the two RANGE registers and ERR_REG as Zephyr
 /// names them).

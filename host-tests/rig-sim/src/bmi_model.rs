@@ -63,9 +63,9 @@
 use crate::lsm_model::{bus_time_s, BusError};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
-/// The model's copy of Bosch's configuration file (its SHA-256 is checked against Bosch's
-/// source in the tests).
-pub static BOSCH_CONFIG: &[u8; 8192] = include_bytes!("../../../src/bmi270_config.bin");
+/// Bosch's configuration file the part needs (the `bmi2` crate's copy; its SHA-256 is checked
+/// against Bosch's source in the tests).
+pub static BOSCH_CONFIG: &[u8; 8192] = &bmi2::config::BMI270_CONFIG_FILE;
 
 /// I2C address.
 pub const ADDR: u8 = 0x68;
