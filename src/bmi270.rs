@@ -580,13 +580,14 @@ impl<I: I2c> Bmi270<I> {
         Ok(temperature_c(i16::from_le_bytes(b)))
     }
 
-    /// The latest sample from the data registers: (accelerometer g, gyro °/s), sensor axes.
+    /// The latest sample from the data registers: (accelerometer g, gyro °/s), board frame
+    /// ([`calib_core::board::BMI270`]: `(y, −x, z)` of Bosch's axes).
     pub fn read_sample(&mut self) -> Result<([f32; 3], [f32; 3]), Bmi270Error> {
         let mut b = [0u8; 12];
         self.read(reg::ACC_X_LSB, &mut b)?;
         let v = |i: usize| i16::from_le_bytes([b[2 * i], b[2 * i + 1]]) as f32;
         let (dps, g) = self.cfg.per_lsb();
-        Ok(([v(0) * g, v(1) * g, v(2) * g], [v(3) * dps, v(4) * dps, v(5) * dps]))
+        Ok(([v(1) * g, -v(0) * g, v(2) * g], [v(4) * dps, -v(3) * dps, v(5) * dps]))
     }
 }
 
@@ -622,7 +623,7 @@ pub struct FifoRead {
 }
 
 /// Parses header-mode FIFO bytes (Bosch's frame layout) with the sensitivities `(°/s, g)` per
-/// LSB, each sample to `each` (accelerometer g, gyro °/s).
+/// LSB, each sample to `each` (accelerometer g, gyro °/s, board frame: [`calib_core::board::BMI270`]).
 pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32; 3], [f32; 3])) -> FifoRead {
     let mut r = FifoRead::default();
     let mut i = 0;
@@ -646,7 +647,8 @@ pub fn parse_fifo(bytes: &[u8], (dps, g): (f32, f32), mut each: impl FnMut([f32;
         }
         match header {
             FRAME_ACC_GYR => {
-                each([v(rest, 3) * g, v(rest, 4) * g, v(rest, 5) * g], [v(rest, 0) * dps, v(rest, 1) * dps, v(rest, 2) * dps]);
+                // [`calib_core::board::BMI270`]: (y, −x, z); the gyro's bytes come first.
+                each([v(rest, 4) * g, -v(rest, 3) * g, v(rest, 5) * g], [v(rest, 1) * dps, -v(rest, 0) * dps, v(rest, 2) * dps]);
                 r.samples += 1;
             }
             FRAME_ACC | FRAME_GYR => r.partial += 1,

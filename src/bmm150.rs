@@ -239,8 +239,8 @@ impl Bmm150 {
         &self.trim
     }
 
-    /// A new compensated reading (µT, in the BMI270's axes: taken as the BMM150's own, the
-    /// identity, UNVERIFIED on a board: `docs/mag-sources.md`) if the data-ready bit says there
+    /// A new compensated reading (µT, in the board frame: [`calib_core::board::BMM150`] of the part's axes,
+    /// UNVERIFIED on a board: `docs/frames.md`) if the data-ready bit says there
     /// is one at MCU time `now_us`; `Ok(None)` if not yet, or an overflow (counted). One 8-byte
     /// burst.
     pub fn read<I: I2c>(&mut self, i2c: &mut I, now_us: u64) -> Result<Option<[f32; 3]>, ReadError> {
@@ -259,6 +259,6 @@ impl Bmm150 {
         if m.is_none() {
             self.overflows = self.overflows.saturating_add(1);
         }
-        Ok(m)
+        Ok(m.map(|[x, y, z]| [-y, -x, -z]))
     }
 }

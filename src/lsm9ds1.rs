@@ -316,7 +316,7 @@ impl core::fmt::Display for SensorError {
     }
 }
 
-/// One FIFO slot: raw gyro and accelerometer counts.
+/// One FIFO slot: raw gyro and accelerometer counts, the part's axes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RawSample {
@@ -468,16 +468,19 @@ impl<I: I2c> Lsm9ds1<I> {
         Ok(25.0 + i16::from_le_bytes(b) as f32 / 16.0)
     }
 
-    /// Converts counts to accelerometer (g) and gyro (°/s), datasheet sensitivity only.
+    /// Converts counts to accelerometer (g) and gyro (°/s) in the board frame, datasheet
+    /// sensitivity only.
     pub fn convert(&self, raw: &RawSample) -> ([f32; 3], [f32; 3]) {
         convert(&self.cfg, raw)
     }
 }
 
-/// Converts counts to accelerometer (g) and gyro (°/s) for `cfg`.
+/// Converts counts to accelerometer (g) and gyro (°/s) for `cfg`, in the board frame: the raw
+/// axes form a left-handed triad, `(−x, y, z)` of both is the board's ([`calib_core::board::LSM9DS1_AG`]).
 pub fn convert(cfg: &SensorConfig, raw: &RawSample) -> ([f32; 3], [f32; 3]) {
     let (ga, gg) = (cfg.accel.g_per_lsb(), cfg.gyro.dps_per_lsb());
-    (raw.accel.map(|c| c as f32 * ga), raw.gyro.map(|c| c as f32 * gg))
+    let ([ax, ay, az], [gx, gy, gz]) = (raw.accel.map(|c| c as f32 * ga), raw.gyro.map(|c| c as f32 * gg));
+    ([-ax, ay, az], [-gx, gy, gz])
 }
 
 fn read_reg<I: I2c>(i2c: &mut I, addr: u8, r: u8) -> Result<u8, I::Error> {

@@ -241,7 +241,7 @@ impl LsmMag {
         &self.cfg
     }
 
-    /// A new reading (µT, in the accelerometer's axes: the magnetometer's x is the
+    /// A new reading (µT, in the board frame: the magnetometer's raw axes, whose x is the
     /// accelerometer's −x, DocID025715 Figure 1) if ZYXDA says there is one at MCU time
     /// `now_us`; `Ok(None)` if not yet. Two transfers at most; [`Error::Stalled`] or
     /// [`Error::Stuck`] when the part stopped or stuck.
@@ -254,11 +254,11 @@ impl LsmMag {
         i2c.write_read(ADDR, &[reg::OUT_X_L | AUTO_INCREMENT], &mut b).map_err(bus)?;
         let c = [i16::from_le_bytes([b[0], b[1]]), i16::from_le_bytes([b[2], b[3]]), i16::from_le_bytes([b[4], b[5]])];
         self.watch.reading([c[0], c[1], c[2], 0], now_us, self.cfg.stuck_readings).map_err(|readings| Error::Stuck { readings })?;
-        Ok(Some(to_accel_axes_ut(c)))
+        Ok(Some(to_board_ut(c)))
     }
 }
 
-/// Counts (part axes, ±4 gauss) to µT in the accelerometer's axes: `(−x, y, z)`.
-pub fn to_accel_axes_ut(c: [i16; 3]) -> [f32; 3] {
-    [-(c[0] as f32) * UT_PER_LSB, c[1] as f32 * UT_PER_LSB, c[2] as f32 * UT_PER_LSB]
+/// Counts (part axes, ±4 gauss) to µT in the board frame ([`calib_core::board::LSM9DS1_MAG`]).
+pub fn to_board_ut(c: [i16; 3]) -> [f32; 3] {
+    c.map(|v| v as f32 * UT_PER_LSB)
 }

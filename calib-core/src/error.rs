@@ -102,6 +102,11 @@ pub enum Error {
     RotationAxesCoplanar { spread: f32, limit: f32 },
     /// Full `K`: the moves disagree with one rigid `K` (RMS residual of the move equations).
     MovesInconsistent { residual_rms_deg: f32, limit_deg: f32 },
+    /// The gyro turns the wrong way for the accelerometer: of the moves that tell, `left_hand`
+    /// turn gravity as the left-hand rule in these axes says and `right_hand` as the right-hand
+    /// rule ([`crate::estimators::rotation::Rotations::mirrored`]). The axes' map (the driver's
+    /// for this board, a log's columns) is off by a reflection; not a slip ([`crate::board`]).
+    AxesMirrored { right_hand: u8, left_hand: u8 },
     /// The gyro bias moved unevenly, which tracking between rests cannot follow: the moves
     /// disagree with one `K` and a rest's bias left the line through its neighbours by
     /// `off_trend_dps` (> `limit_dps`), or so many hand-held moves changed bias between their
@@ -149,8 +154,11 @@ impl fmt::Display for Error {
             }
             Error::ImplausibleScale { axis, value } => write!(
                 f,
-                "implausible scale factor {value} on axis {}",
-                ["x", "y", "z"][axis as usize % 3], value = Fixed(value as f64, 4)),
+                "implausible scale factor {value} on axis {}{}",
+                ["x", "y", "z"][axis as usize % 3],
+                if value < 0.0 { ": negative: mirrored axes" } else { "" },
+                value = Fixed(value as f64, 4)
+            ),
             Error::NoUsableMove => f.write_str("no move between poses turned the shaft by a usable angle"),
             Error::TooFewSamples { have, need } => write!(f, "too few samples: {have}, need {need}"),
             Error::NotStill { gyro_std_dps, accel_std_g } => write!(
@@ -245,6 +253,9 @@ impl fmt::Display for Error {
             Error::RotationAxesCoplanar { spread, limit } => write!(
                 f,
                 "the moves between poses turn about too few directions (axis spread {spread} < {limit}): turn the board about varied axes, not only about one", spread = Fixed(spread as f64, 3), limit = Fixed(limit as f64, 3)),
+            Error::AxesMirrored { right_hand, left_hand } => write!(
+                f,
+                "gyro axes mirrored: {left_hand} moves left-handed, {right_hand} right-handed: wrong axis map, not a slip"),
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,
                 "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg as f64, 3), limit_deg = Fixed(limit_deg as f64, 3)),

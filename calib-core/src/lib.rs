@@ -53,6 +53,7 @@
 // Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod board;
 mod error;
 pub mod estimators;
 pub mod formats;

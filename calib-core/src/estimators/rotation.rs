@@ -365,6 +365,14 @@ impl Default for Rotations {
 }
 
 /// The angle between two vectors (°).
+/// Smallest turn (°) of a move counted for the gyro's handedness ([`Rotations::mirrored`]).
+pub const MIRROR_MIN_TURN_DEG: f32 = 20.0;
+/// Largest (°): near a half turn the sine of gravity's turn changes sign.
+pub const MIRROR_MAX_TURN_DEG: f32 = 150.0;
+/// Least sine of gravity's turn about the gyro's axis that counts (0.1: 6°, far above a pose's
+/// noise of hundredths of a degree; a turn about gravity itself turns it by nothing).
+pub const MIRROR_MIN_SINE: f64 = 0.1;
+
 fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
     libm::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
 }
@@ -912,6 +920,31 @@ impl Rotations {
             };
         }
         out
+    }
+
+    /// The gyro mirrored relative to the accelerometer ([`Error::AxesMirrored`]): of the kept
+    /// moves that are not vertical turns and turn by [`MIRROR_MIN_TURN_DEG`] to
+    /// [`MIRROR_MAX_TURN_DEG`], those where gravity turns clearly (the sine of its turn about the
+    /// gyro's axis beyond [`MIRROR_MIN_SINE`]) are counted by the rule it follows: the right-hand
+    /// rule turns the body's gravity against the body (`(g_from × g_to) · Γ < 0`), its mirror
+    /// with it. Mirrored: at least two follow the left-hand rule and more than three times as many
+    /// as the right. A slip or a shaky pose moves a few moves; a mirror moves all of them.
+    pub fn mirrored(&self) -> Option<Error> {
+        let (mut right_hand, mut left_hand) = (0u8, 0u8);
+        for m in self.moves() {
+            if m.vertical || !(m.turn_deg >= MIRROR_MIN_TURN_DEG && m.turn_deg <= MIRROR_MAX_TURN_DEG) {
+                continue;
+            }
+            // The poses' gravity is 1 g to within the accelerometer's calibration.
+            let (gi, gj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
+            let s = gi.cross(&gj).dot(&self.total_rad(m).normalize());
+            if s < -MIRROR_MIN_SINE {
+                right_hand += 1;
+            } else if s > MIRROR_MIN_SINE {
+                left_hand += 1;
+            }
+        }
+        (left_hand >= 2 && left_hand as u16 > 3 * right_hand as u16).then_some(Error::AxesMirrored { right_hand, left_hand })
     }
 
     /// The bias-free gyro integral of kept move `m` (rad): `Σ Γ_c`.

@@ -106,8 +106,8 @@ fn temp_c(rec: &Record) -> f32 {
 pub fn write(w: &mut impl Write, rec: &Record, format: Format) -> fmt::Result {
     match format {
         Format::Json => json(w, rec),
-        Format::C => c(w, rec, DataFrame::Raw),
-        Format::Rust => rust(w, rec, DataFrame::Raw),
+        Format::C => c(w, rec, DataFrame::Board),
+        Format::Rust => rust(w, rec, DataFrame::Board),
     }
 }
 
@@ -117,7 +117,7 @@ pub fn write(w: &mut impl Write, rec: &Record, format: Format) -> fmt::Result {
 pub fn write_in(w: &mut impl Write, rec: &Record, format: Format, frame: DataFrame) -> fmt::Result {
     let r = rec.in_frame(frame).map_err(|_| fmt::Error)?;
     match format {
-        Format::Json if frame == DataFrame::Raw => json(w, &r),
+        Format::Json if frame == DataFrame::Board => json(w, &r),
         Format::Json => Err(fmt::Error),
         Format::C => c(w, &r, frame),
         Format::Rust => rust(w, &r, frame),
@@ -309,7 +309,7 @@ fn header(w: &mut impl Write, r: &Record, frame: DataFrame, open: &str, close: &
     match &r.mag {
         None => writeln!(w, "{open}No magnetometer calibration (none read, or a pan/tilt run).{close}"),
         Some(m) => {
-            writeln!(w, "{open}Mag:   m = A (r - o): r magnetometer reading (uT, the accelerometer's axes), o = MAG_OFFSET_UT{close}")?;
+            writeln!(w, "{open}Mag:   m = A (r - o): r magnetometer reading (uT, board frame), o = MAG_OFFSET_UT{close}")?;
             write!(w, "{open}(uT), m calibrated (uT) in the frame of K and M; field ")?;
             num(w, m.field_ut, 2, "?", " uT, dip ")?;
             num(w, m.dip_deg, 2, "?", " deg")?;
@@ -746,17 +746,20 @@ mod tests {
         assert!(r.contains("pub const MAG_OFFSET_UT: [f32; 3] = [12.500, -30.250, 4.000];"), "{r}");
         let none = text(&Record { mag: None, ..rec }, Format::C);
         assert!(!none.contains("MAG_A") && none.contains("No magnetometer calibration"), "{none}");
-        assert!(c.contains("/* Part: LSM9DS1 */\n/* Data: raw sensor axes, datasheet units (nothing applied) */"), "{c}");
+        assert!(
+            c.contains("/* Part: LSM9DS1 */\n/* Data: the board frame (x towards USB, z out of the component side), datasheet units */"),
+            "{c}"
+        );
         let bmi = Record { setup: SensorSetup { sensor: Sensor::Bmi270 { gyr_cas: -7, user_gain: false }, ..SensorSetup::DEFAULT }, ..rec };
         let mut ard = String::new();
         write_in(&mut ard, &bmi, Format::C, DataFrame::ArduinoBmi270).unwrap();
         let k = bmi.in_frame(DataFrame::ArduinoBmi270).unwrap().gyro_k;
-        assert!(ard.contains("/* Part: BMI270, GYR_CAS -7, user gain off */\n/* Data: Arduino_BMI270_BMM150's readings"), "{ard}");
+        assert!(ard.contains("/* Part: BMI270, GYR_CAS -7, user gain off */\n/* Data: Arduino_BMI270_BMM150 >= 1.1.0's readings"), "{ard}");
         let mut row = String::new();
         fixed(&mut row, k[0][0] as f64, D_MATRIX).unwrap();
         assert!(ard.contains(&std::format!("static const float GYRO_K[3][3] = {{\n    {{{row}f, ")), "{row} {ard}");
         assert_eq!(write_in(&mut String::new(), &rec, Format::C, DataFrame::BoschApi), Err(fmt::Error), "an LSM9DS1's record");
-        assert_eq!(write_in(&mut String::new(), &bmi, Format::Json, DataFrame::BoschApi), Err(fmt::Error), "JSON is raw");
+        assert_eq!(write_in(&mut String::new(), &bmi, Format::Json, DataFrame::BoschApi), Err(fmt::Error), "JSON is the board frame's");
         for s in [&c, &r, &ard] {
             assert!(!s.ends_with('\n'));
             assert!(s.lines().all(|l| l.len() <= MAX_LINE && l.is_ascii()), "{s}");

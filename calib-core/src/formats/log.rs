@@ -6,7 +6,7 @@
 //!   `servo_deg`, `tilt_deg`: the commanded rotation and tilt servo angles (°), empty while that
 //!   servo is not commanded. Rows with both empty are hand-held.
 //! - Optional `mx_ut,my_ut,mz_ut` ([`MAG_COLUMNS`], all three or none): the raw magnetometer
-//!   (µT, in the accelerometer's axes), empty on rows without a new reading.
+//!   (µT, in the board frame), empty on rows without a new reading.
 //! - Optional `temp_c` ([`TEMP_COLUMN`]): the sensor's temperature the procedure saw with the
 //!   sample (°C, to 0.01 °C), empty without one. The bias's warm-up follows it, so that a replay
 //!   needs it to give the firmware's result.

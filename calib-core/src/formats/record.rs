@@ -1,5 +1,10 @@
 //! The calibration record stored in flash: a fixed, versioned, little-endian layout with CRC-32.
 //!
+//! Layout v6 (`LEN` = 320 bytes): the v5 layout, its vectors and matrices in the board frame
+//! ([`crate::board`]). Versions 1–5 held them in the part's raw axes (the LSM9DS1's magnetometer
+//! in its accelerometer's, the BMM150's taken as the BMI270's) and load converted into the board
+//! frame by the part's map ([`Record::from_part_axes`]).
+//!
 //! Layout v5 (`LEN` = 320 bytes): the v4 layout, then before the CRC the magnetometer's
 //! calibration ([`MagCal`]): `A` (9, row-major), offset (3, µT), field strength and its 1σ (µT),
 //! dip and its 1σ (°), alignment and its 1σ (°), residual (µT), coverage (0..1), all `f32`, then
@@ -40,9 +45,9 @@ use crate::estimators::gyro::{GyroCal, Method};
 use crate::estimators::mag::MagCal;
 use crate::{Mat3, Vec3};
 
-/// Record format version written by this code.
-pub const VERSION: u8 = 5;
-/// Encoded length (bytes) of a version-5 record (the longest a reader needs).
+/// Record format version written by this code: the board frame.
+pub const VERSION: u8 = 6;
+/// Encoded length (bytes) of a version-5 or -6 record (the longest a reader needs).
 pub const LEN: usize = 320;
 /// Encoded length (bytes) of a version-4 record.
 pub const LEN_V4: usize = 236;
@@ -65,7 +70,9 @@ pub enum DecodeError {
     Truncated { len: u16, need: u16 },
     /// Not a record (erased flash reads 0xFF).
     BadMagic,
-    /// A format version this firmware does not know.
+    /// A format version this firmware does not know, or one of 1–5 (the part's raw axes, not
+    /// the board frame) where calib-core's `older-records` feature is off (the firmware): kept
+    /// in flash, not applied.
     UnsupportedVersion(u8),
     /// The checksum does not match: torn write or corruption.
     BadCrc { stored: u32, computed: u32 },
@@ -108,8 +115,8 @@ const TEMPCO_UNKNOWN: u16 = 2;
 /// Flags bit: there is no magnetometer calibration.
 const MAG_UNKNOWN: u16 = 4;
 
-/// The part a calibration was made with. `K`, `b`, `M` and `o` are in that part's raw sensor
-/// axes, in its datasheet units (nothing else applied).
+/// The part a calibration was made with. `K`, `b`, `M` and `o` are in the board frame
+/// ([`crate::board`]), in the part's datasheet units (nothing else applied).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
@@ -467,7 +474,7 @@ impl Record {
             2 => LEN_V2,
             3 => LEN_V3,
             4 => LEN_V4,
-            5 => LEN,
+            5 | 6 => LEN,
             v => return Err(DecodeError::UnsupportedVersion(v)),
         };
         if bytes.len() < len {
@@ -573,6 +580,13 @@ impl Record {
                 return Err(DecodeError::InvalidField);
             }
         }
+        let rec = match bytes[4] {
+            VERSION => rec,
+            #[cfg(feature = "older-records")]
+            _ => rec.from_part_axes(),
+            #[cfg(not(feature = "older-records"))]
+            v => return Err(DecodeError::UnsupportedVersion(v)),
+        };
         if !r.all_finite || rec.check_finite().is_err() {
             return Err(DecodeError::InvalidField);
         }
@@ -722,8 +736,8 @@ pub(crate) mod tests {
         assert!(matches!(Record::decode(&bytes[..100]), Err(DecodeError::Truncated { len: 100, need: 320 })));
         assert_eq!(Record::decode(&[0xFF; LEN]), Err(DecodeError::BadMagic));
         let mut v = bytes;
-        v[4] = 6;
-        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(6)));
+        v[4] = 7;
+        assert_eq!(Record::decode(&v), Err(DecodeError::UnsupportedVersion(7)));
         let mut c = bytes;
         c[40] ^= 0x10;
         assert!(matches!(Record::decode(&c), Err(DecodeError::BadCrc { .. })));
@@ -740,7 +754,10 @@ pub(crate) mod tests {
             v1[i] = u8::from_str_radix(&GOLDEN_V1[2 * i..2 * i + 2], 16).unwrap();
         }
         let sigma_k = [[1e-4, 0.0, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1.5e-4]];
-        assert_eq!(Record::decode(&v1), Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, tempco: None, ..without_mag() }));
+        assert_eq!(
+            Record::decode(&v1),
+            Ok(Record { sigma_k, residual_rms: 0.0, non_coplanar_deg: 0.0, tempco: None, ..without_mag() }.from_part_axes())
+        );
         assert!(matches!(Record::decode(&v1[..150]), Err(DecodeError::Truncated { len: 150, need: 156 })));
         let mut torn = v1;
         torn[120] ^= 1;
@@ -757,7 +774,7 @@ pub(crate) mod tests {
         for i in 0..LEN_V2 {
             v2[i] = u8::from_str_radix(&GOLDEN_V2[2 * i..2 * i + 2], 16).unwrap();
         }
-        assert_eq!(Record::decode(&v2), Ok(Record { tempco: None, ..without_mag() }));
+        assert_eq!(Record::decode(&v2), Ok(Record { tempco: None, ..without_mag() }.from_part_axes()));
         assert!(matches!(Record::decode(&v2[..180]), Err(DecodeError::Truncated { len: 180, need: 188 })));
         // Bit 1 (tempco unknown) is not a v2 flag.
         let mut flagged = v2;
@@ -842,7 +859,7 @@ pub(crate) mod tests {
         for i in 0..LEN_V3 {
             v3[i] = u8::from_str_radix(&GOLDEN_V3[2 * i..2 * i + 2], 16).unwrap();
         }
-        assert_eq!(Record::decode(&v3), Ok(without_mag()));
+        assert_eq!(Record::decode(&v3), Ok(without_mag().from_part_axes()));
         assert!(matches!(Record::decode(&v3[..231]), Err(DecodeError::Truncated { len: 231, need: 232 })));
     }
 
@@ -879,7 +896,10 @@ pub(crate) mod tests {
             v4[i] = u8::from_str_radix(&GOLDEN_V4[2 * i..2 * i + 2], 16).unwrap();
         }
         let sensor = Sensor::Bmi270 { gyr_cas: -5, user_gain: true };
-        assert_eq!(Record::decode(&v4), Ok(Record { setup: SensorSetup { sensor, ..SensorSetup::DEFAULT }, ..without_mag() }));
+        assert_eq!(
+            Record::decode(&v4),
+            Ok(Record { setup: SensorSetup { sensor, ..SensorSetup::DEFAULT }, ..without_mag() }.from_part_axes())
+        );
         assert!(matches!(Record::decode(&v4[..235]), Err(DecodeError::Truncated { len: 235, need: 236 })));
         // Bit 2 (no magnetometer) is not a v4 flag.
         let mut flagged = v4;

@@ -86,7 +86,8 @@ impl ErrorClass {
             | Error::MagCoverageThin { .. }
             | Error::CommandQueueFull
             | Error::ResultNotFinite
-            | Error::MovesInconsistent { .. } => ErrorClass::Result,
+            | Error::MovesInconsistent { .. }
+            | Error::AxesMirrored { .. } => ErrorClass::Result,
         }
     }
 }

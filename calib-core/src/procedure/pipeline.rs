@@ -150,7 +150,8 @@ pub fn validate_full(cal: &FullCal, acc: &Acceptance) -> Result<(), Error> {
 /// 0.05 °/s left in over half of a 4 s rest-to-rest span is 0.1°, most of the residual limit.
 pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 
-/// A solve's error as the user must read it: [`Error::MovesInconsistent`] becomes
+/// A solve's error as the user must read it: any error becomes [`Error::AxesMirrored`] when the
+/// moves turn gravity as the left-hand rule says ([`Rotations::mirrored`]); [`Error::MovesInconsistent`] becomes
 /// [`Error::BiasDrifting`] when a rest's bias left the trend of its neighbours by more than
 /// [`MAX_OFF_TREND_DPS`]; a full `K` the moves between poses do not determine
 /// ([`Error::RotationAxesCoplanar`], a singular or unobservable normal matrix) is blamed on the
@@ -158,6 +159,9 @@ pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 /// reason with its numbers, [`Error::BiasDrifting`] for a changing bias). A slip
 /// moves the board, not the bias: it stays `MovesInconsistent` (or `AxisNotFixed`).
 pub fn blame(e: Error, drift: &Drift, rotations: Option<(&Rotations, &RotationLimits)>) -> Error {
+    if let Some(mirrored) = rotations.and_then(|(r, _)| r.mirrored()) {
+        return mirrored;
+    }
     match e {
         Error::MovesInconsistent { .. } if drift.off_trend_dps() > MAX_OFF_TREND_DPS => {
             Error::BiasDrifting { off_trend_dps: drift.off_trend_dps(), limit_dps: MAX_OFF_TREND_DPS, dps_per_min: drift.dps_per_min() }

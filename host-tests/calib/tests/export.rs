@@ -278,12 +278,15 @@ fn calib_exports_an_offline_result() {
     assert_eq!(record_from_json(exported.trim()).unwrap().gyro_k, want.gyro_k);
     let (code, _, err) = calib(&["--out", "x.h", log]);
     assert_eq!(code, 2, "--out needs --export: {err}");
-    // A BMI270's data frames: an LSM9DS1's log has none; JSON is always the raw record.
+    // A BMI270's data frames: an LSM9DS1's log has none; JSON is always the board frame's.
     let (code, out, err) = calib(&[log, "--export", "c", "--frame", "bosch"]);
     assert_eq!(code, 2, "{out}");
-    assert!(err.contains("--frame: that data frame is a BMI270's; the record was made with an LSM9DS1"), "{err}");
-    let (code, _, err) = calib(&[log, "--export", "c", "--frame", "raw"]);
-    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("--frame: that data frame is another part's than the record's"), "{err}");
+    for frame in ["board", "arduino-lsm9ds1"] {
+        let (code, out, err) = calib(&[log, "--export", "c", "--frame", frame]);
+        assert_eq!(code, 0, "{err}");
+        assert!(out.contains(if frame == "board" { "/* Data: the board frame" } else { "/* Data: Arduino_LSM9DS1's readings" }), "{out}");
+    }
     let (code, _, err) = calib(&[log, "--frame", "arduino"]);
     assert_eq!(code, 2, "--frame needs --export: {err}");
 }

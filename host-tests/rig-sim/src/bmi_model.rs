@@ -257,9 +257,19 @@ impl Bmi270Model {
         self.land();
     }
 
-    /// The sensor's reading produced at true time `t_s`: specific force (g) and rate (°/s),
-    /// sensor axes; into the FIFO when it takes both sensors in header mode and they are on.
+    /// The board frame's vector in Bosch's axes of the part: `(−y, x, z)`. Arduino_BMI270_BMM150
+    /// (1.1.0 on, `BMI270.cpp`, TARGET_ARDUINO_NANO33BLE) remaps them with `x = −y, y = −x` to
+    /// read as the Rev1's raw LSM9DS1 axes, whose `(−x, y, z)` is the board frame; HeadTracker's
+    /// `sense.cpp` takes `(y, −x, z)` of the BMI270 where it flips the LSM9DS1's x.
+    pub fn raw_axes(b: [f32; 3]) -> [f32; 3] {
+        [-b[1], b[0], b[2]]
+    }
+
+    /// The sensor's reading produced at true time `t_s`: specific force (g) and rate (°/s), board
+    /// frame, in the part's axes ([`Self::raw_axes`]); into the FIFO when it takes both sensors in
+    /// header mode and they are on.
     pub fn set_sample(&mut self, t_s: f64, accel_g: [f32; 3], gyro_dps: [f32; 3]) {
+        let (accel_g, gyro_dps) = (Self::raw_axes(accel_g), Self::raw_axes(gyro_dps));
         if let Some(t0) = self.last_sample_s.filter(|&t0| t_s > t0) {
             self.sample_interval_s = t_s - t0;
         }

@@ -31,8 +31,8 @@
 //!   5:3: 10, 2, 6, 8, 15, 20, 25, 30 Hz), never faster than the repetitions allow
 //!   (1 / (145 µs nXY + 500 µs nZ + 980 µs), nXY = 1 + 2 REP_XY, nZ = 1 + REP_Z: Zephyr's and
 //!   Linux's drivers, citing DS §4.2.4); in forced mode one, then back to sleep (OP_MODE reads
-//!   11). Each is the rig's field (µT, the BMI270's axes taken as the BMM150's: the identity,
-//!   UNVERIFIED) turned into the counts Bosch's compensation maps back onto it with this part's
+//!   11). Each is the rig's field (µT, board frame, in the part's axes: [`raw_axes`], UNVERIFIED)
+//!   turned into the counts Bosch's compensation maps back onto it with this part's
 //!   trim ([`TRIM`]) and hall resistance ([`RHALL`]): x, y 13-bit (bits 7:3 of the LSB), z 15-bit
 //!   (bits 7:1), RHALL 14-bit (bits 7:2) with data ready in 0x48 bit 0, which a read of the data
 //!   registers clears when its burst ends (DS §4.6.6); beyond the ADC's range x, y read −4096 and
@@ -60,6 +60,16 @@
 
 use crate::lsm_model::{bus_time_s, BusError};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
+
+/// The board frame's field in the BMM150's axes: `(−y, −x, −z)`, a turn of 180° about the
+/// BMI270's x from its axes ([`crate::bmi_model::Bmi270Model::raw_axes`]): Bosch's note for the
+/// two parts side by side, M5Stack's BMI270 + BMM150 boards and an Arduino forum thread on the
+/// Rev2's layout. UNVERIFIED on a Nano 33 BLE: turns cannot tell the field from its negative,
+/// only the dip's sign can (docs/frames.md).
+pub fn raw_axes(b: [f32; 3]) -> [f32; 3] {
+    let bmi = crate::bmi_model::Bmi270Model::raw_axes(b);
+    [bmi[0], -bmi[1], -bmi[2]]
+}
 
 /// I2C address (API `BMM150_DEFAULT_I2C_ADDRESS`).
 pub const ADDR: u8 = 0x10;
@@ -190,9 +200,10 @@ impl Bmm150Model {
         })
     }
 
-    /// A reading of the rig (µT, the BMI270's axes) at true time `t_s`: measured when the part
-    /// is due to (normal mode, a period after the last; forced mode, once).
+    /// A reading of the rig (µT, board frame) at true time `t_s`: measured when the part is due
+    /// to (normal mode, a period after the last; forced mode, once).
     pub fn measure(&mut self, t_s: f64, field_ut: [f32; 3]) {
+        let field_ut = raw_axes(field_ut);
         let forced = self.mode() == Mode::Forced;
         let due = match self.odr_hz() {
             Some(hz) if t_s >= self.next_measurement_s => {

@@ -6,6 +6,7 @@
 //! captured pose), clamps it back on the shaft and presses again. Faults are injected through
 //! [`Faults`].
 
+use crate::lsm_model::Lsm9ds1Model;
 use crate::sim::{Reading, Rig, RigConfig};
 use calib_core::estimators::gyro::GyroCal;
 use calib_core::formats::log::{self, Row};
@@ -42,6 +43,9 @@ pub struct Faults {
     /// A magnet (or a laptop) near the board while it is held at hand-held pose `k`: a stray
     /// field (µT, in W) from that pose until the next.
     pub magnet_at_hand_pose: Option<(usize, [f64; 3])>,
+    /// The shell reads the LSM9DS1 as the firmware did before the board frame: its raw axes
+    /// ([`crate::lsm_model::Lsm9ds1Model::raw_axes`], a left-handed triad) handed on unmapped.
+    pub lsm9ds1_unmapped: bool,
 }
 
 /// What a run produced.
@@ -243,6 +247,9 @@ fn run_posed(
             b.t = s.t_s;
             log(&s, proc.servo_deg(), proc.tilt_deg());
             let mut input = to_input(&s);
+            if faults.lsm9ds1_unmapped {
+                (input.accel_g, input.gyro_dps) = (Lsm9ds1Model::raw_axes(input.accel_g), Lsm9ds1Model::raw_axes(input.gyro_dps));
+            }
             if let Some(n) = faults.temp_missing_every {
                 input.temp_c = match samples % n.max(1) {
                     0 => None,

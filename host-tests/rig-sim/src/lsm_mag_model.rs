@@ -103,15 +103,18 @@ impl LsmMagModel {
         [0.014, 0.029, 0.043, 0.058][((self.reg(CTRL_REG2) >> 5) & 3) as usize]
     }
 
-    /// A reading of the rig (µT, accelerometer axes) at its time: converted if the part is
-    /// converting (a single conversion then powers it down).
-    pub fn convert(&mut self, m_acc_ut: [f32; 3]) {
+    /// A reading of the rig (µT, board frame) at its time: converted if the part is converting
+    /// (a single conversion then powers it down).
+    pub fn convert(&mut self, m_board_ut: [f32; 3]) {
         let md = self.reg(CTRL_REG3) & 0x03;
         if md >= 2 {
             return;
         }
         let lsb = self.ut_per_lsb();
-        let part = [-(m_acc_ut[0] as f64), m_acc_ut[1] as f64, m_acc_ut[2] as f64];
+        // In the accelerometer's raw axes ([`crate::lsm_model::Lsm9ds1Model::raw_axes`]), then the
+        // magnetometer's: its x is the accelerometer's −x (DocID025715 Figure 1).
+        let acc = crate::lsm_model::Lsm9ds1Model::raw_axes(m_board_ut);
+        let part = [-(acc[0] as f64), acc[1] as f64, acc[2] as f64];
         for (k, v) in part.iter().enumerate() {
             let c = (v / lsb).round().clamp(i16::MIN as f64, i16::MAX as f64) as i16;
             let at = OUT_X_L as usize + 2 * k;

@@ -301,6 +301,14 @@ impl Lsm9ds1Model {
         }
     }
 
+    /// The board frame's vector in the part's raw accelerometer and gyro axes: `(−x, y, z)`. The
+    /// raw triad is left-handed (the gyro follows the accelerometer with the left-hand rule):
+    /// recordings of real Nano 33 BLE boards (`host-tests/calib/tests/real_boards.rs`), ArduPilot's
+    /// AP_InertialSensor_LSM9DS1 and PX4's lsm9ds1 driver (both flip one axis of both sensors).
+    pub fn raw_axes(b: [f32; 3]) -> [f32; 3] {
+        [-b[0], b[1], b[2]]
+    }
+
     fn counts_le(v: [f32; 3], lsb: f64) -> [u8; 6] {
         let mut out = [0u8; 6];
         for (k, x) in v.iter().enumerate() {
@@ -319,8 +327,8 @@ impl Lsm9ds1Model {
                 None => {
                     let s = self.rig.next_sample();
                     let slot = Slot {
-                        gyro: Self::counts_le(s.gyro_dps, self.gyro_range().lsb_dps()),
-                        accel: Self::counts_le(s.accel_g, self.accel_range().lsb_g()),
+                        gyro: Self::counts_le(Self::raw_axes(s.gyro_dps), self.gyro_range().lsb_dps()),
+                        accel: Self::counts_le(Self::raw_axes(s.accel_g), self.accel_range().lsb_g()),
                     };
                     let truth = self.rig.truth();
                     let p = (truth.t_s, slot, s.temp_c, s.accel_g, s.gyro_dps, truth.temp_c, s.mag_ut);

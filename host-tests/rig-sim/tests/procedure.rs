@@ -129,6 +129,29 @@ fn expect_failure(cfg: RigConfig, pcfg: Config, faults: Faults, check: impl Fn(&
 }
 
 #[test]
+fn the_lsm9ds1s_raw_axes_unmapped_are_named_mirrored_not_a_slip() {
+    // The firmware before the board frame handed the LSM9DS1's raw axes on as they are: on the
+    // model of the part as real boards show it (a left-handed triad) every calibration failed.
+    let faults = Faults { lsm9ds1_unmapped: true, ..Faults::default() };
+    for (cfg, pcfg) in [(Variant::Hobby.config(15, 0), Config::default()), (pan_tilt::rig_config(35, 0), Config::PAN_TILT)] {
+        let (out, _) = calibrate(cfg, pcfg, None, faults);
+        assert!(out.stored.is_empty() && out.applied.is_empty(), "a failed run stored a record");
+        let e = out.error.unwrap_or_else(|| panic!("no error; last reports {:?}", out.reports.iter().rev().take(3).collect::<Vec<_>>()));
+        println!("MEASURED unmapped LSM9DS1, {}: {e}", if pcfg.pan_tilt { "pan/tilt" } else { "one servo" });
+        match e {
+            Error::AxesMirrored { right_hand, left_hand } => assert!(left_hand >= 6 && right_hand == 0, "{e}"),
+            // The pan/tilt plan's first setting fails before any move between poses is kept.
+            Error::ImplausibleScale { value, .. } => {
+                assert!(pcfg.pan_tilt && value < -0.5 && e.to_string().contains("negative: mirrored axes"), "{e}");
+                continue;
+            }
+            _ => panic!("unexpected error {e:?} ({e})"),
+        }
+        assert!(e.to_string().contains("wrong axis map, not a slip") && !e.to_string().contains("re-clamp"), "{e}");
+    }
+}
+
+#[test]
 fn disturbed_poses_end_in_pose_disturbed() {
     let faults = Faults { disturb_rig_poses: true, ..Faults::default() };
     expect_failure(Variant::Hobby.config(14, 0), Config::default(), faults, |e| matches!(e, Error::PoseDisturbed { .. }));

@@ -93,16 +93,19 @@ struct Args {
     /// With --export: the file to write it to (the usual output stays on stdout).
     #[arg(long, value_name = "FILE", requires = "export")]
     out: Option<PathBuf>,
-    /// With --export c|rust: the calibration for data read another way than raw, for a BMI270
-    /// (Rev2) record: `bosch` as Bosch's BMI270_SensorAPI returns them (GYR_CAS applied),
-    /// `arduino` as Arduino_BMI270_BMM150 does (CAS applied, then x = -y, y = -x).
-    #[arg(long, value_enum, default_value_t = FrameArg::Raw, requires = "export")]
+    /// With --export c|rust: the calibration for data read another way than this firmware's
+    /// (the board frame, docs/frames.md), its outputs in the board frame: `arduino-lsm9ds1` as
+    /// Arduino_LSM9DS1 returns an LSM9DS1 (its raw axes), `bosch` a BMI270 as Bosch's
+    /// BMI270_SensorAPI (and Arduino_BMI270_BMM150 1.0.x) returns it (GYR_CAS applied, Bosch's
+    /// axes), `arduino` as Arduino_BMI270_BMM150 1.1.0 on does (CAS applied, then x = -y, y = -x).
+    #[arg(long, value_enum, default_value_t = FrameArg::Board, requires = "export")]
     frame: FrameArg,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
 enum FrameArg {
-    Raw,
+    Board,
+    ArduinoLsm9ds1,
     Bosch,
     Arduino,
 }
@@ -110,7 +113,8 @@ enum FrameArg {
 impl FrameArg {
     fn frame(self) -> DataFrame {
         match self {
-            FrameArg::Raw => DataFrame::Raw,
+            FrameArg::Board => DataFrame::Board,
+            FrameArg::ArduinoLsm9ds1 => DataFrame::ArduinoLsm9ds1,
             FrameArg::Bosch => DataFrame::BoschApi,
             FrameArg::Arduino => DataFrame::ArduinoBmi270,
         }
@@ -160,12 +164,12 @@ enum ExportArg {
 fn export_bytes(rec: &Record, format: ExportArg, frame: FrameArg) -> Result<Vec<u8>, String> {
     let failed = |e: &dyn std::fmt::Display| format!("--export: the record could not be written: {e}");
     let mut text = String::new();
-    if frame != FrameArg::Raw {
+    if frame != FrameArg::Board {
         rec.in_frame(frame.frame()).map_err(|e| format!("--frame: {e}"))?;
         let f = match format {
             ExportArg::C => Format::C,
             ExportArg::Rust => Format::Rust,
-            ExportArg::Json | ExportArg::Record => return Err("--frame: JSON and the record are always the raw record".into()),
+            ExportArg::Json | ExportArg::Record => return Err("--frame: JSON and the record are always in the board frame".into()),
         };
         export::write_in(&mut text, rec, f, frame.frame()).map_err(|e| failed(&e))?;
         return Ok((text + "\n").into_bytes());
@@ -315,6 +319,14 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
         if let Err(e) = write_report(file, path, &log, &c) {
             return fail(2, format!("--report: {e}"));
         }
+    }
+    if let Some(calib_core::Error::AxesMirrored { right_hand, left_hand }) = c.mirrored {
+        eprintln!(
+            "calib: {path}: the gyro's axes are mirrored relative to the accelerometer's, as the LSM9DS1's raw axes are: \
+             {left_hand} moves turn gravity by the left-hand rule, {right_hand} by the right; \
+             calibrated in the log's own axes (K and the bias apply to the readings as logged; \
+             `quality.gyro_axes` in the JSON)"
+        );
     }
     let missing = c.missing();
     if let Err(e) = &c.gyro {

@@ -196,6 +196,7 @@ pub(super) fn calibrate(
         setup: None,
         mag: None,
         rotations: Some(rotations),
+        mirrored: None,
     })
 }
 

@@ -136,6 +136,11 @@ pub struct Calibration {
     /// The hand-held moves as rotation constraints (the data-driven path): with the full `K`
     /// they refine the magnetometer's alignment.
     pub rotations: Option<Rotations>,
+    /// The gyro followed the accelerometer with the left-hand rule ([`Error::AxesMirrored`]
+    /// with its evidence), as the LSM9DS1's raw axes do: calibrated with its readings negated,
+    /// then `K` and the bias put back for the readings as logged (`ω = K (g − b)`, the rates in
+    /// the log's own, mirrored, convention). `None`: right-handed.
+    pub mirrored: Option<Error>,
 }
 
 /// Calibrates a log. `method`: force one estimator; `None` picks the best the log supports.
@@ -178,7 +183,35 @@ pub fn calibrate_log(log: &Log, options: &Options, stored: Option<&Record>) -> R
     calibrate_from(&log.rows, options, stored, log.setup)
 }
 
+/// [`calibrate_axes`]; when its moves show the gyro mirrored relative to the accelerometer, the
+/// log again with the gyro negated, its bias (and tempco) negated back: `−g = K'(…)` is
+/// `ω_logged = K (g − b)` with `K = K'`, `b = −b'`.
 fn calibrate_from(
+    rows: &[Row],
+    options: &Options,
+    stored: Option<&Record>,
+    setup: Option<SensorSetup>,
+) -> Result<Calibration, OfflineError> {
+    let c = calibrate_axes(rows, options, stored, setup)?;
+    let mirrored = match (&c.full, &c.gyro) {
+        (Some(Err(e @ Error::AxesMirrored { .. })), _) | (_, Err(OfflineError::Calib { error: e @ Error::AxesMirrored { .. }, .. })) => *e,
+        _ => return Ok(c),
+    };
+    let negated: Vec<Row> = rows.iter().map(|r| Row { gyro_dps: r.gyro_dps.map(|v| -v), ..*r }).collect();
+    let mut m = calibrate_axes(&negated, options, stored, setup)?;
+    let neg = |v: [f32; 3]| v.map(|x| -x);
+    m.bias.bias_dps = neg(m.bias.bias_dps);
+    if let Some(r) = m.replayed_record.as_mut() {
+        r.gyro_bias_dps = neg(r.gyro_bias_dps);
+        if let Some(t) = r.tempco.as_mut() {
+            t.dps_per_c = neg(t.dps_per_c);
+        }
+    }
+    m.mirrored = Some(mirrored);
+    Ok(m)
+}
+
+fn calibrate_axes(
     rows: &[Row],
     options: &Options,
     stored: Option<&Record>,
@@ -252,6 +285,7 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         setup: None,
         mag: None,
         rotations: None,
+        mirrored: None,
     })
 }
 

@@ -175,6 +175,18 @@ pub struct QualityOut<'a> {
     pub replayed: Option<&'static str>,
     /// The magnetometer (`null`: the log has none).
     pub mag: Option<MagQualityOut<'a>>,
+    /// How the gyro's axes follow the accelerometer's: `right-handed`, or `mirrored` (calibrated
+    /// in the log's own axes: `K` and the bias apply to the readings as logged).
+    pub gyro_axes: &'static str,
+    /// For `mirrored`, the evidence: how many moves turn gravity by each rule.
+    pub gyro_axes_evidence: Option<AxesEvidence>,
+}
+
+/// The moves that turn gravity by the right- and by the left-hand rule in the log's axes.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct AxesEvidence {
+    pub right_hand_moves: u8,
+    pub left_hand_moves: u8,
 }
 
 const NO_SPIN: Result<GyroCal, Error> = Err(Error::NoSpin { rate_dps: 0.0, min_dps: CONFIG.steady.min_dps });
@@ -272,6 +284,13 @@ impl Calibration {
                 rest_thresholds: &self.phases.rest,
                 log_messages,
                 replayed: self.replayed,
+                gyro_axes: if self.mirrored.is_some() { "mirrored" } else { "right-handed" },
+                gyro_axes_evidence: match self.mirrored {
+                    Some(Error::AxesMirrored { right_hand, left_hand }) => {
+                        Some(AxesEvidence { right_hand_moves: right_hand, left_hand_moves: left_hand })
+                    }
+                    _ => None,
+                },
                 mag: self.mag.as_ref().map(|m| MagQualityOut {
                     fit: m.cal.as_ref().ok(),
                     error: m.cal.as_ref().err().map(|e| e.to_string()),

@@ -213,7 +213,9 @@ impl RigConfig {
     /// cross-axis draw is what that correction leaves. The rest (scale, bias, its drift) as drawn
     /// for the rig.
     pub fn on_bmi270(mut self, gyro_dps: u16, accel_g: u8, rng: &mut impl Rng) -> Self {
-        self.gyro.misalignment[(0, 2)] += crate::bmi_model::GYR_CAS as f64 / 512.0;
+        // Bosch's x is the board's −y and its z the board's z (`Bmi270Model::raw_axes`): raw
+        // x += cas z there is the board's y −= cas z.
+        self.gyro.misalignment[(1, 2)] -= crate::bmi_model::GYR_CAS as f64 / 512.0;
         self.odr_hz = 100.0;
         self.odr_error = rng.random_range(BMI270_ODR_ERROR.0..BMI270_ODR_ERROR.1);
         self.gyro.noise_dps_rthz = 0.007;

@@ -1,7 +1,7 @@
 //! Attitude helpers: shaft geometry, smooth hand-held transitions, wobble disturbances and the
 //! specific force of an off-axis sensor.
 //!
-//! Frames: world W with z up; body B = sensor axes; `q_wb` rotates body vectors into W.
+//! Frames: world W with z up; body B = the board frame (docs/frames.md; each part model reads it in its own axes); `q_wb` rotates body vectors into W.
 
 use nalgebra::{Unit, UnitQuaternion, Vector3};
 use rand::Rng;

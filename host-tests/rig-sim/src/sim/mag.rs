@@ -1,5 +1,5 @@
-//! The board's magnetometer (Rev1: the LSM9DS1's, Rev2: a BMM150), in the accelerometer's axes
-//! after the board's axis mapping: `m_raw = S b_B + h + noise`, `S` soft iron times the die's
+//! The board's magnetometer (Rev1: the LSM9DS1's, Rev2: a BMM150), in the board frame (each
+//! part model reads it in its own axes): `m_raw = S b_B + h + noise`, `S` soft iron times the die's
 //! small rotation against the accelerometer, `h` hard iron and offset; plus, while the board
 //! is clamped on the shaft, the servo motor's magnet as a dipole that turns with the motor.
 

@@ -1,6 +1,6 @@
 //! Physical simulator of the calibration rig (DESIGN §2, §4, §6), independent of calib-core.
 //!
-//! World W has z up; body B = sensor axes; attitudes `q_wb` map B to W. At rest the
+//! World W has z up; body B = the board frame (docs/frames.md); attitudes `q_wb` map B to W. At rest the
 //! accelerometer measures the specific force +1 g along world +z. On the shaft the attitude is
 //! `Rot(s_W, θ) · mount`, so the rotation axis `u_B = mount⁻¹ s_W` is constant in B and turning
 //! by θ rotates gravity, seen in B, by −θ about `u_B`. Everything is f64 and reproducible from

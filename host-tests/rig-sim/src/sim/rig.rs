@@ -30,7 +30,7 @@ pub struct Reading {
     pub accel_saturated: bool,
     /// The gyroscope reached full scale in this sample.
     pub gyro_saturated: bool,
-    /// A new magnetometer reading (µT, accelerometer axes), at the part's own rate.
+    /// A new magnetometer reading (µT, board frame), at the part's own rate.
     pub mag_ut: Option<[f32; 3]>,
 }
 
