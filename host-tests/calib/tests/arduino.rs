@@ -237,8 +237,18 @@ fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
     let nan = with_crc(nan);
     let mut flipped = enc(&rec(9));
     flipped[40] ^= 1;
+    // Version 5: the v6 layout, the part's raw axes (converted on load); an LSM9DS1's and a
+    // BMI270's (its magnetometer the BMM150's).
+    let v5_of = |r: &Record| {
+        let mut b = enc(r);
+        b[4] = 5;
+        with_crc(b)
+    };
+    let v5 = v5_of(&rec(8));
+    let bmi = Sensor::Bmi270 { gyr_cas: 11, user_gain: false };
+    let bmi_v5 = v5_of(&Record { setup: SensorSetup { sensor: bmi, ..SensorSetup::DEFAULT }, ..rec(8) });
     let mut future = enc(&rec(9));
-    future[4] = 5;
+    future[4] = 7;
     let future = with_crc(future);
     let sketch_data: Vec<u8> = (0..PAGE).map(|i| (i * 7 + 3) as u8).collect();
     let cases: Vec<(&str, Vec<u8>)> = vec![
@@ -250,6 +260,8 @@ fn the_newest_valid_page_wins_and_garbage_is_never_applied() {
         ("v2 in B", region_of(None, Some(&v2))),
         ("v1 in A, v4 older in B", region_of(Some(&v1), Some(&enc(&rec(6))))),
         ("v3 in B, v4 older in A", region_of(Some(&enc(&rec(5))), Some(&v3))),
+        ("v5 (the part's raw axes) in A", region_of(Some(&v5), None)),
+        ("a BMI270's v5 in B", region_of(None, Some(&bmi_v5))),
         ("both erased", region_of(None, None)),
         ("a sketch's data over both", [&sketch_data[..], &sketch_data[..]].concat()),
     ];
@@ -282,13 +294,17 @@ fn arduino_lsm9ds1_readings_are_put_back_in_datasheet_units() {
     let counts = [[1000.0f32, -2000.0, 32767.0, 8192.0, -16384.0, 4096.0], [-32768.0, 5.0, 0.0, 1.0, -1.0, 30000.0]];
     let lib: Vec<(&str, [f32; 6])> =
         counts.iter().map(|c| ("lib", std::array::from_fn(|i| c[i] * if i < 3 { 2000.0 } else { 4.0 } / 32768.0))).collect();
-    let datasheet: Vec<[f32; 6]> = counts.iter().map(|c| std::array::from_fn(|i| c[i] * if i < 3 { 0.070 } else { 0.000122 })).collect();
-    // No record: the readings in datasheet units, nothing else.
+    // In the board frame: datasheet units, and (−x, y, z) of the raw axes (a left-handed triad).
+    let datasheet: Vec<[f32; 6]> = counts
+        .iter()
+        .map(|c| std::array::from_fn(|i| c[i] * if i < 3 { 0.070 } else { 0.000122 } * if i % 3 == 0 { -1.0 } else { 1.0 }))
+        .collect();
+    // No record: the readings in datasheet units and the board frame, nothing else.
     let l = load(&region_of(None, None), None, &lib);
     for (out, want) in l.outs.iter().zip(&datasheet) {
         close(out, want, "Arduino_LSM9DS1's reading in datasheet units");
     }
-    assert!((l.outs[0][0] / (1000.0 * 2000.0 / 32768.0) - 1.0 - 0.146_88).abs() < 1e-5, "its gyro reads 12.8 % low");
+    assert!((-l.outs[0][0] / (1000.0 * 2000.0 / 32768.0) - 1.0 - 0.146_88).abs() < 1e-5, "its gyro reads 12.8 % low");
     // With a record made at its configuration: calibrated as calib-core calibrates the datasheet units.
     let preset =
         Record { setup: SensorSetup { odr_hz: 119.0, gyro_range_dps: 2000.0, accel_range_g: 4.0, ..SensorSetup::DEFAULT }, ..*record() };
@@ -308,18 +324,31 @@ fn a_rev2_record_applies_to_arduino_bmi270_readings_and_never_to_an_lsm9ds1_s() 
     // saturates at ±32768 counts no loader can undo it.)
     let counts = [[1000i32, -2000, 32767, 8192, -16384, 4096], [-30000, 5, -517, 1, -1, 30000]];
     let (dps, g) = (2000.0f32 / 32768.0, 4.0f32 / 32768.0);
-    let datasheet: Vec<[f32; 6]> = counts.iter().map(|c| std::array::from_fn(|i| c[i] as f32 * if i < 3 { dps } else { g })).collect();
-    let lib: Vec<(&str, [f32; 6])> = counts
+    // The counts are Bosch's axes; the board frame's reading is (y, −x, z) of them.
+    let datasheet: Vec<[f32; 6]> = counts
         .iter()
         .map(|c| {
+            let v = |i: usize| c[i] as f32 * if i < 3 { dps } else { g };
+            [v(1), -v(0), v(2), v(4), -v(3), v(5)]
+        })
+        .collect();
+    // Version 1.1.0 on (remapped) and 1.0.x (Bosch's axes, CAS applied).
+    let lib: Vec<(&str, [f32; 6])> = counts
+        .iter()
+        .flat_map(|c| {
             let x = (c[0] - (-23 * c[2]) / 512).clamp(-32768, 32767);
-            ("bmi", [-c[1] as f32 * dps, -x as f32 * dps, c[2] as f32 * dps, -c[4] as f32 * g, -c[3] as f32 * g, c[5] as f32 * g])
+            [
+                ("bmi", [-c[1] as f32 * dps, -x as f32 * dps, c[2] as f32 * dps, -c[4] as f32 * g, -c[3] as f32 * g, c[5] as f32 * g]),
+                ("bmi10", [x as f32 * dps, c[1] as f32 * dps, c[2] as f32 * dps, c[3] as f32 * g, c[4] as f32 * g, c[5] as f32 * g]),
+            ]
         })
         .collect();
     let l = load(&region, Some(ARDUINO_BMI270), &lib);
-    // Calibrated as calib-core calibrates the raw readings, to CAS's truncation (< 1 count of x).
+    // Calibrated as calib-core calibrates the board frame's readings, to CAS's truncation (< 1
+    // count of x).
     assert!(l.ok, "{l:?}");
-    for (out, r) in l.outs.iter().zip(&datasheet) {
+    assert_eq!(l.outs.len(), 2 * datasheet.len());
+    for (out, r) in l.outs.iter().zip(datasheet.iter().flat_map(|d| [d, d])) {
         let want = [rec.apply_gyro([r[0], r[1], r[2]]), rec.accel().apply([r[3], r[4], r[5]])].concat();
         for i in 0..6 {
             assert!((out[i] - want[i]).abs() <= 1.5 * dps, "{out:?} vs {want:?}");
@@ -341,10 +370,16 @@ fn the_magnetometer_applies_as_calib_core_and_its_offset_refreshes_in_the_sketch
     let counts = [1000.0f32, -2000.0, 3000.0];
     let mut inputs: Vec<(&str, [f32; 6])> = fields.iter().map(|f| ("mag", [f[0], f[1], f[2], 0.0, 0.0, 0.0])).collect();
     inputs.push(("lmag", [counts[0] * 400.0 / 32768.0, counts[1] * 400.0 / 32768.0, counts[2] * 400.0 / 32768.0, 0.0, 0.0, 0.0]));
+    // Arduino_BMI270_BMM150's readMagneticField() of the first field: the BMM150's own axes,
+    // (−y, −x, −z) of the board frame's (its own inverse).
+    let f = fields[0];
+    inputs.push(("bmm", [-f[1], -f[0], -f[2], 0.0, 0.0, 0.0]));
     let l = load(&region, None, &inputs);
     same_as_calib_core(&l, rec, 0, &[]);
-    let datasheet = [-counts[0] * 0.014, counts[1] * 0.014, counts[2] * 0.014];
-    for (out, f) in l.mags.iter().zip(fields.iter().chain([&datasheet])) {
+    // The LSM9DS1 magnetometer's raw axes are the board frame's: datasheet units only.
+    let datasheet = [counts[0] * 0.014, counts[1] * 0.014, counts[2] * 0.014];
+    assert_eq!(l.mags.len(), 4);
+    for (out, f) in l.mags.iter().zip(fields.iter().chain([&datasheet, &fields[0]])) {
         close(out, &mag.apply(*f), "calibrated field");
     }
     // The robot adds its own hard iron: a tumble's readings refit the offset, A kept.

@@ -1,4 +1,4 @@
-/* GyroCal: the record layout of calib-core's record.rs (versions 1-5) and the page choice of its
+/* GyroCal: the record layout of calib-core's record.rs (versions 1-6) and the page choice of its
  * region.rs, in C99 with no heap and no libm. See gyrocal.h. */
 #include "gyrocal.h"
 
@@ -21,6 +21,51 @@ const struct gyrocal_setup GYROCAL_SETUP_ARDUINO_BMI270 = {100.0f, 2000.0f, 4.0f
 #define TEMP_UNKNOWN 1u
 #define TEMPCO_UNKNOWN 2u
 #define MAG_UNKNOWN 4u
+
+/* The board frame (docs/frames.md, calib-core's board.rs): out[i] = sign[i] * in[from[i]]. */
+struct axis_map {
+    uint8_t from[3];
+    int8_t sign[3];
+};
+static const struct axis_map LSM9DS1_AG = {{0, 1, 2}, {-1, 1, 1}};
+static const struct axis_map BMI270 = {{1, 0, 2}, {1, -1, 1}};
+static const struct axis_map BMM150 = {{1, 0, 2}, {-1, -1, -1}};
+
+static void map_vec(const struct axis_map *p, float v[3]) {
+    float in[3] = {v[0], v[1], v[2]};
+    for (int i = 0; i < 3; i++) {
+        v[i] = p->sign[i] * in[p->from[i]];
+    }
+}
+
+/* m <- P m Q^T: element (i, j) is sign_i sign_j m[from_i][from_j]. */
+static void map_mat(const struct axis_map *p, const struct axis_map *q, float m[3][3]) {
+    float in[3][3];
+    memcpy(in, m, sizeof in);
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) {
+            m[i][j] = p->sign[i] * q->sign[j] * in[p->from[i]][q->from[j]];
+        }
+    }
+}
+
+/* A record of versions 1-5 (the part's raw axes) in the board frame, as calib-core's
+ * Record::from_part_axes: K' = P K P^T, b' = P b, M and o alike, the tempco P c; the
+ * magnetometer's A' = P A Q^T, o' = Q o with Q its old input frame's map (the LSM9DS1's
+ * accelerometer axes; the BMM150's own, taken as the BMI270's). */
+static void from_part_axes(struct gyrocal *cal) {
+    const struct axis_map *p = cal->setup.sensor == GYROCAL_BMI270 ? &BMI270 : &LSM9DS1_AG;
+    const struct axis_map *q = cal->setup.sensor == GYROCAL_BMI270 ? &BMM150 : &LSM9DS1_AG;
+    map_mat(p, p, cal->gyro_k);
+    map_vec(p, cal->gyro_bias_dps);
+    map_mat(p, p, cal->accel_m);
+    map_vec(p, cal->accel_offset_g);
+    map_vec(p, cal->tempco_dps_per_c);
+    if (cal->mag_known) {
+        map_mat(p, q, cal->mag_a);
+        map_vec(q, cal->mag_offset_ut);
+    }
+}
 
 /* CRC-32 (IEEE 802.3, reflected, init and final XOR 0xFFFFFFFF), bitwise. */
 static uint32_t crc32(const uint8_t *p, size_t n) {
@@ -116,7 +161,8 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
     case 2: len = LEN_V2; break;
     case 3: len = LEN_V3; break;
     case 4: len = LEN_V4; break;
-    case 5: len = LEN_V5; break;
+    case 5:
+    case 6: len = LEN_V5; break;
     default: return false;
     }
     if (u32_le(b + len - 4) != crc32(b, len - 4) || b[5] > 2 || b[6] > 2) {
@@ -203,6 +249,9 @@ static bool decode(const uint8_t *b, struct gyrocal *cal) {
                 cal->mag_a[i][i] = 1.0f;
             }
         }
+    }
+    if (cal->version < 6) {
+        from_part_axes(cal);
     }
     return r.finite && plausible(cal);
 }
@@ -295,11 +344,15 @@ void gyrocal_mag_ut(const struct gyrocal *cal, const float raw_ut[3], float out_
 
 void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]) {
     /* counts = reading * 32768 / 400; uT = counts * 0.014 (0.14 mgauss/LSB at +-4 gauss); the
-     * magnetometer's x is the accelerometer's -x. */
+     * magnetometer's raw axes are the board frame's. */
     const float k = 0.014f * 32768.0f / 400.0f;
-    mag_ut[0] *= -k;
-    mag_ut[1] *= k;
-    mag_ut[2] *= k;
+    for (int i = 0; i < 3; i++) {
+        mag_ut[i] *= k;
+    }
+}
+
+void gyrocal_from_arduino_bmm150(float mag_ut[3]) {
+    map_vec(&BMM150, mag_ut);
 }
 
 void gyrocal_mag_refresh_begin(struct gyrocal_mag_refresh *f) {
@@ -451,6 +504,29 @@ void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]) {
             accel_g[i] *= accel;
         }
     }
+    /* The raw axes form a left-handed triad: (-x, y, z) is the board frame. */
+    if (gyro_dps) {
+        map_vec(&LSM9DS1_AG, gyro_dps);
+    }
+    if (accel_g) {
+        map_vec(&LSM9DS1_AG, accel_g);
+    }
+}
+
+/* Bosch's API's readings (GYR_CAS applied, Bosch's axes) in the board frame: the CAS undone
+ * (x + cas z / 512), then (y, -x, z). */
+static void from_bosch(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]) {
+    if (gyro_dps) {
+        gyro_dps[0] += (float)cal->gyr_cas * gyro_dps[2] / 512.0f;
+        map_vec(&BMI270, gyro_dps);
+    }
+    if (accel_g) {
+        map_vec(&BMI270, accel_g);
+    }
+}
+
+void gyrocal_from_arduino_bmi270_v10(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]) {
+    from_bosch(cal, gyro_dps, accel_g);
 }
 
 void gyrocal_from_arduino_bmi270(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]) {
@@ -463,7 +539,5 @@ void gyrocal_from_arduino_bmi270(const struct gyrocal *cal, float gyro_dps[3], f
             v[k][0] = x;
         }
     }
-    if (gyro_dps) {
-        gyro_dps[0] += (float)cal->gyr_cas * gyro_dps[2] / 512.0f;
-    }
+    from_bosch(cal, gyro_dps, accel_g);
 }

@@ -11,12 +11,14 @@
  *   accel  out_g   = M (raw_g - offset_g)
  *   mag    out_ut  = A (raw_ut - offset_ut)   (record version 5 on: mag_known; else A = I)
  * "raw" is the sensor's counts times its datasheet sensitivity at the range the record was made
- * at, in the sensor's own axes: on a Rev1 board the LSM9DS1's (e.g. 70 mdps/LSB at +-2000 dps),
- * on a Rev2 the BMI270's (range/32768 per LSB) with its GYR_CAS trim NOT applied.
- * Arduino_LSM9DS1 returns other units: pass its readings through gyrocal_from_arduino_lsm9ds1()
- * first; Arduino_BMI270_BMM150 applies GYR_CAS and remaps the axes (x = -y, y = -x): pass its
- * readings through gyrocal_from_arduino_bmi270() first (the outputs are then in the sensor's axes:
- * remap them as that library does if your program works in its axes).
+ * at (e.g. 70 mdps/LSB at +-2000 dps on the LSM9DS1, range/32768 per LSB on the BMI270, its
+ * GYR_CAS trim NOT applied), in the BOARD FRAME (record version 6; docs/frames.md): right-handed,
+ * x towards the USB connector, z out of the component side, the same on Rev1 and Rev2. Records
+ * of versions 1-5 (the part's raw axes) are converted when loaded. The outputs are in the board
+ * frame too. Pass each library's readings through its converter first:
+ *   Arduino_LSM9DS1 (any version)            gyrocal_from_arduino_lsm9ds1(), ..._lsm9ds1_mag()
+ *   Arduino_BMI270_BMM150 1.1.0 and later    gyrocal_from_arduino_bmi270(), ..._bmm150()
+ *   Arduino_BMI270_BMM150 1.0.x              gyrocal_from_arduino_bmi270_v10(), ..._bmm150()
  *
  * A K holds for the configuration it was measured at (the gyro's sensitivity is trimmed per full
  * scale), so load with the configuration your program runs the sensor at: a record made at
@@ -78,7 +80,7 @@ struct gyrocal {
     enum gyrocal_status status;
     uint32_t seq;               /**< the record's sequence number */
     uint8_t page;               /**< which page it came from (0 = A at 0xF8000, 1 = B) */
-    uint8_t version;            /**< record format version (1..5) */
+    uint8_t version;            /**< record format version (1..6; 1..5 converted to the board frame) */
     uint8_t method;             /**< gyro estimator: 0 paper, 1 sweep, 2 full 3x3 K */
     struct gyrocal_setup setup; /**< the configuration it was made at */
     int8_t gyr_cas;             /**< a BMI270's GYR_CAS (z to x trim, per 512), 0 for an LSM9DS1 */
@@ -118,15 +120,21 @@ void gyrocal_gyro_dps(const struct gyrocal *cal, const float raw_dps[3], float o
 void gyrocal_accel_g(const struct gyrocal *cal, const float raw_g[3], float out_g[3]);
 
 /** Calibrated field out = A (raw - offset) (uT), in the calibrated accelerometer's frame (the
- *  frame of K and M); `raw_ut` in the accelerometer's axes: on a Rev1 pass Arduino_LSM9DS1's
- *  readMagneticField() through gyrocal_from_arduino_lsm9ds1_mag() first. The identity when the
- *  record has no magnetometer calibration (mag_known false). */
+ *  frame of K and M); `raw_ut` in the board frame: on a Rev1 pass Arduino_LSM9DS1's
+ *  readMagneticField() through gyrocal_from_arduino_lsm9ds1_mag() first, on a Rev2
+ *  Arduino_BMI270_BMM150's readMagneticField() through gyrocal_from_arduino_bmm150(). The identity
+ *  when the record has no magnetometer calibration (mag_known false). */
 void gyrocal_mag_ut(const struct gyrocal *cal, const float raw_ut[3], float out_ut[3]);
 
-/** Arduino_LSM9DS1's readMagneticField() (counts * 400/32768 uT, the magnetometer's own axes) in
- *  uT at the datasheet's 0.14 mgauss/LSB (+-4 gauss: the library reads 13 % low) and in the
- *  accelerometer's axes (its x is the accelerometer's -x: DocID025715 Figure 1). In place. */
+/** Arduino_LSM9DS1's readMagneticField() (counts * 400/32768 uT, the magnetometer's own axes,
+ *  which are the board frame's) in uT at the datasheet's 0.14 mgauss/LSB (+-4 gauss: the library
+ *  reads 13 % low). In place. */
 void gyrocal_from_arduino_lsm9ds1_mag(float mag_ut[3]);
+
+/** Arduino_BMI270_BMM150's readMagneticField() (the BMM150's own axes, never remapped) in the
+ *  board frame: (-y, -x, -z), a turn of 180 deg about x from the BMI270's axes (UNVERIFIED on a
+ *  board: docs/frames.md). In place. */
+void gyrocal_from_arduino_bmm150(float mag_ut[3]);
 
 /** An in-sketch refresh of the magnetometer's offset (hard iron) for the robot the board is
  *  built into, which adds its own: A (soft iron and the die's alignment) is kept, the offset
@@ -160,15 +168,19 @@ bool gyrocal_mag_refresh_end(struct gyrocal_mag_refresh *f, struct gyrocal *cal)
 const char *gyrocal_status_str(enum gyrocal_status status);
 
 /** Arduino_LSM9DS1's readGyroscope() (counts * 2000/32768) and readAcceleration() (counts * 4/32768)
- *  in the datasheet's units at its +-2000 dps / +-4 g (70 mdps and 0.122 mg per LSB): the library's
- *  gyro reads 12.8 % low. Either pointer may be NULL; arrays are converted in place. */
+ *  in the datasheet's units at its +-2000 dps / +-4 g (70 mdps and 0.122 mg per LSB: the library's
+ *  gyro reads 12.8 % low) and in the board frame: (-x, y, z) of the LSM9DS1's raw axes, which
+ *  form a left-handed triad. Either pointer may be NULL; arrays are converted in place. */
 void gyrocal_from_arduino_lsm9ds1(float gyro_dps[3], float accel_g[3]);
 
-/** Arduino_BMI270_BMM150's readGyroscope() and readAcceleration() (its units are the datasheet's:
- *  counts * range/32768) back in the BMI270's raw axes: its remap x = -y, y = -x undone, then the
- *  GYR_CAS it applied (x - cas z / 512) undone with the record's `cal->gyr_cas`. Either pointer
- *  may be NULL; arrays are converted in place. */
+/** Arduino_BMI270_BMM150 (1.1.0 and later)'s readGyroscope() and readAcceleration() (its units
+ *  are the datasheet's: counts * range/32768) in the board frame: its remap x = -y, y = -x undone,
+ *  the GYR_CAS it applied (x - cas z / 512) undone with the record's `cal->gyr_cas`, then (y, -x,
+ *  z) of Bosch's axes. Either pointer may be NULL; arrays are converted in place. */
 void gyrocal_from_arduino_bmi270(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]);
+
+/** The same for Arduino_BMI270_BMM150 1.0.x, which returns Bosch's axes (no remap). */
+void gyrocal_from_arduino_bmi270_v10(const struct gyrocal *cal, float gyro_dps[3], float accel_g[3]);
 
 #ifdef __cplusplus
 }

@@ -68,9 +68,11 @@ int main(int argc, char **argv) {
     struct gyrocal_mag_refresh refresh;
     gyrocal_mag_refresh_begin(&refresh);
     while (scanf("%7s %f %f %f %f %f %f", kind, &in[0], &in[1], &in[2], &in[3], &in[4], &in[5]) == 7) {
-        if (strcmp(kind, "mag") == 0 || strcmp(kind, "lmag") == 0) {
+        if (strcmp(kind, "mag") == 0 || strcmp(kind, "lmag") == 0 || strcmp(kind, "bmm") == 0) {
             if (kind[0] == 'l') {
                 gyrocal_from_arduino_lsm9ds1_mag(in);
+            } else if (kind[0] == 'b') {
+                gyrocal_from_arduino_bmm150(in);
             }
             gyrocal_mag_ut(&cal, in, in);
             floats("mag_out", in, 3);
@@ -91,6 +93,8 @@ int main(int argc, char **argv) {
             gyrocal_from_arduino_lsm9ds1(in, in + 3);
         } else if (strcmp(kind, "bmi") == 0) {
             gyrocal_from_arduino_bmi270(&cal, in, in + 3);
+        } else if (strcmp(kind, "bmi10") == 0) {
+            gyrocal_from_arduino_bmi270_v10(&cal, in, in + 3);
         }
         gyrocal_gyro_dps(&cal, in, in);
         gyrocal_accel_g(&cal, in + 3, in + 3);
