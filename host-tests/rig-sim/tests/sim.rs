@@ -605,3 +605,17 @@ fn a_hand_sways_and_trembles_as_the_literature_says_and_braced_a_quarter_of_it()
         assert!((b_rms / rms - 0.25).abs() < 0.01 && (b_tilt / tilt - 0.25).abs() < 0.02 && (b_lin / lin - 0.25).abs() < 0.02);
     }
 }
+
+/// The models' raw axes (what the parts report, from their sources) and calib-core's maps into
+/// the board frame (what the drivers and the record conversions apply) undo each other.
+#[test]
+fn the_part_models_raw_axes_are_the_board_maps_inverses() {
+    use calib_core::board::{BMI270, BMM150, LSM9DS1_AG, LSM9DS1_MAG};
+    let v = [0.25f32, -0.5, 2.0];
+    let lsm = rig_sim::lsm_model::Lsm9ds1Model::raw_axes(v);
+    assert_eq!(LSM9DS1_AG.apply(lsm), v);
+    // The LSM9DS1's magnetometer: x is its accelerometer's −x (DS Figure 1).
+    assert_eq!(LSM9DS1_MAG.apply([-lsm[0], lsm[1], lsm[2]]), v);
+    assert_eq!(BMI270.apply(rig_sim::bmi_model::Bmi270Model::raw_axes(v)), v);
+    assert_eq!(BMM150.apply(rig_sim::bmm_model::raw_axes(v)), v);
+}
