@@ -364,7 +364,6 @@ impl Default for Rotations {
     }
 }
 
-/// The angle between two vectors (°).
 /// Smallest turn (°) of a move counted for the gyro's handedness ([`Rotations::mirrored`]).
 pub const MIRROR_MIN_TURN_DEG: f32 = 20.0;
 /// Largest (°): near a half turn the sine of gravity's turn changes sign.
@@ -373,6 +372,7 @@ pub const MIRROR_MAX_TURN_DEG: f32 = 150.0;
 /// noise of hundredths of a degree; a turn about gravity itself turns it by nothing).
 pub const MIRROR_MIN_SINE: f64 = 0.1;
 
+/// The angle between two vectors (°).
 fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
     libm::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
 }
