@@ -120,7 +120,7 @@ pub enum Error {
 }
 
 /// A fit's weighted residual above which its moves disagree (rather than agree, but too few).
-const DISAGREE_RATIO: f32 = 2.0;
+pub const DISAGREE_RATIO: f32 = 2.0;
 
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -193,7 +193,7 @@ impl fmt::Display for Error {
                     limit = Fixed(limit as f64, 4)
                 )?;
                 if noise_ratio > DISAGREE_RATIO {
-                    write!(f, "the moves disagree by {} times their noise; hold each pose still and make more moves", Fixed(noise_ratio as f64, 1))
+                    write!(f, "the moves disagree by {} times their noise", Fixed(noise_ratio as f64, 1))
                 } else if noise_ratio >= 0.0 {
                     write!(
                         f,
@@ -201,7 +201,7 @@ impl fmt::Display for Error {
                         Fixed(noise_ratio as f64, 1)
                     )
                 } else {
-                    f.write_str("make more moves, about varied axes, and hold each pose still")
+                    f.write_str("make more moves, about varied axes")
                 }
             }
             Error::MagFitFailed => f.write_str("magnetometer: the samples fit no ellipsoid: turn the board through every direction, away from magnets"),

@@ -60,7 +60,7 @@ pub mod formats;
 pub mod math;
 pub mod procedure;
 
-pub use error::Error;
+pub use error::{Error, DISAGREE_RATIO};
 
 /// A 3-vector in the sensor frame (unit stated where used).
 pub type Vec3 = [f32; 3];

@@ -23,9 +23,9 @@ fn vec_k(k: &Matrix3<f64>) -> [f64; 9] {
     core::array::from_fn(|i| k[(i % 3, i / 3)])
 }
 
-/// Attitudes about varied axes (or, `one_axis`, all about body x).
-fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
-    (0..10)
+/// `n` attitudes about varied axes (or, `one_axis`, all about body x).
+fn attitudes(one_axis: bool, n: usize) -> Vec<UnitQuaternion<f64>> {
+    (0..n)
         .map(|i| {
             let a = i as f64;
             if one_axis {
@@ -39,14 +39,20 @@ fn attitudes(one_axis: bool) -> Vec<UnitQuaternion<f64>> {
 
 /// Records poses and the moves between them at `hz` into `r`, with `rate` times the nominal
 /// angular rate; pose `bad_bias` (if any) sees a gyro offset; no bias.
-fn record(r: &mut Rotations, atts: &[UnitQuaternion<f64>], hz: f64, rate: f64, bad_bias: Option<usize>) -> Vec<Result<(), Rejected>> {
+fn record<const M: usize, const C: usize>(
+    r: &mut Rotations<M, C>,
+    atts: &[UnitQuaternion<f64>],
+    hz: f64,
+    rate: f64,
+    bad_bias: Option<usize>,
+) -> Vec<Result<(), Rejected>> {
     record_drifting(r, atts, hz, rate, bad_bias, &|_| 0.0, false)
 }
 
 /// [`record`] with a bias `bias(t)` (°/s, every axis) that each pose's rest measures, or that a
 /// `predicted` pose takes from t = 0 (its temperature, [`PoseRest::warm_c`], being `bias(t)`).
-fn record_drifting(
-    r: &mut Rotations,
+fn record_drifting<const M: usize, const C: usize>(
+    r: &mut Rotations<M, C>,
     atts: &[UnitQuaternion<f64>],
     hz: f64,
     rate: f64,
@@ -58,7 +64,7 @@ fn record_drifting(
     let lim = RotationLimits::DEFAULT;
     let mut out = vec![];
     let mut t = 0.0;
-    let pose = |r: &mut Rotations, q: &UnitQuaternion<f64>, i: usize, t: f64| {
+    let pose = |r: &mut Rotations<M, C>, q: &UnitQuaternion<f64>, i: usize, t: f64| {
         let a = q.inverse() * V3::z();
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
         // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled; its
@@ -94,8 +100,8 @@ fn record_drifting(
 
 #[test]
 fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
-    let mut r = Rotations::new();
-    assert!(record(&mut r, &attitudes(false), 952.0, 1.0, None).iter().all(|m| m.is_ok()));
+    let mut r = <Rotations>::new();
+    assert!(record(&mut r, &attitudes(false, 10), 952.0, 1.0, None).iter().all(|m| m.is_ok()));
     let with = Some((&r, &RotationLimits::DEFAULT));
     let truth = k_true();
     let mut results = vec![];
@@ -118,12 +124,29 @@ fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
 }
 
 #[test]
+fn a_store_sized_for_a_whole_log_keeps_every_move_the_firmwares_has_no_room_for() {
+    // 40 poses, 39 moves: the firmware's store keeps at most 32 (its RAM; here its chunks run
+    // out first); a PC's store sized for the log keeps them all.
+    let atts = attitudes(false, 40);
+    let mut board = <Rotations>::new();
+    let no_room = record(&mut board, &atts, 238.0, 1.0, None).iter().filter(|m| **m == Err(Rejected::Full)).count();
+    println!("MEASURED the firmware's store: {no_room} of 39 moves without room");
+    assert!(no_room >= 39 - 32, "{no_room}");
+    let mut pc = Rotations::<64, 8192>::new();
+    assert!(record(&mut pc, &atts, 238.0, 1.0, None).iter().all(|m| m.is_ok()));
+    let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&pc, &RotationLimits::DEFAULT))).expect("the full K");
+    assert_eq!(cal.rotation_moves, 39);
+    let e = (Matrix3::from_fn(|i, j| cal.k[i][j] as f64) * k_true().try_inverse().unwrap() - Matrix3::identity()).amax();
+    assert!(e < 2e-5, "E {e:.2e}");
+}
+
+#[test]
 fn a_bias_that_drifts_between_the_rests_is_tracked() {
     // 0.3 °/s per minute on every axis: 7.5e-3 ° over a 1.5 s move if it were left in.
     let truth = k_true();
     let solve = |drift: f64| {
-        let mut r = Rotations::new();
-        assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &|t| drift * t, false).iter().all(|m| m.is_ok()));
+        let mut r = <Rotations>::new();
+        assert!(record_drifting(&mut r, &attitudes(false, 10), 238.0, 1.0, None, &|t| drift * t, false).iter().all(|m| m.is_ok()));
         let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
         let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
         (k * truth.try_inverse().unwrap() - Matrix3::identity()).amax()
@@ -134,8 +157,8 @@ fn a_bias_that_drifts_between_the_rests_is_tracked() {
 
 #[test]
 fn moves_about_one_axis_are_named() {
-    let mut r = Rotations::new();
-    record(&mut r, &attitudes(true), 238.0, 1.0, None);
+    let mut r = <Rotations>::new();
+    record(&mut r, &attitudes(true, 10), 238.0, 1.0, None);
     let e = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).unwrap_err();
     assert!(matches!(e, Error::RotationAxesCoplanar { .. }), "{e:?}");
 }
@@ -144,8 +167,8 @@ fn moves_about_one_axis_are_named() {
 fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     // 10× the rate at 59.5 Hz: 0.15 s moves of up to ~1000 °/s, ~17° between two samples (a
     // brisk hand at a low rate): kept, and the full K as accurate as from slow moves.
-    let mut r = Rotations::new();
-    let out = record(&mut r, &attitudes(false), 59.5, 10.0, None);
+    let mut r = <Rotations>::new();
+    let out = record(&mut r, &attitudes(false, 10), 59.5, 10.0, None);
     assert!(out.iter().all(|m| m.is_ok()), "{out:?}");
     let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &RotationLimits::DEFAULT))).expect("the full K");
     let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);
@@ -153,18 +176,18 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     assert!(e < 1e-4, "brisk moves: E {e:.2e}");
     // 15× at 59.5 Hz: steps beyond 20° per sample (fewer than 3 samples per radian): rejected,
     // counted, and the worst step named.
-    let mut r = Rotations::new();
-    let out = record(&mut r, &attitudes(false), 59.5, 15.0, None);
+    let mut r = <Rotations>::new();
+    let out = record(&mut r, &attitudes(false, 10), 59.5, 15.0, None);
     assert!(out.contains(&Err(Rejected::TooFast)), "{out:?}");
     assert_eq!(r.rejected()[Rejected::TooFast as usize] as usize, out.iter().filter(|m| m.is_err()).count());
     assert!(r.worst()[Rejected::TooFast as usize] > 20.0);
     // A pose whose still gyro mean is off by 0.5 °/s: both of its moves are rejected.
-    let mut r = Rotations::new();
-    let out = record(&mut r, &attitudes(false), 238.0, 1.0, Some(4));
+    let mut r = <Rotations>::new();
+    let out = record(&mut r, &attitudes(false, 10), 238.0, 1.0, Some(4));
     assert_eq!(out.iter().filter(|m| **m == Err(Rejected::BiasDrifted)).count(), 2, "{out:?}");
     assert_eq!(r.moves().len(), 7);
     // A saturated sample.
-    let mut r = Rotations::new();
+    let mut r = <Rotations>::new();
     r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
     r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
     r.begin(0);
@@ -188,8 +211,8 @@ fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back()
     // The bias drifts 0.02 deg/s per s; every pose's bias is a stale prediction (that of t = 0)
     // until two measured rests around them settle it on their line, which is the truth here.
     let drift = 0.02;
-    let mut r = Rotations::new();
-    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &|t| drift * t, true).iter().all(|m| m.is_ok()));
+    let mut r = <Rotations>::new();
+    assert!(record_drifting(&mut r, &attitudes(false, 10), 238.0, 1.0, None, &|t| drift * t, true).iter().all(|m| m.is_ok()));
     let stale = largest_error(&r);
     let (before, after) = (
         RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
@@ -210,8 +233,8 @@ fn settled_biases_follow_a_warm_up_by_the_temperature() {
     // the two rests misses its curve; the poses' temperatures put it back (what is left: the
     // curve inside each 1.5 s move, ≈ 3e-5 of a turn).
     let curve = |t: f64| 0.3 * (1.0 - (-t / 5.0).exp());
-    let mut r = Rotations::new();
-    assert!(record_drifting(&mut r, &attitudes(false), 238.0, 1.0, None, &curve, true).iter().all(|m| m.is_ok()));
+    let mut r = <Rotations>::new();
+    assert!(record_drifting(&mut r, &attitudes(false, 10), 238.0, 1.0, None, &curve, true).iter().all(|m| m.is_ok()));
     let rest = |t: f64| RestBias { t_s: t, residual_dps: [curve(t) as f32; 3] };
     let temps = [curve(-1.0) as f32, curve(NINE_MOVES_END_S + 1.0) as f32];
     r.settle_bias(&rest(-1.0), &rest(NINE_MOVES_END_S + 1.0), None, temps);
@@ -236,12 +259,12 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
     let limits = RotationLimits { gamma_sigma_deg: 0.001, ..RotationLimits::DEFAULT };
     let (lat, hz) = (50f64.to_radians(), 238.0);
     let earth_w = V3::new(0.0, lat.cos(), lat.sin()) * EARTH_RATE_RAD_S.to_degrees();
-    let atts = attitudes(false);
+    let atts = attitudes(false, 10);
     let kinv = k_true().try_inverse().unwrap();
     let in_body = |q: &UnitQuaternion<f64>| q.inverse() * earth_w;
     let f32s = |v: V3| [v[0] as f32, v[1] as f32, v[2] as f32];
     let solve = |attitudes: bool| {
-        let mut r = Rotations::new();
+        let mut r = <Rotations>::new();
         let first = in_body(&atts[0]);
         // Frame 0 is the first rest's (the first pose's attitude).
         let frame = |q: &UnitQuaternion<f64>| (atts[0].inverse() * q).to_rotation_matrix().into_inner().map(|v| v as f32);

@@ -94,10 +94,10 @@ impl AccelCal {
 
 /// Static accelerometer poses (mean readings, g), with the linear fits accumulated as they come.
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct AccelCalibrator {
-    poses: heapless::Vec<[f64; 3], MAX_ACCEL_POSES>,
+pub struct AccelCalibrator<const N: usize = MAX_ACCEL_POSES> {
+    poses: heapless::Vec<[f64; 3], N>,
     /// The poses' own 1σ (g).
-    sigma: heapless::Vec<f32, MAX_ACCEL_POSES>,
+    sigma: heapless::Vec<f32, N>,
     lin6: NormalEquations<6>,
     lin9: NormalEquations<9>,
 }
@@ -105,7 +105,7 @@ pub struct AccelCalibrator {
 /// Parameters of a Gauss-Newton iteration: offsets then the gain entries it fits.
 type Params = [f64; 9];
 
-impl AccelCalibrator {
+impl<const N: usize> AccelCalibrator<N> {
     /// No poses.
     pub const fn new() -> Self {
         Self { poses: heapless::Vec::new(), sigma: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
@@ -140,7 +140,7 @@ impl AccelCalibrator {
     /// residual, with few poses more than unknowns, can be small by chance.
     pub fn add_pose(&mut self, a: Vec3, sigma_g: f32) -> Result<(), Error> {
         // Checked before the rows go in: a rejected pose leaves the fits as they were.
-        let full = Error::CapacityExceeded { max: MAX_ACCEL_POSES as u8 };
+        let full = Error::CapacityExceeded { max: N.min(u8::MAX as usize) as u8 };
         if self.poses.is_full() {
             return Err(full);
         }
@@ -366,7 +366,7 @@ mod tests {
     fn six_param_exact_on_six_axis_poses() {
         let m = [[1.02, 0.0, 0.0], [0.0, 0.97, 0.0], [0.0, 0.0, 1.01]];
         let o = [0.02, -0.015, 0.03];
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for f in [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
             c.add_pose(raw(&m, &o, f), 0.0).unwrap();
         }
@@ -382,7 +382,7 @@ mod tests {
     fn nine_param_exact_on_icosahedron() {
         let m = [[1.02, 0.004, -0.003], [0.0, 0.97, 0.006], [0.0, 0.0, 1.01]];
         let o = [0.02, -0.015, 0.03];
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for f in icosahedron() {
             c.add_pose(raw(&m, &o, f), 0.0).unwrap();
         }
@@ -397,13 +397,13 @@ mod tests {
 
     #[test]
     fn too_few_and_degenerate_poses_are_errors() {
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for f in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
             c.add_pose(f, 0.0).unwrap();
         }
         assert_eq!(c.solve6(), Err(Error::TooFewPoses { have: 3, need: 6 }));
         // Eight poses on one cone (a servo's): the ellipsoid is not determined.
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for k in 0..8 {
             let th = k as f64 * 0.7;
             let v = [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8];
@@ -419,7 +419,7 @@ mod tests {
         let (m, o) = ([[1.01, 0.002, -0.003], [0.0, 0.99, 0.001], [0.0, 0.0, 1.02]], [0.01, -0.02, 0.005]);
         let mut within = [0u32; 2];
         for _ in 0..runs {
-            let mut c = AccelCalibrator::new();
+            let mut c = <AccelCalibrator>::new();
             for (k, f) in poses.iter().enumerate() {
                 let a = raw(&m, &o, *f).map(|v| (v as f64 + sigma(k) * noise.next()) as f32);
                 c.add_pose(a, sigma(k) as f32).unwrap();
@@ -456,5 +456,46 @@ mod tests {
         }
         let [one, two] = coverage(&poses, |k| if k < 20 { 1e-5 } else { 1e-4 }, 1500);
         assert!((0.60..=0.80).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+    }
+
+    /// How often the F-test takes the 9-parameter model over `runs` sensors of gain `m` and the
+    /// poses `poses`, each mean given 1σ `sigma` (g) of noise per axis.
+    fn nine_taken(m: &[[f64; 3]; 3], poses: &[[f64; 3]], sigma: f64, runs: usize) -> f64 {
+        let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
+        let acc = crate::procedure::Config::DEFAULT.acceptance;
+        let mut nine = 0;
+        for _ in 0..runs {
+            let mut c = AccelCalibrator::<32>::new();
+            for f in poses {
+                c.add_pose(raw(m, &[0.01, -0.02, 0.005], *f).map(|v| (v as f64 + sigma * noise.next()) as f32), sigma as f32).unwrap();
+            }
+            let (fit, test) = crate::procedure::pipeline::fit_accel_tested(&c, &acc).unwrap();
+            assert_eq!(fit.model == AccelModel::NineParam, test.unwrap().nine());
+            nine += test.unwrap().nine() as usize;
+        }
+        nine as f64 / runs as f64
+    }
+
+    #[test]
+    fn the_nine_parameter_model_only_where_its_cross_terms_are_significant() {
+        let ico = icosahedron();
+        // The icosahedron's 12 and a cube's 8 corners (b = 0b1xx: x negative, ...).
+        let twenty: [[f64; 3]; 20] = core::array::from_fn(|k| match k {
+            k if k < 12 => ico[k],
+            k => core::array::from_fn(|i| if (k - 12) >> i & 1 == 1 { -1.0 } else { 1.0 } / libm::sqrt(3.0)),
+        });
+        let diagonal = [[1.02, 0.0, 0.0], [0.0, 0.97, 0.0], [0.0, 0.0, 1.01]];
+        let crossed = [[1.02, 0.01, -0.008], [0.0, 0.97, 0.012], [0.0, 0.0, 1.01]];
+        // No cross terms: taken at the test's 5 % level, whatever the poses.
+        for poses in [&ico[..10], &twenty[..]] {
+            let false_alarm = nine_taken(&diagonal, poses, 2e-4, 400);
+            assert!(false_alarm <= 0.09, "{} poses: 9 parameters taken in {false_alarm:.3}", poses.len());
+        }
+        // 1 % cross terms, 0.2 mg poses: the 6-parameter residual is ~25 times the 9's, which
+        // even one degree of freedom (10 poses: F > 216) finds.
+        for poses in [&ico[..10], &twenty[..]] {
+            let found = nine_taken(&crossed, poses, 2e-4, 200);
+            assert!(found >= 0.95, "{} poses: 9 parameters taken in {found:.3}", poses.len());
+        }
     }
 }

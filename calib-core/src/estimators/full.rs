@@ -275,7 +275,7 @@ impl Axes {
     /// ([`Error::FullKUnobservable`]); an implausible diagonal ([`Error::ImplausibleScale`]);
     /// moves that disagree with one `K` ([`Error::MovesInconsistent`]).
     pub fn solve(&self, limits: &FullLimits) -> Result<FullCal, Error> {
-        self.solve_with(limits, None)
+        self.solve_with(limits, crate::estimators::rotation::NONE)
     }
 
     /// [`Self::solve`] with the rotation constraints of `rotations` too (e.g. hand-held moves),
@@ -284,16 +284,20 @@ impl Axes {
     /// than 3 rig axes the rotations' axes must span three dimensions
     /// ([`Error::RotationAxesCoplanar`]); a rotation residual above its limit is
     /// [`Error::MovesInconsistent`].
-    pub fn solve_with(&self, limits: &FullLimits, rotations: Option<(&Rotations, &RotationLimits)>) -> Result<FullCal, Error> {
+    pub fn solve_with<const M: usize, const C: usize>(
+        &self,
+        limits: &FullLimits,
+        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+    ) -> Result<FullCal, Error> {
         self.solve_from(limits, rotations, None)
     }
 
     /// [`Self::solve_with`] with Gauss–Newton started at `start` (vec `K`, column-major) instead:
     /// the rotations are re-composed at every iterate, so the result does not depend on it.
-    pub fn solve_from(
+    pub fn solve_from<const M: usize, const C: usize>(
         &self,
         limits: &FullLimits,
-        rotations: Option<(&Rotations, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
         start: Option<[f64; 9]>,
     ) -> Result<FullCal, Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
@@ -334,7 +338,11 @@ impl Axes {
 /// Checks that the used rig axes `us` (unit) and the rotations together turn about three
 /// dimensions: ≥ [`NEED_AXES`] axes off one plane by `min_axis_angle_deg`, or rotation axes
 /// spread by `min_axis_spread`. Returns the axes' non-coplanarity (°) and smallest pair angle (rad).
-fn check_axes(us: &[Vector3<f64>], rotations: Option<(&Rotations, &RotationLimits)>, limits: &FullLimits) -> Result<(f64, f64), Error> {
+fn check_axes<const M: usize, const C: usize>(
+    us: &[Vector3<f64>],
+    rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+    limits: &FullLimits,
+) -> Result<(f64, f64), Error> {
     let n_axes = us.len();
     match rotations {
         Some((r, rl)) if n_axes < NEED_AXES as usize => {

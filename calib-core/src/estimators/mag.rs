@@ -10,7 +10,7 @@
 //!    the angle between gravity and the field is the same, `f̂ᵢ · R ûᵢ = −sin(dip)`, linear in
 //!    `R`'s angles for a small rotation (two Gauss–Newton steps).
 
-use crate::math::linalg::sym_eigen;
+use crate::math::linalg::{inverse3, sym_eigen};
 use crate::math::lsq::NormalEquations;
 use crate::math::vec3::{mat_to_f64, to_f64};
 use crate::{Error, Mat3, Vec3};
@@ -114,7 +114,7 @@ fn cayley(theta: &Vector3<f64>) -> Matrix3<f64> {
     let h = theta / 2.0;
     let k = h.cross_matrix();
     let i = Matrix3::identity();
-    (i - k).try_inverse().map_or(i, |inv| inv * (i + k))
+    inverse3(&(i - k)).map_or(i, |inv| inv * (i + k))
 }
 
 /// The angle (rad) of rotation matrix `r`: `atan2(sin, cos)` from its skew part and trace.
@@ -267,7 +267,7 @@ impl MagCalibrator {
         // instructions on the MCU); a degenerate spread fails the eigenvalue and coverage checks.
         let q = ne.estimate()?;
         let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
-        let inv = shape.try_inverse().ok_or(Error::Singular)?;
+        let inv = inverse3(&shape).ok_or(Error::Singular)?;
         let centre = -0.5 * inv * Vector3::new(q[6], q[7], q[8]);
         let s = 1.0 + centre.dot(&(shape * centre));
         if !(s > 0.0) {

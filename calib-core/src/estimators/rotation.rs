@@ -38,7 +38,7 @@ use crate::estimators::accel::AccelCal;
 use crate::estimators::axis::{Poses, MAX_POSES};
 use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
-use crate::math::linalg::sym_eigen;
+use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
 use crate::math::vec3::{tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
@@ -325,15 +325,17 @@ struct Open {
     why: Option<Rejected>,
 }
 
-/// The static poses and the chunked moves between them (bounded, no heap).
+/// The static poses and the chunked moves between them (bounded, no heap): up to `M` kept moves
+/// and `C` chunks, the firmware's [`MAX_ROTATION_MOVES`] and [`MAX_CHUNKS`] unless a PC sizes
+/// them to a whole log.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Rotations {
+pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_CHUNKS> {
     poses: Poses,
     /// Per pose (same index): the noise of its mean (g) and its rest.
     sigma_g: [f32; MAX_POSES],
     rest: [PoseRest; MAX_POSES],
-    chunks: heapless::Vec<Chunk, MAX_CHUNKS>,
-    moves: heapless::Vec<RotationMove, MAX_ROTATION_MOVES>,
+    chunks: heapless::Vec<Chunk, C>,
+    moves: heapless::Vec<RotationMove, M>,
     open: Option<Open>,
     rejected: [u16; REJECTED_REASONS],
     /// Per reason, the largest offending value (see [`Rotations::worst`]).
@@ -358,7 +360,10 @@ pub struct BiasJump {
     pub limit_dps: f32,
 }
 
-impl Default for Rotations {
+/// No rotation constraints, for the solvers that take them (their store's size is then moot).
+pub const NONE: Option<(&Rotations, &RotationLimits)> = None;
+
+impl<const M: usize, const C: usize> Default for Rotations<M, C> {
     fn default() -> Self {
         Self::new()
     }
@@ -393,14 +398,6 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
     Matrix3::new(z, -v[2], v[1], v[2], z, -v[0], -v[1], v[0], z)
 }
 
-/// `det(K) K⁻ᵀ`, the cofactor matrix (columns `k₁ × k₂`, `k₂ × k₀`, `k₀ × k₁` of the columns
-/// `k_c` of `K`); `None` for a singular `K`.
-fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-    let at = |r: usize, c: usize| k[(r % 3, c % 3)];
-    let cof = Matrix3::from_fn(|r, c| at(r + 1, c + 1) * at(r + 2, c + 2) - at(r + 2, c + 1) * at(r + 1, c + 2));
-    (k.column(0).dot(&cof.column(0)) != 0.0).then_some(cof)
-}
-
 /// `Exp(φ)` and the right Jacobian `J_r(φ)` of a chunk's rotation vector (rad): Rodrigues'
 /// coefficients `sin t / t`, `(1 − cos t) / t²`, `(t − sin t) / t³` by their Taylor series to
 /// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns ≤ [`CHUNK_DEG`] = 0.09 rad
@@ -417,7 +414,7 @@ pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
     (Matrix3::identity() + s * a + s2 * b, Matrix3::identity() - s * b + s2 * c)
 }
 
-impl Rotations {
+impl<const M: usize, const C: usize> Rotations<M, C> {
     /// Nothing recorded.
     pub const fn new() -> Self {
         Self {
@@ -730,7 +727,7 @@ impl Rotations {
             Rejected::TooFast => limits.max_step_deg,
             Rejected::TooShort => limits.min_move_deg,
             Rejected::BiasDrifted => limits.max_bias_change_dps,
-            Rejected::Full => MAX_ROTATION_MOVES as f32,
+            Rejected::Full => M as f32,
             Rejected::Gap => limits.max_gap_s,
             Rejected::Saturated | Rejected::Unseen => 0.0,
         };
@@ -904,9 +901,9 @@ impl Rotations {
     /// The misfit of every kept move at `K` (row-major): the angle (°) between `R g_j` and `g_i`;
     /// for a vertical turn, between `K Γ` and gravity (with whole turns, or the turn's distance
     /// from its whole revolutions if larger).
-    pub fn residuals_deg(&self, k: &Mat3, limits: &RotationLimits) -> [f32; MAX_ROTATION_MOVES] {
+    pub fn residuals_deg(&self, k: &Mat3, limits: &RotationLimits) -> [f32; M] {
         let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
-        let mut out = [0.0; MAX_ROTATION_MOVES];
+        let mut out = [0.0; M];
         let Some(cof) = cofactor(&km) else { return out };
         for (o, m) in out.iter_mut().zip(self.moves()) {
             let (gi, gj) = (self.poses.get(m.from as usize).normalize(), self.poses.get(m.to as usize).normalize());
@@ -987,7 +984,7 @@ mod tests {
     #[test]
     fn moves_dropped_for_a_changing_bias_are_named_as_drift() {
         let lim = RotationLimits::DEFAULT;
-        let mut r = Rotations::new();
+        let mut r = <Rotations>::new();
         for i in 0..4u8 {
             let t0 = 10.0 * f64::from(i);
             r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
@@ -1007,7 +1004,7 @@ mod tests {
             e => panic!("{e:?}"),
         }
         // Bias steady: nothing dropped, nothing to blame.
-        assert_eq!(Rotations::new().drift_error(), None);
+        assert_eq!(<Rotations>::new().drift_error(), None);
     }
 
     #[test]
@@ -1029,16 +1026,8 @@ mod tests {
     }
 
     #[test]
-    fn cofactor_is_det_times_inverse_transpose() {
-        let k = Matrix3::new(1.02, -0.01, 0.03, 0.02, 0.97, -0.04, -0.05, 0.01, 1.01);
-        let expect = k.try_inverse().unwrap().transpose() * k.determinant();
-        assert!((cofactor(&k).unwrap() - expect).amax() < 1e-15);
-        assert_eq!(cofactor(&Matrix3::new(1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 1.0, 1.0)), None);
-    }
-
-    #[test]
     fn a_move_about_one_axis_composes_to_its_turn_at_any_k() {
-        let mut r = Rotations::new();
+        let mut r = <Rotations>::new();
         r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
         r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
         r.begin(0);

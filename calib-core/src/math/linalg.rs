@@ -3,6 +3,23 @@
 //! non-generic core on a row-major slice (`n × n`, `n ≤ MAX_N`) behind a thin generic wrapper,
 //! so the firmware links one copy whatever the sizes used.
 
+use nalgebra::Matrix3;
+
+/// `det(K) K⁻ᵀ`, the cofactor matrix (columns `k₁ × k₂`, `k₂ × k₀`, `k₀ × k₁` of the columns
+/// `k_c` of `K`); `None` for a singular `K`.
+pub(crate) fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let at = |r: usize, c: usize| k[(r % 3, c % 3)];
+    let cof = Matrix3::from_fn(|r, c| at(r + 1, c + 1) * at(r + 2, c + 2) - at(r + 2, c + 1) * at(r + 1, c + 2));
+    (k.column(0).dot(&cof.column(0)) != 0.0).then_some(cof)
+}
+
+/// `K⁻¹` of a 3 × 3 matrix from its [`cofactor`] matrix (one small routine for every 3 × 3
+/// inverse: nalgebra's general one costs the firmware 768 B of flash); `None` when singular.
+pub(crate) fn inverse3(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let cof = cofactor(k)?;
+    Some(cof.transpose() / k.column(0).dot(&cof.column(0)))
+}
+
 /// Largest dimension of the dense routines.
 pub(crate) const MAX_N: usize = 9;
 
@@ -186,6 +203,16 @@ pub(crate) fn cbrt(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cofactor_is_det_times_inverse_transpose_and_gives_the_inverse() {
+        let k = Matrix3::new(1.02, -0.01, 0.03, 0.02, 0.97, -0.04, -0.05, 0.01, 1.01);
+        let expect = k.try_inverse().unwrap().transpose() * k.determinant();
+        assert!((cofactor(&k).unwrap() - expect).amax() < 1e-15);
+        assert!((inverse3(&k).unwrap() * k - Matrix3::identity()).amax() < 1e-15);
+        let singular = Matrix3::new(1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 1.0, 1.0);
+        assert_eq!((cofactor(&singular), inverse3(&singular)), (None, None));
+    }
 
     #[test]
     fn cbrt_matches_libm_over_the_range_of_f64() {

@@ -28,24 +28,80 @@ pub struct Acceptance {
 }
 
 /// Poses the 6-parameter accelerometer fit needs: one more than its unknowns, since a fit with
-/// as many unknowns as poses interpolates them (residual 0, 1σ 0) and determines nothing; from
-/// [`NINE_PARAM_POSES`] on, the 9-parameter fit is tried first.
+/// as many unknowns as poses interpolates them (residual 0, 1σ 0) and determines nothing.
 pub const SIX_PARAM_POSES: usize = 7;
-/// See [`SIX_PARAM_POSES`].
+/// Poses from which the 9-parameter fit is tried beside the 6-parameter one (one degree of
+/// freedom left): which is taken is [`ModelTest`]'s decision, never the count.
 pub const NINE_PARAM_POSES: usize = 10;
 
-/// The accelerometer fit: 9 parameters when there are enough poses and it succeeds, else 6;
-/// rejected if its residual exceeds the acceptance.
-pub fn fit_accel(poses: &AccelCalibrator, acc: &Acceptance) -> Result<AccelCal, Error> {
-    let fit = match poses.len() {
-        n if n >= NINE_PARAM_POSES => poses.solve9().or_else(|_| poses.solve6()),
-        n if n >= SIX_PARAM_POSES => poses.solve6(),
-        n => Err(Error::TooFewPoses { have: n as u8, need: SIX_PARAM_POSES as u8 }),
-    }?;
+/// The F-test of the 9-parameter accelerometer model against the 6-parameter one: do its three
+/// cross terms explain more of the residual than three random parameters would?
+/// `F = ((RSS₆ − RSS₉) / 3) / (RSS₉ / (n − 9))` over the `n` poses, against its 95 % point
+/// `F₀.₉₅(3, n − 9)`. Self-normalising: it needs no noise figure, and with few degrees of
+/// freedom it asks for much (216 at 10 poses, 3.7 at 19).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct ModelTest {
+    /// The statistic.
+    pub f: f32,
+    /// Its 95 % point at these degrees of freedom: above it the 9-parameter model is taken.
+    pub critical: f32,
+    /// RMS of `|f| − 1` of each model (g).
+    pub rms_six_g: f32,
+    /// See `rms_six_g`.
+    pub rms_nine_g: f32,
+}
+
+/// `F₀.₉₅(3, d)` for `d` = 1..=20 (the regularised incomplete beta function, as statistical
+/// tables give it); beyond, `χ²₃(0.95)/3 + 8.44 / (d − 3.40)`, within 0.5 % of it.
+const F3_95: [f32; 20] = [
+    215.71, 19.164, 9.2766, 6.5914, 5.4095, 4.7571, 4.3468, 4.0662, 3.8625, 3.7083, 3.5874, 3.4903, 3.4105, 3.3439, 3.2874, 3.2389, 3.1968,
+    3.1599, 3.1274, 3.0984,
+];
+
+impl ModelTest {
+    /// The test of `nine` against `six`, both fitted to the same `n` poses.
+    pub fn new(six: &AccelCal, nine: &AccelCal, n: usize) -> Self {
+        let d = n.saturating_sub(9).max(1);
+        let (rss6, rss9) = (six.rms_after_g * six.rms_after_g, nine.rms_after_g * nine.rms_after_g);
+        let f = (rss6 - rss9) / 3.0 / (rss9 / d as f32);
+        let critical = F3_95.get(d - 1).copied().unwrap_or(2.6049 + 8.44 / (d as f32 - 3.40));
+        ModelTest { f, critical, rms_six_g: six.rms_after_g, rms_nine_g: nine.rms_after_g }
+    }
+
+    /// The cross terms are significant: the 9-parameter model is taken.
+    pub fn nine(&self) -> bool {
+        self.f > self.critical
+    }
+}
+
+/// The accelerometer fit ([`fit_accel_tested`]).
+pub fn fit_accel<const N: usize>(poses: &AccelCalibrator<N>, acc: &Acceptance) -> Result<AccelCal, Error> {
+    fit_accel_tested(poses, acc).map(|(fit, _)| fit)
+}
+
+/// The accelerometer fit the poses support: the 6-parameter one, or the 9-parameter one where
+/// [`ModelTest`] finds its cross terms significant (or the 6-parameter fit fails); rejected if
+/// its residual exceeds the acceptance. Also the test, when both models were fitted.
+pub fn fit_accel_tested<const N: usize>(poses: &AccelCalibrator<N>, acc: &Acceptance) -> Result<(AccelCal, Option<ModelTest>), Error> {
+    let n = poses.len();
+    if n < SIX_PARAM_POSES {
+        return Err(Error::TooFewPoses { have: n as u8, need: SIX_PARAM_POSES as u8 });
+    }
+    let nine = if n >= NINE_PARAM_POSES { poses.solve9().ok() } else { None };
+    let (fit, test) = match (poses.solve6(), nine) {
+        (Ok(six), Some(nine)) => {
+            let test = ModelTest::new(&six, &nine, n);
+            (if test.nine() { nine } else { six }, Some(test))
+        }
+        (Ok(six), None) => (six, None),
+        (Err(_), Some(nine)) => (nine, None),
+        (Err(e), None) => return Err(e),
+    };
     if !(fit.rms_after_g <= acc.max_accel_rms_g) {
         return Err(Error::AccelFitFailed);
     }
-    Ok(fit)
+    Ok((fit, test))
 }
 
 /// The estimator's result to use: the speed-free sweep estimator, else the paper's.
@@ -95,11 +151,11 @@ impl OneAxis {
     /// Solves a one-servo rig. `spin`: the spin's mean bias-corrected rate (°/s, sensor frame)
     /// and the shaft rate (°/s); `rotations`: the hand-held moves (`None` or none kept: no full
     /// `K`). `axes` is scratch for the full solve, started at the diagonal of the one-axis result.
-    pub fn solve(
+    pub fn solve<const M: usize, const C: usize>(
         poses: &Poses,
         moves: &Moves,
         spin: Option<(Vec3, f32)>,
-        rotations: Option<(&Rotations, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
         limits: (&GeometryLimits, &FullLimits),
         axes: &mut Axes,
     ) -> Self {
@@ -158,7 +214,7 @@ pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 /// moves dropped when they are why too few are left ([`Rotations::drop_error`]: the most common
 /// reason with its numbers, [`Error::BiasDrifting`] for a changing bias). A slip
 /// moves the board, not the bias: it stays `MovesInconsistent` (or `AxisNotFixed`).
-pub fn blame(e: Error, drift: &Drift, rotations: Option<(&Rotations, &RotationLimits)>) -> Error {
+pub fn blame<const M: usize, const C: usize>(e: Error, drift: &Drift, rotations: Option<(&Rotations<M, C>, &RotationLimits)>) -> Error {
     if let Some(mirrored) = rotations.and_then(|(r, _)| r.mirrored()) {
         return mirrored;
     }
@@ -269,6 +325,7 @@ mod tests {
     use super::*;
     use crate::estimators::accel::AccelModel;
     use crate::estimators::bias::RestBias;
+    use crate::estimators::rotation;
 
     #[test]
     fn a_too_uncertain_scale_names_disagreeing_moves_apart_from_too_few() {
@@ -301,19 +358,19 @@ mod tests {
         for i in 0..10 {
             smooth.add(rest(4.0 * i as f64, 0.02 * i as f32));
         }
-        assert_eq!(blame(inconsistent, &smooth, None), inconsistent);
+        assert_eq!(blame(inconsistent, &smooth, rotation::NONE), inconsistent);
         // One rest 0.08 °/s off the line of its neighbours: the bias.
         let mut uneven = smooth;
         uneven.add(rest(40.0, 0.28));
         uneven.add(rest(44.0, 0.22));
-        match blame(inconsistent, &uneven, None) {
+        match blame(inconsistent, &uneven, rotation::NONE) {
             Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => {
                 assert!((off_trend_dps - 0.08).abs() < 1e-4 && limit_dps == MAX_OFF_TREND_DPS && dps_per_min > 0.25);
             }
             e => panic!("{e:?}"),
         }
         // Other errors are never renamed.
-        assert_eq!(blame(Error::NoUsableMove, &uneven, None), Error::NoUsableMove);
+        assert_eq!(blame(Error::NoUsableMove, &uneven, rotation::NONE), Error::NoUsableMove);
     }
 
     #[test]
@@ -321,7 +378,7 @@ mod tests {
         // Poses of a sensor with gains 1.01, 0.99, 1.02 and offsets 10, -20, 5 mg, with a little
         // noise: a fit with as many unknowns as poses would pass through them (1σ 0).
         let poses = |n: usize| {
-            let mut c = AccelCalibrator::new();
+            let mut c = <AccelCalibrator>::new();
             for k in 0..n {
                 let (th, ph) = (k as f64 * 2.4, libm::acos(1.0 - 2.0 * (k as f64 + 0.5) / n as f64));
                 let f = [libm::sin(ph) * libm::cos(th), libm::sin(ph) * libm::sin(th), libm::cos(ph)];

@@ -130,7 +130,7 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
     };
     // Accelerometer pre-calibration on the six axis poses.
     let accel_cal = if case.precalibrate_accel {
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for f in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y(), Vector3::z(), -Vector3::z()] {
             let (a, sigma) = mean_pose(f, rng);
             c.add_pose(a, sigma)?;

@@ -277,7 +277,14 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     let (code, out, err) = calib(&[&hand]);
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
-    assert_eq!((&v["gyro"]["method"], &v["quality"]["accel"]["model"]), (&"full".into(), &"nine_param".into()), "{v}");
+    assert_eq!(v["gyro"]["method"], "full", "{v}");
+    // The accelerometer model is the F-test's choice (20 poses: 11 degrees of freedom for the
+    // 9-parameter fit), said in the JSON; rig-sim's part has ±0.1° misalignment, which a norm
+    // fit barely sees.
+    let test = &v["quality"]["accel_model_test"];
+    let nine = test["f"].as_f64().unwrap() > test["critical"].as_f64().unwrap();
+    assert_eq!(v["quality"]["accel"]["model"], if nine { "nine_param" } else { "six_param" }, "{v}");
+    assert!((test["critical"].as_f64().unwrap() - 3.5874).abs() < 1e-3, "{test}");
     // The rig's rows are cut out: the move across the hole (the shaft turned unseen) is dropped.
     assert_eq!(v["quality"]["hand_moves"]["dropped"]["gap"], 1, "{v}");
     // A gyro whose full scale the user states (`--range`, any sensor): the moves that reach it

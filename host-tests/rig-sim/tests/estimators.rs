@@ -100,7 +100,7 @@ proptest! {
         ox in -0.05f64..0.05, oy in -0.05f64..0.05, oz in -0.05f64..0.05, roll in 0.0f64..std::f64::consts::TAU,
     ) {
         let (m, o) = (Vector3::new(kx, ky, kz), Vector3::new(ox, oy, oz));
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         let rot = Rotation3::from_euler_angles(roll, 0.3, -0.2);
         for f in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y(), Vector3::z(), -Vector3::z()] {
             let f = rot * f;
@@ -212,7 +212,7 @@ proptest! {
         let lim = GeometryLimits::default();
         for set in [&raw, &small] {
             let mut poses = Poses::new();
-            let mut acc = AccelCalibrator::new();
+            let mut acc = <AccelCalibrator>::new();
             for p in set.iter() {
                 let _ = poses.push(*p);
                 let _ = acc.add_pose(*p, 0.0);
@@ -241,7 +241,7 @@ proptest! {
         let m = nalgebra::Matrix3::new(d[0], off[0], off[1], 0.0, d[1], off[2], 0.0, 0.0, d[2]);
         let minv = m.try_inverse().unwrap();
         let rot = Rotation3::from_euler_angles(roll, 0.4, -0.3);
-        let mut c = AccelCalibrator::new();
+        let mut c = <AccelCalibrator>::new();
         for v in rig_sim::harness::icosahedron() {
             let f = rot * v;
             c.add_pose(f32v(minv * f + Vector3::from(o)), 0.0).unwrap();

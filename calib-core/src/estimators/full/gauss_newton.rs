@@ -20,9 +20,9 @@ pub(super) struct RotationFit {
 /// The rig rows `rig` plus the rotation rows of `r` linearised at the solution, iterated from
 /// `start` (vec `K`), else from the rig's own `K` when it determines one, else from `K = I`.
 /// A rotation residual above `max_residual_rms_deg` is [`Error::MovesInconsistent`].
-pub(super) fn with_rotations(
+pub(super) fn with_rotations<const M: usize, const C: usize>(
     rig: &NormalEquations<9>,
-    r: &Rotations,
+    r: &Rotations<M, C>,
     rl: &RotationLimits,
     start: Option<[f64; 9]>,
     limits: &FullLimits,

@@ -328,6 +328,9 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
              `quality.gyro_axes` in the JSON)"
         );
     }
+    for l in &c.left_out {
+        eprintln!("calib: {path}: warning: {l}");
+    }
     let missing = c.missing();
     if let Err(e) = &c.gyro {
         if c.accel.model == AccelModel::None && !matches!(c.full, Some(Ok(_))) {

@@ -124,7 +124,7 @@ pub(super) fn calibrate(
     let settings = settings(&log);
     let pan_tilt = settings.len() >= 2;
 
-    let (accel, handheld_poses) = accel(&log, pan_tilt)?;
+    let (accel, accel_test, handheld_poses) = accel(&log, pan_tilt)?;
     let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
     let (poses, moves) = one_axis_rig(&log, main_setting, &accel)?;
     let rotations = rotations(&log, &accel, range_dps, &cfg.rotation);
@@ -133,7 +133,7 @@ pub(super) fn calibrate(
     // `--method paper|sweep` asks for that one-axis estimator alone; `--no-rotations` leaves the
     // hand-held moves out.
     let one_axis_only = matches!(method, Some(Method::Paper | Method::Sweep));
-    let with_rotations = (rotations_on && !one_axis_only).then_some((&rotations, &cfg.rotation));
+    let with_rotations = (rotations_on && !one_axis_only).then_some((&*rotations, &cfg.rotation));
     let (sweep, paper, full) = if pan_tilt {
         let full = (!one_axis_only).then(|| pan_tilt_full(&log, &settings, &accel, with_rotations));
         (sweep::solve(&poses, &moves, &cfg.geometry), spin.map(|(g, w, _)| paper::solve(&poses, g, w, &cfg.geometry)), full)
@@ -144,10 +144,12 @@ pub(super) fn calibrate(
         (one.sweep, one.paper, one.full)
     };
     let drift = log.drift();
+    let full_tried = full.as_ref().and_then(|f| f.as_ref().ok()).map(|f| f.k);
     let full = full.map(|f| {
         f.and_then(|f| pipeline::validate_full(&f, &cfg.acceptance).map(|_| f))
-            .map_err(|e| pipeline::blame(e, &drift, Some((&rotations, &cfg.rotation))))
+            .map_err(|e| pipeline::blame(e, &drift, Some((&*rotations, &cfg.rotation))))
     });
+    let left_out = left_out(&log, &rotations, &poses, main_setting);
     let chosen = match method {
         Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
         Some(Method::Paper) => paper.ok_or(OfflineError::NoSpin).and_then(|p| p.map_err(stage("paper estimator"))),
@@ -195,7 +197,10 @@ pub(super) fn calibrate(
         phases: ph,
         setup: None,
         mag: None,
+        left_out,
+        full_tried,
         rotations: Some(rotations),
+        accel_test,
         mirrored: None,
     })
 }
@@ -204,20 +209,47 @@ pub(super) fn calibrate(
 pub(super) const HAND_HELD_STAGE: &str = "full K from the moves between hand-held poses";
 
 /// The accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
-/// (spread over pan × tilt, they are no cone); identity below the six poses a fit needs. Also
-/// the number of poses used.
-fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, usize), OfflineError> {
-    let mut acc = AccelCalibrator::new();
+/// (spread over pan × tilt, they are no cone), by the model the F-test chooses; identity below
+/// the poses a fit needs. Also the test and the number of poses used.
+fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, Option<pipeline::ModelTest>, usize), OfflineError> {
+    let mut acc = AccelCalibrator::<HOST_ACCEL_POSES>::new();
     for s in log.ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
         if acc.add_pose(s.accel.mean().map(|v| v as f32), s.accel.radial_std_of_mean() as f32).is_err() {
             break;
         }
     }
-    let cal = match acc.len() {
-        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel(&acc, &CONFIG.acceptance).map_err(stage("accelerometer"))?,
-        _ => AccelCal::IDENTITY,
+    let (cal, test) = match acc.len() {
+        n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel_tested(&acc, &CONFIG.acceptance).map_err(stage("accelerometer"))?,
+        _ => (AccelCal::IDENTITY, None),
     };
-    Ok((cal, acc.len()))
+    Ok((cal, test, acc.len()))
+}
+
+/// What the fixed-size stores left out of the data-driven path, each with its count, why, and
+/// what to do: poses beyond [`MAX_POSES`] (the index a pose has), rig moves beyond the one-axis
+/// estimators' [`MAX_MOVES`].
+fn left_out(log: &Log, rotations: &HostRotations, poses: &Poses, main_setting: Option<i32>) -> Vec<String> {
+    let mut out = vec![];
+    let hand = log.ph.segments.iter().filter(|s| !s.is_rig_pose()).count();
+    if hand > rotations.poses().len() {
+        out.push(format!(
+            "{} of {hand} hand-held poses left out of the moves between poses: at most {MAX_POSES} are indexed; split the log",
+            hand - rotations.poses().len()
+        ));
+    }
+    let rig = log.rig().filter(|s| Some(s.tilt_setting()) == main_setting).count();
+    if rig > poses.len() {
+        out.push(format!(
+            "{} of {rig} rig poses left out of the one-axis estimators: at most {MAX_POSES} are kept; split the log",
+            rig - poses.len()
+        ));
+    }
+    let rejected = rotations.rejected();
+    let full = calib_core::estimators::rotation::Rejected::ALL.iter().position(|r| *r == calib_core::estimators::rotation::Rejected::Full);
+    if let Some(n) = full.map(|i| rejected[i]).filter(|n| *n > 0) {
+        out.push(format!("{n} moves between hand-held poses left out for want of room: split the log"));
+    }
+    out
 }
 
 /// One axis (the most populated tilt setting): its calibrated rig poses and the moves between
@@ -249,8 +281,9 @@ fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Po
 /// mean over the pose, the mean attitude of a board that sways: each move runs from the mean
 /// instant of one pose to that of the next (DESIGN §4.7, [`PoseTurn`]), as in the firmware. A
 /// rejected move is counted, not an error.
-fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Rotations {
-    let mut rotations = Rotations::new();
+fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Box<HostRotations> {
+    // 290 KB: on the heap.
+    let mut rotations = Box::new(HostRotations::new());
     let mut prev: Option<(u8, &Segment)> = None;
     let rows = log.rows;
     let gyro = |r: &Row| sub(r.gyro_dps, log.bias.bias_dps);
@@ -293,7 +326,7 @@ fn pan_tilt_full(
     log: &Log,
     settings: &[(i32, usize)],
     accel: &AccelCal,
-    rotations: Option<(&Rotations, &RotationLimits)>,
+    rotations: Option<(&HostRotations, &RotationLimits)>,
 ) -> Result<FullCal, Error> {
     let pan_angles = |setting: i32| {
         let mut a: Vec<i32> =

@@ -41,7 +41,7 @@ fn hand_held(r: &Row) -> bool {
 /// `None` when the log has no magnetometer readings. `turns`: the hand-held moves and the full
 /// `K` (the data-driven path), which refine the alignment as on the board
 /// ([`MagCalibrator::refine`]): a rotation pose is a hand-held segment, in order.
-pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&Rotations, Mat3)>) -> Option<MagOutcome> {
+pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&HostRotations, Mat3)>) -> Option<MagOutcome> {
     let readings = rows.iter().filter(|r| r.mag_ut.is_some()).count();
     if readings == 0 {
         return None;

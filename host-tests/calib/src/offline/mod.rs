@@ -27,6 +27,7 @@ use calib_core::Vec3;
 use nalgebra::Vector3;
 use serde::Serialize;
 
+mod advice;
 mod checks;
 mod driven;
 mod magnetometer;
@@ -135,7 +136,16 @@ pub struct Calibration {
     pub mag: Option<MagOutcome>,
     /// The hand-held moves as rotation constraints (the data-driven path): with the full `K`
     /// they refine the magnetometer's alignment.
-    pub rotations: Option<Rotations>,
+    pub rotations: Option<Box<HostRotations>>,
+    /// The F-test that chose the accelerometer model (`None`: only one model could be fitted, or
+    /// a replayed run of the firmware).
+    pub accel_test: Option<pipeline::ModelTest>,
+    /// What the data-driven path left out, each with its count and why (the PC's stores hold a
+    /// whole log; only the one-axis estimators' fixed sizes and the poses' index remain).
+    pub left_out: Vec<String>,
+    /// The full `K` the moves gave before validation (the data-driven path): what its moves'
+    /// misfits are measured at when it is rejected ([`advice`]).
+    pub full_tried: Option<calib_core::Mat3>,
     /// The gyro followed the accelerometer with the left-hand rule ([`Error::AxesMirrored`]
     /// with its evidence), as the LSM9DS1's raw axes do: calibrated with its readings negated,
     /// then `K` and the bias put back for the readings as logged (`ω = K (g − b)`, the rates in
@@ -165,6 +175,14 @@ pub struct Options {
     /// log's stated setup, else repeated extreme readings ([`full_scale`]).
     pub range_dps: Option<f32>,
 }
+
+/// The PC's store of hand-held moves: every move of a log between up to [`MAX_POSES`] poses
+/// (the firmware keeps [`calib_core::estimators::rotation::MAX_ROTATION_MOVES`] in 480 chunks;
+/// a 180° hand move takes ~35 chunks).
+pub type HostRotations = Rotations<MAX_POSES, 8192>;
+/// The PC's store of accelerometer poses (the firmware keeps
+/// [`calib_core::estimators::accel::MAX_ACCEL_POSES`]).
+pub const HOST_ACCEL_POSES: usize = 256;
 
 /// The one configuration of the data-driven path: the firmware's defaults (acceptance, limits,
 /// the paper's spin window).
@@ -241,7 +259,7 @@ fn calibrate_axes(
     let range = options.range_dps.or(setup.map(|s| s.gyro_range_dps)).or_else(|| full_scale(rows));
     let c = driven::calibrate(rows, options, range, time_base, ph)?;
     // The full K turns the hand-held moves into rotations the field must follow.
-    let turns = c.rotations.as_ref().zip(c.full.as_ref().and_then(|f| f.as_ref().ok()).map(|f| f.k));
+    let turns = c.rotations.as_deref().zip(c.full.as_ref().and_then(|f| f.as_ref().ok()).map(|f| f.k));
     let mag = magnetometer::calibrate(rows, &c.phases, &c.accel, turns);
     Ok(Calibration { setup, mag, ..c })
 }
@@ -285,18 +303,18 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         setup: None,
         mag: None,
         rotations: None,
+        accel_test: None,
+        left_out: vec![],
+        full_tried: None,
         mirrored: None,
     })
 }
 
-/// A gyro reading is clipped: at (or beyond, within 0.1 %) the full scale `range_dps` when it is
-/// known, else at an LSM9DS1 full scale (±245, ±500 or ±2000 °/s: 32 767 counts of 8.75, 17.5
-/// or 70 m°/s).
+/// A gyro reading is clipped: at (or beyond, within 0.1 %) the full scale `range_dps`, known
+/// from `--range`, the log's setup line or its runs of equal extremes ([`full_scale`]); never
+/// from a full scale of a part the log does not claim to be.
 fn clipped(v: f32, range_dps: Option<f32>) -> bool {
-    match range_dps {
-        Some(r) => v.abs() >= 0.999 * r,
-        None => [8.75e-3f32, 17.5e-3, 70e-3].iter().any(|s| (v.abs() / (32767.0 * s) - 1.0).abs() < 1e-3),
-    }
+    range_dps.is_some_and(|r| v.abs() >= 0.999 * r)
 }
 
 /// The gyro's full scale (°/s) read off a log that does not state it: the largest |reading| of

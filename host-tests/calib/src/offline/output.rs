@@ -125,7 +125,7 @@ impl HandMoves {
     }
 
     /// The summary of `rotations`, recorded under `limits`.
-    pub fn of(rotations: &Rotations, limits: &RotationLimits) -> Self {
+    pub fn of<const M: usize, const C: usize>(rotations: &Rotations<M, C>, limits: &RotationLimits) -> Self {
         let dropped: std::collections::BTreeMap<_, _> =
             calib_core::estimators::rotation::Rejected::ALL.iter().zip(rotations.rejected()).map(|(r, n)| (r.name(), n)).collect();
         let kept = rotations.moves().len();
@@ -151,6 +151,11 @@ pub struct QualityOut<'a> {
     pub bias: &'a Bias,
     /// The accelerometer fit.
     pub accel: &'a AccelCal,
+    /// Why the accelerometer has its model: the F-test of the 9-parameter model's cross terms
+    /// (`null`: only one model could be fitted).
+    pub accel_model_test: Option<AccelModelOut>,
+    /// What the tool left out, each with its count, why and what to do (also on stderr).
+    pub left_out: &'a [String],
     /// Both estimators' outcomes.
     pub estimators: Estimators<'a>,
     /// On a pan/tilt log, the full `K`'s quality (or its error).
@@ -182,6 +187,15 @@ pub struct QualityOut<'a> {
     pub gyro_axes_evidence: Option<AxesEvidence>,
 }
 
+/// The F-test that chose the accelerometer model, and what it decided.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct AccelModelOut {
+    #[serde(flatten)]
+    pub test: pipeline::ModelTest,
+    /// `nine_param: cross terms significant` or `six_param: cross terms not significant`.
+    pub chosen: &'static str,
+}
+
 /// The moves that turn gravity by the right- and by the left-hand rule in the log's axes.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct AxesEvidence {
@@ -203,9 +217,12 @@ impl Calibration {
                 let summary =
                     self.hand_moves.as_ref().and_then(HandMoves::dropped_summary).filter(|_| !matches!(error, Error::MovesDropped { .. }));
                 let hint = self.hand_moves.as_ref().and_then(HandMoves::vertical_hint);
-                m.push([Some(format!("gyro: {e}")), summary, hint].into_iter().flatten().collect::<Vec<_>>().join("; "));
+                m.push([Some(format!("gyro: {e}")), self.advice(), summary, hint].into_iter().flatten().collect::<Vec<_>>().join("; "));
             }
-            (Err(e), Some(Err(f))) => m.push(format!("gyro: full K: {f}; one axis: {e}")),
+            (Err(e), Some(Err(f))) => {
+                let advice = self.advice().map_or(String::new(), |a| format!(": {a}"));
+                m.push(format!("gyro: full K: {f}{advice}; one axis: {e}"))
+            }
             (Err(e), None) => m.push(format!("gyro: {e}")),
             (Ok(_), Some(Err(f))) => m.push(format!("full K (the diagonal K of one axis is given): {f}")),
             (Ok(_), None) => {}
@@ -263,6 +280,15 @@ impl Calibration {
                 }),
                 bias: &self.bias,
                 accel: &self.accel,
+                accel_model_test: self.accel_test.map(|test| AccelModelOut {
+                    test,
+                    chosen: if test.nine() {
+                        "nine_param: its cross terms are significant (f above critical, 5 % level)"
+                    } else {
+                        "six_param: the cross terms of nine are not significant (f at most critical, 5 % level)"
+                    },
+                }),
+                left_out: &self.left_out,
                 estimators: Estimators {
                     sweep: EstimatorOut::of(&self.sweep),
                     paper: EstimatorOut::of(self.paper.as_ref().unwrap_or(&NO_SPIN)),
