@@ -11,10 +11,12 @@
 //!   sample (°C, to 0.01 °C), empty without one. The bias's warm-up follows it, so that a replay
 //!   needs it to give the firmware's result.
 //! - Lines starting with `#` are comments. Lines before the header are ignored (a logger's
-//!   preamble); [`END`] ends the data (what follows is ignored). After the header, a line whose
-//!   first character cannot start a number is a log message (the firmware's other log lines in
-//!   raw-log mode), skipped and counted; any other line must be a valid row. Columns are found
-//!   by name, `tilt_deg` may be absent, extra columns are ignored.
+//!   preamble); [`END`] ends the data (what follows is ignored). After the header, a line of
+//!   printable text that starts with a letter or punctuation and is not row-like is a log message
+//!   (the firmware's other log lines in raw-log mode, [`is_message`]), skipped and counted; any
+//!   other line must be a valid row with the header's number of fields, and anything else
+//!   (control bytes, replaced invalid UTF-8, a second header) is named with its line. Columns are
+//!   found by name, `tilt_deg` may be absent, extra columns (in the header) are ignored.
 //!
 //! Numbers are written with fixed decimals (µs, µg, 10 µ°/s, 0.01°) by integer arithmetic, so
 //! the firmware needs no float-formatting code.
@@ -231,8 +233,9 @@ fn value<'a>(it: &mut impl Iterator<Item = &'a str>, name: &str) -> Option<&'a s
     it.next()?.strip_prefix(name)?.strip_prefix('=')
 }
 
-/// Why a log line cannot be read. Lines are 1-based.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Why a log line cannot be read. Lines are 1-based. (The PC's reader: the firmware only writes
+/// logs, so none of this is in its flash.)
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LogError {
     /// No header line.
     NoHeader,
@@ -267,6 +270,187 @@ pub enum LogError {
         /// Line number.
         line: u32,
     },
+    /// A row has more fields than the header: a field split in two (a `,` for a decimal point, a
+    /// line garbled) shifts every column after it.
+    LongRow {
+        /// Line number.
+        line: u32,
+        /// Fields found.
+        have: u16,
+        /// Fields the header names.
+        need: u16,
+    },
+    /// A line that is neither a row nor a log message ([`is_message`]): control bytes, replaced
+    /// invalid UTF-8, binary garbage.
+    NotALine {
+        /// Line number.
+        line: u32,
+        /// The line's start, escaped.
+        excerpt: Excerpt,
+    },
+    /// A second header after the first (two recordings joined: the firmware ends a raw log with
+    /// [`END`] before it starts another).
+    HeaderAgain {
+        /// Line number.
+        line: u32,
+    },
+    /// The file is not UTF-8 text from this line on (binary garbage, or another encoding).
+    NotText {
+        /// Line number.
+        line: u32,
+        /// Offset of the first byte that is not UTF-8, from the file's start.
+        byte: u64,
+    },
+    /// A reading beyond what the sensor can output: its stated full scale, or any MEMS part's
+    /// ([`Bound`]).
+    BeyondFullScale {
+        /// Line number.
+        line: u32,
+        /// Column name.
+        column: &'static str,
+        /// The reading (in the column's unit).
+        value: f32,
+        /// The largest |reading| the bound allows.
+        limit: f32,
+        /// Which bound.
+        bound: Bound,
+    },
+    /// No samples for `gap_s` between two rig poses: the rig's move across the hole would be
+    /// integrated over time in which nothing was measured.
+    HoleInRig {
+        /// Line number of the first row after the hole.
+        line: u32,
+        /// The time between the rows on either side (s).
+        gap_s: f32,
+        /// The time of the row before the hole (s).
+        t_s: f64,
+    },
+    /// After the last pose, the time jumps by more than the whole log before it: a bad time (the
+    /// gyro bias handed over, predicted to the log's end, would be predicted across it).
+    TimeJump {
+        /// Line number of the first row after the jump.
+        line: u32,
+        /// The jump (s).
+        gap_s: f32,
+        /// The time of the row before it (s).
+        t_s: f64,
+    },
+}
+
+/// Which full scale a reading is beyond ([`LogError::BeyondFullScale`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bound {
+    /// The log's setup comment ([`SETUP`]): the gyro's at 1.2 times the stated full scale (an
+    /// LSM9DS1's counts at its datasheet sensitivity reach 1.17 times it: 32 768 × 8.75 m°/s =
+    /// 286.7 °/s at ±245 °/s), the accelerometer's at 1.5 times (its ±16 g range: 32 768 ×
+    /// 0.732 mg = 24.0 g).
+    Setup,
+    /// The gyro's full scale the user states (`gyrocal-calib --range`), at 1.2 times it as for
+    /// [`Bound::Setup`].
+    RangeOption,
+    /// No full scale is stated: beyond any MEMS part's ([`PLAUSIBLE`]).
+    AnyPart,
+}
+
+/// The largest |reading| of any MEMS part, per column group, with the part that reaches
+/// nearest it: readings beyond are bad numbers ([`Bound::AnyPart`]).
+///
+/// - gyro 5000 °/s: the widest full scale is ±4000 °/s (ST's ISM330DHCX and LSM6DSV, TDK's
+///   ICM-42686-P), whose counts reach 32 768 × 140 m°/s = 4588 °/s;
+/// - accelerometer 40 g: the widest of an IMU is ±32 g (ST's LSM6DSO32, TDK's ICM-42686-P;
+///   32 768 × 0.976 mg = 32.0 g); the LSM9DS1's ±16 g reaches 24 g;
+/// - magnetometer 5000 µT: the widest is AKM's AK8963 (MPU-9250) at ±4912 µT (the LSM9DS1's
+///   ±16 gauss is 1600 µT, Bosch's BMM150 ±2500 µT on z);
+/// - temperature −150…+200 °C: beyond any part's sensor (the LSM9DS1's spans 25 ± 128 °C).
+pub const PLAUSIBLE: Plausible = Plausible { gyro_dps: 5000.0, accel_g: 40.0, mag_ut: 5000.0, temp_c: (-150.0, 200.0) };
+
+/// Bounds of [`PLAUSIBLE`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plausible {
+    /// Largest |gyro reading| (°/s).
+    pub gyro_dps: f32,
+    /// Largest |accelerometer reading| (g).
+    pub accel_g: f32,
+    /// Largest |magnetometer reading| (µT).
+    pub mag_ut: f32,
+    /// Lowest and highest temperature (°C).
+    pub temp_c: (f32, f32),
+}
+
+/// Stated full scales are exceeded by the counts of real parts by up to these factors (gyro,
+/// accelerometer): see [`Bound::Setup`].
+pub const STATED_MARGIN: (f32, f32) = (1.2, 1.5);
+
+/// A line's start, escaped for an error message (printable ASCII as it is, anything else as
+/// `\u{…}`; cut with `...` after about 40 bytes). Fixed size, so that [`LogError`] stays `Copy`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Excerpt {
+    text: [u8; Excerpt::MAX],
+    len: u8,
+}
+
+impl Excerpt {
+    const MAX: usize = 48;
+
+    /// The excerpt of `line`.
+    pub fn of(line: &str) -> Self {
+        let mut e = Excerpt { text: [0; Excerpt::MAX], len: 0 };
+        for c in line.chars() {
+            let mut piece = [0u8; 12];
+            let n = if (' '..='~').contains(&c) && c != '"' && c != '\\' {
+                piece[0] = c as u8;
+                1
+            } else {
+                let mut w = Bytes { buf: &mut piece, len: 0 };
+                let _ = write!(w, "\\u{{{:x}}}", c as u32);
+                w.len
+            };
+            if e.len as usize + n > Excerpt::MAX - 3 {
+                e.push(b"...");
+                break;
+            }
+            e.push(&piece[..n]);
+        }
+        e
+    }
+
+    fn push(&mut self, b: &[u8]) {
+        let at = self.len as usize;
+        self.text[at..at + b.len()].copy_from_slice(b);
+        self.len += b.len() as u8;
+    }
+
+    /// The escaped text.
+    pub fn as_str(&self) -> &str {
+        core::str::from_utf8(&self.text[..self.len as usize]).unwrap_or("")
+    }
+}
+
+impl fmt::Debug for Excerpt {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "\"{}\"", self.as_str())
+    }
+}
+
+impl fmt::Display for Excerpt {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "\"{}\"", self.as_str())
+    }
+}
+
+/// A fixed buffer as a [`Write`] (an escape is at most 10 bytes).
+struct Bytes<'a> {
+    buf: &'a mut [u8],
+    len: usize,
+}
+
+impl Write for Bytes<'_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        let end = self.len + s.len();
+        self.buf.get_mut(self.len..end).ok_or(fmt::Error)?.copy_from_slice(s.as_bytes());
+        self.len = end;
+        Ok(())
+    }
 }
 
 impl fmt::Display for LogError {
@@ -281,7 +465,63 @@ impl fmt::Display for LogError {
             LogError::SetupChanged { line } => {
                 write!(f, "line {line}: the sensor setup changes (ODR or full scale): log one setup per file")
             }
+            LogError::LongRow { line, have, need } => {
+                write!(f, "line {line}: {have} fields, the header has {need} (a field split in two shifts the columns after it)")
+            }
+            LogError::NotALine { line, excerpt } => write!(
+                f,
+                "line {line}: not a row nor a log message: {excerpt} (garbage in the log: a log message is printable text \
+                 starting with a letter or a bracket)"
+            ),
+            LogError::HeaderAgain { line } => {
+                write!(f, "line {line}: a second header (two recordings joined?): calibrate one recording per file")
+            }
+            LogError::NotText { line, byte } => {
+                write!(f, "line {line}: byte {byte} is not UTF-8 text (binary garbage, or another encoding): a log is ASCII text")
+            }
+            LogError::BeyondFullScale { line, column, value, limit, bound } => {
+                let unit = unit(column);
+                if value.abs() >= 1e6 {
+                    write!(f, "line {line}: {column} {value:e} {unit} is beyond ")?;
+                } else {
+                    write!(f, "line {line}: {column} {value} {unit} is beyond ")?;
+                }
+                match bound {
+                    Bound::Setup => write!(f, "the full scale the log's setup line states (readings reach at most {limit} {unit})"),
+                    Bound::RangeOption => {
+                        write!(f, "the full scale --range states (readings reach at most {limit} {unit}): --range is not this log's?")
+                    }
+                    Bound::AnyPart => {
+                        write!(f, "any MEMS part's full scale ({limit} {unit}): a bad number, or the column is not in {unit} (raw counts?)")
+                    }
+                }
+            }
+            LogError::HoleInRig { line, gap_s, t_s } => write!(
+                f,
+                "line {line}: no samples for {gap_s:.2} s after t = {t_s:.3} s, between two rig poses: the rig's move across \
+                 the hole cannot be measured; record again, or calibrate the log up to line {} and from line {line} apart",
+                line.saturating_sub(1)
+            ),
+            LogError::TimeJump { line, gap_s, t_s } => write!(
+                f,
+                "line {line}: the time jumps by {gap_s:.2} s after t = {t_s:.3} s, more than the whole log before it, with \
+                 no pose after it: a bad time? (the gyro bias handed over would be predicted across it); cut the log at \
+                 line {}",
+                line.saturating_sub(1)
+            ),
         }
+    }
+}
+
+/// The unit of a column, by its name's suffix.
+fn unit(column: &str) -> &'static str {
+    match column.rsplit('_').next() {
+        Some("g") => "g",
+        Some("dps") => "°/s",
+        Some("ut") => "µT",
+        Some("c") => "°C",
+        Some("deg") => "°",
+        _ => "s",
     }
 }
 
@@ -338,6 +578,9 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
     let have = text.split(',').count();
     if have < cols.count {
         return Err(LogError::ShortRow { line, have: have as u16, need: cols.count as u16 });
+    }
+    if have > cols.count {
+        return Err(LogError::LongRow { line, have: have.min(u16::MAX as usize) as u16, need: cols.count as u16 });
     }
     let field = |i: usize| text.split(',').nth(i).unwrap_or("").trim();
     let num = |c: usize| -> Result<f64, LogError> {
@@ -410,7 +653,9 @@ pub enum Line {
     Row(Row),
 }
 
-/// Classifies and reads one line after the header.
+/// Classifies and reads one line after the header: a row, a comment, the setup, the end, a log
+/// message ([`is_message`]); a row-like line must parse ([`parse_row`]); anything else is
+/// [`LogError::NotALine`], a second header [`LogError::HeaderAgain`].
 pub fn parse_line(text: &str, cols: &Columns, line: u32) -> Result<Line, LogError> {
     let t = text.trim();
     if t == END {
@@ -419,11 +664,43 @@ pub fn parse_line(text: &str, cols: &Columns, line: u32) -> Result<Line, LogErro
         Ok(Line::Setup(s))
     } else if t.is_empty() || t.starts_with('#') {
         Ok(Line::Skip)
-    } else if !t.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.')) {
+    } else if is_header(t) {
+        Err(LogError::HeaderAgain { line })
+    } else if row_like(t, cols) || (t.starts_with(|c: char| c.is_ascii_digit() || matches!(c, '-' | '+' | '.' | ',')) && !is_message(t)) {
+        parse_row(t, cols, line).map(Line::Row)
+    } else if is_message(t) {
         Ok(Line::Message)
     } else {
-        parse_row(t, cols, line).map(Line::Row)
+        Err(LogError::NotALine { line, excerpt: Excerpt::of(t) })
     }
+}
+
+/// A line that is a row whatever its first field: at least the header's fields, most of them
+/// numbers or empty (`nan,0.1,…`, a row whose first bytes were garbled). The firmware's messages
+/// with commas (its JSON) are mostly words.
+fn row_like(t: &str, cols: &Columns) -> bool {
+    let fields = t.split(',').count();
+    let numbers = t.split(',').map(str::trim).filter(|f| f.is_empty() || f.parse::<f64>().is_ok()).count();
+    fields >= cols.count && 2 * numbers > fields
+}
+
+/// A log message of the known forms (trimmed): printable text (no control characters but tabs,
+/// no U+FFFD, the mark of replaced invalid UTF-8) that starts with a letter (the firmware's
+/// messages, a logger's level: `INFO …`), a bracket, `/`, `*` or `"` (the firmware's JSON `{…`,
+/// its C and Rust export lines `{…`, `[…`, `/* …`, `// …`, `};`, a logger's `[INFO] …`,
+/// `(HOST) …`, `<info> …`) or a box drawing character (probe-rs's location lines `└─ …`), or
+/// whose first field is words (a space and a letter before any comma: the firmware's help line
+/// `1200-baud touch (…`, defmt's timestamped `0.123456 INFO …`). A row-like line is never one.
+pub fn is_message(t: &str) -> bool {
+    let printable = t.chars().all(|c| (!c.is_control() || c == '\t') && c != '\u{FFFD}');
+    let first = t.chars().next().is_some_and(|c| {
+        c.is_alphabetic()
+            || matches!(c, '{' | '}' | '[' | ']' | '(' | ')' | '<' | '>' | '/' | '*' | '"')
+            || ('\u{2500}'..='\u{257F}').contains(&c)
+    });
+    let head = t.split(',').next().unwrap_or("");
+    let words = head.contains(char::is_whitespace) && head.contains(char::is_alphabetic);
+    printable && (first || words)
 }
 
 #[cfg(test)]

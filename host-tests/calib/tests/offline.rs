@@ -288,10 +288,21 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     // The rig's rows are cut out: the move across the hole (the shaft turned unseen) is dropped.
     assert_eq!(v["quality"]["hand_moves"]["dropped"]["gap"], 1, "{v}");
     // A gyro whose full scale the user states (`--range`, any sensor): the moves that reach it
-    // are dropped, counted and named.
-    let (code, _, err) = calib(&[&hand, "--range", "60"]);
+    // are dropped, counted and named; a reading beyond what a part of that range outputs is a
+    // bad number (or not this log's range), named with its line.
+    let clipped_at_60 = write(
+        "clipped60.csv",
+        &rewrite(&log, |r| {
+            r.gyro_dps = r.gyro_dps.map(|g| g.clamp(-60.0, 60.0));
+            r.servo_deg.is_none()
+        }),
+    );
+    let (code, _, err) = calib(&[&clipped_at_60, "--range", "60"]);
     assert_eq!(code, 4, "{err}");
     assert!(err.contains("moves between poses were dropped: they reached the gyro's full scale"), "{err}");
+    let (code, _, err) = calib(&[&hand, "--range", "60"]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("is beyond the full scale --range states (readings reach at most 72 °/s)"), "{err}");
     // A clipped gyro whose full scale nobody states (issue 31's MPU-6050 session at ±250 °/s):
     // found from its repeated extreme values, the moves that reach it dropped and counted, the
     // rest calibrate; no stated scale and no clipping: nothing dropped as saturated.

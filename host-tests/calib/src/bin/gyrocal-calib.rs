@@ -63,8 +63,9 @@ struct Args {
     #[arg(long, conflicts_with = "port")]
     whole_turns: bool,
     /// The gyro's full scale (°/s) when the log does not state it: readings at it are clipped
-    /// and the moves holding them are not used. Without it: the log's setup comment, else runs
-    /// of equal extreme readings.
+    /// and the moves holding them are not used; a reading beyond 1.2 times it (more than a
+    /// part's counts reach) is an error naming its line. Without it: the log's setup comment,
+    /// else runs of equal extreme readings.
     #[arg(long, value_name = "DPS", conflicts_with = "port")]
     range: Option<f32>,
     /// Calibrate the board on this USB serial port (Linux /dev/ttyACM0, macOS
@@ -250,15 +251,20 @@ fn by_port(args: &Args, path: &str) -> ExitCode {
     }
 }
 
-/// Reads and parses a log (remapped by `--columns`): exit 2 on I/O, 3 when malformed.
+/// Reads and parses a log (remapped by `--columns`): exit 2 on I/O, 3 when malformed. Holes in
+/// time are said with what spans them.
 fn read_log(path: &str, columns: Option<&str>) -> Result<csvlog::Log, ExitCode> {
-    let mut text = std::fs::read_to_string(path).map_err(|e| fail(2, format!("{path}: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| fail(2, format!("{path}: {e}")))?;
+    let mut text = csvlog::decode(&bytes).map_err(|e| fail(3, format!("{path}: {e}")))?;
     if let Some(spec) = columns {
-        text = csvlog::remap(&text, spec).map_err(|e| fail(3, format!("{path}: {e}")))?;
+        text = csvlog::remap(&text, spec).map_err(|e| fail(3, format!("{path}: {e}")))?.into();
     }
     let log = csvlog::parse(&text).map_err(|e| fail(3, format!("{path}: {e}")))?;
     if let Some(n) = log.cut_line {
         eprintln!("calib: warning: {path}: line {n} was cut mid-row (the recording stopped while writing it): read up to line {}", n - 1);
+    }
+    for hole in &log.holes {
+        eprintln!("calib: warning: {path}: {hole}");
     }
     Ok(log)
 }
@@ -310,6 +316,10 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
         Ok(l) => l,
         Err(code) => return code,
     };
+    // A reading beyond the full scale the user states: a bad number, or not this log's range.
+    if let Some(Err(e)) = args.range.map(|r| log.check_full_scale(Some(r), calib_core::formats::log::Bound::RangeOption)) {
+        return fail(3, format!("{path}: {e}"));
+    }
     let options = offline::Options { method, no_rotations: args.no_rotations, whole_turns: args.whole_turns, range_dps: args.range };
     let c = match offline::calibrate_log(&log, &options, None) {
         Ok(c) => c,
