@@ -103,13 +103,26 @@ impl Procedure {
         if !(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room {
             return;
         }
-        match self.fit_accel() {
-            Ok(()) => {
-                self.mag_pending = true;
-                self.rotations.calibrate_poses(&self.accel_cal);
-                self.enter(Step::Reattach, t_s)
+        // The accelerometer's two fits on two samples (each within the FIFO's time): the
+        // 9-parameter one now, the 6-parameter one and the choice on the next.
+        self.accel_nine = pipeline::fit_nine(&self.accel_poses);
+        self.accel_pending = true;
+        self.enter(Step::Reattach, t_s)
+    }
+
+    /// The accelerometer's fit if it is due ([`Self::fit_accel`] with the 9-parameter fit made a
+    /// sample earlier): the hand-held poses then calibrated, the magnetometer due; a failure
+    /// fails the calibration.
+    pub(super) fn fit_accel_pending(&mut self) {
+        if core::mem::take(&mut self.accel_pending) {
+            let nine = self.accel_nine.take();
+            match self.fit_accel(nine) {
+                Ok(()) => {
+                    self.mag_pending = true;
+                    self.rotations.calibrate_poses(&self.accel_cal);
+                }
+                Err(e) => self.fail(e),
             }
-            Err(e) => self.fail(e),
         }
     }
 
@@ -172,9 +185,10 @@ impl Procedure {
         Ok(())
     }
 
-    /// Fits the accelerometer to the poses (9 parameters from 9 poses on), checks and reports it.
-    pub(super) fn fit_accel(&mut self) -> Result<(), Error> {
-        let fit = pipeline::fit_accel(&self.accel_poses, &self.cfg.acceptance)?;
+    /// Fits the accelerometer to the poses by the model [`pipeline::ModelTest`] chooses (`nine`:
+    /// the 9-parameter fit, [`pipeline::fit_nine`]), checks and reports it.
+    pub(super) fn fit_accel(&mut self, nine: Option<AccelCal>) -> Result<(), Error> {
+        let (fit, _) = pipeline::choose_accel(&self.accel_poses, nine, &self.cfg.acceptance)?;
         self.accel_cal = fit;
         self.push(Command::Report(Report::Accel(fit)));
         Ok(())

@@ -294,6 +294,9 @@ pub struct Procedure {
     mag_cal: Option<MagCal>,
     /// The hand-held step ended: the magnetometer's fit is due (at the next sample).
     mag_pending: bool,
+    /// The accelerometer's fit is due on the next sample, with this 9-parameter fit.
+    accel_pending: bool,
+    accel_nine: Option<AccelCal>,
     /// The hand-held pose number of the magnetometer's first pose.
     mag_first_pose: u8,
     /// The bias-free gyro turn since then (hand-held phase only).
@@ -343,6 +346,8 @@ impl Procedure {
             mag: MagCalibrator::new(),
             mag_cal: None,
             mag_pending: false,
+            accel_pending: false,
+            accel_nine: None,
             mag_first_pose: 0,
             window_turn: PoseTurn::new(),
             attitude: None,
@@ -415,6 +420,7 @@ impl Procedure {
                 true
             }
             Step::Reattach => {
+                self.fit_accel_pending();
                 self.fit_mag_pending();
                 if self.running() {
                     self.begin_rig(t_s);
@@ -556,8 +562,10 @@ impl Procedure {
             self.tainted = false;
         }
         match self.step {
-            // The magnetometer's fit, a while after the accelerometer's (~0.1 s on the MCU after
-            // ~0.25 s): the shell drains the sensor's FIFO between the two long calls.
+            // The accelerometer's 6-parameter fit and its choice on the first sample after the
+            // hand-held step (its 9-parameter fit was the last), the magnetometer's fit a while
+            // later (~0.1 s on the MCU): the shell drains the sensor's FIFO between the long calls.
+            Step::Reattach if self.accel_pending => self.fit_accel_pending(),
             Step::Reattach if self.mag_pending && s.t_s - self.phase_t0 >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
@@ -682,6 +690,8 @@ impl Procedure {
         self.window_read = WindowReadings::default();
         self.mag = MagCalibrator::new();
         self.mag_pending = false;
+        self.accel_pending = false;
+        self.accel_nine = None;
         self.mag_cal = self.stored.filter(|_| !self.cfg.pan_tilt && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
         self.attitude = None;

@@ -75,32 +75,30 @@ impl ModelTest {
     }
 }
 
-/// The board's accelerometer fit: the 9-parameter model from [`NINE_PARAM_POSES`] poses (the
-/// 6-parameter one when it fails), else the 6; rejected if its residual exceeds the acceptance.
-/// [`fit_accel_tested`]'s two fits in one call outlast the sensor's FIFO on the MCU (a sample
-/// lost at the end of the hand-held step with the raw log on): the board decides by the test once
-/// the solve runs in bounded steps (issue 50).
-pub fn fit_accel<const N: usize>(poses: &AccelCalibrator<N>, acc: &Acceptance) -> Result<AccelCal, Error> {
-    let fit = match poses.len() {
-        n if n >= NINE_PARAM_POSES => poses.solve9().or_else(|_| poses.solve6()),
-        n if n >= SIX_PARAM_POSES => poses.solve6(),
-        n => Err(Error::TooFewPoses { have: n as u8, need: SIX_PARAM_POSES as u8 }),
-    }?;
-    if !(fit.rms_after_g <= acc.max_accel_rms_g) {
-        return Err(Error::AccelFitFailed);
-    }
-    Ok(fit)
+/// The 9-parameter accelerometer fit, made from [`NINE_PARAM_POSES`] poses on (`None` below, or
+/// when it fails): the half of [`fit_accel_tested`] the board makes a sample before the other
+/// half ([`choose_accel`]), so that neither call outlasts the sensor's FIFO.
+pub fn fit_nine<const N: usize>(poses: &AccelCalibrator<N>) -> Option<AccelCal> {
+    (poses.len() >= NINE_PARAM_POSES).then(|| poses.solve9().ok()).flatten()
 }
 
 /// The accelerometer fit the poses support: the 6-parameter one, or the 9-parameter one where
 /// [`ModelTest`] finds its cross terms significant (or the 6-parameter fit fails); rejected if
 /// its residual exceeds the acceptance. Also the test, when both models were fitted.
 pub fn fit_accel_tested<const N: usize>(poses: &AccelCalibrator<N>, acc: &Acceptance) -> Result<(AccelCal, Option<ModelTest>), Error> {
+    choose_accel(poses, fit_nine(poses), acc)
+}
+
+/// [`fit_accel_tested`] with the 9-parameter fit `nine` ([`fit_nine`]) already made.
+pub fn choose_accel<const N: usize>(
+    poses: &AccelCalibrator<N>,
+    nine: Option<AccelCal>,
+    acc: &Acceptance,
+) -> Result<(AccelCal, Option<ModelTest>), Error> {
     let n = poses.len();
     if n < SIX_PARAM_POSES {
         return Err(Error::TooFewPoses { have: n as u8, need: SIX_PARAM_POSES as u8 });
     }
-    let nine = if n >= NINE_PARAM_POSES { poses.solve9().ok() } else { None };
     let (fit, test) = match (poses.solve6(), nine) {
         (Ok(six), Some(nine)) => {
             let test = ModelTest::new(&six, &nine, n);
@@ -401,11 +399,14 @@ mod tests {
             c
         };
         let acc = crate::procedure::Config::DEFAULT.acceptance;
-        assert_eq!(fit_accel(&poses(6), &acc), Err(Error::TooFewPoses { have: 6, need: 7 }));
-        let six = fit_accel(&poses(9), &acc).unwrap();
-        assert_eq!(six.model, AccelModel::SixParam, "9 poses: 6 parameters, not 9");
-        let nine = fit_accel(&poses(10), &acc).unwrap();
-        assert_eq!(nine.model, AccelModel::NineParam);
-        assert!(six.sigma_gain.iter().chain(nine.sigma_gain.iter()).all(|s| *s > 0.0), "{six:?} {nine:?}");
+        assert_eq!(fit_accel_tested(&poses(6), &acc), Err(Error::TooFewPoses { have: 6, need: 7 }));
+        let (six, test) = fit_accel_tested(&poses(9), &acc).unwrap();
+        assert_eq!((six.model, test), (AccelModel::SixParam, None), "9 poses: 6 parameters, not 9");
+        // From 10 poses both are fitted and the F-test chooses (the same error on every axis here
+        // is a cross term's shape, which it finds).
+        let (ten, test) = fit_accel_tested(&poses(10), &acc).unwrap();
+        let test = test.expect("both models fitted");
+        assert_eq!(ten.model, if test.nine() { AccelModel::NineParam } else { AccelModel::SixParam }, "{test:?}");
+        assert!(six.sigma_gain.iter().chain(ten.sigma_gain.iter()).all(|s| *s > 0.0), "{six:?} {ten:?}");
     }
 }

@@ -8,7 +8,7 @@ impl Procedure {
     /// with it, the full `K`, and beside it the one-axis sweep estimator of the tilt setting whose
     /// pan axis is the most oblique to the sensor axes.
     pub(super) fn solve_full(&mut self, t_s: f64) {
-        if let Err(e) = self.fit_accel() {
+        if let Err(e) = self.fit_accel(pipeline::fit_nine(&self.accel_poses)) {
             // Poses too little spread for the accelerometer: the rig's geometry, seen on the raw
             // poses, says what to change (an upright bracket's pan axis is vertical; coplanar
             // axes); else the fit's own error.

@@ -149,7 +149,7 @@ pub(super) fn calibrate(
         f.and_then(|f| pipeline::validate_full(&f, &cfg.acceptance).map(|_| f))
             .map_err(|e| pipeline::blame(e, &drift, Some((&*rotations, &cfg.rotation))))
     });
-    let left_out = left_out(&log, &rotations, &poses, main_setting);
+    let left_out = left_out(&log, &rotations, &poses, main_setting, (handheld_poses, pan_tilt));
     let chosen = match method {
         Some(Method::Sweep | Method::Full) => sweep.map_err(stage("sweep estimator")),
         Some(Method::Paper) => paper.ok_or(OfflineError::NoSpin).and_then(|p| p.map_err(stage("paper estimator"))),
@@ -226,10 +226,17 @@ fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, Option<pipeline::ModelT
 }
 
 /// What the fixed-size stores left out of the data-driven path, each with its count, why, and
-/// what to do: poses beyond [`MAX_POSES`] (the index a pose has), rig moves beyond the one-axis
-/// estimators' [`MAX_MOVES`].
-fn left_out(log: &Log, rotations: &HostRotations, poses: &Poses, main_setting: Option<i32>) -> Vec<String> {
+/// what to do: poses beyond [`MAX_POSES`] (the index a pose has) or [`HOST_ACCEL_POSES`], moves
+/// without room. `accel`: the accelerometer poses used, and whether the rig's were offered.
+fn left_out(log: &Log, rotations: &HostRotations, poses: &Poses, main_setting: Option<i32>, accel: (usize, bool)) -> Vec<String> {
     let mut out = vec![];
+    let offered = log.ph.segments.iter().filter(|s| !s.is_rig_pose() || accel.1).count();
+    if offered > accel.0 {
+        out.push(format!(
+            "{} of {offered} accelerometer poses left out of its fit: at most {HOST_ACCEL_POSES} are kept; split the log",
+            offered - accel.0
+        ));
+    }
     let hand = log.ph.segments.iter().filter(|s| !s.is_rig_pose()).count();
     if hand > rotations.poses().len() {
         out.push(format!(
@@ -244,10 +251,9 @@ fn left_out(log: &Log, rotations: &HostRotations, poses: &Poses, main_setting: O
             rig - poses.len()
         ));
     }
-    let rejected = rotations.rejected();
-    let full = calib_core::estimators::rotation::Rejected::ALL.iter().position(|r| *r == calib_core::estimators::rotation::Rejected::Full);
-    if let Some(n) = full.map(|i| rejected[i]).filter(|n| *n > 0) {
-        out.push(format!("{n} moves between hand-held poses left out for want of room: split the log"));
+    let no_room = rotations.rejected()[calib_core::estimators::rotation::Rejected::Full as usize];
+    if no_room > 0 {
+        out.push(format!("{no_room} moves between hand-held poses left out for want of room: split the log"));
     }
     out
 }
@@ -282,7 +288,7 @@ fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Po
 /// instant of one pose to that of the next (DESIGN §4.7, [`PoseTurn`]), as in the firmware. A
 /// rejected move is counted, not an error.
 fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Box<HostRotations> {
-    // 290 KB: on the heap.
+    // 260 KB of chunks: on the heap.
     let mut rotations = Box::new(HostRotations::new());
     let mut prev: Option<(u8, &Segment)> = None;
     let rows = log.rows;
