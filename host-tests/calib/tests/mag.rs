@@ -84,3 +84,81 @@ fn a_log_without_magnetometer_columns_calibrates_as_before() {
     assert!(c.mag.is_none());
     assert!(serde_json::to_value(c.output(0)).unwrap()["quality"]["mag"].is_null());
 }
+
+/// The log with columns remapped: each `(to, from, negate)` writes column `from` (negated) into
+/// column `to`, on every data row (text-exact: a sign added or removed).
+fn remap(text: &str, maps: &[(&str, &str, bool)]) -> String {
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let cols: Vec<&str> = header.split(',').collect();
+    let at = |name: &str| cols.iter().position(|c| *c == name).unwrap();
+    let mut out = format!("{header}\n");
+    for l in lines {
+        let f: Vec<&str> = l.split(',').collect();
+        let mut g: Vec<String> = f.iter().map(|s| s.to_string()).collect();
+        if f.len() == cols.len() {
+            for (to, from, negate) in maps {
+                let v = f[at(from)];
+                g[at(to)] = match (negate, v.strip_prefix('-')) {
+                    (false, _) | (true, _) if v.is_empty() => v.to_string(),
+                    (false, _) => v.to_string(),
+                    (true, Some(pos)) => pos.to_string(),
+                    (true, None) => format!("-{v}"),
+                };
+            }
+        }
+        out.push_str(&g.join(","));
+        out.push('\n');
+    }
+    out
+}
+
+/// The heading error (° RMS) of a calibration for the readings of `text`, whose magnetometer
+/// columns are `p` times the rig's (`m_logged = P m`): its `A P` applies to the rig's readings.
+fn heading_rms(c: &offline::Calibration, rig: &Rig, p: [[f32; 3]; 3]) -> f64 {
+    let cal = c.mag.as_ref().unwrap().cal.as_ref().unwrap();
+    let ap = core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| cal.a[i][k] * p[k][j]).sum()));
+    let o = core::array::from_fn(|i| (0..3).map(|k| p[k][i] * cal.offset_ut[k]).sum());
+    let applied = Applied { accel_m: c.accel.m, accel_o: c.accel.offset_g, mag_a: ap, mag_o: o };
+    heading_error(&applied, rig, 500, 1).unwrap().0
+}
+
+#[test]
+fn a_magnetometer_turned_or_mirrored_against_the_accelerometer_is_found_and_named() {
+    let (text, rig) = log(None);
+    let truth = rig.truth().mag.unwrap();
+    let dip = (-truth.field_w[2] / truth.field_w.norm()).asin().to_degrees();
+    let calibrate = |text: &str| offline::calibrate(&csvlog::parse(text).unwrap().rows, None).unwrap();
+    assert_eq!(calibrate(&text).mag.unwrap().axes, None, "the axes as logged fit");
+    // Turned 180° about x: found, calibrated, A for the readings as logged.
+    let turned = remap(&text, &[("my_ut", "my_ut", true), ("mz_ut", "mz_ut", true)]);
+    let c = calibrate(&turned);
+    let axes = c.mag.as_ref().unwrap().axes.expect("the turn found");
+    println!("MEASURED turned: {}", axes.describe());
+    assert_eq!(axes.r, [[1, 0, 0], [0, -1, 0], [0, 0, -1]]);
+    assert!(axes.dip_scatter_logged_deg > 10.0 && axes.dip_scatter_turned_deg < 0.5, "{axes:?}");
+    assert!((axes.dip_deg as f64 - dip).abs() < 0.5 && (c.mag.as_ref().unwrap().cal.as_ref().unwrap().dip_deg as f64 - dip).abs() < 0.5);
+    let rms = heading_rms(&c, &rig, [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]);
+    assert!(rms < 0.3, "heading error {rms} deg RMS");
+    // Mirrored (x negated) under a right-handed gyro: the data fit the turn of the field's
+    // negative as well; the turn is taken, the dip comes out negative and the mirror is named.
+    let mirrored = remap(&text, &[("mx_ut", "mx_ut", true)]);
+    let c = calibrate(&mirrored);
+    let axes = c.mag.as_ref().unwrap().axes.expect("the mirror's class found");
+    let said = axes.describe();
+    println!("MEASURED mirrored: {said}");
+    assert_eq!(axes.r, [[1, 0, 0], [0, -1, 0], [0, 0, -1]]);
+    assert!((axes.dip_deg as f64 + dip).abs() < 0.5, "{axes:?}");
+    assert!(said.contains("up: the southern hemisphere") && said.contains("mirrored instead, (-x, y, z)"), "{said}");
+    // The LSM9DS1's raw axes: accelerometer and gyro mirrored (x negated), the magnetometer
+    // not: the gyro's handedness picks the mirror, and the heading comes out right.
+    let lsm = remap(&text, &[("ax_g", "ax_g", true), ("gx_dps", "gx_dps", true)]);
+    let c = calibrate(&lsm);
+    assert!(c.mirrored.is_some(), "the gyro's axes found mirrored");
+    let axes = c.mag.as_ref().unwrap().axes.expect("the magnetometer found mirrored against the accelerometer");
+    println!("MEASURED LSM9DS1 raw axes: {}", axes.describe());
+    assert_eq!(axes.r, [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]);
+    assert!((axes.dip_deg as f64 - dip).abs() < 0.5, "{axes:?}");
+    let out = serde_json::to_value(c.output(0)).unwrap();
+    assert_eq!(out["quality"]["mag"]["axes"]["r"][0][0], -1, "{}", out["quality"]["mag"]);
+}

@@ -338,6 +338,9 @@ fn offline_log(args: &Args, path: &str) -> ExitCode {
              `quality.gyro_axes` in the JSON)"
         );
     }
+    if let Some(axes) = c.mag.as_ref().and_then(|m| m.axes.as_ref()) {
+        eprintln!("calib: {path}: {}", axes.describe());
+    }
     for l in &c.left_out {
         eprintln!("calib: {path}: warning: {l}");
     }

@@ -5,6 +5,7 @@
 //! is picked up, the settling after it is put back) unless its field agrees with the poses
 //! held in the hand. The hand-held stretch runs from its first pose to its last.
 
+use super::mag_axes::{self, MagAxes};
 use super::*;
 use calib_core::estimators::mag::{MagCal, MagCalibrator, MagLimits, MagMove};
 use calib_core::Mat3;
@@ -24,9 +25,24 @@ pub struct MagOutcome {
     pub ellipsoid: Option<([[f32; 3]; 3], [f32; 3])>,
     /// The hand-held stretch whose readings were offered: first and last row (inclusive).
     pub stretch: Option<(usize, usize)>,
+    /// The magnetometer's axes turned against the accelerometer's, as the data show (`None`:
+    /// as logged). `A` and the offset apply to the readings as logged.
+    pub axes: Option<MagAxes>,
 }
 
 impl MagOutcome {
+    /// The other reading of turned axes ([`MagAxes::mirror`]): the field negated.
+    pub fn mirror_axes(&mut self) {
+        let Some(axes) = self.axes.as_mut() else { return };
+        axes.mirror();
+        let neg = |a: Mat3| a.map(|row| row.map(|v| -v));
+        if let Ok(c) = self.cal.as_mut() {
+            c.a = neg(c.a);
+            c.dip_deg = -c.dip_deg;
+        }
+        self.ellipsoid = self.ellipsoid.map(|(a, o)| (neg(a), o));
+    }
+
     /// The readings offered to the fit (µT): the hand-held rows of the stretch.
     pub fn readings<'a>(&self, rows: &'a [Row]) -> impl Iterator<Item = [f32; 3]> + 'a {
         let (a, b) = self.stretch.unwrap_or((1, 0));
@@ -41,15 +57,27 @@ fn hand_held(r: &Row) -> bool {
 /// `None` when the log has no magnetometer readings. `turns`: the hand-held moves and the full
 /// `K` (the data-driven path), which refine the alignment as on the board
 /// ([`MagCalibrator::refine`]): a rotation pose is a hand-held segment, in order.
+/// When the magnetometer's axes are turned against the accelerometer's ([`mag_axes::find`]),
+/// the readings are calibrated in the turned axes and `A` and the offset put back for the
+/// readings as logged ([`MagOutcome::axes`]).
 pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&HostRotations, Mat3)>) -> Option<MagOutcome> {
-    let readings = rows.iter().filter(|r| r.mag_ut.is_some()).count();
-    if readings == 0 {
-        return None;
+    let (_, interior, _) = hand_segments(rows, ph);
+    let Some(axes) = mag_axes::find(rows, &interior, accel) else { return calibrate_as_logged(rows, ph, accel, turns) };
+    let turned: Vec<Row> = rows.iter().map(|r| Row { mag_ut: r.mag_ut.map(|m| axes.apply(m)), ..*r }).collect();
+    let mut out = calibrate_as_logged(&turned, ph, accel, turns)?;
+    if let Ok(c) = out.cal.as_mut() {
+        (c.a, c.offset_ut) = axes.logged(c.a, c.offset_ut);
     }
-    let limits = MagLimits::default();
+    out.ellipsoid = out.ellipsoid.map(|(a, o)| axes.logged(a, o));
+    out.axes = Some(axes);
+    Some(out)
+}
+
+/// The hand-held segments, and among them those away from the rig and those next to it (no
+/// other segment between them and a rig row or, on a log with a rig, the log's start), which
+/// are tested before they are used.
+fn hand_segments<'a>(rows: &[Row], ph: &'a Phases) -> (Vec<&'a Segment>, Vec<&'a Segment>, Vec<&'a Segment>) {
     let rig = rows.iter().any(|r| !hand_held(r));
-    // Hand-held segments; those next to the rig (no other segment between them and a rig row
-    // or, on a log with a rig, the log's start) are tested before they are used.
     let segs: Vec<&Segment> = ph.segments.iter().filter(|s| !s.is_rig_pose()).collect();
     let touches_rig = |s: &Segment, dir: isize| {
         let mut i = if dir < 0 { s.first as isize - 1 } else { s.last as isize + 1 };
@@ -65,8 +93,18 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&Ho
         }
         rig && dir < 0
     };
-    let (interior, boundary): (Vec<&Segment>, Vec<&Segment>) =
-        segs.iter().partition(|s| !(rig && (touches_rig(s, -1) || touches_rig(s, 1))));
+    let (interior, boundary) = segs.iter().partition(|s| !(rig && (touches_rig(s, -1) || touches_rig(s, 1))));
+    (segs, interior, boundary)
+}
+
+/// [`calibrate`] of the readings in the axes they have.
+fn calibrate_as_logged(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&HostRotations, Mat3)>) -> Option<MagOutcome> {
+    let readings = rows.iter().filter(|r| r.mag_ut.is_some()).count();
+    if readings == 0 {
+        return None;
+    }
+    let limits = MagLimits::default();
+    let (segs, interior, boundary) = hand_segments(rows, ph);
     let mut chosen = interior.clone();
     if let Some((Ok(first), ..)) = fit(rows, &chosen, accel, &limits) {
         for s in &boundary {
@@ -103,7 +141,7 @@ pub fn calibrate(rows: &[Row], ph: &Phases, accel: &AccelCal, turns: Option<(&Ho
         }
     }
     let stretch = chosen.first().zip(chosen.last()).map(|(a, b)| (a.first, b.last));
-    Some(MagOutcome { cal, used, left_out: readings - used, ellipsoid, stretch })
+    Some(MagOutcome { cal, used, left_out: readings - used, ellipsoid, stretch, axes: None })
 }
 
 /// The fit of the poses `segs` (time order) and the readings from the first to the last, the
@@ -124,7 +162,7 @@ fn fit(rows: &[Row], segs: &[&Segment], accel: &AccelCal, limits: &MagLimits) ->
 }
 
 /// The readings from the first to the last of the poses `segs` and those poses, gathered.
-fn calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<Result<MagCalibrator, Error>> {
+pub(super) fn calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<Result<MagCalibrator, Error>> {
     let (first, last) = (segs.first()?.first, segs.last()?.last);
     let mut c = MagCalibrator::new();
     for m in rows[first..=last].iter().filter(|r| hand_held(r)).filter_map(|r| r.mag_ut) {
@@ -148,7 +186,7 @@ fn fit_calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<M
 }
 
 /// The mean raw field (µT) of a segment's readings.
-fn mean_field(rows: &[Row], s: &Segment) -> Option<[f32; 3]> {
+pub(super) fn mean_field(rows: &[Row], s: &Segment) -> Option<[f32; 3]> {
     let mut w = Welford3::new();
     rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).for_each(|m| w.add(m));
     (w.count() > 0).then(|| w.mean().map(|v| v as f32))

@@ -30,12 +30,14 @@ use serde::Serialize;
 mod advice;
 mod checks;
 mod driven;
+mod mag_axes;
 mod magnetometer;
 mod output;
 mod phases;
 
 use checks::{check_accel_units, gyro_units, implied_scale};
 pub use checks::{check_time_base, TimeBase};
+pub use mag_axes::MagAxes;
 pub use magnetometer::MagOutcome;
 pub use output::{EstimatorOut, Estimators, FullOut, HandMoves, Output, QualityOut, Segments};
 pub use phases::{phases, steady_spin, Phases, Segment, SteadySpin};
@@ -224,6 +226,10 @@ fn calibrate_from(
         if let Some(t) = r.tempco.as_mut() {
             t.dps_per_c = neg(t.dps_per_c);
         }
+    }
+    // Axes left-handed by the gyro's moves: a turned magnetometer is mirrored in them.
+    if let Some(mag) = m.mag.as_mut() {
+        mag.mirror_axes();
     }
     m.mirrored = Some(mirrored);
     Ok(m)

@@ -29,6 +29,9 @@ pub struct MagQualityOut<'a> {
     pub hand_held_readings: usize,
     /// Readings of rig rows (a servo commanded, its motor's magnet near), left out of the fit.
     pub rig_readings_left_out: usize,
+    /// The magnetometer's axes turned against the accelerometer's, as the poses' dips show
+    /// (`null`: as logged); `A` and the offset apply to the readings as logged.
+    pub axes: Option<&'a super::MagAxes>,
 }
 
 /// One estimator's outcome: its result, or why it failed.
@@ -322,6 +325,7 @@ impl Calibration {
                     error: m.cal.as_ref().err().map(|e| e.to_string()),
                     hand_held_readings: m.used,
                     rig_readings_left_out: m.left_out,
+                    axes: m.axes.as_ref(),
                 }),
             },
         }
