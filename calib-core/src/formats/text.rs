@@ -13,6 +13,10 @@ use crate::procedure::{Phase, Report};
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Display, Write};
 
+/// What a dip's sign means, said beside every dip the board reports: turns cannot tell a field
+/// from its negative, so the sign is what checks the magnetometer's axes against where it is.
+pub const DIP_SIGN: &str = "positive: the field points down, as in the northern hemisphere";
+
 /// `v` with this many decimals (≤ 9), e.g. `Fixed(1.23456, 3)` → `1.235`; NaN → `nan`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fixed(pub f64, pub u32);
@@ -94,11 +98,12 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
         ),
         Report::Mag(c) => write!(
             w,
-            "magnetometer: field {} +- {} uT at dip {} +- {} deg; die turned {} +- {} deg; residual {} uT rms, {} % of the sphere, {} samples, {} poses; offset {} uT",
+            "magnetometer: field {} +- {} uT at dip {} +- {} deg ({}); die turned {} +- {} deg; residual {} uT rms, {} % of the sphere, {} samples, {} poses; offset {} uT",
             Fixed(c.field_ut as f64, 2),
             Fixed(c.sigma_field_ut as f64, 2),
             Fixed(c.dip_deg as f64, 2),
             Fixed(c.sigma_dip_deg as f64, 2),
+            DIP_SIGN,
             Fixed(c.alignment_deg as f64, 2),
             Fixed(c.sigma_alignment_deg as f64, 2),
             Fixed(c.residual_ut as f64, 3),

@@ -403,8 +403,8 @@ pub fn html(name: &str, rows: &[Row], c: &Calibration) -> Result<String, String>
     h += "</ul>\n<h2>Plots</h2>\n";
     if let Some(m) = c.mag.as_ref().and_then(|m| m.cal.as_ref().ok()) {
         h += &format!(
-            "<h2>Magnetometer</h2>\n<p>Field {:.2} ± {:.2} µT at a dip of {:.2} ± {:.2}°; the die turned {:.2} ± {:.2}° onto the accelerometer; |m| − B {:.2} µT RMS; {:.0} % of the sphere's directions reached; {} points, {} poses.</p>\n",
-            m.field_ut, m.sigma_field_ut, m.dip_deg, m.sigma_dip_deg, m.alignment_deg, m.sigma_alignment_deg, m.residual_ut, m.coverage * 100.0, m.samples, m.poses
+            "<h2>Magnetometer</h2>\n<p>Field {:.2} ± {:.2} µT at a dip of {:.2} ± {:.2}° ({}); the die turned {:.2} ± {:.2}° onto the accelerometer; |m| − B {:.2} µT RMS; {:.0} % of the sphere's directions reached; {} points, {} poses.</p>\n",
+            m.field_ut, m.sigma_field_ut, m.dip_deg, m.sigma_dip_deg, calib_core::formats::text::DIP_SIGN, m.alignment_deg, m.sigma_alignment_deg, m.residual_ut, m.coverage * 100.0, m.samples, m.poses
         );
     }
     for plot in [
