@@ -210,12 +210,7 @@ impl Log {
 /// bad time: the bias handed over would be extrapolated across it).
 fn holes(log: &Log) -> Result<Vec<Hole>, LogError> {
     let rows = &log.rows;
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    if dt.is_empty() {
-        return Ok(vec![]);
-    }
-    dt.sort_by(f64::total_cmp);
-    let period_s = dt[dt.len() / 2];
+    let Some((period_s, _)) = crate::offline::sample_intervals(rows) else { return Ok(vec![]) };
     let at: Vec<usize> = (1..rows.len()).filter(|&i| rows[i].t_s - rows[i - 1].t_s > (HOLE_PERIODS * period_s).max(HOLE_MIN_S)).collect();
     if at.is_empty() {
         return Ok(vec![]);

@@ -40,15 +40,19 @@ impl TimeBase {
     }
 }
 
+/// The median sample interval (s) and every interval, sorted; `None` for fewer than 2 rows.
+pub fn sample_intervals(rows: &[Row]) -> Option<(f64, Vec<f64>)> {
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    dt.sort_by(f64::total_cmp);
+    Some((*dt.get(dt.len() / 2)?, dt))
+}
+
 /// Checks the time column: regular sampling at a rate an IMU logs at (a time column in ms or µs
 /// is named). Another sensor's rate is accepted and said in [`TimeBase::lsm9ds1_odr`].
 pub fn check_time_base(rows: &[Row]) -> Result<TimeBase, OfflineError> {
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    if dt.is_empty() {
+    let Some((median, dt)) = sample_intervals(rows) else {
         return Ok(TimeBase { rate_hz: 0.0, lsm9ds1_odr: false });
-    }
-    dt.sort_by(f64::total_cmp);
-    let median = dt[dt.len() / 2];
+    };
     let rate_hz = 1.0 / median;
     // Within a quarter of the median: a log with every third row lost (intervals T and 2T, the
     // median either) is irregular whichever the median is (with ±50 %, T counted as regular

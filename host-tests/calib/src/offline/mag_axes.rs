@@ -60,9 +60,7 @@ impl MagAxes {
     /// What the tool found and did, and what the dip's sign means.
     pub fn describe(&self) -> String {
         let r = &self.r;
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-        let (is, other, why) = if det > 0 {
+        let (is, other, why) = if det(r) > 0 {
             ("turned", "mirrored", "a right-handed part in the right-handed axes the gyro's moves show")
         } else {
             ("mirrored", "turned", "a right-handed part in the left-handed axes the gyro's moves show")
@@ -79,6 +77,12 @@ impl MagAxes {
             Self::axes(&r.map(|row| row.map(|v| -v))),
         )
     }
+}
+
+/// The determinant of a signed permutation matrix: +1 a turn, −1 a mirror.
+fn det(m: &[[i8; 3]; 3]) -> i8 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
 /// The 24 rotations among the signed permutation matrices.
@@ -99,10 +103,6 @@ fn turns() -> impl Iterator<Item = [[i8; 3]; 3]> {
                     }
                 })
             });
-            let det = |m: &[[i8; 3]; 3]| {
-                (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                    + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])) as i32
-            };
             (det(&r) == 1).then_some(r)
         })
     })

@@ -36,7 +36,7 @@ mod output;
 mod phases;
 
 use checks::{check_accel_units, gyro_units, implied_scale};
-pub use checks::{check_time_base, TimeBase};
+pub use checks::{check_time_base, sample_intervals, TimeBase};
 pub use mag_axes::MagAxes;
 pub use magnetometer::MagOutcome;
 pub use output::{EstimatorOut, Estimators, FullOut, HandMoves, Output, QualityOut, Segments};
