@@ -16,8 +16,9 @@ use nrf52840_hal as hal;
 
 /// Longest log line (B): the full `K` line is ~330 B; a longer one is cut.
 pub(crate) const LINE: usize = 640;
-/// Longest export text (B): the C snippet is ~1.3 KiB.
-pub(crate) const EXPORT: usize = 2048;
+/// Longest export text (B, on the stack while it is sent): the C snippet of a record with the
+/// magnetometer is ~2.1 KiB.
+pub(crate) const EXPORT: usize = 2560;
 
 /// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
 /// over USB serial, with the same text (`calib_core::formats::text`).

@@ -314,7 +314,7 @@ fn header(w: &mut impl Write, r: &Record, frame: DataFrame, open: &str, close: &
             num(w, m.field_ut, 2, "?", " uT, dip ")?;
             num(w, m.dip_deg, 2, "?", " deg")?;
             writeln!(w, "{close}")?;
-            writeln!(w, "{open}(dip {}).{close}", crate::formats::text::DIP_SIGN)
+            writeln!(w, "{open}Dip {}.{close}", crate::formats::text::DIP_SIGN)
         }
     }
 }
@@ -744,7 +744,7 @@ mod tests {
         assert!(c.contains("static const float MAG_A[3][3] = {\n    {1.0200000f, 0.0100000f, -0.0200000f},\n"), "{c}");
         assert!(c.contains("static const float MAG_OFFSET_UT[3] = {12.500f, -30.250f, 4.000f};"), "{c}");
         assert!(c.contains("field 48.50 uT, dip 61.25 deg"), "{c}");
-        assert!(c.contains("/* (dip positive: the field points down, as in the northern hemisphere). */"), "{c}");
+        assert!(c.contains("/* Dip positive: the field points down (northern hemisphere). */"), "{c}");
         assert!(r.contains("pub const MAG_OFFSET_UT: [f32; 3] = [12.500, -30.250, 4.000];"), "{r}");
         let none = text(&Record { mag: None, ..rec }, Format::C);
         assert!(!none.contains("MAG_A") && none.contains("No magnetometer calibration"), "{none}");

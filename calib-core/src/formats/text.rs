@@ -15,7 +15,7 @@ use core::fmt::{self, Display, Write};
 
 /// What a dip's sign means, said beside every dip the board reports: turns cannot tell a field
 /// from its negative, so the sign is what checks the magnetometer's axes against where it is.
-pub const DIP_SIGN: &str = "positive: the field points down, as in the northern hemisphere";
+pub const DIP_SIGN: &str = "positive: the field points down (northern hemisphere)";
 
 /// `v` with this many decimals (≤ 9), e.g. `Fixed(1.23456, 3)` → `1.235`; NaN → `nan`.
 #[derive(Debug, Clone, Copy, PartialEq)]

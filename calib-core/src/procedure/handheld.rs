@@ -103,15 +103,15 @@ impl Procedure {
         if !(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room {
             return;
         }
-        // The accelerometer's two fits on two samples (each within the FIFO's time): the
-        // 9-parameter one now, the 6-parameter one and the choice on the next.
+        // The accelerometer's two fits apart (each within the FIFO's time): the 9-parameter
+        // one now, the 6-parameter one and the choice ACCEL_FIT_AFTER_S later.
         self.accel_nine = pipeline::fit_nine(&self.accel_poses);
         self.accel_pending = true;
         self.enter(Step::Reattach, t_s)
     }
 
-    /// The accelerometer's fit if it is due ([`Self::fit_accel`] with the 9-parameter fit made a
-    /// sample earlier): the hand-held poses then calibrated, the magnetometer due; a failure
+    /// The accelerometer's fit if it is due ([`Self::fit_accel`] with the 9-parameter fit made
+    /// as the hand-held step ended): the hand-held poses then calibrated, the magnetometer due; a failure
     /// fails the calibration.
     pub(super) fn fit_accel_pending(&mut self) {
         if core::mem::take(&mut self.accel_pending) {

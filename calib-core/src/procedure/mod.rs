@@ -247,9 +247,14 @@ struct Spin {
     gravity: GravityTurn,
 }
 
-/// How long after the hand-held step ends the magnetometer is fitted (s), unless the button
-/// comes first.
-const MAG_FIT_AFTER_S: f64 = 0.5;
+/// How long after the hand-held step ends (its 9-parameter accelerometer fit, ~0.2 s on the
+/// MCU) the accelerometer's 6-parameter fit and choice are made (s): by the samples' time, so
+/// that the shell has drained the sensor's FIFO in between (the next sample of the same batch
+/// would follow the first fit at once). Unless the button comes first.
+const ACCEL_FIT_AFTER_S: f64 = 0.5;
+/// How long after the hand-held step ends the magnetometer is fitted (s), after the
+/// accelerometer's second fit, unless the button comes first.
+const MAG_FIT_AFTER_S: f64 = 1.0;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
@@ -562,10 +567,9 @@ impl Procedure {
             self.tainted = false;
         }
         match self.step {
-            // The accelerometer's 6-parameter fit and its choice on the first sample after the
-            // hand-held step (its 9-parameter fit was the last), the magnetometer's fit a while
-            // later (~0.1 s on the MCU): the shell drains the sensor's FIFO between the long calls.
-            Step::Reattach if self.accel_pending => self.fit_accel_pending(),
+            // The accelerometer's 6-parameter fit and its choice, then the magnetometer's fit,
+            // each a while after the last long call: the shell drains the sensor's FIFO between.
+            Step::Reattach if self.accel_pending && s.t_s - self.phase_t0 >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
             Step::Reattach if self.mag_pending && s.t_s - self.phase_t0 >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
             Step::WaitRest => {
