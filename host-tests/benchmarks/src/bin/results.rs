@@ -373,6 +373,41 @@ fn rotation_section(heading: &str, j: &Value) -> String {
     s
 }
 
+/// The rotation bench's rows with rotations across rig-sim's hand family (`HandLevel`), one
+/// rotation-bench summary per hand: every 1σ the offline tool and the firmware give, side by side.
+fn family_section(runs: &[Value]) -> String {
+    let mut s = format!(
+        "## Rotation bench across the hand family\n\n`rotation-bench --hand H` (seed {}, {} rigs per row, {}): the rows with rotations of \
+         the two sections above for every hand of rig-sim's family (`HandLevel`): braced and free pivot at the sensor with a sway and a \
+         translation of their own; wrist (sway ≈ 0.05° at 0.4–1.5 Hz about a pivot 8–15 cm away), arm (≈ 0.15°, 20–40 cm) and nod (≈ 0.15° \
+         at 0.15–0.5 Hz about one axis, 25–40 cm) feel their sway's own linear acceleration `α × r + ω × (ω × r)`. Coverage: within \
+         1σ / 2σ (a true 1σ gives 68 % / 95 %); \"–\": not given on that path.\n\n\
+         | hand | rig | RMS of E | largest | rigs | failed | K | bias | accel offset | accel gain |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        runs.first().map_or(Value::Null, |j| j["seed"].clone()),
+        runs.first().map_or(Value::Null, |j| j["rigs"].clone()),
+        runs.first().map_or("?".into(), sensor_of),
+    );
+    for j in runs {
+        for r in j["rows"].as_array().into_iter().flatten().filter(|r| r["rotations"].as_bool() == Some(true)) {
+            let pair = |a: &Value, b: &Value| if a.is_null() { "–".to_string() } else { format!("{} / {}", percent(a), percent(b)) };
+            s += &format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                j["hand"].as_str().unwrap_or("?"),
+                r["rig"].as_str().unwrap_or("?"),
+                e3(f(&r["rms_mean"])),
+                e3(f(&r["max"])),
+                r["rigs"],
+                count(&r["failed"]),
+                pair(&r["within_1sigma"], &r["within_2sigma"]),
+                pair(&r["bias_within"][0], &r["bias_within"][1]),
+                pair(&r["accel_offset_within"][0], &r["accel_offset_within"][1]),
+                pair(&r["accel_gain_within"][0], &r["accel_gain_within"][1]),
+            );
+        }
+    }
+    s
+}
+
 /// A drift-bench table under `heading` (its sensor setup said).
 fn drift_section(heading: &str, j: &Value) -> String {
     let mut s = format!(
@@ -619,6 +654,9 @@ fn page(quick_set: bool) -> Result<String, String> {
         Run { bin: "mag-bench", args: a(&["--setup", "bmi270", "--json"]) },
         Run { bin: "ahrs-bench", args: a(&["--json"]) },
         Run { bin: "ahrs-bench", args: a(&["--setup", "bmi270", "--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--hand", "wrist", "--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--hand", "arm", "--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--hand", "nod", "--json"]) },
     ];
     let runs: Vec<Run> = if quick_set { runs.into_iter().map(quick).collect() } else { runs.into() };
     let out = run_all(&runs)?;
@@ -677,6 +715,9 @@ fn page(quick_set: bool) -> Result<String, String> {
     s += &rotation_section("Rev2: rotation bench", &json(&out[13])?);
     s += "\n";
     s += &rotation_section("Rotation bench, held in the air", &json(&out[15])?);
+    s += "\n";
+    let family = [0, 15, 20, 21, 22].map(|i| json(&out[i]));
+    s += &family_section(&family.into_iter().collect::<Result<Vec<_>, _>>()?);
     s += "\n";
     s += &real_section(&json(&out[14])?);
     s += "\n";

@@ -32,8 +32,9 @@ struct Args {
     #[arg(long, value_enum, default_value = "default")]
     setup: Setup,
     /// The hand that holds the board for the hand-held poses: braced (the realistic presets'),
-    /// free (in the air) or none (perfectly still).
-    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "none"])]
+    /// free (in the air), wrist, arm, nod (turning about a pivot away from the sensor:
+    /// `rig_sim::sim::HandLevel`) or none (perfectly still).
+    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "wrist", "arm", "nod", "none"])]
     hand: String,
     /// Print a JSON summary as the last line.
     #[arg(long)]

@@ -32,9 +32,9 @@ struct Args {
     /// vertical, gyro cross-axis ±1 %, accelerometer misalignment ±0.3 %.
     #[arg(long, conflicts_with = "servo")]
     tilt: bool,
-    /// The hand that holds the board for the hand-held poses: resting on a table, in the air, or
-    /// perfectly still (no real hand is).
-    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "none"])]
+    /// The hand that holds the board for the hand-held poses: resting on a table, in the air,
+    /// turning at the wrist, arm or nodding (`HandLevel`), or perfectly still (no real hand is).
+    #[arg(long, default_value = "braced", value_parser = ["braced", "free", "wrist", "arm", "nod", "none"])]
     hand: String,
 }
 

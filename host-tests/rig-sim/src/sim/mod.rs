@@ -20,7 +20,7 @@ mod sensor;
 mod servo;
 
 pub use config::{RigConfig, TiltStage, Warmup, BIAS_WALK_RANGE, BMI270_ODR_ERROR, EARTH_RATE_RAD_S, LSM9DS1_ODR_ERROR};
-pub use hand::{Hand, HandLevel};
+pub use hand::{Hand, HandLevel, HandSpec, HANDS};
 pub use kinematics::{tilted_axis, G0};
 pub use mag::{MagPart, MagTruth, Magnetometer};
 pub use rig::{Reading, Rig, Truth};

@@ -419,14 +419,15 @@ impl Rig {
     }
 
     /// Specific force (g, in B) at true time `t_s`: gravity reaction `R_BW ẑ`, plus the lever-arm
-    /// acceleration while clamped on the shaft, or the hand's linear acceleration.
+    /// acceleration while clamped on the shaft, or the hand's linear acceleration (its translation's
+    /// and its turn's about its pivot, [`Hand::accel_g`]).
     fn specific_force(&self, q_wb: &UnitQuaternion<f64>, t_s: f64) -> Vector3<f64> {
         let gravity = q_wb.inverse() * Vector3::z();
         if self.on_shaft() {
             gravity + lever_accel_g(&self.axis_b, &self.lever_b, self.servo.rate(), self.servo.accel())
         } else {
-            let hand = self.hand_gain(t_s).map_or(Vector3::zeros(), |(h, gain)| h.accel_g(t_s, gain));
-            q_wb.inverse() * (Vector3::z() + hand)
+            let (world, body) = self.hand_gain(t_s).map_or((Vector3::zeros(), Vector3::zeros()), |(h, gain)| h.accel_g(t_s, gain));
+            q_wb.inverse() * (Vector3::z() + world) + body
         }
     }
 }
