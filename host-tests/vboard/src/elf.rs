@@ -17,6 +17,8 @@ pub struct Firmware {
     /// Address range of the stack (RAM start to the initial stack pointer; flip-link puts it
     /// below .data/.bss).
     pub stack: Option<(u64, u64)>,
+    /// Every function with a size: (start, end, demangled name without its hash), by start.
+    pub functions: Vec<(u64, u64, String)>,
 }
 
 impl Firmware {
@@ -36,8 +38,13 @@ impl Firmware {
         let (mut rtt, mut rtt_dropped) = (None, None);
         let mut handle_sample = None;
         let mut stack_top = None;
+        let mut functions = vec![];
         for sym in file.symbols() {
             let name = sym.name().unwrap_or("");
+            if sym.kind() == object::SymbolKind::Text && sym.size() > 0 {
+                let a = sym.address() & !1;
+                functions.push((a, a + sym.size(), demangle(name)));
+            }
             if name == "_SEGGER_RTT" {
                 rtt = Some(sym.address());
             } else if name.contains("rtt") && name.contains("DROPPED") && sym.size() == 4 {
@@ -50,8 +57,56 @@ impl Firmware {
             }
         }
         let stack = stack_top.map(|t| (0x2000_0000, t));
-        Ok(Self { bytes, segments, rtt, rtt_dropped, handle_sample, stack })
+        functions.sort();
+        Ok(Self { bytes, segments, rtt, rtt_dropped, handle_sample, stack, functions })
     }
+}
+
+/// A Rust-mangled name as `a::b::c`: legacy (`_ZN` length-prefixed parts, `17h…E` hash,
+/// its common `$LT$`-style escapes replaced) or v0 (its identifiers); other names as they are.
+fn demangle(name: &str) -> String {
+    // A v0 name (`_R…`, compiler_builtins'): its identifiers only.
+    if let Some(v0) = name.strip_prefix("_R") {
+        let mut parts = vec![];
+        let mut rest = v0;
+        while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+            // A crate root's disambiguator (`Cs<base-62>_`) is not a name.
+            if rest[..start].ends_with("Cs") {
+                rest = rest[start..].split_once('_').map_or("", |(_, r)| r);
+                continue;
+            }
+            rest = &rest[start..];
+            let mut digits = rest.find(|c: char| !c.is_ascii_digit()).unwrap_or(rest.len());
+            let len = rest[..digits].parse::<usize>().unwrap_or(0);
+            // An identifier that starts with `_` or a digit has a `_` before it.
+            if rest[digits..].starts_with('_')
+                && rest
+                    .get(digits + 1..digits + 1 + len)
+                    .is_some_and(|p| p.starts_with(['_', '0', '1', '2', '3', '4', '5', '6', '7', '8', '9']))
+            {
+                digits += 1;
+            }
+            match rest.get(digits..digits + len) {
+                Some(part) if len > 0 && part.starts_with(|c: char| c.is_ascii_alphabetic() || c == '_') => {
+                    parts.push(part.to_string());
+                    rest = &rest[digits + len..];
+                }
+                _ => rest = &rest[digits..],
+            }
+        }
+        return if parts.is_empty() { name.to_string() } else { parts.join("::") };
+    }
+    let Some(mut rest) = name.strip_prefix("_ZN") else { return name.to_string() };
+    let mut parts = vec![];
+    while let Some(digits) = rest.find(|c: char| !c.is_ascii_digit()).filter(|&d| d > 0) {
+        let Ok(len) = rest[..digits].parse::<usize>() else { break };
+        let Some(part) = rest.get(digits..digits + len) else { break };
+        rest = &rest[digits + len..];
+        if !(part.len() == 17 && part.starts_with('h') && rest == "E") {
+            parts.push(part.replace("..", "::").replace("$LT$", "<").replace("$GT$", ">").replace("$u20$", " ").replace("$C$", ","));
+        }
+    }
+    parts.join("::")
 }
 
 /// The physical address of the program header whose file offset is `offset` (ELF32 LE).
@@ -65,4 +120,16 @@ fn physical_address(elf: &[u8], offset: u64) -> Option<u64> {
         let ph = phoff + i * phentsize;
         (u32_at(ph)? == 1 && u32_at(ph + 4)? as u64 == offset && u32_at(ph + 16)? > 0).then(|| u32_at(ph + 12).map(u64::from))?
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::demangle;
+
+    #[test]
+    fn names_read_as_paths() {
+        assert_eq!(demangle("_ZN10calib_core4math5stats8Welford33add17h0123456789abcdefE"), "calib_core::math::stats::Welford3::add");
+        assert_eq!(demangle("_RNvNtNtCs7NhdfSRABLd_17compiler_builtins5float3add8___adddf3"), "compiler_builtins::float::add::__adddf3");
+        assert_eq!(demangle("__aeabi_dsub"), "__aeabi_dsub");
+    }
 }

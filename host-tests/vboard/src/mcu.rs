@@ -105,6 +105,11 @@ pub struct Mcu {
     pub handle_sample: Rc<Cell<(u64, u64)>>,
     /// Instructions of the longest single `Procedure::handle_sample` call (e.g. the solve).
     pub handle_sample_max: Rc<Cell<u64>>,
+    /// Instructions spent inside `Procedure::handle_sample` (callees included) per translated
+    /// block's address, while `profiling` is set: its flat profile ([`Mcu::profile`]).
+    pub blocks: Rc<RefCell<std::collections::HashMap<u64, u64>>>,
+    /// Whether `blocks` is kept (off by default: it costs emulation time).
+    pub profiling: Rc<Cell<bool>>,
 }
 
 struct UcDma<'a, 'b>(&'a mut Unicorn<'b, ()>);
@@ -200,6 +205,9 @@ impl Mcu {
         let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
         let handle_sample_max = Rc::new(Cell::new(0u64));
         let (hs, hs_max, entry) = (handle_sample.clone(), handle_sample_max.clone(), firmware.handle_sample.map(|r| r.0));
+        let blocks = Rc::new(RefCell::new(std::collections::HashMap::new()));
+        let (profile, profiling) = (blocks.clone(), Rc::new(Cell::new(false)));
+        let profile_on = profiling.clone();
         let open: Cell<Option<(u64, u64)>> = Cell::new(None);
         uc.add_block_hook(0x1_0000, FLASH_END - 1, move |uc, addr, size| {
             let n0 = count.get();
@@ -209,8 +217,13 @@ impl Mcu {
             if Some(addr) == entry {
                 let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
                 open.set(Some((n0, lr)));
-            } else if let Some((e0, ret)) = open.get() {
-                if addr == ret {
+            }
+            if let Some((e0, ret)) = open.get() {
+                if addr != ret {
+                    if profile_on.get() {
+                        *profile.borrow_mut().entry(addr).or_insert(0) += n - n0;
+                    }
+                } else {
                     let (i, calls) = hs.get();
                     hs.set((i + n0 - e0, calls + 1));
                     hs_max.set(hs_max.get().max(n0 - e0));
@@ -304,6 +317,8 @@ impl Mcu {
             rtt_write_seen,
             handle_sample,
             handle_sample_max,
+            blocks,
+            profiling,
         };
         mcu.reset()?;
         Ok(mcu)
@@ -523,6 +538,21 @@ impl Mcu {
         self.exception = s.exception.clone();
         self.decoder = self.table.map(|t| t.new_stream_decoder() as Box<dyn defmt_decoder::StreamDecoder>);
         Ok(())
+    }
+
+    /// The flat profile of `Procedure::handle_sample` kept while `profiling` was set: its
+    /// instructions per function (callees apart), most first.
+    pub fn profile(&self) -> Vec<(String, u64)> {
+        let mut per: std::collections::HashMap<&str, u64> = std::collections::HashMap::new();
+        for (addr, n) in self.blocks.borrow().iter() {
+            let fns = &self.firmware.functions;
+            let i = fns.partition_point(|f| f.0 <= *addr);
+            let name = i.checked_sub(1).map(|i| &fns[i]).filter(|f| *addr < f.1).map_or("?", |f| f.2.as_str());
+            *per.entry(name).or_insert(0) += n;
+        }
+        let mut out: Vec<(String, u64)> = per.into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+        out.sort_by_key(|p| std::cmp::Reverse(p.1));
+        out
     }
 
     /// Paints the free stack with a pattern (for the peak-stack measurement).

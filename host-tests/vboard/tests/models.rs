@@ -417,7 +417,15 @@ fn firmware(code: &[u8]) -> Firmware {
     image[..4].copy_from_slice(&0x2000_2000u32.to_le_bytes());
     image[4..8].copy_from_slice(&0x1_0101u32.to_le_bytes());
     image.extend_from_slice(code);
-    Firmware { bytes: Vec::new(), segments: vec![(0x1_0000, image)], rtt: None, rtt_dropped: None, handle_sample: None, stack: None }
+    Firmware {
+        bytes: Vec::new(),
+        segments: vec![(0x1_0000, image)],
+        rtt: None,
+        rtt_dropped: None,
+        handle_sample: None,
+        stack: None,
+        functions: vec![],
+    }
 }
 
 /// A store inside an IT block that misses the TLB (the first access to its page), then an

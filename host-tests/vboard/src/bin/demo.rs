@@ -77,10 +77,14 @@ struct Args {
     /// `target/demo` in the workspace.
     #[arg(long, value_name = "DIR")]
     out: Option<std::path::PathBuf>,
+    /// Print where `Procedure::handle_sample`'s instructions go: its N costliest functions
+    /// (callees apart) over the whole run (issue 50).
+    #[arg(long, value_name = "N")]
+    profile: Option<usize>,
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, rev2, out } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, rev2, out, profile } = Args::parse_from(calib::cli_args());
     let (board, board_name) = if rev2 { (Board::Rev2, "rev2") } else { (Board::Rev1, "rev1") };
     let out = out.unwrap_or_else(|| calib::firmware::target_dir().join("demo"));
     if let Err(e) = std::fs::create_dir_all(&out) {
@@ -110,6 +114,7 @@ fn main() -> ExitCode {
     }
     let wall = std::time::Instant::now();
     testbed.mcu.paint_stack();
+    testbed.mcu.profiling.set(profile.is_some());
     if usb {
         return demo_usb(&mut testbed, &out.join("demo-usb.csv"), quiet, touch, wall, board_name);
     }
@@ -164,6 +169,14 @@ fn main() -> ExitCode {
         if calls > 0 { instr as f64 / calls as f64 } else { 0.0 }
     );
     println!("[demo] peak stack: {} bytes (from power-on)", testbed.mcu.peak_stack().unwrap_or(0));
+    if let Some(n) = profile {
+        let profile = testbed.mcu.profile();
+        let total: u64 = profile.iter().map(|p| p.1).sum();
+        println!("[demo] profile of Procedure::handle_sample: {total} instructions; the {n} costliest functions (callees apart):");
+        for (name, i) in profile.iter().take(n) {
+            println!("[demo] {:>6.2} % {i:>12} {name}", 100.0 * *i as f64 / total.max(1) as f64);
+        }
+    }
     let longest = testbed.mcu.handle_sample_max.get();
     println!("[demo] the longest handle_sample call (the solve): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
     let stored = testbed.stored();
