@@ -9,7 +9,7 @@
 //!
 //! Three rooms by concern, and the procedure that uses them:
 //! - [`math`]: [`math::lsq`] (weighted least squares by normal equations: every linear solve
-//!   goes through it), [`math::stats`] (Welford statistics), [`math::vec3`].
+//!   goes through it), [`math::stats`] (exact integer moments), [`math::vec3`].
 //! - [`estimators`]: [`estimators::rest`] (stillness), [`estimators::bias`] (the gyro bias and
 //!   its drift), [`estimators::accel`] (6- and 9-parameter accelerometer), [`estimators::axis`]
 //!   (static poses, the rotation axis, geometry checks), [`estimators::paper`] (the paper's

@@ -7,7 +7,7 @@
 //! seconds (a warm-up of τ ≥ 1 min) leaves `h² b'' / 8` (h the rest-to-rest time), and the
 //! Earth's rate is removed to first order in the move's turn with no latitude needed.
 
-use crate::math::stats::Welford3;
+use crate::math::stats::Moments3;
 use crate::{Error, Vec3};
 
 /// Limits applied to a bias estimate.
@@ -510,14 +510,14 @@ impl TempFit {
 /// Accumulates a rest period, then checks it and returns the bias.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BiasEstimator {
-    gyro: Welford3,
-    accel: Welford3,
+    gyro: Moments3,
+    accel: Moments3,
 }
 
 impl BiasEstimator {
     /// Empty.
     pub const fn new() -> Self {
-        Self { gyro: Welford3::new(), accel: Welford3::new() }
+        Self { gyro: Moments3::new(), accel: Moments3::new() }
     }
 
     /// Adds one rest sample: raw gyro (°/s), raw accel (g).
@@ -527,7 +527,7 @@ impl BiasEstimator {
     }
 
     /// Adds a whole window of rest samples (gyro °/s, accel g), summarised.
-    pub fn add_window(&mut self, gyro: &Welford3, accel: &Welford3) {
+    pub fn add_window(&mut self, gyro: &Moments3, accel: &Moments3) {
         self.gyro.merge(gyro);
         self.accel.merge(accel);
     }

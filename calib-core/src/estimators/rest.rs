@@ -3,7 +3,7 @@
 //! Each completed window is returned with its statistics so that callers build pose and bias
 //! means from whole still windows only: a window with motion never leaks into a mean.
 
-use crate::math::stats::Welford3;
+use crate::math::stats::Moments3;
 use crate::Vec3;
 
 /// Thresholds of the rest detector.
@@ -64,9 +64,9 @@ pub struct Window {
     /// Time of its last sample (s).
     pub t_end_s: f64,
     /// Accelerometer statistics (g).
-    pub accel: Welford3,
+    pub accel: Moments3,
     /// Gyro statistics (°/s).
-    pub gyro: Welford3,
+    pub gyro: Moments3,
     /// Whether the window itself met the thresholds.
     pub still: bool,
     /// Detector state after this window.
@@ -78,8 +78,8 @@ pub struct Window {
 pub struct RestDetector {
     cfg: RestConfig,
     window_start_s: Option<f64>,
-    accel: Welford3,
-    gyro: Welford3,
+    accel: Moments3,
+    gyro: Moments3,
     prev_accel_mean: Option<[f64; 3]>,
     still_since_s: Option<f64>,
     state: RestState,
@@ -91,8 +91,8 @@ impl RestDetector {
         Self {
             cfg,
             window_start_s: None,
-            accel: Welford3::new(),
-            gyro: Welford3::new(),
+            accel: Moments3::new(),
+            gyro: Moments3::new(),
             prev_accel_mean: None,
             still_since_s: None,
             state: RestState::Moving,
@@ -139,8 +139,8 @@ impl RestDetector {
         self.prev_accel_mean = Some(mean);
         let window = Window { t_start_s: start, t_end_s: t_s, accel: self.accel, gyro: self.gyro, still, state: self.state };
         self.window_start_s = None;
-        self.accel = Welford3::new();
-        self.gyro = Welford3::new();
+        self.accel = Moments3::new();
+        self.gyro = Moments3::new();
         Some(window)
     }
 }

@@ -225,45 +225,68 @@ pub struct RotationMove {
 /// mean over its samples, so a move is integrated from the mean instant of one pose to that of
 /// the next, i.e. over both poses weighted by a ramp. [`PoseTurn::rise_deg`] is the part inside
 /// the pose (bounded sums, no buffer).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseTurn {
-    a: [f64; 3],
-    c: [f64; 3],
+    /// MCU time of its first sample (s): `c` is kept from it, so that f32 holds it.
+    t0: f64,
+    /// `A` (°) and `Σ (t − t0) ω Δt` (°·s): f32 on the FPU (a pose's turn is its sway, tenths
+    /// of a degree, over seconds: rounding ~1e-8°).
+    a: [f32; 3],
+    c: [f32; 3],
 }
 
 impl PoseTurn {
     /// Nothing turned.
     pub const fn new() -> Self {
-        Self { a: [0.0; 3], c: [0.0; 3] }
+        Self { t0: f64::NAN, a: [0.0; 3], c: [0.0; 3] }
     }
 
     /// A sample at MCU time `t_s` (s), `dt_s` after the previous one, bias-free gyro (°/s).
     pub fn add(&mut self, t_s: f64, dt_s: f64, w_dps: Vec3) {
         if dt_s > 0.0 && dt_s.is_finite() {
+            if self.t0.is_nan() {
+                self.t0 = t_s;
+            }
+            let (t, dt) = ((t_s - self.t0) as f32, dt_s as f32);
             for k in 0..3 {
-                let d = w_dps[k] as f64 * dt_s;
+                let d = w_dps[k] * dt;
                 self.a[k] += d;
-                self.c[k] += t_s * d;
+                self.c[k] += t * d;
             }
         }
     }
 
     /// The turn of a later stretch added.
     pub fn merge(&mut self, o: &PoseTurn) {
+        if o.t0.is_nan() {
+            return;
+        }
+        if self.t0.is_nan() {
+            *self = *o;
+            return;
+        }
+        let shift = (o.t0 - self.t0) as f32;
         for k in 0..3 {
             self.a[k] += o.a[k];
-            self.c[k] += o.c[k];
+            self.c[k] += o.c[k] + shift * o.a[k];
         }
     }
 
     /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first_s` to `t_last_s`: the turn from
-    /// the pose's mean instant to its end. 0 for a pose of no length.
+    /// the pose's mean instant to its end. 0 for a pose of no length or no turn.
     pub fn rise_deg(&self, t_first_s: f64, t_last_s: f64) -> Vec3 {
-        let span = t_last_s - t_first_s;
-        if !(span > 0.0) {
+        let span = (t_last_s - t_first_s) as f32;
+        if !(span > 0.0) || self.t0.is_nan() {
             return [0.0; 3];
         }
-        core::array::from_fn(|k| ((self.c[k] - t_first_s * self.a[k]) / span) as f32)
+        let from = (t_first_s - self.t0) as f32;
+        core::array::from_fn(|k| (self.c[k] - from * self.a[k]) / span)
+    }
+}
+
+impl Default for PoseTurn {
+    fn default() -> Self {
+        Self::new()
     }
 }
 
@@ -310,18 +333,21 @@ impl From<RestBias> for PoseRest {
 struct Open {
     from: u8,
     first: usize,
-    gamma: [f64; 3],
-    coning: [f64; 3],
-    last: Option<(f64, [f64; 3])>,
+    /// The open chunk's raw turn (°) and coning integral (°²): f32 on the FPU (a chunk turns at
+    /// most [`CHUNK_DEG`], so its sums round at ~1e-6°; `precision.rs` bounds it).
+    gamma: [f32; 3],
+    coning: [f32; 3],
+    last: Option<(f64, [f32; 3])>,
     t0: f64,
     chunk_t0: f64,
+    /// The move's raw turn so far (°): its closed chunks' sums.
     total: [f64; 3],
-    max_step_deg: f64,
+    max_step_deg: f32,
     /// The longest time between two of its samples (s).
-    max_gap_s: f64,
+    max_gap_s: f32,
     /// The previous sample increment (°) and the integration error so far (rad).
-    step: [f64; 3],
-    int_err: f64,
+    step: [f32; 3],
+    int_err: f32,
     why: Option<Rejected>,
 }
 
@@ -378,6 +404,20 @@ pub const MIRROR_MAX_TURN_DEG: f32 = 150.0;
 pub const MIRROR_MIN_SINE: f64 = 0.1;
 
 /// The angle between two vectors (°).
+/// Closes the open move `o`'s chunk at its last sample's time `t_end` (s) into `chunks`.
+fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_end: f64) {
+    let span_s = [(o.chunk_t0 - o.t0) as f32, (t_end - o.t0) as f32];
+    for k in 0..3 {
+        o.total[k] += o.gamma[k] as f64;
+    }
+    o.chunk_t0 = t_end;
+    if chunks.push(Chunk { gamma: o.gamma, coning: o.coning, span_s }).is_err() {
+        o.why.get_or_insert(Rejected::Full);
+    }
+    o.gamma = [0.0; 3];
+    o.coning = [0.0; 3];
+}
+
 fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
     libm::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
 }
@@ -562,8 +602,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
     /// Adds a sample of the open move: MCU time (s) and bias-free gyro (°/s); `saturated` if it
     /// reached full scale. Without an open move, nothing.
     pub fn add(&mut self, t_s: f64, w_dps: Vec3, saturated: bool) {
-        let Some(mut o) = self.open else { return };
-        let w = [w_dps[0] as f64, w_dps[1] as f64, w_dps[2] as f64];
+        let Self { open: Some(o), chunks, .. } = self else { return };
         if saturated {
             o.why.get_or_insert(Rejected::Saturated);
         }
@@ -577,38 +616,24 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
                 if !(dt > 0.0) {
                     return;
                 }
+                let dt = dt as f32;
                 o.max_gap_s = o.max_gap_s.max(dt);
-                let d: [f64; 3] = core::array::from_fn(|i| 0.5 * (w_prev[i] + w[i]) * dt);
-                let g = Vector3::from(o.gamma);
-                let c = g.cross(&Vector3::from(d)) * 0.5;
+                let d = Vector3::from_fn(|i, _| 0.5 * (w_prev[i] + w_dps[i]) * dt);
+                let c = Vector3::from(o.gamma).cross(&d) * 0.5;
                 for i in 0..3 {
                     o.coning[i] += c[i];
                     o.gamma[i] += d[i];
-                    o.total[i] += d[i];
                 }
-                let (dv, prev) = (Vector3::from(d).map(f64::to_radians), Vector3::from(o.step).map(f64::to_radians));
+                let (dv, prev) = (d.map(f32::to_radians), Vector3::from(o.step).map(f32::to_radians));
                 o.int_err += prev.cross(&dv).norm() * dv.norm() / 12.0;
-                o.step = d;
-                o.max_step_deg = o.max_step_deg.max(Vector3::from(d).norm());
-                if Vector3::from(o.gamma).norm() >= CHUNK_DEG {
-                    self.flush(&mut o, t_s);
+                o.step = d.into();
+                o.max_step_deg = o.max_step_deg.max(d.norm());
+                if Vector3::from(o.gamma).norm() >= CHUNK_DEG as f32 {
+                    flush(chunks, o, t_s);
                 }
             }
         }
-        o.last = Some((t_s, w));
-        self.open = Some(o);
-    }
-
-    /// Closes the open chunk at its last sample's time `t_end` (s).
-    fn flush(&mut self, o: &mut Open, t_end: f64) {
-        let span_s = [(o.chunk_t0 - o.t0) as f32, (t_end - o.t0) as f32];
-        let chunk = Chunk { gamma: o.gamma.map(|v| v as f32), coning: o.coning.map(|v| v as f32), span_s };
-        o.chunk_t0 = t_end;
-        if self.chunks.push(chunk).is_err() {
-            o.why.get_or_insert(Rejected::Full);
-        }
-        o.gamma = [0.0; 3];
-        o.coning = [0.0; 3];
+        o.last = Some((t_s, w_dps));
     }
 
     /// Ends the open move at pose `to` and keeps it (its chunks less the bias tracked between
@@ -617,7 +642,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
         let Some(mut o) = self.open.take() else { return Ok(()) };
         let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
         if Vector3::from(o.gamma).norm() > 0.0 {
-            self.flush(&mut o, t_end);
+            flush(&mut self.chunks, &mut o, t_end);
         }
         // Back from the end of pose `to` to its mean instant: its turn undone.
         let (end_s, rest) = ((t_end - o.t0) as f32, self.rest[to as usize % MAX_POSES]);
@@ -631,8 +656,8 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
         let bias_change = (a - b).amax();
         let candidates = [
             (o.why, 0.0),
-            ((o.max_gap_s > limits.max_gap_s as f64).then_some(Rejected::Gap), o.max_gap_s),
-            ((o.max_step_deg > limits.max_step_deg as f64).then_some(Rejected::TooFast), o.max_step_deg),
+            ((o.max_gap_s > limits.max_gap_s).then_some(Rejected::Gap), o.max_gap_s as f64),
+            ((o.max_step_deg > limits.max_step_deg).then_some(Rejected::TooFast), o.max_step_deg as f64),
             // Gravity turned more than any plausible scale lets the gyro's turn explain.
             ((gravity_deg > SCALE_RANGE.1 * turn + 5.0).then_some(Rejected::Unseen), gravity_deg),
             ((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort), turn),
@@ -651,7 +676,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
             duration_s,
             turn_deg: turn as f32,
             vertical,
-            int_sigma_rad: o.int_err as f32,
+            int_sigma_rad: o.int_err,
             t0_s: o.t0,
         };
         let result = match why {

@@ -1,58 +1,68 @@
-//! Streaming statistics: Welford mean and variance of 3-vectors, in `f64`.
+//! Streaming statistics: the mean and covariance of 3-vectors from exact integer sums, and the
+//! spread of a scalar.
 
 use crate::Vec3;
 
-/// Running mean and covariance of 3-vectors (Welford). O(1) state, numerically stable.
+/// Fraction bits of the fixed point the sums keep: a reading is rounded to 2⁻¹⁸ of its unit
+/// (3.8e-6 g, °/s or µT, far below any part's LSB) once, as it enters.
+const FRACTION_BITS: i32 = 18;
+/// `2^FRACTION_BITS`.
+const SCALE: f32 = (1u32 << FRACTION_BITS) as f32;
+
+/// Running mean and covariance of 3-vectors (readings: g, °/s, µT, °C) from exact sums. Each
+/// component is rounded once to the fixed point `q = round(x · 2¹⁸)` (an `i32`: |x| up to 8192,
+/// beyond any part's full scale; larger values are clamped there), then only integers are
+/// added: `Σq` (`i64`), `Σq²` and `Σqᵢqⱼ` (`i128`). Sums of any length and any order are
+/// exact, so a merge equals the sequential sum bit for bit, and the per-sample cost is a few
+/// integer multiply-accumulates on the MCU (issue 50: no software doubles per sample). The
+/// mean and the (co)variances are formed from the exact sums when asked, `n Σq² − (Σq)²` in
+/// integers first: no cancellation. A non-finite reading poisons the statistics (NaN).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Welford3 {
+pub struct Moments3 {
     n: u32,
-    mean: [f64; 3],
-    m2: [f64; 3],
-    /// Co-moments of the axis pairs `CROSS`.
-    m2c: [f64; 3],
+    /// A non-finite component was added.
+    poisoned: bool,
+    s1: [i64; 3],
+    s2: [i128; 3],
+    /// `Σ qᵢ qⱼ` of the axis pairs `CROSS` (`sc[i + j − 1]`).
+    sc: [i128; 3],
 }
 
 /// The axis pairs of the co-moments.
 const CROSS: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
 
-impl Welford3 {
+impl Moments3 {
     /// Empty.
     pub const fn new() -> Self {
-        Self { n: 0, mean: [0.0; 3], m2: [0.0; 3], m2c: [0.0; 3] }
+        Self { n: 0, poisoned: false, s1: [0; 3], s2: [0; 3], sc: [0; 3] }
     }
 
     /// Adds one vector (any unit; the statistics keep it).
     pub fn add(&mut self, v: Vec3) {
         self.n += 1;
-        let n = self.n as f64;
-        let mut d = [0.0; 3];
-        for (((m, m2), &x), d) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(v.iter()).zip(d.iter_mut()) {
-            let x = x as f64;
-            *d = x - *m;
-            *m += *d / n;
-            *m2 += *d * (x - *m);
+        // The float-to-integer conversion saturates (NaN to 0): non-finite is flagged apart.
+        self.poisoned |= !v.iter().all(|x| x.is_finite());
+        // Rounded to nearest, ties to even (unbiased: an f32 reading lies on a grid finer than
+        // the quantum, so ties occur); the cast saturates.
+        let q = v.map(|x| libm::rintf(x * SCALE) as i32 as i64);
+        for k in 0..3 {
+            self.s1[k] += q[k];
+            self.s2[k] += (q[k] * q[k]) as i128;
         }
-        for (c, (i, j)) in self.m2c.iter_mut().zip(CROSS) {
-            *c += d[i] * (v[j] as f64 - self.mean[j]);
+        for (c, (i, j)) in self.sc.iter_mut().zip(CROSS) {
+            *c += (q[i] * q[j]) as i128;
         }
     }
 
-    /// Adds all vectors summarised by `other` (Chan et al. parallel update).
-    pub fn merge(&mut self, other: &Welford3) {
-        if other.n == 0 {
-            return;
-        }
-        let (na, nb) = (self.n as f64, other.n as f64);
-        let n = na + nb;
-        let d: [f64; 3] = core::array::from_fn(|k| other.mean[k] - self.mean[k]);
-        for k in 0..3 {
-            self.mean[k] += d[k] * nb / n;
-            self.m2[k] += other.m2[k] + d[k] * d[k] * na * nb / n;
-        }
-        for ((c, oc), (i, j)) in self.m2c.iter_mut().zip(other.m2c).zip(CROSS) {
-            *c += oc + d[i] * d[j] * na * nb / n;
-        }
+    /// Adds all vectors summarised by `other` (exact: the same as adding them one by one).
+    pub fn merge(&mut self, other: &Moments3) {
         self.n += other.n;
+        self.poisoned |= other.poisoned;
+        for k in 0..3 {
+            self.s1[k] += other.s1[k];
+            self.s2[k] += other.s2[k];
+            self.sc[k] += other.sc[k];
+        }
     }
 
     /// Number of vectors added.
@@ -60,9 +70,25 @@ impl Welford3 {
         self.n
     }
 
-    /// Mean (f64).
+    /// Mean (f64; NaN if a non-finite vector was added, 0 when empty).
     pub fn mean(&self) -> [f64; 3] {
-        self.mean
+        if self.poisoned {
+            return [f64::NAN; 3];
+        }
+        let n = self.n.max(1) as f64 * SCALE as f64;
+        self.s1.map(|s| s as f64 / n)
+    }
+
+    /// `Σ (xᵢ − x̄ᵢ)(xⱼ − x̄ⱼ)` from the exact sums, in the readings' unit².
+    fn comoment(&self, i: usize, j: usize) -> f64 {
+        if self.poisoned {
+            return f64::NAN;
+        }
+        let sij = if i == j { self.s2[i] } else { self.sc[i + j - 1] };
+        // n Σqᵢqⱼ − Σqᵢ Σqⱼ: at most 2³² · 2⁹⁴ and 2⁶³ · 2⁶³, within i128; to f64 by halves.
+        let num = self.n as i128 * sij - self.s1[i] as i128 * self.s1[j] as i128;
+        let num = (num >> 64) as i64 as f64 * 18_446_744_073_709_551_616.0 + num as u64 as f64;
+        num / (self.n.max(1) as f64 * SCALE as f64 * SCALE as f64)
     }
 
     /// Unbiased per-axis variance (0 with fewer than two samples).
@@ -71,7 +97,7 @@ impl Welford3 {
             return [0.0; 3];
         }
         let d = (self.n - 1) as f64;
-        [self.m2[0] / d, self.m2[1] / d, self.m2[2] / d]
+        core::array::from_fn(|k| self.comoment(k, k) / d)
     }
 
     /// Largest per-axis standard deviation.
@@ -89,14 +115,14 @@ impl Welford3 {
     /// `u = mean / |mean|`: an accelerometer pose's noise in `|a|`, without the sway that only
     /// turns gravity about. 0 for a zero mean or fewer than two vectors.
     pub fn radial_std_of_mean(&self) -> f64 {
-        let norm = libm::sqrt(self.mean.iter().map(|m| m * m).sum::<f64>());
+        let mean = self.mean();
+        let norm = libm::sqrt(mean.iter().map(|m| m * m).sum::<f64>());
         if self.n < 2 || !(norm > 0.0) {
             return 0.0;
         }
-        let u = self.mean.map(|m| m / norm);
-        let diag: f64 = (0..3).map(|k| u[k] * u[k] * self.m2[k]).sum();
-        let cross: f64 = self.m2c.iter().zip(CROSS).map(|(c, (i, j))| 2.0 * u[i] * u[j] * c).sum();
-        libm::sqrt(((diag + cross) / (self.n - 1) as f64).max(0.0) / self.n as f64)
+        let u = mean.map(|m| m / norm);
+        let var: f64 = (0..9).map(|k| u[k / 3] * u[k % 3] * self.comoment(k / 3, k % 3)).sum();
+        libm::sqrt((var / (self.n - 1) as f64).max(0.0) / self.n as f64)
     }
 }
 
@@ -151,9 +177,9 @@ mod tests {
     use super::*;
 
     #[test]
-    fn welford_matches_two_pass() {
+    fn moments_match_two_pass() {
         let xs: [[f32; 3]; 5] = [[1.0, 2.0, 3.0], [2.0, 2.5, -1.0], [0.5, 2.0, 0.0], [3.0, 1.0, 2.0], [1.5, 2.0, 1.0]];
-        let mut w = Welford3::new();
+        let mut w = Moments3::new();
         xs.iter().for_each(|&x| w.add(x));
         for k in 0..3 {
             let m: f64 = xs.iter().map(|x| x[k] as f64).sum::<f64>() / 5.0;
@@ -165,12 +191,12 @@ mod tests {
     #[test]
     fn merge_equals_sequential() {
         let xs: [[f32; 3]; 6] = [[1.0, 2.0, 3.0], [2.0, 2.5, -1.0], [0.5, 2.0, 0.0], [3.0, 1.0, 2.0], [1.5, 2.0, 1.0], [0.0; 3]];
-        let (mut all, mut a, mut b) = (Welford3::new(), Welford3::new(), Welford3::new());
+        let (mut all, mut a, mut b) = (Moments3::new(), Moments3::new(), Moments3::new());
         xs.iter().for_each(|&x| all.add(x));
         xs[..2].iter().for_each(|&x| a.add(x));
         xs[2..].iter().for_each(|&x| b.add(x));
         a.merge(&b);
-        a.merge(&Welford3::new());
+        a.merge(&Moments3::new());
         for k in 0..3 {
             assert!((a.mean()[k] - all.mean()[k]).abs() < 1e-12 && (a.variance()[k] - all.variance()[k]).abs() < 1e-12);
         }
@@ -182,7 +208,7 @@ mod tests {
     fn radial_std_is_the_spread_along_the_mean() {
         // Unit vectors swayed by ±3° about a diagonal, with a little noise in length: the
         // per-axis spread sees the sway, the radial one only the length.
-        let (mut w, mut v) = (Welford3::new(), [0.0f64; 40]);
+        let (mut w, mut v) = (Moments3::new(), [0.0f64; 40]);
         let c = 1.0 / libm::sqrt(3.0);
         let mut xs = [[0.0f32; 3]; 40];
         for (k, x) in xs.iter_mut().enumerate() {

@@ -45,7 +45,7 @@ use crate::estimators::sweep;
 use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
 use crate::math::lsq::NormalEquations;
-use crate::math::stats::Welford3;
+use crate::math::stats::Moments3;
 use crate::math::vec3::{sub, to_f64 as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
 use crate::{Error, Vec3};
@@ -118,12 +118,12 @@ impl Phase {
 /// Averages whole still windows into one pose; a disturbed window restarts it.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Capture {
-    accel: Welford3,
-    gyro: Welford3,
+    accel: Moments3,
+    gyro: Moments3,
     /// Temperature (°C, first component) of the samples of its windows that had one.
-    temp: Welford3,
+    temp: Moments3,
     /// Magnetometer readings (raw, µT) during its windows.
-    mag: Welford3,
+    mag: Moments3,
     /// The bias-free gyro turn over its windows (hand-held poses: the sway inside the pose).
     turn: PoseTurn,
     t_first: f64,
@@ -135,9 +135,9 @@ struct Capture {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct WindowReadings {
     /// Temperatures (°C, first component).
-    temp: Welford3,
+    temp: Moments3,
     /// Magnetometer readings (raw, µT).
-    mag: Welford3,
+    mag: Moments3,
 }
 
 enum CaptureStep {
@@ -243,7 +243,7 @@ enum Step {
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Spin {
     ramp: Ramp,
-    rate: Welford3,
+    rate: Moments3,
     gravity: GravityTurn,
 }
 
@@ -312,7 +312,7 @@ pub struct Procedure {
     /// sample saturated or turned more than 0.25 rad from the last (a gap).
     attitude: Option<Matrix3<f32>>,
     gbar: Option<(Vec3, f32)>,
-    temp: Welford3,
+    temp: Moments3,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
     overflow: bool,
 }
@@ -347,7 +347,7 @@ impl Procedure {
             drift: Drift::new(),
             temp_fit: TempFit::new(),
             rest_temp_c: f32::NAN,
-            window_read: WindowReadings { temp: Welford3::new(), mag: Welford3::new() },
+            window_read: WindowReadings { temp: Moments3::new(), mag: Moments3::new() },
             mag: MagCalibrator::new(),
             mag_cal: None,
             mag_pending: false,
@@ -357,7 +357,7 @@ impl Procedure {
             window_turn: PoseTurn::new(),
             attitude: None,
             gbar: None,
-            temp: Welford3::new(),
+            temp: Moments3::new(),
             overflow: false,
         }
     }
@@ -700,7 +700,7 @@ impl Procedure {
         self.window_turn = PoseTurn::new();
         self.attitude = None;
         self.gbar = None;
-        self.temp = Welford3::new();
+        self.temp = Moments3::new();
         if let Some(acc) = self.stored_accel() {
             self.accel_cal = acc;
         }

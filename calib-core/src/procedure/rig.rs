@@ -128,7 +128,7 @@ impl Procedure {
         } else if self.cfg.spin_rate_dps > 0.0 {
             let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.spin_rate_dps, 1.0, self.cfg.spin_s);
             let axis = self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u);
-            let spin = Spin { ramp, rate: Welford3::new(), gravity: GravityTurn::new(axis) };
+            let spin = Spin { ramp, rate: Moments3::new(), gravity: GravityTurn::new(axis) };
             self.enter(Step::Spin { spin }, s.t_s);
         } else {
             self.solve(s.t_s);

@@ -8,7 +8,7 @@ use calib_core::estimators::accel::AccelCalibrator;
 use calib_core::estimators::axis::{GeometryLimits, Poses};
 use calib_core::estimators::bias::{BiasEstimator, BiasLimits};
 use calib_core::estimators::paper;
-use calib_core::math::stats::Welford3;
+use calib_core::math::stats::Moments3;
 use calib_core::Error;
 use nalgebra::{Rotation3, Unit, Vector3};
 use rand::Rng;
@@ -122,7 +122,7 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
         std::array::from_fn(|i| (case.accel_scale[i] * f[i] + case.accel_offset_g[i] + an.sample(rng)) as f32)
     };
     let mean_pose = |f: Vector3<f64>, rng: &mut dyn rand::RngCore| {
-        let mut w = Welford3::new();
+        let mut w = Moments3::new();
         for _ in 0..proto.pose_samples {
             w.add(accel(f, rng));
         }
@@ -159,7 +159,7 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
         let a = mean_pose(f, rng).0;
         poses.push(accel_cal.map_or(a, |c| c.apply(a)))?;
     }
-    let mut rot = Welford3::new();
+    let mut rot = Moments3::new();
     for _ in 0..proto.rotation_samples * if case.bias_known { proto.noise_study_factor } else { 1 } {
         let g = gyro(u * case.omega_dps * (1.0 + rn.sample(rng)), rng);
         rot.add([g[0] - bias[0], g[1] - bias[1], g[2] - bias[2]]);

@@ -75,6 +75,10 @@ pub struct Snapshot {
     exception: Option<Exception>,
 }
 
+/// The longest `Procedure::handle_sample` call that [`Mcu::profile`] files as a sample's
+/// (instructions); longer ones are fits and the solve.
+pub const SHORT_CALL: u64 = 200_000;
+
 /// The board.
 pub struct Mcu {
     uc: Unicorn<'static, ()>,
@@ -105,9 +109,11 @@ pub struct Mcu {
     pub handle_sample: Rc<Cell<(u64, u64)>>,
     /// Instructions of the longest single `Procedure::handle_sample` call (e.g. the solve).
     pub handle_sample_max: Rc<Cell<u64>>,
-    /// Instructions spent inside `Procedure::handle_sample` (callees included) per translated
-    /// block's address, while `profiling` is set: its flat profile ([`Mcu::profile`]).
-    pub blocks: Rc<RefCell<std::collections::HashMap<u64, u64>>>,
+    /// Instructions spent inside `Procedure::handle_sample` (callees included) per function's
+    /// start, while `profiling` is set: its flat profile ([`Mcu::profile`]), for the
+    /// calls of up to [`SHORT_CALL`] instructions (the samples) and for the longer ones (the
+    /// fits and the solve) apart.
+    pub blocks: Rc<RefCell<[std::collections::HashMap<u64, u64>; 2]>>,
     /// Whether `blocks` is kept (off by default: it costs emulation time).
     pub profiling: Rc<Cell<bool>>,
 }
@@ -205,9 +211,19 @@ impl Mcu {
         let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
         let handle_sample_max = Rc::new(Cell::new(0u64));
         let (hs, hs_max, entry) = (handle_sample.clone(), handle_sample_max.clone(), firmware.handle_sample.map(|r| r.0));
-        let blocks = Rc::new(RefCell::new(std::collections::HashMap::new()));
+        let blocks = Rc::new(RefCell::new([std::collections::HashMap::new(), std::collections::HashMap::new()]));
         let (profile, profiling) = (blocks.clone(), Rc::new(Cell::new(false)));
         let profile_on = profiling.clone();
+        // The open call's instructions per function (by its start), filed as short or long when
+        // it returns; a builtin's (software floating point, memcpy: leaves) go to the function
+        // that ran before it, its caller.
+        let mut call: std::collections::HashMap<u64, u64> = std::collections::HashMap::new();
+        let fns: Vec<(u64, u64, bool)> = firmware
+            .functions
+            .iter()
+            .map(|(a, b, name)| (*a, *b, name.starts_with("compiler_builtins") || name.starts_with("__aeabi")))
+            .collect();
+        let mut caller = 0u64;
         let open: Cell<Option<(u64, u64)>> = Cell::new(None);
         uc.add_block_hook(0x1_0000, FLASH_END - 1, move |uc, addr, size| {
             let n0 = count.get();
@@ -221,9 +237,22 @@ impl Mcu {
             if let Some((e0, ret)) = open.get() {
                 if addr != ret {
                     if profile_on.get() {
-                        *profile.borrow_mut().entry(addr).or_insert(0) += n - n0;
+                        let f = fns.partition_point(|f| f.0 <= addr).checked_sub(1).map(|i| fns[i]).filter(|f| addr < f.1);
+                        let key = match f {
+                            Some((_, _, true)) => caller,
+                            Some((start, _, false)) => {
+                                caller = start;
+                                start
+                            }
+                            None => addr,
+                        };
+                        *call.entry(key).or_insert(0) += n - n0;
                     }
                 } else {
+                    let long = usize::from(n0 - e0 > SHORT_CALL);
+                    for (a, k) in call.drain() {
+                        *profile.borrow_mut()[long].entry(a).or_insert(0) += k;
+                    }
                     let (i, calls) = hs.get();
                     hs.set((i + n0 - e0, calls + 1));
                     hs_max.set(hs_max.get().max(n0 - e0));
@@ -540,11 +569,13 @@ impl Mcu {
         Ok(())
     }
 
-    /// The flat profile of `Procedure::handle_sample` kept while `profiling` was set: its
-    /// instructions per function (callees apart), most first.
-    pub fn profile(&self) -> Vec<(String, u64)> {
+    /// The flat profile of `Procedure::handle_sample` kept while `profiling` was set, of its
+    /// short calls (the samples) or of its `long` ones: its instructions per function (callees
+    /// apart, but a builtin's — software floating point, memcpy — charged to its caller), most
+    /// first.
+    pub fn profile(&self, long: bool) -> Vec<(String, u64)> {
         let mut per: std::collections::HashMap<&str, u64> = std::collections::HashMap::new();
-        for (addr, n) in self.blocks.borrow().iter() {
+        for (addr, n) in self.blocks.borrow()[usize::from(long)].iter() {
             let fns = &self.firmware.functions;
             let i = fns.partition_point(|f| f.0 <= *addr);
             let name = i.checked_sub(1).map(|i| &fns[i]).filter(|f| *addr < f.1).map_or("?", |f| f.2.as_str());

@@ -187,7 +187,7 @@ fn fit_calibrator(rows: &[Row], segs: &[&Segment], accel: &AccelCal) -> Option<M
 
 /// The mean raw field (µT) of a segment's readings.
 pub(super) fn mean_field(rows: &[Row], s: &Segment) -> Option<[f32; 3]> {
-    let mut w = Welford3::new();
+    let mut w = Moments3::new();
     rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).for_each(|m| w.add(m));
     (w.count() > 0).then(|| w.mean().map(|v| v as f32))
 }

@@ -11,9 +11,9 @@ pub struct Segment {
     /// Last row index (inclusive).
     pub last: usize,
     /// Accelerometer statistics (raw g).
-    pub accel: Welford3,
+    pub accel: Moments3,
     /// Gyro statistics (raw °/s).
-    pub gyro: Welford3,
+    pub gyro: Moments3,
     /// Commanded servo angle (°), `None` for a hand-held pose.
     pub servo_deg: Option<f32>,
     /// Commanded tilt angle (°), when the log has the column.
@@ -39,7 +39,7 @@ pub struct SteadySpin {
     /// First and last row index (inclusive) of the averaged part.
     pub rows: (usize, usize),
     /// Mean raw gyro over it (°/s).
-    pub gyro: Welford3,
+    pub gyro: Moments3,
 }
 
 /// The phases found in a log.
@@ -79,8 +79,8 @@ fn window_len(rows: &[Row], window_s: f64) -> Vec<(usize, usize)> {
     out
 }
 
-fn stats(rows: &[Row]) -> (Welford3, Welford3) {
-    let (mut a, mut g) = (Welford3::new(), Welford3::new());
+fn stats(rows: &[Row]) -> (Moments3, Moments3) {
+    let (mut a, mut g) = (Moments3::new(), Moments3::new());
     for r in rows {
         a.add(r.accel_g);
         g.add(r.gyro_dps);

@@ -78,7 +78,8 @@ struct Args {
     #[arg(long, value_name = "DIR")]
     out: Option<std::path::PathBuf>,
     /// Print where `Procedure::handle_sample`'s instructions go: its N costliest functions
-    /// (callees apart) over the whole run (issue 50).
+    /// (callees apart) over the whole run, in its calls of a sample and in its long calls apart
+    /// (issue 50).
     #[arg(long, value_name = "N")]
     profile: Option<usize>,
 }
@@ -170,11 +171,13 @@ fn main() -> ExitCode {
     );
     println!("[demo] peak stack: {} bytes (from power-on)", testbed.mcu.peak_stack().unwrap_or(0));
     if let Some(n) = profile {
-        let profile = testbed.mcu.profile();
-        let total: u64 = profile.iter().map(|p| p.1).sum();
-        println!("[demo] profile of Procedure::handle_sample: {total} instructions; the {n} costliest functions (callees apart):");
-        for (name, i) in profile.iter().take(n) {
-            println!("[demo] {:>6.2} % {i:>12} {name}", 100.0 * *i as f64 / total.max(1) as f64);
+        for (long, what) in [(false, "its calls of a sample"), (true, "its long calls (fits, the solve)")] {
+            let profile = testbed.mcu.profile(long);
+            let total: u64 = profile.iter().map(|p| p.1).sum();
+            println!("[demo] profile of Procedure::handle_sample, {what}: {total} instructions; the {n} costliest functions (callees apart, builtins charged to their caller):");
+            for (name, i) in profile.iter().take(n) {
+                println!("[demo] {:>6.2} % {i:>12} {name}", 100.0 * *i as f64 / total.max(1) as f64);
+            }
         }
     }
     let longest = testbed.mcu.handle_sample_max.get();
