@@ -40,7 +40,7 @@ use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
-use crate::math::vec3::{tangent_basis, to_f64 as v64};
+use crate::math::vec3::{sqrtf, tangent_basis, to_f64 as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -342,6 +342,7 @@ struct Open {
     chunk_t0: f64,
     /// The move's raw turn so far (°): its closed chunks' sums.
     total: [f64; 3],
+    /// The square of its largest step (°²).
     max_step_deg: f32,
     /// The longest time between two of its samples (s).
     max_gap_s: f32,
@@ -625,10 +626,12 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
                     o.gamma[i] += d[i];
                 }
                 let (dv, prev) = (d.map(f32::to_radians), Vector3::from(o.step).map(f32::to_radians));
-                o.int_err += prev.cross(&dv).norm() * dv.norm() / 12.0;
+                let d2 = d.norm_squared();
+                o.int_err += sqrtf(prev.cross(&dv).norm_squared() * dv.norm_squared()) / 12.0;
                 o.step = d.into();
-                o.max_step_deg = o.max_step_deg.max(d.norm());
-                if Vector3::from(o.gamma).norm() >= CHUNK_DEG as f32 {
+                // The largest step's square until the move ends.
+                o.max_step_deg = o.max_step_deg.max(d2);
+                if Vector3::from(o.gamma).norm_squared() >= (CHUNK_DEG * CHUNK_DEG) as f32 {
                     flush(chunks, o, t_s);
                 }
             }
@@ -657,7 +660,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
         let candidates = [
             (o.why, 0.0),
             ((o.max_gap_s > limits.max_gap_s).then_some(Rejected::Gap), o.max_gap_s as f64),
-            ((o.max_step_deg > limits.max_step_deg).then_some(Rejected::TooFast), o.max_step_deg as f64),
+            ((o.max_step_deg > limits.max_step_deg * limits.max_step_deg).then_some(Rejected::TooFast), sqrtf(o.max_step_deg) as f64),
             // Gravity turned more than any plausible scale lets the gyro's turn explain.
             ((gravity_deg > SCALE_RANGE.1 * turn + 5.0).then_some(Rejected::Unseen), gravity_deg),
             ((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort), turn),

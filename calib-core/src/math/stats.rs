@@ -9,6 +9,23 @@ const FRACTION_BITS: i32 = 18;
 /// `2^FRACTION_BITS`.
 const SCALE: f32 = (1u32 << FRACTION_BITS) as f32;
 
+/// `x` in the sums' fixed point, `round(x · 2¹⁸)`: to nearest, ties to even (an f32 reading lies
+/// on a grid finer than the quantum, so ties occur and must not bias the mean), by the FPU's
+/// own rounding of `y ± 2²³` (whose unit in the last place is 1) below 2²³; beyond it `y` is
+/// already whole. The cast saturates (NaN to 0: [`Moments3`] flags it apart).
+fn fixed(x: f32) -> i32 {
+    const TWO_23: f32 = 8_388_608.0;
+    let y = x * SCALE;
+    let r = if (0.0..TWO_23).contains(&y) {
+        (y + TWO_23) - TWO_23
+    } else if y < 0.0 && y > -TWO_23 {
+        (y - TWO_23) + TWO_23
+    } else {
+        y
+    };
+    r as i32
+}
+
 /// Running mean and covariance of 3-vectors (readings: g, °/s, µT, °C) from exact sums. Each
 /// component is rounded once to the fixed point `q = round(x · 2¹⁸)` (an `i32`: |x| up to 8192,
 /// beyond any part's full scale; larger values are clamped there), then only integers are
@@ -24,12 +41,9 @@ pub struct Moments3 {
     poisoned: bool,
     s1: [i64; 3],
     s2: [i128; 3],
-    /// `Σ qᵢ qⱼ` of the axis pairs `CROSS` (`sc[i + j − 1]`).
+    /// `Σ qᵢ qⱼ` of the axis pairs (0, 1), (0, 2), (1, 2) (`sc[i + j − 1]`).
     sc: [i128; 3],
 }
-
-/// The axis pairs of the co-moments.
-const CROSS: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
 
 impl Moments3 {
     /// Empty.
@@ -40,18 +54,19 @@ impl Moments3 {
     /// Adds one vector (any unit; the statistics keep it).
     pub fn add(&mut self, v: Vec3) {
         self.n += 1;
-        // The float-to-integer conversion saturates (NaN to 0): non-finite is flagged apart.
-        self.poisoned |= !v.iter().all(|x| x.is_finite());
-        // Rounded to nearest, ties to even (unbiased: an f32 reading lies on a grid finer than
-        // the quantum, so ties occur); the cast saturates.
-        let q = v.map(|x| libm::rintf(x * SCALE) as i32 as i64);
-        for k in 0..3 {
-            self.s1[k] += q[k];
-            self.s2[k] += (q[k] * q[k]) as i128;
-        }
-        for (c, (i, j)) in self.sc.iter_mut().zip(CROSS) {
-            *c += (q[i] * q[j]) as i128;
-        }
+        self.poisoned |= !(v[0].is_finite() && v[1].is_finite() && v[2].is_finite());
+        let [x, y, z] = v.map(fixed);
+        // 32 × 32 → 64-bit products (one SMULL each), summed in 128 bits.
+        let p = |a: i32, b: i32| (a as i64 * b as i64) as i128;
+        self.s1[0] += x as i64;
+        self.s1[1] += y as i64;
+        self.s1[2] += z as i64;
+        self.s2[0] += p(x, x);
+        self.s2[1] += p(y, y);
+        self.s2[2] += p(z, z);
+        self.sc[0] += p(x, y);
+        self.sc[1] += p(x, z);
+        self.sc[2] += p(y, z);
     }
 
     /// Adds all vectors summarised by `other` (exact: the same as adding them one by one).
@@ -186,6 +201,21 @@ mod tests {
             let v: f64 = xs.iter().map(|x| (x[k] as f64 - m).powi(2)).sum::<f64>() / 4.0;
             assert!((w.mean()[k] - m).abs() < 1e-12 && (w.variance()[k] - v).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn readings_round_to_the_nearest_quantum_ties_to_even() {
+        let q = 1.0 / SCALE;
+        assert_eq!([fixed(1.5 * q), fixed(2.5 * q), fixed(-2.5 * q), fixed(2.4 * q), fixed(-2.6 * q)], [2, 2, -2, 2, -3]);
+        // Between 2^22 and 2^23 quanta a float still has halves: 25 + 2^-19 is 25·2^18 + 0.5.
+        assert_eq!(fixed(25.0 + q / 2.0), 25 * (1 << 18));
+        assert_eq!(fixed(25.0 + 1.5 * q), 25 * (1 << 18) + 2);
+        assert_eq!((fixed(1e10), fixed(-1e10), fixed(f32::NAN)), (i32::MAX, i32::MIN, 0));
+        let mut m = Moments3::new();
+        m.add([1.0, f32::NAN, 0.0]);
+        assert!(m.mean()[0].is_nan() && m.variance().iter().all(|v| *v == 0.0));
+        m.add([1.0, 0.0, 0.0]);
+        assert!(m.variance()[0].is_nan());
     }
 
     #[test]

@@ -3,6 +3,41 @@
 use crate::{Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
+/// `√x` on the FPU (`vsqrt.f32`, 14 cycles on a Cortex-M4F; libm's is software there), libm's
+/// elsewhere.
+#[inline]
+pub fn sqrtf(x: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        vsqrt(x)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
+    }
+}
+
+/// `vsqrt.f32` through core registers (the FPU's register class needs a target feature that
+/// stable Rust does not name), its scratch `s15` saved and restored on the stack.
+#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+fn vsqrt(x: f32) -> f32 {
+    let r: u32;
+    // SAFETY: FPU instructions the hard-float target has; `s15` is restored, the stack balanced.
+    unsafe {
+        core::arch::asm!(
+            "vpush {{s15}}",
+            "vmov s15, {x}",
+            "vsqrt.f32 s15, s15",
+            "vmov {r}, s15",
+            "vpop {{s15}}",
+            x = in(reg) x.to_bits(),
+            r = lateout(reg) r,
+            options(pure, readonly, preserves_flags),
+        )
+    };
+    f32::from_bits(r)
+}
+
 /// `a − b`, element-wise (e.g. a raw gyro reading minus the bias, °/s).
 pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]

@@ -545,8 +545,8 @@ impl Procedure {
         let gyro_saturated = s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
         let saturated = gyro_saturated || s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g);
         self.tainted |= saturated;
+        // The window's temperatures join the calibration's as the window closes.
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
-            self.temp.add([t, 0.0, 0.0]);
             self.window_read.temp.add([t, 0.0, 0.0]);
         }
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
@@ -562,6 +562,7 @@ impl Procedure {
             self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp_jr(&phi).0);
         }
         let wt = if window.is_some() { core::mem::take(&mut self.window_read) } else { WindowReadings::default() };
+        self.temp.merge(&wt.temp);
         let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
         if window.is_some() {
             self.tainted = false;

@@ -182,7 +182,9 @@ impl Procedure {
 
     /// The mean sensor temperature of the calibration so far (°C), if any was read.
     fn temp_c(&self) -> Option<f32> {
-        (self.temp.count() > 0).then(|| self.temp.mean()[0] as f32)
+        let mut temp = self.temp;
+        temp.merge(&self.window_read.temp);
+        (temp.count() > 0).then(|| temp.mean()[0] as f32)
     }
 
     /// The gyro bias a record made at MCU time `t_s` holds, with its 1σ: the rests' at the
