@@ -21,8 +21,9 @@ use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, 
 use calib_core::formats::protocol::{self, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::text::{Level as Log, V3};
-use calib_core::math::stats::Welford3;
+use calib_core::math::stats::Moments3;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
+use core::mem::MaybeUninit;
 use embedded_hal::digital::InputPin;
 use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
@@ -68,14 +69,20 @@ const SENSOR: SensorConfig = if cfg!(feature = "arduino-lsm9ds1") { SensorConfig
 /// tilt-servo`, the tilt servo on D10) the pan/tilt plan and the full 3×3 `K`; the sensor's ranges.
 const CONFIG: Config = Config { setup: SENSOR.setup(), ..if cfg!(feature = "tilt-servo") { Config::PAN_TILT } else { Config::DEFAULT } };
 
-/// The procedure state (poses, moves, queue: ~11 KiB) in static RAM. Built once at boot in its
-/// own stack frame, so that the main loop's frame does not keep room for a copy of it.
+/// The procedure state (poses, moves, queue: ~48 KiB) in static RAM, built once at boot in
+/// place: `cortex_m::singleton!` would build it on the stack first (a 49 KiB frame, the boot's
+/// peak stack).
 #[inline(never)]
 fn procedure(stored: Option<Record>) -> &'static mut Procedure {
-    match cortex_m::singleton!(: Procedure = Procedure::new(CONFIG, stored)) {
-        Some(p) => p,
-        None => cortex_m::peripheral::SCB::sys_reset(),
-    }
+    static mut STATE: (MaybeUninit<Procedure>, bool) = (MaybeUninit::uninit(), false);
+    cortex_m::interrupt::free(|_| {
+        // SAFETY: the only access to STATE, once (the flag), inside a critical section.
+        let state = unsafe { &mut *core::ptr::addr_of_mut!(STATE) };
+        if core::mem::replace(&mut state.1, true) {
+            cortex_m::peripheral::SCB::sys_reset();
+        }
+        Procedure::init(&mut state.0, CONFIG, stored)
+    })
 }
 
 #[interrupt]
@@ -185,7 +192,7 @@ struct Sensing {
     /// Raw-log mode.
     raw: bool,
     /// The calibrated rate (°/s) since the last rate line.
-    rate: Welford3,
+    rate: Moments3,
 }
 
 impl Sensing {
@@ -201,7 +208,7 @@ impl Sensing {
             last_poll_s: 0.0,
             mag: Magnetometer::new(),
             raw: false,
-            rate: Welford3::new(),
+            rate: Moments3::new(),
         }
     }
 
@@ -396,7 +403,7 @@ fn feed(
     mag_ut: Option<[f32; 3]>,
     setup: SensorSetup,
     raw: bool,
-    rate: &mut Welford3,
+    rate: &mut Moments3,
     procedure: &mut Procedure,
     io: &mut Io,
 ) {
@@ -488,11 +495,11 @@ struct Status {
 }
 
 impl Status {
-    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, rate: &mut Welford3) {
+    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, rate: &mut Moments3) {
         if show_rate && now - self.last_rate_line_s >= 1.0 && rate.count() > 0 {
             let m = rate.mean();
             console.say(Log::Info, format_args!("rate {} dps (calibrated, 1 s mean)", V3(m.map(|v| v as f32), 3)));
-            *rate = Welford3::new();
+            *rate = Moments3::new();
             self.last_rate_line_s = now;
         }
         if now - self.last_drop_check_s >= 1.0 {

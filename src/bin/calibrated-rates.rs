@@ -14,7 +14,7 @@
 use calib_core::estimators::mag::heading_deg;
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::region::{self, ADDRESS, PAGE, SLOTS};
-use calib_core::math::stats::Welford3;
+use calib_core::math::stats::Moments3;
 use calib_core::math::vec3::to_f64;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
@@ -100,7 +100,7 @@ fn main() -> ! {
     };
     let setup: SensorSetup = config.setup();
     let mut stamper = Stamper::new(setup.odr_hz);
-    let (mut rate, mut turned_deg, mut last_t) = (Welford3::new(), [0.0f64; 3], None::<f64>);
+    let (mut rate, mut turned_deg, mut last_t) = (Moments3::new(), [0.0f64; 3], None::<f64>);
     // The heading needs the record's magnetometer calibration and the part.
     let mag_cal = rec.and_then(|r| r.mag);
     let t_us = clock.now_us();
@@ -111,7 +111,7 @@ fn main() -> ! {
             None
         }
     });
-    let (mut gravity, mut field) = (Welford3::new(), None::<[f32; 3]>);
+    let (mut gravity, mut field) = (Moments3::new(), None::<[f32; 3]>);
     let mut next_line = clock.now_us() + 1_000_000;
     loop {
         board::sleep();
@@ -176,14 +176,14 @@ fn main() -> ! {
                 turned_deg[1],
                 turned_deg[2]
             );
-            rate = Welford3::new();
+            rate = Moments3::new();
             if let (Some(c), Some(m), true) = (mag_cal, field, gravity.count() > 0) {
                 let f = gravity.mean().map(|v| v as f32);
                 if let Some(h) = heading_deg(to_f64(f), to_f64(c.apply(m))) {
                     defmt::info!("heading {=f64} deg (tilt-compensated, clockwise from magnetic north)", h);
                 }
             }
-            gravity = Welford3::new();
+            gravity = Moments3::new();
         }
     }
 }

@@ -213,9 +213,11 @@ impl Axes {
         Self { poses: Poses::new(), moves: heapless::Vec::new(), members: [0; MAX_AXES] }
     }
 
-    /// Forgets everything.
+    /// Forgets everything (in place).
     pub fn clear(&mut self) {
-        *self = Self::new();
+        self.poses.clear();
+        self.moves.clear();
+        self.members = [0; MAX_AXES];
     }
 
     /// Adds a static pose (calibrated specific force `f = M (a − o)`, g); returns its index.

@@ -458,24 +458,45 @@ pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
 impl<const M: usize, const C: usize> Rotations<M, C> {
     /// Nothing recorded.
     pub const fn new() -> Self {
-        Self {
-            poses: Poses::new(),
-            sigma_g: [0.0; MAX_POSES],
-            rest: [PoseRest::NONE; MAX_POSES],
-            chunks: heapless::Vec::new(),
-            moves: heapless::Vec::new(),
-            open: None,
-            rejected: [0; REJECTED_REASONS],
-            worst: [0.0; REJECTED_REASONS],
-            bias_jump: None,
-            earth: [None; EARTH_POSES],
-            rest_earth: Some(Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)),
+        let mut out = core::mem::MaybeUninit::uninit();
+        // SAFETY: `init_in` writes every field.
+        unsafe {
+            Self::init_in(out.as_mut_ptr());
+            out.assume_init()
         }
     }
 
-    /// Forgets everything.
+    /// Forgets everything, in place (a `Self::new()` assigned would pass ~23 KiB through the
+    /// stack).
     pub fn clear(&mut self) {
-        *self = Self::new();
+        // SAFETY: `self` is valid for writes; no field has drop glue to skip.
+        unsafe { Self::init_in(self) }
+    }
+
+    /// Writes [`Self::new`]'s fields at `p`, each in place.
+    ///
+    /// # Safety
+    /// `p` must be valid for writes and aligned; what it held is overwritten, not dropped.
+    pub(crate) const unsafe fn init_in(p: *mut Self) {
+        use core::ptr::addr_of_mut;
+        // SAFETY: the caller's contract.
+        unsafe {
+            addr_of_mut!((*p).poses).write(Poses::new());
+            addr_of_mut!((*p).sigma_g).write([0.0; MAX_POSES]);
+            let mut i = 0;
+            while i < MAX_POSES {
+                addr_of_mut!((*p).rest[i]).write(PoseRest::NONE);
+                i += 1;
+            }
+            addr_of_mut!((*p).chunks).write(heapless::Vec::new());
+            addr_of_mut!((*p).moves).write(heapless::Vec::new());
+            addr_of_mut!((*p).open).write(None);
+            addr_of_mut!((*p).rejected).write([0; REJECTED_REASONS]);
+            addr_of_mut!((*p).worst).write([0.0; REJECTED_REASONS]);
+            addr_of_mut!((*p).bias_jump).write(None);
+            addr_of_mut!((*p).earth).write([None; EARTH_POSES]);
+            addr_of_mut!((*p).rest_earth).write(Some(Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)));
+        }
     }
 
     /// Adds a static pose: its mean specific force (raw until [`Self::calibrate_poses`], g), the

@@ -49,6 +49,8 @@ use crate::math::stats::Moments3;
 use crate::math::vec3::{sub, to_f64 as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
 use crate::{Error, Vec3};
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use heapless::Deque;
 use nalgebra::{Matrix3, Vector3};
 
@@ -321,44 +323,57 @@ impl Procedure {
     /// A procedure in `Idle`; `stored` is the valid record found in flash, if any (its
     /// accelerometer calibration is reused and its sequence number continued).
     pub const fn new(cfg: Config, stored: Option<Record>) -> Self {
-        Self {
-            cfg,
-            stored,
-            step: Step::Idle,
-            phase_t0: 0.0,
-            last_sample_t: None,
-            queue: Deque::new(),
-            rest: RestDetector::new(cfg.rest),
-            tainted: false,
-            servo_deg: None,
-            tilt_deg: None,
-            last_pulse: None,
-            last_tilt_pulse: None,
-            bias: None,
-            accel_cal: AccelCal::IDENTITY,
-            accel_poses: AccelCalibrator::new(),
-            poses: Poses::new(),
-            moves: Moves::new(),
-            axes: Axes::new(),
-            rotations: Rotations::new(),
-            hand_rows: NormalEquations::new(),
-            full: None,
-            integ: Integrator::new(),
-            drift: Drift::new(),
-            temp_fit: TempFit::new(),
-            rest_temp_c: f32::NAN,
-            window_read: WindowReadings { temp: Moments3::new(), mag: Moments3::new() },
-            mag: MagCalibrator::new(),
-            mag_cal: None,
-            mag_pending: false,
-            accel_pending: false,
-            accel_nine: None,
-            mag_first_pose: 0,
-            window_turn: PoseTurn::new(),
-            attitude: None,
-            gbar: None,
-            temp: Moments3::new(),
-            overflow: false,
+        let mut out = MaybeUninit::uninit();
+        Self::init(&mut out, cfg, stored);
+        // SAFETY: `init` wrote every field.
+        unsafe { out.assume_init() }
+    }
+
+    /// [`Self::new`] built in place in `out` (e.g. a static's storage), field by field: the
+    /// procedure is ~48 KiB, which a value built first and moved after would take on the stack.
+    #[inline(never)]
+    pub const fn init(out: &mut MaybeUninit<Self>, cfg: Config, stored: Option<Record>) -> &mut Self {
+        let p = out.as_mut_ptr();
+        // SAFETY: `p` is valid for writes; every field is written once, so the value is whole.
+        unsafe {
+            addr_of_mut!((*p).cfg).write(cfg);
+            addr_of_mut!((*p).stored).write(stored);
+            addr_of_mut!((*p).step).write(Step::Idle);
+            addr_of_mut!((*p).phase_t0).write(0.0);
+            addr_of_mut!((*p).last_sample_t).write(None);
+            addr_of_mut!((*p).queue).write(Deque::new());
+            addr_of_mut!((*p).rest).write(RestDetector::new(cfg.rest));
+            addr_of_mut!((*p).tainted).write(false);
+            addr_of_mut!((*p).servo_deg).write(None);
+            addr_of_mut!((*p).tilt_deg).write(None);
+            addr_of_mut!((*p).last_pulse).write(None);
+            addr_of_mut!((*p).last_tilt_pulse).write(None);
+            addr_of_mut!((*p).bias).write(None);
+            addr_of_mut!((*p).accel_cal).write(AccelCal::IDENTITY);
+            addr_of_mut!((*p).accel_poses).write(AccelCalibrator::new());
+            addr_of_mut!((*p).poses).write(Poses::new());
+            addr_of_mut!((*p).moves).write(Moves::new());
+            addr_of_mut!((*p).axes).write(Axes::new());
+            Rotations::init_in(addr_of_mut!((*p).rotations));
+            addr_of_mut!((*p).hand_rows).write(NormalEquations::new());
+            addr_of_mut!((*p).full).write(None);
+            addr_of_mut!((*p).integ).write(Integrator::new());
+            addr_of_mut!((*p).drift).write(Drift::new());
+            addr_of_mut!((*p).temp_fit).write(TempFit::new());
+            addr_of_mut!((*p).rest_temp_c).write(f32::NAN);
+            addr_of_mut!((*p).window_read).write(WindowReadings { temp: Moments3::new(), mag: Moments3::new() });
+            addr_of_mut!((*p).mag).write(MagCalibrator::new());
+            addr_of_mut!((*p).mag_cal).write(None);
+            addr_of_mut!((*p).mag_pending).write(false);
+            addr_of_mut!((*p).accel_pending).write(false);
+            addr_of_mut!((*p).accel_nine).write(None);
+            addr_of_mut!((*p).mag_first_pose).write(0);
+            addr_of_mut!((*p).window_turn).write(PoseTurn::new());
+            addr_of_mut!((*p).attitude).write(None);
+            addr_of_mut!((*p).gbar).write(None);
+            addr_of_mut!((*p).temp).write(Moments3::new());
+            addr_of_mut!((*p).overflow).write(false);
+            out.assume_init_mut()
         }
     }
 
