@@ -18,9 +18,10 @@ impl<'a> Log<'a> {
     /// Every still segment measures the bias anew (a move loses the bias tracked between the
     /// rests that bound it), but for a hand's shaky pose ([`Drift::shaky`]), which takes it
     /// from the line between the rests before and after it (the drift's line through those
-    /// before when none follows), as the firmware settles it.
+    /// before when none follows), as the firmware settles it. Shaky against a rest's own noise
+    /// ([`rest_noise_dps`]), as the firmware judges against its first rest's.
     fn new(rows: &'a [Row], ph: &'a Phases, bias: Bias) -> Self {
-        let noise = bias.noise_dps.iter().fold(0.0f32, |m, v| m.max(*v));
+        let noise = rest_noise_dps(ph).unwrap_or_else(|| bias.noise_dps.iter().fold(0.0f32, |m, v| m.max(*v)));
         let mut drift = Drift::new();
         let mut rests: Vec<(RestBias, bool)> = ph
             .segments
@@ -87,6 +88,20 @@ impl<'a> Log<'a> {
     fn rig(&self) -> impl Iterator<Item = &Segment> {
         self.ph.segments.iter().filter(|s| s.is_rig_pose())
     }
+}
+
+/// The gyro noise of a rest (°/s, its largest axis): the median over the rig's still poses of
+/// each one's own spread; `None` without them (a log of hand-held poses alone: the pooled
+/// spread of its still segments). Not [`Bias::noise_dps`] when the log has rig poses: that
+/// pools every segment under the rig's stillness threshold (0.8 °/s) about one mean, a hand's
+/// poses with it, and reads 0.2–0.5 °/s on a swaying hand where a rest's own is 0.06; a swaying
+/// pose then passed for a rest and took its own gyro mean as the bias, its sway's net turn over
+/// the pose included (a slow nod's: 0.03 °/s per axis), which every move into and out of it,
+/// and the poses whose bias the line through it gives, integrated.
+fn rest_noise_dps(ph: &Phases) -> Option<f32> {
+    let mut own: Vec<f64> = ph.segments.iter().filter(|s| s.is_rig_pose() && ph.measures_bias(s)).map(|s| s.gyro.max_std()).collect();
+    own.sort_by(f64::total_cmp);
+    own.get(own.len() / 2).map(|v| *v as f32)
 }
 
 /// The tilt settings of the rig poses (0.5° steps) with their pose counts, in order of first use.
