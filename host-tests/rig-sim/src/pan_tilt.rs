@@ -131,6 +131,14 @@ pub fn k_error_z(e: &Matrix3<f64>, sigma: [[f32; 3]; 3]) -> [f64; 9] {
     })
 }
 
+/// How many of a full `K̂`'s 9 elements have their error within 1σ and within 2σ of their
+/// reported 1σ ([`k_error_z`]; none without an error matrix).
+pub fn k_error_covered(k_hat: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> [usize; 2] {
+    let Some(e) = k_error_matrix(k_hat, m_hat, rig) else { return [0; 2] };
+    let z = k_error_z(&e, sigma);
+    [1.0, 2.0].map(|n| z.iter().filter(|z| **z <= n).count())
+}
+
 /// (largest |E_ij|, RMS over the 9) of [`k_error_matrix`].
 pub fn k_error(k_hat: [[f32; 3]; 3], m_hat: [[f32; 3]; 3], rig: &Rig) -> Option<(f64, f64)> {
     let e = k_error_matrix(k_hat, m_hat, rig)?;

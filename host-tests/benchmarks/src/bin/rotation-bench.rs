@@ -51,14 +51,6 @@ fn log_of(rig_kind: usize, rig: &mut Rig) -> String {
     }
 }
 
-/// How many of a full `K̂`'s 9 elements have their error within 1σ and within 2σ of their
-/// reported 1σ ([`pan_tilt::k_error_z`]).
-fn covered(k: [[f32; 3]; 3], sigma: [[f32; 3]; 3], m: [[f32; 3]; 3], rig: &Rig) -> [usize; 2] {
-    let Some(e) = pan_tilt::k_error_matrix(k, m, rig) else { return [0; 2] };
-    let z = pan_tilt::k_error_z(&e, sigma);
-    [1.0, 2.0].map(|n| z.iter().filter(|z| **z <= n).count())
-}
-
 /// The fractions of elements within 1σ and 2σ from the counts over `rigs` full `K`s.
 fn coverage(c: [usize; 2], rigs: usize) -> [f64; 2] {
     c.map(|n| if rigs == 0 { 0.0 } else { n as f64 / (9 * rigs) as f64 })
@@ -121,7 +113,7 @@ fn main() {
                 }
                 let k = match c.as_ref().map(|c| (c.full.as_ref(), &c.gyro, c.accel.m)) {
                     Ok((Some(Ok(f)), _, m)) => {
-                        let [a, b] = covered(f.k, f.sigma_k, m, &rig);
+                        let [a, b] = pan_tilt::k_error_covered(f.k, f.sigma_k, m, &rig);
                         cover = [cover[0] + a, cover[1] + b];
                         Some((f.k, m))
                     }
@@ -191,7 +183,7 @@ fn main() {
         if let Some((mx, r)) = pan_tilt::k_error(rec.gyro_k, rec.accel_m, &rig) {
             full.push(r);
             max = max.max(mx);
-            let [a, b] = covered(rec.gyro_k, rec.sigma_k, rec.accel_m, &rig);
+            let [a, b] = pan_tilt::k_error_covered(rec.gyro_k, rec.sigma_k, rec.accel_m, &rig);
             cover = [cover[0] + a, cover[1] + b];
         }
         let sweep = out.gyro_results().into_iter().find(|g| g.method == calib_core::estimators::gyro::Method::Sweep);
