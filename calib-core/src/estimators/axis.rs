@@ -142,7 +142,7 @@ impl Poses {
             let along = t.dot(&u);
             (ax + along / nf, ra + (t - u * along).norm() / nf)
         });
-        Plane { n, mean, vals, u, e: [col(1), col(2)], tilt_deg: libm::atan2(radial, axial).to_degrees(), radial }
+        Plane { n, mean, vals, u, e: [col(1), col(2)], tilt_deg: crate::math::trig::atan2(radial, axial).to_degrees(), radial }
     }
 
     /// Measures and checks the geometry. `paper` adds the paper estimator's own requirement
@@ -157,7 +157,7 @@ impl Poses {
         let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
         let min_tilt = (limits.min_tilt_deg as f64).to_radians();
         if spread < 0.3 * min_tilt || tilt_deg < limits.min_tilt_deg as f64 {
-            let tilt = libm::atan2(spread, mean.norm()).to_degrees().min(tilt_deg);
+            let tilt = crate::math::trig::atan2(spread, mean.norm()).to_degrees().min(tilt_deg);
             return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
         }
         // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).
@@ -208,7 +208,7 @@ pub(crate) struct Plane {
 pub fn turn_deg(u: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> f64 {
     let p = from - u * from.dot(u);
     let q = to - u * to.dot(u);
-    -libm::atan2(u.dot(&p.cross(&q)), p.dot(&q)).to_degrees()
+    -crate::math::trig::atan2(u.dot(&p.cross(&q)), p.dot(&q)).to_degrees()
 }
 
 /// `angle_deg + k·360°` nearest to `reference_deg`: resolves the turn measured modulo a full turn

@@ -105,7 +105,7 @@ impl MagCal {
 /// `asin(x)` (rad) with `x` clamped to ±1, through the `atan2` the firmware has already.
 fn asin(x: f64) -> f64 {
     let x = x.clamp(-1.0, 1.0);
-    libm::atan2(x, libm::sqrt(1.0 - x * x))
+    crate::math::trig::atan2(x, libm::sqrt(1.0 - x * x))
 }
 
 /// The rotation by about `θ` (rad, small) without trigonometry: Cayley's
@@ -120,7 +120,7 @@ fn cayley(theta: &Vector3<f64>) -> Matrix3<f64> {
 /// The angle (rad) of rotation matrix `r`: `atan2(sin, cos)` from its skew part and trace.
 fn angle_of(r: &Matrix3<f64>) -> f64 {
     let v = Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]);
-    libm::atan2(v.norm() / 2.0, (r.trace() - 1.0) / 2.0)
+    crate::math::trig::atan2(v.norm() / 2.0, (r.trace() - 1.0) / 2.0)
 }
 
 /// Strength (µT) and dip (rad, positive below the horizon) of field `m` with gravity along `f`.
@@ -466,7 +466,7 @@ pub fn heading_deg(f: Vector3<f64>, m: Vector3<f64>) -> Option<f64> {
     let up = f.try_normalize(1e-9)?;
     let north = (m - up * m.dot(&up)).try_normalize(1e-9)?;
     let east = north.cross(&up);
-    let h = libm::atan2(east[0], north[0]).to_degrees();
+    let h = crate::math::trig::atan2(east[0], north[0]).to_degrees();
     Some(if h < 0.0 { h + 360.0 } else { h })
 }
 

@@ -420,7 +420,7 @@ fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_e
 }
 
 fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
-    libm::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
+    crate::math::trig::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
 }
 
 fn sq(x: f64) -> f64 {

@@ -39,7 +39,7 @@ impl Procedure {
         let poses = self.rotations.poses();
         let distinct = (if extra { poses.len().saturating_sub(1) } else { 0 }..poses.len()).all(|i| {
             let old = poses.get(i);
-            libm::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
+            crate::math::trig::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
         });
         self.step = Step::HandHeld { capture: Capture::default() };
         if !distinct {

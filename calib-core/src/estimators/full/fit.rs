@@ -152,7 +152,7 @@ impl Axes {
             let r = 1.0 / libm::sqrt(nf);
             let e = tangent_basis(&u);
             // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
-            let floor_rad = libm::atan2(spread, mean.norm());
+            let floor_rad = crate::math::trig::atan2(spread, mean.norm());
             let tilt_deg = floor_rad.to_degrees();
             let f = Fit {
                 u,
@@ -228,11 +228,11 @@ pub(super) fn spread_rad(us: &[Vector3<f64>]) -> (f64, f64) {
     for i in 0..us.len() {
         for j in i + 1..us.len() {
             let c = us[i].cross(&us[j]);
-            min_pair = min_pair.min(libm::atan2(c.norm(), us[i].dot(&us[j]).abs()));
+            min_pair = min_pair.min(crate::math::trig::atan2(c.norm(), us[i].dot(&us[j]).abs()));
             if c.norm() > 1e-9 {
                 for k in (0..us.len()).filter(|&k| k != i && k != j) {
                     // The angle of u_k from the plane ⟂ c (no asin linked into the firmware).
-                    non_coplanar = non_coplanar.max(libm::atan2(us[k].dot(&c).abs(), us[k].cross(&c).norm()));
+                    non_coplanar = non_coplanar.max(crate::math::trig::atan2(us[k].dot(&c).abs(), us[k].cross(&c).norm()));
                 }
             }
         }
