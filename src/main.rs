@@ -18,10 +18,12 @@ mod mag;
 use console::{Console, LINE};
 use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, Wait};
 
+use calib_core::estimators::mag::heading_deg;
 use calib_core::formats::protocol::{self, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
-use calib_core::formats::text::{Level as Log, V3};
+use calib_core::formats::text::{Fixed, Level as Log, V3};
 use calib_core::math::stats::Moments3;
+use calib_core::math::vec3::to_f64;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use core::mem::MaybeUninit;
 use embedded_hal::digital::InputPin;
@@ -191,8 +193,8 @@ struct Sensing {
     mag: Magnetometer,
     /// Raw-log mode.
     raw: bool,
-    /// The calibrated rate (°/s) since the last rate line.
-    rate: Moments3,
+    /// The calibrated rate and heading since the last rate line.
+    live: Live,
 }
 
 impl Sensing {
@@ -208,7 +210,7 @@ impl Sensing {
             last_poll_s: 0.0,
             mag: Magnetometer::new(),
             raw: false,
-            rate: Moments3::new(),
+            live: Live::default(),
         }
     }
 
@@ -280,7 +282,7 @@ impl Sensing {
         }
         let Some(s) = self.sensor.as_mut() else { return };
         let mag_ut = self.mag.poll(s.bus_mut(), false, now, clock, &mut io.console);
-        let (stamper, raw, rate, setup) = (&mut self.stamper, self.raw, &mut self.rate, self.config.setup());
+        let (stamper, raw, live, setup) = (&mut self.stamper, self.raw, &mut self.live, self.config.setup());
         let result = s.fifo_status().and_then(|st| {
             if st.overrun {
                 io.console.send(Log::Warn, "FIFO overrun: samples lost");
@@ -298,7 +300,7 @@ impl Sensing {
                 let (accel_g, gyro_dps) = s.convert(&raw_slot);
                 let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                 // A new field reading goes with the batch's newest sample (read just before).
-                feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, rate, procedure, io);
+                feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, live, procedure, io);
             }
             Ok(())
         });
@@ -364,7 +366,7 @@ impl Sensing {
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
                     let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
                     // A new field reading goes with the batch's newest sample (read just before).
-                    feed(sample, mag_ut.filter(|_| i + 1 == got.len()), b.setup(), self.raw, &mut self.rate, procedure, io);
+                    feed(sample, mag_ut.filter(|_| i + 1 == got.len()), b.setup(), self.raw, &mut self.live, procedure, io);
                 }
             }
             Err(e) => {
@@ -397,16 +399,8 @@ impl Sensing {
 
 /// One reading (and the field read with it) into the procedure, as the raw log holds it (a
 /// replay of the log sees what the procedure saw); its row in raw-log mode; the calibrated rate
-/// when the stored record was made at `setup`, the sensor's.
-fn feed(
-    sample: Sample,
-    mag_ut: Option<[f32; 3]>,
-    setup: SensorSetup,
-    raw: bool,
-    rate: &mut Moments3,
-    procedure: &mut Procedure,
-    io: &mut Io,
-) {
+/// (and, with a field, the heading) when the stored record was made at `setup`, the sensor's.
+fn feed(sample: Sample, mag_ut: Option<[f32; 3]>, setup: SensorSetup, raw: bool, live: &mut Live, procedure: &mut Procedure, io: &mut Io) {
     let (accel_g, gyro_dps) = calib_core::formats::log::as_logged(sample.accel_g, sample.gyro_dps);
     let sample = Sample { accel_g, gyro_dps, temp_c: calib_core::formats::log::temp_as_logged(sample.temp_c), ..sample };
     let mag_ut = mag_ut.map(calib_core::formats::log::mag_as_logged);
@@ -418,7 +412,10 @@ fn feed(
         procedure.drive(sample.t_s, io);
     }
     if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
-        rate.add(rec.apply_gyro(gyro_dps));
+        live.rate.add(rec.apply_gyro(gyro_dps));
+        if let (Some(cal), Some(m)) = (rec.mag, mag_ut) {
+            live.heading_deg = heading_deg(to_f64(rec.accel().apply(accel_g)), to_f64(cal.apply(m))).map(|h| h as f32);
+        }
     }
     procedure.handle_sample(&sample);
     procedure.drive(sample.t_s, io);
@@ -485,8 +482,18 @@ fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure
     io.console.report_ignored(now);
 }
 
-/// The periodic status lines: the calibrated rate once a second, and the RTT bytes dropped while
-/// no host read (said once one reads again).
+/// The calibrated readings the rate line gives: the mean rate (°/s) since the last line and the
+/// latest tilt-compensated heading of the board's x axis (°, from magnetic north, clockwise from
+/// above; with a stored magnetometer calibration), to point x at north once and see the field's
+/// sign right (a field taken negated reads 180° off).
+#[derive(Default)]
+struct Live {
+    rate: Moments3,
+    heading_deg: Option<f32>,
+}
+
+/// The periodic status lines: the calibrated rate (and heading) once a second, and the RTT bytes
+/// dropped while no host read (said once one reads again).
 #[derive(Default)]
 struct Status {
     last_rate_line_s: f64,
@@ -495,11 +502,17 @@ struct Status {
 }
 
 impl Status {
-    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, rate: &mut Moments3) {
-        if show_rate && now - self.last_rate_line_s >= 1.0 && rate.count() > 0 {
-            let m = rate.mean();
-            console.say(Log::Info, format_args!("rate {} dps (calibrated, 1 s mean)", V3(m.map(|v| v as f32), 3)));
-            *rate = Moments3::new();
+    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, live: &mut Live) {
+        if show_rate && now - self.last_rate_line_s >= 1.0 && live.rate.count() > 0 {
+            let m = V3(live.rate.mean().map(|v| v as f32), 3);
+            match live.heading_deg.take() {
+                Some(h) => console.say(
+                    Log::Info,
+                    format_args!("rate {m} dps (calibrated, 1 s mean); x heads {} deg from magnetic north", Fixed(h as f64, 0)),
+                ),
+                None => console.say(Log::Info, format_args!("rate {m} dps (calibrated, 1 s mean)")),
+            }
+            live.rate = Moments3::new();
             self.last_rate_line_s = now;
         }
         if now - self.last_drop_check_s >= 1.0 {
@@ -623,7 +636,7 @@ fn main() -> ! {
         io.flush_servos(clock.now_us());
 
         let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());
-        status.lines(now, &mut io.console, applied && !sensing.raw, &mut sensing.rate);
+        status.lines(now, &mut io.console, applied && !sensing.raw, &mut sensing.live);
         leds.show(render(io.led, clock.now_ms()));
         board::sleep();
     }

@@ -53,6 +53,29 @@ fn calibrates_stores_and_reloads_after_reset() {
     b.run_for(3.0);
     assert_eq!(b.stored().map(|r| r.seq), Some(1));
     assert!(!b.leds().red, "no error after the reboot");
+    heading_line_matches_the_truth(&mut b);
+}
+
+/// The console's heading check (issue 47): held still in the air, away from the servo's magnet,
+/// the rate line's heading of the board's x axis against the truth's (the site's field, the
+/// board's attitude); a field taken negated would read 180° off.
+fn heading_line_matches_the_truth(b: &mut Testbed) {
+    for (roll, pitch, yaw) in [(0.2, -0.3, 1.1), (-0.4, 0.1, -2.4)] {
+        let q = nalgebra::UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+        b.mcu.periph.borrow_mut().sensor.rig_mut().detach_to(q, 0.5);
+        let from = b.mcu.log.len();
+        b.run_for(3.0);
+        let line = b.mcu.log[from..].iter().rev().find(|l| l.contains("x heads")).expect("a heading on the rate line").clone();
+        let shown: f64 = line.split("x heads ").nth(1).and_then(|r| r.split(' ').next()).and_then(|v| v.parse().ok()).expect("a number");
+        let truth = {
+            let p = b.mcu.periph.borrow();
+            let t = p.sensor.rig().truth();
+            rig_sim::heading::heading_w(&(t.q_wb * nalgebra::Vector3::x()), &t.mag.expect("a field").field_w).expect("a heading")
+        };
+        let e = (shown - truth + 540.0) % 360.0 - 180.0;
+        println!("MEASURED heading line {shown} deg, truth {truth:.2} deg: {line}");
+        assert!(e.abs() <= 2.0, "{shown} vs {truth:.2}: {line}");
+    }
 }
 
 #[test]
@@ -140,6 +163,7 @@ fn a_rev2_board_calibrates_with_its_bmi270() {
     b.run_for(3.0);
     assert!(!b.mcu.log.iter().any(|l| l.contains("made at another sensor setup")), "{:?}", b.mcu.log);
     assert!(b.mcu.log.iter().any(|l| l.contains("(calibrated, 1 s mean)")), "the calibrated rate after the reboot");
+    heading_line_matches_the_truth(&mut b);
 }
 
 /// The loop stalls 0.5 s in a Rev2 calibration (a long flash erase, a USB write): about 650
