@@ -284,15 +284,17 @@ impl Sensing {
         let mag_ut = self.mag.poll(s.bus_mut(), false, now, clock, &mut io.console);
         let (stamper, raw, live, setup) = (&mut self.stamper, self.raw, &mut self.live, self.config.setup());
         let result = s.fifo_status().and_then(|st| {
-            if st.overrun {
+            let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
+            let batch = stamper.batch(t_read, n);
+            // An overrun, flagged or seen by the samples' count (a slot read after it, e.g. past
+            // a long call inside the last batch, clears the flag: `Batch::late`).
+            if st.overrun || batch.late(t_read, n) {
                 io.console.send(Log::Warn, "FIFO overrun: samples lost");
                 stamper.restart();
                 // At least one sample overwritten: a running calibration fails (named).
                 procedure.handle_samples_lost(1);
                 procedure.drive(now, io);
             }
-            let n = st.level.min(FIFO_DEPTH) as usize;
-            let batch = stamper.batch(clock.now_s(), n);
             // One reading per batch; a failed one leaves the samples without it.
             let temp_c = s.temperature_c().ok();
             for i in 0..n {

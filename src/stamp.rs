@@ -22,6 +22,11 @@ pub struct Stamper {
 
 /// Reads needed before the line is trusted.
 const MIN_BATCHES: u32 = 8;
+/// A newest sample this many periods and [`LATE_S`] older than its read: samples lost
+/// ([`Batch::late`]).
+const LATE_PERIODS: f64 = 4.0;
+/// The read latency allowed beyond [`LATE_PERIODS`] (s).
+const LATE_S: f64 = 0.005;
 
 impl Stamper {
     /// `nominal_hz` is used only until the period has been measured.
@@ -92,5 +97,13 @@ impl Batch {
     /// Time (s) of sample `i` of the batch (0 = oldest).
     pub fn stamp(&self, i: usize) -> f64 {
         self.origin_s + i as f64 * self.period_s
+    }
+
+    /// Whether its newest (`n − 1`th) sample, read at `t_read_s`, is older than a read can see
+    /// (at most a period and the read's latency): samples were lost uncounted, an overrun whose
+    /// flag a later slot read cleared (e.g. past a long call inside the batch before). The
+    /// stamper must then [`Stamper::restart`]: its count is wrong for good.
+    pub fn late(&self, t_read_s: f64, n: usize) -> bool {
+        n > 0 && t_read_s - self.stamp(n - 1) > LATE_PERIODS * self.period_s + LATE_S
     }
 }

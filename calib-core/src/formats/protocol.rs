@@ -72,8 +72,8 @@ impl Command {
 
 /// The help (the answer to [`Command::Help`]), one line each.
 pub const HELP: [&str; 2] = [
-    "commands: c calibrate, or continue after re-clamping (= the button); r raw log (CSV rows) on/off; s stored calibration (JSON, C); p sensor setup: this firmware's or Arduino's library's (LSM9DS1: 119 Hz, BMI270: 100 Hz; +-2000 dps, +-4 g), in turn, until reset; h help",
-    "1200-baud touch (open the port at 1200 Bd, then close it): resets into the Arduino bootloader for bossac",
+    "commands: c calibrate, or continue after re-clamping (= the button); r raw log on/off; s stored calibration (JSON, C); p sensor setup: this firmware's or Arduino's library's (119 Hz LSM9DS1, 100 Hz BMI270, +-2000 dps, +-4 g), in turn, until reset; h help",
+    "1200-baud touch (open at 1200 Bd, close): resets into the Arduino bootloader for bossac",
 ];
 
 /// Said once USB is up.

@@ -142,6 +142,27 @@ fn slow_polling_reports_overrun() {
 }
 
 #[test]
+fn samples_lost_without_the_overrun_flag_are_seen_by_their_count() {
+    // 119 Hz read every 10 ms with ±1 ms jitter: never late. Then a long call inside a batch:
+    // 0.5 s of samples overwritten, the flag cleared by the slot reads after it, the next read
+    // finds 31 samples: the count is 57 short of the time, so the batch is late.
+    let p = 1.0 / 117.0;
+    let mut stamper = Stamper::new(119.0);
+    let (mut t, mut produced, mut read) = (0.0f64, 0u64, 0u64);
+    for k in 0..2000 {
+        t += 0.010 + if k % 2 == 0 { 0.001 } else { -0.001 };
+        let now = (t / p) as u64;
+        let n = (now - read) as usize;
+        (read, produced) = (now, now);
+        assert!(!stamper.batch(t, n).late(t, n), "read {k}");
+    }
+    t += 0.5 + 31.0 * p;
+    let n = 31usize;
+    let lost = ((t / p) as u64 - produced) as usize - n;
+    assert!(lost > 50 && stamper.batch(t, n).late(t, n), "{lost} samples lost unseen");
+}
+
+#[test]
 fn a_bus_fault_mid_stream_is_an_error_value() {
     let bus = model(119.0, Board::Rev1);
     let mut s = init(&bus, cfg(Odr::Hz119)).unwrap();
