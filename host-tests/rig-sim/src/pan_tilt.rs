@@ -7,7 +7,7 @@ use crate::harness::operator_attitudes;
 use crate::sim::{Reading, Rig, RigConfig, TiltStage};
 use crate::variant::Variant;
 use calib_core::formats::log;
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -68,15 +68,34 @@ pub fn log(rig: &mut Rig, handheld: bool) -> String {
 
 /// The protocol at these tilt settings (°).
 pub fn log_at(rig: &mut Rig, handheld: bool, tilts_deg: &[f32]) -> String {
+    let poses = if handheld { operator_attitudes(rig.operator_rng()).into_iter().take(12).collect() } else { vec![] };
+    log_posed(rig, &poses, tilts_deg)
+}
+
+/// `n` attitudes drawn uniformly over all attitudes from `rng`: a pose set unlike the simulated
+/// operator's (near the vertices of an icosahedron), as another person or simulator holds them.
+pub fn random_attitudes(rng: &mut impl Rng, n: usize) -> Vec<UnitQuaternion<f64>> {
+    use rand_distr::StandardNormal;
+    (0..n)
+        .map(|_| {
+            let g: [f64; 4] = core::array::from_fn(|_| rng.sample(StandardNormal));
+            UnitQuaternion::from_quaternion(Quaternion::new(g[0], g[1], g[2], g[3]))
+        })
+        .collect()
+}
+
+/// The protocol at these tilt settings (°), the board held by hand first at these attitudes
+/// (none: no hand-held step).
+pub fn log_posed(rig: &mut Rig, poses: &[UnitQuaternion<f64>], tilts_deg: &[f32]) -> String {
     let header = crate::harness::log_header(rig.config());
     let mut s = Script { rig, text: format!("# pan/tilt protocol\n{header}\n"), pan: 0.0, tilt: 0.0 };
     s.rig.set_pulse_us(pulse(0.0));
     s.rig.set_tilt_pulse_us(pulse(90.0));
     s.hold(3.0, true);
-    if handheld {
-        // 12 poses, about 4 s each as the firmware asks: 1 s to turn, 3 s held, of which a
-        // hand's pose averages 2 s once it has settled.
-        for q in operator_attitudes(s.rig.operator_rng()).into_iter().take(12) {
+    if !poses.is_empty() {
+        // About 4 s each as the firmware asks: 1 s to turn, 3 s held, of which a hand's pose
+        // averages 2 s once it has settled.
+        for &q in poses {
             s.rig.detach_to(q, 1.0);
             s.hold(4.0, false);
         }
