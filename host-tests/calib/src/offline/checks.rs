@@ -73,9 +73,19 @@ pub fn check_time_base(rows: &[Row]) -> Result<TimeBase, OfflineError> {
     Err(OfflineError::TimeBase { rate_hz, hint })
 }
 
-/// Checks the accelerometer's units from the still segments: |a| ≈ 1 g.
-pub(super) fn check_accel_units(ph: &Phases) -> Result<(), OfflineError> {
-    let norms: Vec<f64> = ph.segments.iter().map(|s| Vector3::from(s.accel.mean()).norm()).collect();
+/// Checks the accelerometer's units from the still segments: |a| ≈ 1 g. Their means from the
+/// rows in f64: the segments' own sums (`Moments3`, fixed point) hold readings to ±8192, and a
+/// log in raw counts goes beyond.
+pub(super) fn check_accel_units(rows: &[Row], ph: &Phases) -> Result<(), OfflineError> {
+    let means: Vec<Vector3<f64>> = ph
+        .segments
+        .iter()
+        .map(|s| {
+            rows[s.first..=s.last].iter().map(|r| Vector3::from(r.accel_g.map(f64::from))).sum::<Vector3<f64>>()
+                / (s.last + 1 - s.first) as f64
+        })
+        .collect();
+    let norms: Vec<f64> = means.iter().map(|m| m.norm()).collect();
     let norm = norms.iter().sum::<f64>() / norms.len().max(1) as f64;
     if (0.8..=1.25).contains(&norm) {
         return Ok(());
@@ -84,7 +94,7 @@ pub(super) fn check_accel_units(ph: &Phases) -> Result<(), OfflineError> {
         "the accelerometer columns look like m/s²: they must be in g (divide by 9.80665, or --columns ax_g=NAME/9.80665 …)"
     } else if (800.0..=1250.0).contains(&norm) {
         "the accelerometer columns look like mg: divide by 1000"
-    } else if ph.segments.iter().all(|s| s.accel.mean().iter().all(|v| (16_384.0..=49_152.0).contains(v))) {
+    } else if means.iter().all(|m| m.iter().all(|v| (16_384.0..=49_152.0).contains(v))) {
         "raw counts of an unsigned 16-bit part (every axis near 32768 at rest): subtract 32768 and apply the sensitivity of the sensor's datasheet; the log holds g and deg/s"
     } else {
         "raw counts? apply the sensitivity (e.g. 0.061 mg/LSB at ±2 g: --columns ax_g=NAME*0.000061 …)"

@@ -247,7 +247,7 @@ fn calibrate_axes(
     if ph.segments.is_empty() {
         return Err(OfflineError::NoRest);
     }
-    check_accel_units(&ph)?;
+    check_accel_units(rows, &ph)?;
     // A run of the firmware's own procedure: replayed through it, the firmware's results (which
     // use the rotation constraints: `--no-rotations` takes the data-driven path).
     if method.is_none() && rotations_on {
