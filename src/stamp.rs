@@ -66,9 +66,10 @@ impl Stamper {
             // Times relative to the first read keep the sums well conditioned.
             let _ = self.fit.add_row(&[1.0, (self.received - 1) as f64], t_read_s - t0, 1.0);
             if self.fit.rows() >= MIN_BATCHES {
-                if let Ok(s) = self.fit.solve() {
-                    if s.x[1] > 0.5 * self.nominal_period_s && s.x[1] < 2.0 * self.nominal_period_s {
-                        self.line = Some((t0 + s.x[0], s.x[1]));
+                // The line alone: its condition number and covariance are not used.
+                if let Ok(x) = self.fit.estimate() {
+                    if x[1] > 0.5 * self.nominal_period_s && x[1] < 2.0 * self.nominal_period_s {
+                        self.line = Some((t0 + x[0], x[1]));
                     }
                 }
             }

@@ -5,7 +5,7 @@
 //! 6 and 9 for the accelerometer).
 
 use crate::math::linalg::{
-    cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_eigen_in, MAX_N,
+    cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_extremes_in, MAX_N,
 };
 use crate::Error;
 
@@ -162,10 +162,9 @@ fn condition(xtx: &[f64], n: usize) -> f64 {
             e[i * n + j] = xtx[i.max(j) * n + i.min(j)] * (s[i] * s[j]);
         }
     }
-    let (mut vals, mut v) = ([0.0; MAX_N], [0.0; MAX_N * MAX_N]);
-    sym_eigen_in(&mut e[..n * n], &mut vals[..n], &mut v[..n * n]);
-    if vals[0] > 0.0 {
-        vals[n - 1] / vals[0]
+    let (smallest, largest) = sym_extremes_in(&e[..n * n], n);
+    if smallest > 0.0 {
+        largest / smallest
     } else {
         f64::INFINITY
     }
