@@ -576,12 +576,14 @@ impl Procedure {
             let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
             self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp_jr(&phi).0);
         }
-        let wt = if window.is_some() { core::mem::take(&mut self.window_read) } else { WindowReadings::default() };
-        self.temp.merge(&wt.temp);
-        let turn = if window.is_some() { core::mem::take(&mut self.window_turn) } else { PoseTurn::new() };
-        if window.is_some() {
+        let (wt, turn) = if window.is_some() {
             self.tainted = false;
-        }
+            let wt = core::mem::take(&mut self.window_read);
+            self.temp.merge(&wt.temp);
+            (wt, core::mem::take(&mut self.window_turn))
+        } else {
+            (WindowReadings::default(), PoseTurn::new())
+        };
         match self.step {
             // The accelerometer's 6-parameter fit and its choice, then the magnetometer's fit,
             // each a while after the last long call: the shell drains the sensor's FIFO between.

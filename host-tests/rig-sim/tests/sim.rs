@@ -580,22 +580,30 @@ fn warm_up_bias_walk_and_earth_rate() {
     assert!((0.002..0.04).contains(&spread), "walk {spread:.4} °/s after 400 s (expected ~0.01)");
 }
 
+/// Error-free sensors, the board held still in the air by `level` (10 s after 2 s to settle):
+/// the gyro's RMS (°/s), its largest turn from the held attitude (°), the linear acceleration of
+/// every sample (g, the reading less gravity) and the ODR (Hz).
+fn held_still(level: HandLevel, seed: u64) -> (f64, f64, Vec<Vector3<f64>>, f64) {
+    let cfg = RigConfig { hand: Some(level), ..RigConfig::ideal() };
+    let mut rig = Rig::new(cfg, seed);
+    let q = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.7);
+    rig.detach_to(q, 0.5);
+    run(&mut rig, 2.0);
+    let s = record(&mut rig, 10.0);
+    let rms = (s.iter().map(|(r, _)| v3(r.gyro_dps).norm_squared()).sum::<f64>() / s.len() as f64).sqrt();
+    let tilt = s.iter().map(|(_, t)| t.q_wb.angle_to(&q).to_degrees()).fold(0.0, f64::max);
+    let lin = s.iter().map(|(r, t)| v3(r.accel_g) - gravity_b(&t.q_wb)).collect();
+    (rms, tilt, lin, rig.config().odr_hz)
+}
+
 #[test]
 fn a_hand_sways_and_trembles_as_the_literature_says_and_braced_a_quarter_of_it() {
     // Error-free sensors, the board held still in the air: what the gyro and the accelerometer
     // see is the hand. Issue 31's figures: gyro RMS up to ~2 deg/s, linear accelerations up to
     // ~0.01 g, sway 0.1-0.3 deg; braced about a quarter.
     let measure = |level: HandLevel, seed: u64| {
-        let cfg = RigConfig { hand: Some(level), ..RigConfig::ideal() };
-        let mut rig = Rig::new(cfg, seed);
-        let q = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.7);
-        rig.detach_to(q, 0.5);
-        run(&mut rig, 2.0);
-        let s = record(&mut rig, 10.0);
-        let rms = (s.iter().map(|(r, _)| v3(r.gyro_dps).norm_squared()).sum::<f64>() / s.len() as f64).sqrt();
-        let tilt = s.iter().map(|(_, t)| t.q_wb.angle_to(&q).to_degrees()).fold(0.0, f64::max);
-        let lin = s.iter().map(|(r, t)| (v3(r.accel_g) - gravity_b(&t.q_wb)).norm()).fold(0.0, f64::max);
-        (rms, tilt, lin)
+        let (rms, tilt, lin, _) = held_still(level, seed);
+        (rms, tilt, lin.iter().map(|v| v.norm()).fold(0.0, f64::max))
     };
     for seed in 1..4 {
         let (rms, tilt, lin) = measure(HandLevel::Free, seed);
@@ -613,17 +621,9 @@ fn every_hand_of_the_family_stays_within_what_hands_do() {
     // and the linear acceleration averaged over 2 s (what a pose's mean keeps).
     for level in rig_sim::sim::HANDS {
         for seed in 1..6 {
-            let cfg = RigConfig { hand: Some(level), ..RigConfig::ideal() };
-            let mut rig = Rig::new(cfg, seed);
-            let q = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.7);
-            rig.detach_to(q, 0.5);
-            run(&mut rig, 2.0);
-            let s = record(&mut rig, 10.0);
-            let rms = (s.iter().map(|(r, _)| v3(r.gyro_dps).norm_squared()).sum::<f64>() / s.len() as f64).sqrt();
-            let tilt = s.iter().map(|(_, t)| t.q_wb.angle_to(&q).to_degrees()).fold(0.0, f64::max);
-            let lin: Vec<Vector3<f64>> = s.iter().map(|(r, t)| v3(r.accel_g) - gravity_b(&t.q_wb)).collect();
+            let (rms, tilt, lin, odr_hz) = held_still(level, seed);
             let peak = lin.iter().map(|v| v.norm()).fold(0.0, f64::max);
-            let w = (2.0 * rig.config().odr_hz) as usize;
+            let w = (2.0 * odr_hz) as usize;
             let mean2 = lin.chunks_exact(w).map(|c| (c.iter().sum::<Vector3<f64>>() / c.len() as f64).norm()).fold(0.0, f64::max);
             println!(
                 "MEASURED {} seed {seed}: gyro RMS {rms:.2} deg/s, turn {tilt:.3} deg, linear accel {peak:.4} g, over 2 s {mean2:.5} g",
