@@ -81,7 +81,7 @@ fn pair(m: AxisMap) -> (M3, M3) {
 /// The 1σ of `T X U` from independent elements' 1σ `s`: `σ'ᵢⱼ² = Σ Tᵢₖ² σₖₗ² Uₗⱼ²`.
 fn sigma(t: &M3, s: &Mat3, u: &M3) -> Mat3 {
     let sq = |m: &M3| m.component_mul(m);
-    mat(&(sq(t) * sq(&m3(s)) * sq(u)).map(libm::sqrtf))
+    mat(&(sq(t) * sq(&m3(s)) * sq(u)).map(crate::math::vec3::sqrtf))
 }
 
 /// A linear map of the data and the outputs: each as a matrix and its inverse.
@@ -174,7 +174,7 @@ impl Record {
                 tc.dps_per_c = vec(g, &tc.dps_per_c);
                 // As for independent elements: σ'ᵢ² = Σ Dᵢₖ² σₖ².
                 let s2 = vec(&g.component_mul(g), &tc.sigma_dps_per_c.map(|x| x * x));
-                tc.sigma_dps_per_c = s2.map(libm::sqrtf);
+                tc.sigma_dps_per_c = s2.map(crate::math::vec3::sqrtf);
                 tc
             }),
             mag: self.mag.map(|mut mc| {

@@ -302,6 +302,35 @@ impl Axes {
         rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
         start: Option<[f64; 9]>,
     ) -> Result<FullCal, Error> {
+        self.solve_after(limits, rotations, start, 0, false)
+    }
+
+    /// One Gauss–Newton iteration of [`Self::solve_with`] from `k` (vec `K`; `None`: where the
+    /// solve starts): the next iterate and the largest change of an element, for a caller that
+    /// cuts the solve into calls of bounded length ([`Self::solve_after`] then finishes it).
+    /// The solve's checks are [`Self::solve_after`]'s: an error here is only that this step
+    /// could not be taken.
+    pub fn iterate<const M: usize, const C: usize>(
+        &self,
+        limits: &FullLimits,
+        rotations: (&Rotations<M, C>, &RotationLimits),
+        k: Option<[f64; 9]>,
+    ) -> Result<([f64; 9], f64), Error> {
+        let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
+        gauss_newton::step(&rig.equations()?.ne, rotations.0, rotations.1, k, limits)
+    }
+
+    /// [`Self::solve_from`] after `done` iterations already taken by [`Self::iterate`] up to
+    /// `start`: at most the rest of [`GAUSS_NEWTON_ITERATIONS`] (none when `start` is the
+    /// `last` iterate: converged, or the iterations ran out), and the result counts them all.
+    pub fn solve_after<const M: usize, const C: usize>(
+        &self,
+        limits: &FullLimits,
+        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+        start: Option<[f64; 9]>,
+        done: u8,
+        last: bool,
+    ) -> Result<FullCal, Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
         let RigEquations { ne, used, skipped, per_axis } = rig.equations()?;
         let rotations = rotations.filter(|(r, _)| !r.moves().is_empty());
@@ -310,7 +339,9 @@ impl Axes {
         let (ne, rotation) = match rotations {
             None => (ne, None),
             Some((r, rl)) => {
-                let (ne, fit) = gauss_newton::with_rotations(&ne, r, rl, start, limits)?;
+                let left = if last && start.is_some() { 0 } else { GAUSS_NEWTON_ITERATIONS.saturating_sub(done).max(1) };
+                let (ne, mut fit) = gauss_newton::with_rotations(&ne, r, rl, start, left, limits)?;
+                fit.iterations += done;
                 (ne, Some(fit))
             }
         };
@@ -368,11 +399,17 @@ fn check_axes<const M: usize, const C: usize>(
 /// bracket: `K → K + d (I − u_h u_hᵀ) K`) is named, not solved, and the diagonal must be a
 /// plausible scale. Returns the solution and the condition number.
 fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, f64), Error> {
-    let condition = ne.condition();
+    // The solve's own condition number (one computation): beyond lsq's limit too, it is this.
+    let unobservable = |condition: f64| Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition };
+    let sol = ne.solve().map_err(|e| match e {
+        Error::IllConditioned { condition, .. } => unobservable(condition as f64),
+        Error::Singular => unobservable(f64::INFINITY),
+        e => e,
+    })?;
+    let condition = sol.condition;
     if !(condition <= limits.max_condition as f64) {
-        return Err(Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition });
+        return Err(unobservable(condition));
     }
-    let sol = ne.solve()?;
     for i in 0..3 {
         let v = sol.x[vec_index(i, i)];
         if !(v > SCALE_RANGE.0 && v < SCALE_RANGE.1) {

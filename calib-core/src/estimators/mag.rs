@@ -471,7 +471,7 @@ pub fn heading_deg(f: Vector3<f64>, m: Vector3<f64>) -> Option<f64> {
 }
 
 fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
-    libm::sqrtf((0..3).map(|i| (a[i] - b[i]) * (a[i] - b[i])).sum())
+    crate::math::vec3::sqrtf((0..3).map(|i| (a[i] - b[i]) * (a[i] - b[i])).sum())
 }
 
 /// The icosahedron face (0..20) nearest to direction `v`: the face centres are the dodecahedron's

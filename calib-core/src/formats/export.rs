@@ -355,7 +355,7 @@ fn c(w: &mut impl Write, r: &Record, frame: DataFrame) -> fmt::Result {
     array(w, s, &r.accel_offset_g, D_OFFSET)?;
     w.write_str(";\n")?;
     w.write_str(concat!(
-        "/* Calibrated rate out_dps = K (g_dps - b) (deg/s) from a gyro reading g_dps (deg/s). */\n",
+        "/* out_dps = K (g_dps - b): the header's omega (deg/s). */\n",
         "static inline void gyrocal_apply(const float g_dps[3], float out_dps[3]) {\n",
         "    const float d[3] = {g_dps[0] - GYRO_BIAS_DPS[0], g_dps[1] - GYRO_BIAS_DPS[1], g_dps[2] - GYRO_BIAS_DPS[2]};\n",
         "    for (int i = 0; i < 3; i++) {\n",

@@ -72,7 +72,7 @@ impl Command {
 
 /// The help (the answer to [`Command::Help`]), one line each.
 pub const HELP: [&str; 2] = [
-    "commands: c calibrate, or continue after re-clamping (= the button); r raw log on/off; s stored calibration (JSON, C); p sensor setup: this firmware's or Arduino's library's (119 Hz LSM9DS1, 100 Hz BMI270, +-2000 dps, +-4 g), in turn, until reset; h help",
+    "commands: c calibrate, or go on after re-clamping (= the button); r raw log on/off; s stored calibration (JSON, C); p sensor setup: ours or Arduino's library's (119 Hz LSM9DS1, 100 Hz BMI270, +-2000 dps, +-4 g) in turn until reset; h help",
     "1200-baud touch (open at 1200 Bd, close): resets into the Arduino bootloader for bossac",
 ];
 

@@ -203,10 +203,11 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
         }
         cholesky_in(&a[..n * n], &mut l[..n * n], n, 0.0)
     };
-    // Below the largest: the largest diagonal; above it: Gershgorin's bound.
+    // The largest lies between the largest diagonal element and the trace (the eigenvalues'
+    // sum, all of them positive).
     let diag = (0..n).fold(0.0_f64, |d, i| d.max(m[i * n + i]));
-    let row = |i: usize| (0..n).map(|j| m[i.max(j) * n + i.min(j)].abs()).sum::<f64>();
-    let (mut lo, mut hi) = (diag, (0..n).map(row).fold(0.0, f64::max));
+    let trace = (0..n).map(|i| m[i * n + i]).sum::<f64>();
+    let (mut lo, mut hi) = (diag, trace);
     let floor = 1e-16 * hi;
     if !(diag > 0.0 && hi.is_finite()) || !definite(floor, 1.0) {
         return (0.0, hi);
@@ -217,7 +218,7 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
     }
     let largest = hi;
     // The smallest lies in [floor, trace / n], bisected geometrically.
-    let (mut lo, mut hi) = (floor, (0..n).map(|i| m[i * n + i]).sum::<f64>() / n as f64);
+    let (mut lo, mut hi) = (floor, trace / n as f64);
     while hi > lo * (1.0 + 1e-5) {
         let mid = libm::sqrt(lo * hi);
         *(if definite(mid, 1.0) { &mut lo } else { &mut hi }) = mid;

@@ -233,11 +233,32 @@ enum Step {
     Spin {
         spin: Spin,
     },
+    /// The full `K` in calls of bounded length ([`Procedure::solve_step`]): at `stage`, its
+    /// Gauss–Newton at `k` after `iterations`; the next due at `next_s` (s) or later.
+    Solving {
+        stage: SolveStage,
+        k: Option<[f64; 9]>,
+        iterations: u8,
+        next_s: f64,
+    },
     /// `record` was handed to the shell to store; waiting for [`Procedure::handle_stored`].
     Storing {
         record: Record,
     },
     Finished(Phase),
+}
+
+/// Where the stepped solve of the full `K` is ([`Step::Solving`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum SolveStage {
+    /// Gauss–Newton iterations, one a call.
+    Iterate,
+    /// The rows at `k`, the covariance and the checks, with `k` the `last` iterate (else the
+    /// solve goes on from it: an iteration could not be taken, and the solve names why).
+    Solve { last: bool },
+    /// Solved (in `full`): the magnetometer's alignment refined with it, each move's misfit,
+    /// the record stored.
+    Store,
 }
 
 /// The paper's spin: mean bias-free rate over its middle and, for a continuous servo whose
@@ -257,6 +278,11 @@ const ACCEL_FIT_AFTER_S: f64 = 0.5;
 /// How long after the hand-held step ends the magnetometer is fitted (s), after the
 /// accelerometer's second fit, unless the button comes first.
 const MAG_FIT_AFTER_S: f64 = 1.0;
+
+/// Least time between two steps of the solve (s): the shell reads the sensor's FIFO between
+/// them and drains what a step held back (≈ 0.14 s of samples' log rows; a USB port that is
+/// polled only between steps drops lines); ≈ 2 s for the whole solve.
+const SOLVE_STEP_S: f64 = 0.25;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
@@ -401,7 +427,7 @@ impl Procedure {
             Step::Reattach => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
             Step::Spin { .. } => Phase::Spin,
-            Step::Storing { .. } => Phase::Store,
+            Step::Solving { .. } | Step::Storing { .. } => Phase::Store,
             Step::Finished(p) => p,
         }
     }
@@ -473,18 +499,19 @@ impl Procedure {
 
     /// Samples were lost (`count`, at least 1: a FIFO overrun, or a read that failed): every
     /// gyro integral of a running calibration now has a gap, so it fails with
-    /// [`Error::SamplesLost`] (nothing is stored).
+    /// [`Error::SamplesLost`] (nothing is stored). Not once every sample is in: solving and
+    /// storing use none.
     pub fn handle_samples_lost(&mut self, count: u16) {
-        if self.running() && !matches!(self.step, Step::Storing { .. }) {
+        if self.running() && !matches!(self.step, Step::Solving { .. } | Step::Storing { .. }) {
             self.fail(Error::SamplesLost { count });
         }
         self.settle();
     }
 
     /// The sensor stopped answering (an I2C error): a running calibration fails with
-    /// [`Error::SensorFault`].
+    /// [`Error::SensorFault`] (not while it solves or stores: they need no samples).
     pub fn handle_sensor_fault(&mut self) {
-        if self.running() && !matches!(self.step, Step::Storing { .. }) {
+        if self.running() && !matches!(self.step, Step::Solving { .. } | Step::Storing { .. }) {
             self.fail(Error::SensorFault);
         }
         self.settle();
@@ -514,7 +541,10 @@ impl Procedure {
         self.settle();
     }
 
-    /// Timer tick without a sample: detects a sensor that stopped and phase timeouts.
+    /// Timer tick without a sample: detects a sensor that stopped and phase timeouts, and takes
+    /// the solve's next step. (Never inlined, so that its longest call can be measured on the
+    /// emulated MCU.)
+    #[inline(never)]
     pub fn handle_tick(&mut self, t_s: f64) {
         self.tick(t_s);
         self.settle();
@@ -524,8 +554,13 @@ impl Procedure {
         if !self.running() {
             return;
         }
-        // Storing needs no samples (and follows the solve, the longest call).
-        if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {
+        // The solve's steps and the store need no samples: the solve advances on the ticks too
+        // (and on the samples), one step a call.
+        if let Step::Solving { next_s, .. } = self.step {
+            if t_s >= next_s {
+                self.solve_step(t_s);
+            }
+        } else if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {
             let gap = t_s - last;
             if gap > self.cfg.sample_timeout_s as f64 {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
@@ -589,7 +624,7 @@ impl Procedure {
             // each a while after the last long call: the shell drains the sensor's FIFO between.
             Step::Reattach if self.accel_pending && s.t_s - self.phase_t0 >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
             Step::Reattach if self.mag_pending && s.t_s - self.phase_t0 >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
-            Step::Idle | Step::Finished(_) | Step::Reattach | Step::Storing { .. } => {}
+            Step::Idle | Step::Finished(_) | Step::Reattach | Step::Solving { .. } | Step::Storing { .. } => {}
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
                     if self.bias.is_none() {
@@ -773,6 +808,8 @@ impl Procedure {
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
             Step::Spin { spin } => (spin.ramp.t0, spin.ramp.duration_s as f32 + c.rest_timeout_s),
+            // Steps every call: nothing to wait for.
+            Step::Solving { .. } => return,
             Step::Storing { .. } => (self.phase_t0, STORE_TIMEOUT_S),
             Step::Idle | Step::Finished(_) => return,
         };

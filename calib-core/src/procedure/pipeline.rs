@@ -169,21 +169,36 @@ impl OneAxis {
         limits: (&GeometryLimits, &FullLimits),
         axes: &mut Axes,
     ) -> Self {
-        let sweep = sweep::solve(poses, moves, limits.0);
-        let paper = spin.map(|(g, w)| paper::solve(poses, g, w, limits.0));
-        let full = rotations.filter(|(r, _)| !r.moves().is_empty()).map(|rot| {
-            let start = sweep.as_ref().ok().or(paper.as_ref().and_then(|p| p.as_ref().ok()));
-            axes.clear();
-            for p in poses.iter() {
-                axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
-            }
-            for m in moves.as_slice() {
-                axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
-            }
-            let start = start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64));
+        let mut one = Self::diagonal(poses, moves, spin, limits.0);
+        one.full = rotations.filter(|(r, _)| !r.moves().is_empty()).map(|rot| {
+            let start = one.load_axes(poses, moves, axes)?;
             axes.solve_from(limits.1, Some(rot), start)
         });
-        OneAxis { sweep, paper, full }
+        one
+    }
+
+    /// The sweep and the paper's estimators alone (`full` is `None`).
+    #[inline(never)]
+    pub fn diagonal(poses: &Poses, moves: &Moves, spin: Option<(Vec3, f32)>, limits: &GeometryLimits) -> Self {
+        let sweep = sweep::solve(poses, moves, limits);
+        let paper = spin.map(|(g, w)| paper::solve(poses, g, w, limits));
+        OneAxis { sweep, paper, full: None }
+    }
+
+    /// The rig's poses and moves as one axis of `axes`, for the full `K` with rotation
+    /// constraints; returns where its Gauss–Newton starts (vec `K` of the sweep's, else the
+    /// paper's estimate, if either succeeded).
+    #[inline(never)]
+    pub fn load_axes(&self, poses: &Poses, moves: &Moves, axes: &mut Axes) -> Result<Option<[f64; 9]>, Error> {
+        let start = self.sweep.as_ref().ok().or(self.paper.as_ref().and_then(|p| p.as_ref().ok()));
+        axes.clear();
+        for p in poses.iter() {
+            axes.push_pose([p[0] as f32, p[1] as f32, p[2] as f32])?;
+        }
+        for m in moves.as_slice() {
+            axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
+        }
+        Ok(start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64)))
     }
 
     /// The diagonal result to store when there is no full `K`: [`choose`]n and [`validate`]d.

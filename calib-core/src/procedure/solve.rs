@@ -1,6 +1,7 @@
 //! The estimators at the end of the rig, the record built from their result, and the store.
 
 use super::*;
+use crate::estimators::full::{GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
 use crate::estimators::mag::MagMove;
 
 impl Procedure {
@@ -87,13 +88,13 @@ impl Procedure {
         Ok(())
     }
 
+    /// The end of the one-axis plan: the diagonal estimators now; with hand-held moves the full
+    /// `K` follows in [`Self::solve_step`]s, one Gauss–Newton iteration each.
     pub(super) fn solve(&mut self, t_s: f64) {
         if let Some(tempco) = self.temp_fit.finish() {
             self.rotations.follow_warmup(&tempco.dps_per_c);
         }
-        let rotations = Some((&self.rotations, &self.cfg.rotation));
-        let limits = (&self.cfg.geometry, &self.cfg.full);
-        let solved = OneAxis::solve(&self.poses, &self.moves, self.gbar, rotations, limits, &mut self.axes);
+        let solved = OneAxis::diagonal(&self.poses, &self.moves, self.gbar, &self.cfg.geometry);
         for (method, r) in [(Method::Sweep, Some(solved.sweep)), (Method::Paper, solved.paper)] {
             match r {
                 Some(Ok(cal)) => self.push(Command::Report(Report::Gyro(cal))),
@@ -102,15 +103,11 @@ impl Procedure {
             }
         }
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
-        if let Some(full) = solved.full {
-            if let Ok(f) = &full {
-                self.refine_mag(&f.k);
-            }
-            // Each move's misfit at the solution (none without one).
-            let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
-            let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
-            self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
-            return self.store_full(full, t_s);
+        if !self.rotations.moves().is_empty() {
+            return match solved.load_axes(&self.poses, &self.moves, &mut self.axes) {
+                Ok(k) => self.step = Step::Solving { stage: SolveStage::Iterate, k, iterations: 0, next_s: t_s + SOLVE_STEP_S },
+                Err(e) => self.finish_full(Err(e), t_s),
+            };
         }
         match solved.chosen(&self.cfg.acceptance) {
             Ok(c) => {
@@ -119,6 +116,52 @@ impl Procedure {
             }
             Err(e) => self.fail(e),
         }
+    }
+
+    /// One call of the full `K`'s solve ([`Step::Solving`]), each a few million instructions on
+    /// the MCU, between two FIFO reads: a Gauss–Newton iteration; once it converged (or the
+    /// iterations ran out, or a step could not be taken) the rows at the solution, its
+    /// covariance and checks ([`Axes::solve_after`]); the magnetometer refined with it, each
+    /// move's misfit and the store.
+    #[inline(never)]
+    pub(super) fn solve_step(&mut self, t_s: f64) {
+        let Step::Solving { stage, k, iterations, .. } = self.step else { return };
+        let next = |stage, k, iterations| Step::Solving { stage, k, iterations, next_s: t_s + SOLVE_STEP_S };
+        let rotations = (&self.rotations, &self.cfg.rotation);
+        match (stage, self.full) {
+            (SolveStage::Iterate, _) => {
+                // On to the solve at the last iterate (converged, or the iterations ran out); a
+                // step that could not be taken is the solve's to name.
+                self.step = match self.axes.iterate(&self.cfg.full, rotations, k) {
+                    Ok((x, change)) => {
+                        let last = change < GAUSS_NEWTON_STEP || iterations + 1 >= GAUSS_NEWTON_ITERATIONS;
+                        next(if last { SolveStage::Solve { last } } else { SolveStage::Iterate }, Some(x), iterations + 1)
+                    }
+                    Err(_) => next(SolveStage::Solve { last: false }, k, iterations),
+                };
+            }
+            (SolveStage::Solve { last }, _) => match self.axes.solve_after(&self.cfg.full, Some(rotations), k, iterations, last) {
+                Ok(f) => {
+                    self.full = Some(f);
+                    self.step = next(SolveStage::Store, k, iterations);
+                }
+                Err(e) => self.finish_full(Err(e), t_s),
+            },
+            (SolveStage::Store, full) => self.finish_full(full.ok_or(Error::NoUsableMove), t_s),
+        }
+    }
+
+    /// The full `K` of the one-axis plan with hand-held moves: the magnetometer refined with it,
+    /// each move's misfit reported and the record stored (or the failure said).
+    fn finish_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+        if let Ok(f) = &full {
+            self.refine_mag(&f.k);
+        }
+        // Each move's misfit at the solution (none without one).
+        let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
+        let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
+        self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
+        self.store_full(full, t_s)
     }
 
     /// The magnetometer's alignment refined with the hand-held moves as the full `K` turns them

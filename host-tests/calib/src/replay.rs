@@ -137,11 +137,25 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         // The temperature the firmware saw, if the log has it (the hand-held poses' bias follows
         // the warm-up with it; a log without it replays with the bias on lines in time).
         p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: r.temp_c });
+        // The firmware ticks after each FIFO read: the solve's steps advance on the ticks.
+        p.handle_tick(r.t_s);
         p.drive(r.t_s, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
             return Some((out, p.full().copied(), p.bias_at(r.t_s)));
         }
         prev_t = r.t_s;
+    }
+    // A log that ends while the board solves: its steps need no samples (at most 12 of them).
+    for i in 1..=16 {
+        if p.phase() != Phase::Store {
+            break;
+        }
+        let t = prev_t + 0.05 * i as f64;
+        p.handle_tick(t);
+        p.drive(t, &mut out);
+        if matches!(p.phase(), Phase::Done | Phase::Failed) {
+            return Some((out, p.full().copied(), p.bias_at(t)));
+        }
     }
     None
 }

@@ -273,7 +273,9 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     }
     // Hand-held poses only (no servo at all): the full K from their moves and the
     // accelerometer, exit 0; without the rotation constraints the gyro is named as missing, exit 4.
-    let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none()));
+    // (The rows after the rig's last pose, the board solving on the shaft, are not hand-held.)
+    let last_rig_s = csvlog::parse(&log).unwrap().rows.iter().rev().find(|r| r.servo_deg.is_some()).unwrap().t_s;
+    let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none() && r.t_s < last_rig_s));
     let (code, out, err) = calib(&[&hand]);
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();

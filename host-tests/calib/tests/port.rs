@@ -193,6 +193,7 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
             sh.out.push(l);
         }
         p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c });
+        p.handle_tick(r.t_s);
         p.drive(r.t_s, &mut sh);
         if sh.out.len() >= 64 {
             send(&mut m, &mut sh.out)?;
@@ -291,7 +292,10 @@ fn a_board_k_that_disagrees_fails_the_cross_check() {
 fn rows_lost_on_usb_are_counted_in_the_cross_check_failure() {
     // Three rows in the middle of the first rig move after the re-clamp.
     let rows = csvlog::parse(sim_log()).unwrap().rows;
-    let reclamped = rows.iter().rposition(|r| r.servo_deg.is_none()).unwrap();
+    // The re-clamp: the last row without a servo angle before the rig's (the solve's rows after
+    // the last pose have none either).
+    let last_rig = rows.iter().rposition(|r| r.servo_deg.is_some()).unwrap();
+    let reclamped = rows[..last_rig].iter().rposition(|r| r.servo_deg.is_none()).unwrap();
     let moving = (reclamped + 2..rows.len()).find(|&i| rows[i].servo_deg != rows[i - 1].servo_deg).unwrap() + 20;
     let (r, _, path) =
         session("lost.csv", sim_log(), Quirks { drop_rows: Some((moving, moving + 3)), ..Quirks::default() }, Duration::from_secs(20));

@@ -263,6 +263,7 @@ fn run_posed(
                 proc.handle_mag(s.t_s, calib_core::formats::log::mag_as_logged(m));
             }
             proc.handle_sample(&input);
+            proc.handle_tick(s.t_s);
             samples += 1;
         }
         if !lost_reported && faults.samples_lost_in == Some(proc.phase()) {

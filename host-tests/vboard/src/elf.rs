@@ -14,6 +14,8 @@ pub struct Firmware {
     pub rtt_dropped: Option<u64>,
     /// Address range of `Procedure::handle_sample` (instruction counting).
     pub handle_sample: Option<(u64, u64)>,
+    /// Address range of `Procedure::handle_tick` (the solve's steps run in it).
+    pub handle_tick: Option<(u64, u64)>,
     /// Address range of the stack (RAM start to the initial stack pointer; flip-link puts it
     /// below .data/.bss).
     pub stack: Option<(u64, u64)>,
@@ -36,7 +38,7 @@ impl Firmware {
             }
         }
         let (mut rtt, mut rtt_dropped) = (None, None);
-        let mut handle_sample = None;
+        let (mut handle_sample, mut handle_tick) = (None, None);
         let mut stack_top = None;
         let mut functions = vec![];
         for sym in file.symbols() {
@@ -51,14 +53,18 @@ impl Firmware {
                 rtt_dropped = Some(sym.address());
             } else if name == "_stack_start" {
                 stack_top = Some(sym.address());
-            } else if name.contains("Procedure") && name.contains("handle_sample") && sym.size() > 0 {
+            } else if name.contains("Procedure") && sym.size() > 0 {
                 let a = sym.address() & !1;
-                handle_sample = Some((a, a + sym.size()));
+                if name.contains("handle_sample") {
+                    handle_sample = Some((a, a + sym.size()));
+                } else if name.contains("handle_tick") {
+                    handle_tick = Some((a, a + sym.size()));
+                }
             }
         }
         let stack = stack_top.map(|t| (0x2000_0000, t));
         functions.sort();
-        Ok(Self { bytes, segments, rtt, rtt_dropped, handle_sample, stack, functions })
+        Ok(Self { bytes, segments, rtt, rtt_dropped, handle_sample, handle_tick, stack, functions })
     }
 }
 

@@ -107,8 +107,10 @@ pub struct Mcu {
     rtt_write_seen: Rc<Cell<(u64, u64)>>,
     /// Instructions spent in `Procedure::handle_sample` and its calls, and calls counted.
     pub handle_sample: Rc<Cell<(u64, u64)>>,
-    /// Instructions of the longest single `Procedure::handle_sample` call (e.g. the solve).
+    /// Instructions of the longest single `Procedure::handle_sample` call (e.g. a fit).
     pub handle_sample_max: Rc<Cell<u64>>,
+    /// Instructions of the longest single `Procedure::handle_tick` call (a step of the solve).
+    pub handle_tick_max: Rc<Cell<u64>>,
     /// Instructions spent inside `Procedure::handle_sample` (callees included) per function's
     /// start, while `profiling` is set: its flat profile ([`Mcu::profile`]), for the
     /// calls of up to [`SHORT_CALL`] instructions (the samples) and for the longer ones (the
@@ -211,6 +213,10 @@ impl Mcu {
         let handle_sample = Rc::new(Cell::new((0u64, 0u64)));
         let handle_sample_max = Rc::new(Cell::new(0u64));
         let (hs, hs_max, entry) = (handle_sample.clone(), handle_sample_max.clone(), firmware.handle_sample.map(|r| r.0));
+        let handle_tick_max = Rc::new(Cell::new(0u64));
+        let (ht_max, tick_entry) = (handle_tick_max.clone(), firmware.handle_tick.map(|r| r.0));
+        // The open `handle_tick` call: its first instruction count and return address.
+        let tick_open: Cell<Option<(u64, u64)>> = Cell::new(None);
         let blocks = Rc::new(RefCell::new([std::collections::HashMap::new(), std::collections::HashMap::new()]));
         let (profile, profiling) = (blocks.clone(), Rc::new(Cell::new(false)));
         let profile_on = profiling.clone();
@@ -233,6 +239,12 @@ impl Mcu {
             if Some(addr) == entry {
                 let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
                 open.set(Some((n0, lr)));
+            } else if Some(addr) == tick_entry {
+                let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
+                tick_open.set(Some((n0, lr)));
+            } else if let Some((t0, ret)) = tick_open.get().filter(|t| t.1 == addr) {
+                ht_max.set(ht_max.get().max(n0 - t0));
+                tick_open.set(None);
             }
             if let Some((e0, ret)) = open.get() {
                 if addr != ret {
@@ -346,6 +358,7 @@ impl Mcu {
             rtt_write_seen,
             handle_sample,
             handle_sample_max,
+            handle_tick_max,
             blocks,
             profiling,
         };

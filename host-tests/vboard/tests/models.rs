@@ -423,6 +423,7 @@ fn firmware(code: &[u8]) -> Firmware {
         rtt: None,
         rtt_dropped: None,
         handle_sample: None,
+        handle_tick: None,
         stack: None,
         functions: vec![],
     }

@@ -1,7 +1,7 @@
 //! The rig rows and the rotation constraints ([`crate::estimators::rotation`]) in one least squares over vec
 //! `K` (column-major), by Gauss–Newton: the rotation rows are re-linearised at every iterate.
 
-use super::{FullLimits, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
+use super::{FullLimits, GAUSS_NEWTON_STEP};
 use crate::estimators::rotation::{RotationLimits, Rotations};
 use crate::math::lsq::NormalEquations;
 use crate::Error;
@@ -17,38 +17,55 @@ pub(super) struct RotationFit {
     pub iterations: u8,
 }
 
+/// One Gauss–Newton iteration: the rig rows `rig` plus the rotation rows of `r` linearised at
+/// `k` (vec `K`; `None`: the rig's own `K` when it determines one, else `K = I`). Returns the
+/// next iterate and the largest change of an element.
+pub(super) fn step<const M: usize, const C: usize>(
+    rig: &NormalEquations<9>,
+    r: &Rotations<M, C>,
+    rl: &RotationLimits,
+    k: Option<[f64; 9]>,
+    limits: &FullLimits,
+) -> Result<([f64; 9], f64), Error> {
+    let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
+    let k = match k {
+        Some(k) => k,
+        None if rig.condition() <= limits.max_condition as f64 => rig.solve().map_or(identity, |s| s.x),
+        None => identity,
+    };
+    let mut total = *rig;
+    r.add_rows(&mut total, &k, rl)?;
+    let x = total.estimate()?;
+    Ok((x, (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max)))
+}
+
 /// The rig rows `rig` plus the rotation rows of `r` linearised at the solution, iterated from
-/// `start` (vec `K`), else from the rig's own `K` when it determines one, else from `K = I`.
-/// A rotation residual above `max_residual_rms_deg` is [`Error::MovesInconsistent`].
+/// `start` (as [`step`]) until no element moves by [`GAUSS_NEWTON_STEP`], at most
+/// `max_iterations` times (none: `start` is the solution). A rotation residual above
+/// `max_residual_rms_deg` is [`Error::MovesInconsistent`].
 pub(super) fn with_rotations<const M: usize, const C: usize>(
     rig: &NormalEquations<9>,
     r: &Rotations<M, C>,
     rl: &RotationLimits,
     start: Option<[f64; 9]>,
+    max_iterations: u8,
     limits: &FullLimits,
 ) -> Result<(NormalEquations<9>, RotationFit), Error> {
-    let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
-    let mut k = match start {
-        Some(k) => k,
-        None if rig.condition() <= limits.max_condition as f64 => rig.solve().map_or(identity, |s| s.x),
-        None => identity,
-    };
     let mut iterations = 0u8;
-    let total = loop {
-        let mut total = *rig;
-        r.add_rows(&mut total, &k, rl)?;
-        iterations += 1;
-        let x = total.estimate()?;
-        let step = (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max);
-        k = x;
-        if step < GAUSS_NEWTON_STEP || iterations == GAUSS_NEWTON_ITERATIONS {
-            // The rows at the solution, for its covariance and residual.
-            let mut at = *rig;
-            let (_, rss, n) = r.add_rows(&mut at, &k, rl)?;
-            break (at, rss, n);
-        }
+    let k = match start {
+        Some(k) if max_iterations == 0 => k,
+        mut k => loop {
+            let (x, change) = step(rig, r, rl, k, limits)?;
+            iterations += 1;
+            k = Some(x);
+            if change < GAUSS_NEWTON_STEP || iterations >= max_iterations {
+                break x;
+            }
+        },
     };
-    let (total, rss, n) = total;
+    // The rows at the solution, for its covariance and residual.
+    let mut total = *rig;
+    let (_, rss, n) = r.add_rows(&mut total, &k, rl)?;
     let rms_deg = libm::sqrt(rss / n.max(1) as f64).to_degrees();
     if !(rms_deg <= rl.max_residual_rms_deg as f64) {
         return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });

@@ -181,7 +181,12 @@ fn main() -> ExitCode {
         }
     }
     let longest = testbed.mcu.handle_sample_max.get();
-    println!("[demo] the longest handle_sample call (the solve): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
+    println!("[demo] the longest handle_sample call (a fit): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
+    let longest = testbed.mcu.handle_tick_max.get();
+    println!(
+        "[demo] the longest handle_tick call (a step of the solve): {longest} instructions, {:.0} ms at 64 MHz",
+        longest as f64 / 64e3
+    );
     let stored = testbed.stored();
     let truth = testbed.mcu.periph.borrow().sensor.rig().truth().gyro_k;
     println!("[demo] true K diagonal   {:.6} {:.6} {:.6}", truth[(0, 0)], truth[(1, 1)], truth[(2, 2)]);
