@@ -209,7 +209,7 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
     let trace = (0..n).map(|i| m[i * n + i]).sum::<f64>();
     let (mut lo, mut hi) = (diag, trace);
     let floor = 1e-16 * hi;
-    if !(diag > 0.0 && hi.is_finite()) || !definite(floor, 1.0) {
+    if !(diag > 0.0 && hi.is_finite() && definite(floor, 1.0)) {
         return (0.0, hi);
     }
     while hi - lo > 1e-5 * hi {

@@ -242,7 +242,7 @@ impl Mcu {
             } else if Some(addr) == tick_entry {
                 let lr = uc.reg_read(RegisterARM::LR).unwrap_or(0) & !1;
                 tick_open.set(Some((n0, lr)));
-            } else if let Some((t0, ret)) = tick_open.get().filter(|t| t.1 == addr) {
+            } else if let Some((t0, _)) = tick_open.get().filter(|t| t.1 == addr) {
                 ht_max.set(ht_max.get().max(n0 - t0));
                 tick_open.set(None);
             }
