@@ -554,8 +554,8 @@ impl Procedure {
         if !self.running() {
             return;
         }
-        // The solve's steps and the store need no samples: the solve advances on the ticks too
-        // (and on the samples), one step a call.
+        // The solve's steps and the store need no samples: the solve advances on the ticks
+        // alone, one step a tick (the shell ticks after each FIFO read).
         if let Step::Solving { next_s, .. } = self.step {
             if t_s >= next_s {
                 self.solve_step(t_s);
