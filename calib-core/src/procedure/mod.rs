@@ -282,7 +282,7 @@ const MAG_FIT_AFTER_S: f64 = 1.0;
 /// Least time between two steps of the solve (s): the shell reads the sensor's FIFO between
 /// them and drains what a step held back (≈ 0.14 s of samples' log rows; a USB port that is
 /// polled only between steps drops lines); ≈ 2 s for the whole solve.
-const SOLVE_STEP_S: f64 = 0.25;
+pub const SOLVE_STEP_S: f64 = 0.25;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;

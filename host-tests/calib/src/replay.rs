@@ -145,12 +145,13 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         }
         prev_t = r.t_s;
     }
-    // A log that ends while the board solves: its steps need no samples (at most 12 of them).
+    // A log that ends while the board solves: its steps need no samples (at most 12 of them,
+    // one a tick once the procedure's spacing has passed).
     for i in 1..=16 {
         if p.phase() != Phase::Store {
             break;
         }
-        let t = prev_t + 0.05 * i as f64;
+        let t = prev_t + calib_core::procedure::SOLVE_STEP_S * i as f64;
         p.handle_tick(t);
         p.drive(t, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {

@@ -360,6 +360,13 @@ fn a_log_of_the_procedure_gives_the_procedures_k_and_verdict() {
     let (t, st) = (rec.tempco.unwrap(), stored.tempco.unwrap());
     assert!((0..3).all(|k| close(t.dps_per_c[k], st.dps_per_c[k]) && close(t.sigma_dps_per_c[k], st.sigma_dps_per_c[k])), "{t:?}");
     assert!(close(rec.temp_c.unwrap(), stored.temp_c.unwrap()), "{rec:?}");
+    // A log that ends at the rig's last pose, before the board's solve (its steps need no
+    // samples): replayed to the same K.
+    let rows = csvlog::parse(&log).unwrap().rows;
+    let cut = rows.iter().rposition(|r| r.servo_deg.is_some()).unwrap() + 1;
+    let short = offline::calibrate(&rows[..cut], None).unwrap();
+    assert_eq!(short.replayed, Some("default"));
+    assert_eq!(short.full.as_ref().unwrap().as_ref().unwrap().k, k);
     // Rejected (a gyro scale the acceptance refuses): the same verdict, the same error.
     let mut cfg = Variant::Hobby.config(28, 0);
     cfg.gyro.scale.x = 1.3;
