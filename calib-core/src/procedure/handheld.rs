@@ -103,19 +103,35 @@ impl Procedure {
         if !(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room {
             return;
         }
-        // The accelerometer's two fits apart (each within the FIFO's time): the 9-parameter
-        // one now, the 6-parameter one and the choice ACCEL_FIT_AFTER_S later.
-        self.accel_nine = pipeline::fit_nine(&self.accel_poses);
-        self.accel_pending = true;
+        // The accelerometer's fits and the magnetometer's follow on the ticks (`fit_due`).
+        self.accel_due = AccelDue::Nine;
         self.enter(Step::Reattach, t_s)
     }
 
-    /// The accelerometer's fit if it is due ([`Self::fit_accel`] with the 9-parameter fit made
-    /// as the hand-held step ended): the hand-held poses then calibrated, the magnetometer due; a failure
-    /// fails the calibration.
+    /// The hand-held step's fits, one a tick, each within the sensor's FIFO time (the shell
+    /// drains it between ticks): the accelerometer's 9-parameter fit at once, its 6-parameter
+    /// fit and the choice [`ACCEL_FIT_AFTER_S`] after the step ended, the magnetometer's
+    /// [`MAG_FIT_AFTER_S`] after it; the button may come first ([`Self::handle_button`]).
+    pub(super) fn fit_due(&mut self, t_s: f64) {
+        let since = t_s - self.phase_t0;
+        match self.accel_due {
+            AccelDue::Nine => {
+                self.accel_nine = pipeline::fit_nine(&self.accel_poses);
+                self.accel_due = AccelDue::Choice;
+            }
+            AccelDue::Choice if since >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
+            AccelDue::Done if self.mag_pending && since >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
+            _ => {}
+        }
+    }
+
+    /// The accelerometer's fit if it is due ([`Self::fit_accel`], with the 9-parameter fit
+    /// made on an earlier tick or now): the hand-held poses then calibrated, the magnetometer
+    /// due; a failure fails the calibration.
     pub(super) fn fit_accel_pending(&mut self) {
-        if core::mem::take(&mut self.accel_pending) {
-            let nine = self.accel_nine.take();
+        let due = core::mem::replace(&mut self.accel_due, AccelDue::Done);
+        if due != AccelDue::Done {
+            let nine = if due == AccelDue::Nine { pipeline::fit_nine(&self.accel_poses) } else { self.accel_nine.take() };
             match self.fit_accel(nine) {
                 Ok(()) => {
                     self.mag_pending = true;

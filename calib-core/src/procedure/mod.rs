@@ -207,6 +207,17 @@ impl Ramp {
     }
 }
 
+/// The accelerometer's fits after the hand-held step, one a tick ([`Procedure::fit_due`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum AccelDue {
+    /// The 9-parameter fit (at the first tick).
+    Nine,
+    /// The 6-parameter fit and the choice between the two ([`ACCEL_FIT_AFTER_S`] later).
+    Choice,
+    /// None due.
+    Done,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Step {
     Idle,
@@ -325,10 +336,10 @@ pub struct Procedure {
     /// The magnetometer's calibration of this run (or the stored one, reused with its
     /// accelerometer's).
     mag_cal: Option<MagCal>,
-    /// The hand-held step ended: the magnetometer's fit is due (at the next sample).
+    /// The accelerometer's fit is done: the magnetometer's is due ([`Self::fit_due`]).
     mag_pending: bool,
-    /// The accelerometer's fit is due on the next sample, with this 9-parameter fit.
-    accel_pending: bool,
+    /// The accelerometer's fits still due after the hand-held step, and the 9-parameter one made.
+    accel_due: AccelDue,
     accel_nine: Option<AccelCal>,
     /// The hand-held pose number of the magnetometer's first pose.
     mag_first_pose: u8,
@@ -391,7 +402,7 @@ impl Procedure {
             addr_of_mut!((*p).mag).write(MagCalibrator::new());
             addr_of_mut!((*p).mag_cal).write(None);
             addr_of_mut!((*p).mag_pending).write(false);
-            addr_of_mut!((*p).accel_pending).write(false);
+            addr_of_mut!((*p).accel_due).write(AccelDue::Done);
             addr_of_mut!((*p).accel_nine).write(None);
             addr_of_mut!((*p).mag_first_pose).write(0);
             addr_of_mut!((*p).window_turn).write(PoseTurn::new());
@@ -565,6 +576,9 @@ impl Procedure {
             if gap > self.cfg.sample_timeout_s as f64 {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
             }
+            if matches!(self.step, Step::Reattach) {
+                self.fit_due(t_s);
+            }
         }
         self.check_timeout(t_s);
     }
@@ -620,10 +634,6 @@ impl Procedure {
             (WindowReadings::default(), PoseTurn::new())
         };
         match self.step {
-            // The accelerometer's 6-parameter fit and its choice, then the magnetometer's fit,
-            // each a while after the last long call: the shell drains the sensor's FIFO between.
-            Step::Reattach if self.accel_pending && s.t_s - self.phase_t0 >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
-            Step::Reattach if self.mag_pending && s.t_s - self.phase_t0 >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
             Step::Idle | Step::Finished(_) | Step::Reattach | Step::Solving { .. } | Step::Storing { .. } => {}
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
@@ -747,7 +757,7 @@ impl Procedure {
         self.window_read = WindowReadings::default();
         self.mag = MagCalibrator::new();
         self.mag_pending = false;
-        self.accel_pending = false;
+        self.accel_due = AccelDue::Done;
         self.accel_nine = None;
         self.mag_cal = self.stored.filter(|_| !self.cfg.pan_tilt && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
