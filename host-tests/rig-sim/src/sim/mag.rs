@@ -43,6 +43,18 @@ impl MagPart {
             Self::Bmm150 => 0.3,
         }
     }
+
+    /// What the part reports of a field `m` (µT, board frame; both parts' axes are the board's
+    /// up to order and sign): the LSM9DS1's counts saturate at `i16` (−458.8..458.7 µT at
+    /// ±4 gauss, as its register model, `lsm_mag_model`, clamps them); the BMM150 overflows
+    /// beyond ±1300 µT in x and y, ±2500 µT in z (datasheet Table 3), a reading its driver
+    /// skips: `None`.
+    pub fn report(self, m: [f64; 3]) -> Option<[f64; 3]> {
+        match self {
+            Self::Lsm9ds1 => Some(m.map(|v| v.clamp(i16::MIN as f64 * self.lsb_ut(), i16::MAX as f64 * self.lsb_ut()))),
+            Self::Bmm150 => (m[0].abs() <= 1300.0 && m[1].abs() <= 1300.0 && m[2].abs() <= 2500.0).then_some(m),
+        }
+    }
 }
 
 /// The magnetometer's errors and the fields it sees, as the scoring needs them.
@@ -145,9 +157,9 @@ impl Magnetometer {
         let motor = shaft.map_or(Vector3::zeros(), |(axis, angle, sensor_w)| self.motor_field_w(&axis, angle, &sensor_w));
         let b_b = q_wb.inverse() * (self.truth.field_w + motor + self.stray_w);
         let noise = Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)) * self.part.noise_ut();
-        let m = self.truth.s * b_b + self.truth.h + noise;
+        let m = self.part.report((self.truth.s * b_b + self.truth.h + noise).into())?;
         let lsb = self.part.lsb_ut();
-        Some([0, 1, 2].map(|i| ((m[i] / lsb).round() * lsb) as f32))
+        Some(m.map(|v| ((v / lsb).round() * lsb) as f32))
     }
 
     /// The motor magnet's field (µT, in W) at the sensor: a dipole `μ0/4π (3(m·r̂)r̂ − m)/r³`
@@ -162,5 +174,21 @@ impl Magnetometer {
         let (d, rhat) = (r.norm(), r.normalize());
         // μ0/4π = 1e-7 T·m/A = 0.1 µT·m/A.
         (rhat * (3.0 * moment.dot(&rhat)) - moment) * (0.1 / (d * d * d))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each part reports a field beyond its range as the part does: the LSM9DS1 at its `i16`
+    /// limit, the BMM150 not at all (an overflow); within it, the field.
+    #[test]
+    fn a_field_beyond_the_parts_range_reads_as_the_part_reads_it() {
+        let lsm = MagPart::Lsm9ds1.report([5100.0, -5100.0, 30.0]).unwrap();
+        assert_eq!(lsm, [32767.0 * 0.014, -32768.0 * 0.014, 30.0]);
+        assert_eq!(MagPart::Bmm150.report([1301.0, 0.0, 0.0]), None);
+        assert_eq!(MagPart::Bmm150.report([0.0, 0.0, -2501.0]), None);
+        assert_eq!(MagPart::Bmm150.report([1299.0, -1299.0, 2499.0]), Some([1299.0, -1299.0, 2499.0]));
     }
 }
