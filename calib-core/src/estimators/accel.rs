@@ -205,7 +205,8 @@ impl<const N: usize> AccelCalibrator<N> {
 
     /// Gauss-Newton on `|M (a − o)| − 1` over the poses; `P` = 6 (diagonal) or 9 (triangular).
     fn refine<const P: usize>(&self, mut p: Params, model: AccelModel) -> Result<AccelCal, Error> {
-        let mut last = None;
+        // The iterates by their estimate alone; the last one's equations solved in full (its
+        // condition number, residual and degrees of freedom).
         let mut ne = NormalEquations::<P>::new();
         for _ in 0..GAUSS_NEWTON_STEPS {
             ne = NormalEquations::<P>::new();
@@ -213,18 +214,17 @@ impl<const N: usize> AccelCalibrator<N> {
                 let (r, jac) = residual(&p, a, P == 6);
                 ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
             }
-            let sol = ne.solve()?;
+            let x = ne.estimate()?;
             let mut step = 0.0f64;
             for i in 0..P {
-                p[i] += sol.x[i];
-                step = step.max(sol.x[i].abs());
+                p[i] += x[i];
+                step = step.max(x[i].abs());
             }
-            last = Some(sol);
             if step < 1e-12 {
                 break;
             }
         }
-        let sol = last.ok_or(Error::AccelFitFailed)?;
+        let sol = ne.solve()?;
         let var = self.variances::<P>(&p, &ne.inverse()?, sol.rss, sol.dof);
         let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i]) as f32);
         let gains = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };

@@ -98,8 +98,12 @@ impl<const N: usize> NormalEquations<N> {
     /// The parameters alone, by Cholesky (no condition number, no covariance): for the
     /// iterates of an iterative solve, whose last step is checked by [`Self::solve`].
     pub fn estimate(&self) -> Result<[f64; N], Error> {
-        let l = cholesky(&self.xtx, 1e-13).ok_or(Error::Singular)?;
-        Ok(cholesky_solve(&l, &self.xty))
+        let (mut l, mut x) = ([0.0; MAX_N * MAX_N], [0.0; N]);
+        if !cholesky_in(self.xtx.as_flattened(), &mut l[..N * N], N, 1e-13) {
+            return Err(Error::Singular);
+        }
+        cholesky_solve_in(&l[..N * N], &self.xty, &mut x);
+        Ok(x)
     }
 
     /// Marginalises `M` more unknowns `z` out of equations whose rows were `x·β + c·z ≈ y`, given
