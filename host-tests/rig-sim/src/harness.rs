@@ -46,6 +46,9 @@ pub struct Faults {
     /// The shell reads the LSM9DS1 as the firmware did before the board frame: its raw axes
     /// ([`crate::lsm_model::Lsm9ds1Model::raw_axes`], a left-handed triad) handed on unmapped.
     pub lsm9ds1_unmapped: bool,
+    /// The user presses the button the moment the re-clamp step begins, before the hand-held
+    /// step's fits are due (the procedure then makes them all at the press).
+    pub press_on_reattach: bool,
 }
 
 /// What a run produced.
@@ -180,7 +183,8 @@ impl Shell for SimBoard<'_> {
             Report::Phase(Phase::Reattach) => {
                 self.handheld = false;
                 self.rig.attach();
-                self.press_at = Some(self.t + self.rig.config().attach_transition_s + 1.0);
+                let wait = if self.faults.press_on_reattach { 0.0 } else { self.rig.config().attach_transition_s + 1.0 };
+                self.press_at = Some(self.t + wait);
             }
             Report::RigPose { index: 0, .. } if self.faults.stall_after_first_pose => self.rig.stall(true),
             Report::RigPose { index, .. } if self.faults.slip_after_pose == Some(index) => {

@@ -452,6 +452,23 @@ fn the_magnetometer_is_calibrated_from_the_hand_and_a_magnet_is_named() {
     assert!(out.stored.first().is_some_and(|r| r.mag.is_none()), "{:?}", out.error);
 }
 
+/// A press as the re-clamp step begins makes the hand-held step's fits that are not yet due
+/// (they run on the ticks after it otherwise): the same accelerometer and magnetometer (its
+/// alignment refined by the moves' turns through the run's own `K`: within its 1σ).
+#[test]
+fn a_press_before_the_hand_held_fits_are_due_makes_them_at_once() {
+    let (normal, _) = calibrate(Variant::Hobby.config(11, 0), Config::default(), None, Faults::default());
+    let normal = normal.stored.first().copied().unwrap_or_else(|| panic!("{:?}", normal.error));
+    let faults = Faults { press_on_reattach: true, ..Faults::default() };
+    let (early, rig) = calibrate(Variant::Hobby.config(11, 0), Config::default(), None, faults);
+    let rec = early.stored.first().copied().unwrap_or_else(|| panic!("{:?}", early.error));
+    assert_eq!((rec.accel_m, rec.accel_offset_g), (normal.accel_m, normal.accel_offset_g));
+    let (m, n) = (rec.mag.expect("a magnetometer calibration"), normal.mag.expect("a magnetometer calibration"));
+    assert_eq!((m.offset_ut, m.field_ut, m.samples, m.poses), (n.offset_ut, n.field_ut, n.samples, n.poses));
+    assert!((m.alignment_deg - n.alignment_deg).abs() <= n.sigma_alignment_deg, "{m:?} vs {n:?}");
+    assert!(max_rel_error(&rec, &rig) < 1e-3, "{:?}", rec.gyro_k);
+}
+
 #[test]
 fn the_earths_rate_in_a_braced_hands_poses_leaves_k_as_it_is_without_it() {
     // The same one-servo rigs (a braced hand, a constant bias) with and without the Earth's
