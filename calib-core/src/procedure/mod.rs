@@ -262,6 +262,8 @@ enum Step {
 /// Where the stepped solve of the full `K` is ([`Step::Solving`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum SolveStage {
+    /// The diagonal (one-axis) estimators, and the start of the full `K`.
+    Diagonal,
     /// Gauss–Newton iterations, one a call.
     Iterate,
     /// The rows at `k`, the covariance and the checks, with `k` the `last` iterate (else the

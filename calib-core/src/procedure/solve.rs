@@ -88,9 +88,15 @@ impl Procedure {
         Ok(())
     }
 
-    /// The end of the one-axis plan: the diagonal estimators now; with hand-held moves the full
-    /// `K` follows in [`Self::solve_step`]s, one Gauss–Newton iteration each.
+    /// The end of the one-axis plan: the solve's steps follow on the ticks ([`Self::solve_step`]),
+    /// the diagonal estimators first.
     pub(super) fn solve(&mut self, t_s: f64) {
+        self.step = Step::Solving { stage: SolveStage::Diagonal, k: None, iterations: 0, next_s: t_s };
+    }
+
+    /// The solve's first step: the diagonal estimators; with hand-held moves the full `K`
+    /// follows, one Gauss–Newton iteration a step; else the record of the one-axis `K`.
+    fn diagonal(&mut self, t_s: f64) {
         if let Some(tempco) = self.temp_fit.finish() {
             self.rotations.follow_warmup(&tempco.dps_per_c);
         }
@@ -118,8 +124,9 @@ impl Procedure {
         }
     }
 
-    /// One call of the full `K`'s solve ([`Step::Solving`]), each a few million instructions on
-    /// the MCU, between two FIFO reads: a Gauss–Newton iteration; once it converged (or the
+    /// One call of the solve ([`Step::Solving`]), each a few million instructions on the MCU,
+    /// between two FIFO reads: the diagonal estimators; a Gauss–Newton iteration of the full
+    /// `K`; once it converged (or the
     /// iterations ran out, or a step could not be taken) the rows at the solution, its
     /// covariance and checks ([`Axes::solve_after`]); the magnetometer refined with it, each
     /// move's misfit and the store.
@@ -129,6 +136,7 @@ impl Procedure {
         let next = |stage, k, iterations| Step::Solving { stage, k, iterations, next_s: t_s + SOLVE_STEP_S };
         let rotations = (&self.rotations, &self.cfg.rotation);
         match (stage, self.full) {
+            (SolveStage::Diagonal, _) => self.diagonal(t_s),
             (SolveStage::Iterate, _) => {
                 // On to the solve at the last iterate (converged, or the iterations ran out); a
                 // step that could not be taken is the solve's to name.

@@ -107,9 +107,9 @@ pub struct Mcu {
     rtt_write_seen: Rc<Cell<(u64, u64)>>,
     /// Instructions spent in `Procedure::handle_sample` and its calls, and calls counted.
     pub handle_sample: Rc<Cell<(u64, u64)>>,
-    /// Instructions of the longest single `Procedure::handle_sample` call (e.g. a fit).
+    /// Instructions of the longest single `Procedure::handle_sample` call.
     pub handle_sample_max: Rc<Cell<u64>>,
-    /// Instructions of the longest single `Procedure::handle_tick` call (a step of the solve).
+    /// Instructions of the longest single `Procedure::handle_tick` call (a fit or a step of the solve).
     pub handle_tick_max: Rc<Cell<u64>>,
     /// Instructions spent inside `Procedure::handle_sample` (callees included) per function's
     /// start, while `profiling` is set: its flat profile ([`Mcu::profile`]), for the

@@ -49,7 +49,7 @@ fn calibrates_stores_and_reloads_after_reset() {
         instr as f64 / calls.max(1) as f64,
         b.mcu.peak_stack()
     );
-    // Issue 50: the full K's solve runs in steps, one a tick (a step is millions of
+    // Issue 50: the fits and the full K's solve run in steps, one a tick (a step is millions of
     // instructions), and no call into the procedure outlasts the FIFO (32 samples: 269 ms at
     // 119 Hz, 17.2 M instructions at 64 MHz): the sensor lost no sample, the solve included.
     let fifo = (32.0 / 119.0 * 64e6) as u64;

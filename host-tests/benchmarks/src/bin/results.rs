@@ -171,12 +171,12 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
     );
     s += &format!(
         "Cost on the MCU (`cargo demo`): `Procedure::handle_sample` {} instructions per sample on average; its longest call \
-         (a fit) {} instructions; the longest `Procedure::handle_tick` (a step of the solve, one a FIFO read) {} instructions \
+         {} instructions; the longest `Procedure::handle_tick` (a fit or a step of the solve, one a FIFO read) {} instructions \
          (64 MHz: the virtual board counts one instruction a cycle, a lower bound for a Cortex-M4 with flash wait states, \
          [limits](limits.md)); peak stack {} bytes.\n\n",
         after(plain, "calls, ").trim_end_matches(','),
-        after(plain, "(a fit): "),
-        after(plain, "(a step of the solve): "),
+        after(plain, "handle_sample call: "),
+        after(plain, "(a fit or a step of the solve): "),
         after(plain, "peak stack: ")
     );
     s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 160 KiB, static RAM 64 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";

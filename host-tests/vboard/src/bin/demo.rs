@@ -181,10 +181,10 @@ fn main() -> ExitCode {
         }
     }
     let longest = testbed.mcu.handle_sample_max.get();
-    println!("[demo] the longest handle_sample call (a fit): {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
+    println!("[demo] the longest handle_sample call: {longest} instructions, {:.0} ms at 64 MHz", longest as f64 / 64e3);
     let longest = testbed.mcu.handle_tick_max.get();
     println!(
-        "[demo] the longest handle_tick call (a step of the solve): {longest} instructions, {:.0} ms at 64 MHz",
+        "[demo] the longest handle_tick call (a fit or a step of the solve): {longest} instructions, {:.0} ms at 64 MHz",
         longest as f64 / 64e3
     );
     let stored = testbed.stored();
