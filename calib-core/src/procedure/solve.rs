@@ -126,10 +126,9 @@ impl Procedure {
 
     /// One call of the solve ([`Step::Solving`]), each a few million instructions on the MCU,
     /// between two FIFO reads: the diagonal estimators; a Gauss–Newton iteration of the full
-    /// `K`; once it converged (or the
-    /// iterations ran out, or a step could not be taken) the rows at the solution, its
-    /// covariance and checks ([`Axes::solve_after`]); the magnetometer refined with it, each
-    /// move's misfit and the store.
+    /// `K`; once it converged (or the iterations ran out, or a step could not be taken) the
+    /// rows at the solution, its covariance and checks ([`Axes::solve_after`]); the
+    /// magnetometer refined with it, each move's misfit and the store.
     #[inline(never)]
     pub(super) fn solve_step(&mut self, t_s: f64) {
         let Step::Solving { stage, k, iterations, .. } = self.step else { return };

@@ -45,10 +45,11 @@ impl MagPart {
     }
 
     /// What the part reports of a field `m` (µT, board frame; both parts' axes are the board's
-    /// up to order and sign): the LSM9DS1's counts saturate at `i16` (−458.8..458.7 µT at
-    /// ±4 gauss, as its register model, `lsm_mag_model`, clamps them); the BMM150 overflows
-    /// beyond ±1300 µT in x and y, ±2500 µT in z (datasheet Table 3), a reading its driver
-    /// skips: `None`.
+    /// up to order and sign): the LSM9DS1's int16 counts saturate (−458.8..458.7 µT at
+    /// ±4 gauss, as its register model, `lsm_mag_model`, clamps them; the datasheet does not
+    /// say what it reads beyond full scale); the BMM150 overflows beyond ±1300 µT in x and y,
+    /// ±2500 µT in z (its datasheet's field range), a reading its driver skips: `None`
+    /// (docs/mag-sources.md).
     pub fn report(self, m: [f64; 3]) -> Option<[f64; 3]> {
         match self {
             Self::Lsm9ds1 => Some(m.map(|v| v.clamp(i16::MIN as f64 * self.lsb_ut(), i16::MAX as f64 * self.lsb_ut()))),
