@@ -40,10 +40,11 @@ pub const MANUFACTURER: &str = "gyrocal";
 pub const PRODUCT: &str = "gyrocal Nano 33 BLE";
 /// Bulk and EP0 packet size (B; full speed).
 pub const PACKET: usize = 64;
-/// Outbox size (B): 0.75 s of raw-log rows at 119 Hz (8.2 KB/s), for the longest call that does
-/// not poll USB (the solve: ≈ 0.6 s as the virtual board counts it, a lower bound, see
-/// docs/limits.md) and its report lines; lines that do not fit are dropped whole and counted.
-pub const OUTBOX: usize = 6144;
+/// Outbox size (B): 0.5 s of raw-log rows at 119 Hz (8.2 KB/s), for the longest call that does
+/// not poll USB (the pan/tilt plan's end, ≈ 23 M instructions, ≈ 0.4 s at 64 MHz; a step of the
+/// solve ≤ 8.2 M, see docs/limits.md) and its report lines; lines that do not fit are dropped
+/// whole and counted.
+pub const OUTBOX: usize = 4096;
 /// Longest wait for READY and OUTPUTRDY after ENABLE (s): nrfx waits for READY without a
 /// bound; the regulator needs ~1 ms (nRF5340 PS t_USBPWRRDY; the nRF52840 PS gives no figure).
 pub const START_TIMEOUT_S: f64 = 0.05;
@@ -276,7 +277,7 @@ pub struct Usb {
 
 impl Usb {
     /// Builds the port once [`Link::handle_tick`] said [`Step::Ready`] for the first time: at
-    /// most once (the USBD is owned for good; the port, its 6 KiB outbox included, in static
+    /// most once (the USBD is owned for good; the port, its 4 KiB outbox included, in static
     /// RAM). The HFXO, which the USBD needs on the bus, runs already.
     #[inline(never)]
     #[allow(clippy::mut_from_ref)] // the port is a singleton, not borrowed from `serial`

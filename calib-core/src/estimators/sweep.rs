@@ -12,7 +12,7 @@ use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
 /// Largest number of moves kept.
-pub const MAX_MOVES: usize = 128;
+pub const MAX_MOVES: usize = 64;
 /// Moves that turn the shaft less than this (°) are not used.
 pub const MIN_MOVE_DEG: f64 = 10.0;
 
