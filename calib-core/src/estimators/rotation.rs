@@ -444,15 +444,18 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
 /// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns ≤ [`CHUNK_DEG`] = 0.09 rad
 /// raw; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
 /// of the Cortex-M4F composes a move 100× faster than soft `f64`, to ≈ 1e-6 rad (tested).
+/// Both are `d I + u [φ]× + v φ φᵀ` (`[φ]×² = φ φᵀ − t² I`), built element by element on the
+/// FPU: no matrix products per sample.
 pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
-    let t2 = phi.norm_squared();
-    let s = skew(phi);
-    let s2 = s * s;
+    let p = [phi[0], phi[1], phi[2]];
+    let t2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
     let series = |c: [f32; 5]| c[0] + t2 * (c[1] + t2 * (c[2] + t2 * (c[3] + t2 * c[4])));
     let a = series([1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362_880.0]);
     let b = series([0.5, -1.0 / 24.0, 1.0 / 720.0, -1.0 / 40_320.0, 1.0 / 3_628_800.0]);
     let c = series([1.0 / 6.0, -1.0 / 120.0, 1.0 / 5040.0, -1.0 / 362_880.0, 1.0 / 39_916_800.0]);
-    (Matrix3::identity() + s * a + s2 * b, Matrix3::identity() - s * b + s2 * c)
+    let s = [[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]];
+    let m = |d: f32, u: f32, v: f32| Matrix3::from_fn(|i, j| if i == j { d } else { 0.0 } + u * s[i][j] + v * p[i] * p[j]);
+    (m(1.0 - b * t2, a, b), m(1.0 - c * t2, -b, c))
 }
 
 impl<const M: usize, const C: usize> Rotations<M, C> {

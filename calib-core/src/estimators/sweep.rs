@@ -19,28 +19,37 @@ pub const MIN_MOVE_DEG: f64 = 10.0;
 /// Trapezoidal integral of the bias-free gyro over one move (°, sensor frame), in `f64`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Integrator {
-    gamma: [f64; 3],
+    /// `Σ ½ (ω_{k−1} + ω_k) Δt` (°) in f32 on the FPU, Kahan-compensated (`lost`: what the last
+    /// addition rounded away): a 100 000-sample move at 952 Hz stays within 1e-8 of the f64 sum,
+    /// where a plain f32 sum is off by 6e-6 (`precision.rs`), and no software double
+    /// is spent per sample.
+    gamma: [f32; 3],
+    lost: [f32; 3],
     t_first: f64,
-    last: Option<(f64, [f64; 3])>,
+    last: Option<(f64, [f32; 3])>,
     samples: u32,
 }
 
 impl Integrator {
     /// Empty: the next sample starts the move.
     pub const fn new() -> Self {
-        Self { gamma: [0.0; 3], t_first: 0.0, last: None, samples: 0 }
+        Self { gamma: [0.0; 3], lost: [0.0; 3], t_first: 0.0, last: None, samples: 0 }
     }
 
     /// Adds a sample: MCU time (s) and bias-free gyro `g − b` (°/s). Out-of-order samples are ignored.
-    pub fn add(&mut self, t_s: f64, g_dps: Vec3) {
-        let g = [g_dps[0] as f64, g_dps[1] as f64, g_dps[2] as f64];
+    pub fn add(&mut self, t_s: f64, g: Vec3) {
         if let Some((t0, g0)) = self.last {
             let dt = t_s - t0;
             if !(dt > 0.0) {
                 return;
             }
+            let dt = dt as f32;
             for k in 0..3 {
-                self.gamma[k] += 0.5 * (g0[k] + g[k]) * dt;
+                // Kahan: the term less what the sum lost last time; what this addition loses.
+                let term = 0.5 * (g0[k] + g[k]) * dt - self.lost[k];
+                let next = self.gamma[k] + term;
+                self.lost[k] = (next - self.gamma[k]) - term;
+                self.gamma[k] = next;
             }
         } else {
             self.t_first = t_s;
@@ -51,15 +60,15 @@ impl Integrator {
 
     /// `Γ` so far (°).
     pub fn gamma(&self) -> [f64; 3] {
-        self.gamma
+        core::array::from_fn(|k| self.gamma[k] as f64 - self.lost[k] as f64)
     }
 
     /// `Γ` so far less the residual bias tracked between the rests `from` and `to` that bound
     /// the move (°).
     pub fn gamma_tracked(&self, from: &RestBias, to: &RestBias) -> [f64; 3] {
         let t_last = self.last.map_or(self.t_first, |(t, _)| t);
-        let drift = from.integral_deg(to, self.t_first, t_last);
-        core::array::from_fn(|k| self.gamma[k] - drift[k])
+        let (gamma, drift) = (self.gamma(), from.integral_deg(to, self.t_first, t_last));
+        core::array::from_fn(|k| gamma[k] - drift[k])
     }
 
     /// Samples integrated.
