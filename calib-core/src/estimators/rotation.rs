@@ -6,8 +6,8 @@
 //! Streaming and bounded: a move is kept as chunks of at most [`CHUNK_DEG`] of raw turn, each its
 //! bias-free gyro integral `Γ_c = ∫ w dt` (°) and its coning integral `β_c = ½ ∫ Γ(t) × w dt`
 //! (°², `Γ(t)` the chunk's integral so far). At any `K` a chunk's rotation vector is
-//! `φ_c = K Γ_c + ½ det(K) K⁻ᵀ β_c` (exact for the cross product, `(K a) × (K b) = det K · K⁻ᵀ (a × b)`;
-//! the Bortz vector to second order), and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at
+//! `φ_c = K Γ_c + det(K) K⁻ᵀ β_c` (exact for the cross product, `(K a) × (K b) = det K · K⁻ᵀ (a × b)`;
+//! the Bortz vector to second order, `φ̇ = ω + ½ φ × ω`), and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at
 //! every Gauss–Newton iterate: the result does not depend on where the iteration starts (no
 //! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 32 bytes.
 //!
@@ -832,7 +832,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
             dt += s;
             let gamma = Vector3::from(c.gamma).map(f32::to_radians);
             let coning = Vector3::from(c.coning).map(|v| v.to_radians().to_radians());
-            let phi = k * gamma + cof * coning * 0.5;
+            let phi = k * gamma + cof * coning;
             let (e, jr) = exp_jr(&phi);
             let et = e.transpose();
             let mut next = [[0.0f32; 9]; 3];
