@@ -46,10 +46,11 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Rotation moves kept.
 pub const MAX_ROTATION_MOVES: usize = 32;
-/// Chunks of all moves together (32 B each): 416 of the gyro's (a 180° hand move takes ≈ 35;
-/// with 384, one drifting one-servo run in seven of drift-bench's ran out before its hand-held
-/// goal), and each kept move's two turns inside its poses ([`PoseRest::rise_deg`]).
-pub const MAX_CHUNKS: usize = 416 + 2 * MAX_ROTATION_MOVES;
+/// Chunks of all moves together (32 B each): 288 of the gyro's (a 180° hand move takes ≈ 24; as
+/// many moves as 416 chunks of 5° held, of which 384 ran out before the hand-held goal in one
+/// drifting one-servo run in seven of drift-bench's), and each kept move's two turns inside its
+/// poses ([`PoseRest::rise_deg`]).
+pub const MAX_CHUNKS: usize = 288 + 2 * MAX_ROTATION_MOVES;
 /// Poses whose attitude is kept for the Earth's rate ([`Rotations::push_attitude`]): the
 /// firmware's hand-held step has up to 20 (`Config::max_hand_poses`); later poses' moves go
 /// without the Earth's term.
@@ -58,8 +59,10 @@ pub const EARTH_POSES: usize = 20;
 pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
 
 /// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
-/// below 1e-5 rad per chunk.
-pub const CHUNK_DEG: f64 = 5.0;
+/// below 3.4e-5 rad per chunk (`precision.rs`: a 540° move with coning at 952 Hz composes to
+/// within 3.8e-5 rad of its rotation integrated finely, 1.6e-5 with 5° chunks; 7.5° keeps 4 KB
+/// of RAM and a third of the solve's composing, and moves no benchmark row beyond its noise).
+pub const CHUNK_DEG: f64 = 7.5;
 
 /// Requirements of the rotation constraints.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -441,8 +444,8 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
 
 /// `Exp(φ)` and the right Jacobian `J_r(φ)` of a chunk's rotation vector (rad): Rodrigues'
 /// coefficients `sin t / t`, `(1 − cos t) / t²`, `(t − sin t) / t³` by their Taylor series to
-/// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns ≤ [`CHUNK_DEG`] = 0.09 rad
-/// raw; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
+/// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns [`CHUNK_DEG`] = 0.13 rad
+/// raw and a sample's step more; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
 /// of the Cortex-M4F composes a move 100× faster than soft `f64`, to ≈ 1e-6 rad (tested).
 /// Both are `d I + u [φ]× + v φ φᵀ` (`[φ]×² = φ φᵀ − t² I`), built element by element on the
 /// FPU: no matrix products per sample.
@@ -1087,12 +1090,12 @@ mod tests {
             r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);
         }
         assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
-        assert_eq!(r.moves()[0].n, 17);
+        assert_eq!(r.moves()[0].n, 11);
         let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
         let cof = cofactor(&k).unwrap();
         let (rot, _, _) = r.compose(&r.moves()[0], &k, &cof);
         let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).into_inner();
-        // Stored and composed in f32: 17 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
+        // Stored and composed in f32: 11 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
         assert!((rot - expect).amax() < 1e-6, "{rot} vs {expect}");
     }
 }
