@@ -203,6 +203,16 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<()> {
         }
         prev_t = r.t_s;
     }
+    // The firmware's main loop ticks on without samples (2 ms apart): the solve's steps need
+    // none, and the log, cut at the simulated board's store, may end a step or two before this
+    // replay's (its button presses come at a sample's time, not the simulator's).
+    for k in 1..=2000 {
+        if !started || matches!(p.phase(), Phase::Done | Phase::Failed) {
+            break;
+        }
+        p.handle_tick(prev_t + k as f64 * 0.002);
+        p.drive(prev_t + k as f64 * 0.002, &mut sh);
+    }
     send(&mut m, &mut sh.out)?;
     if wait_for(&mut m, Command::RawLog) {
         sh.out.push(protocol::raw_log(false).into());
