@@ -8,7 +8,9 @@
 
 use calib_core::estimators::bias::RestBias;
 use calib_core::estimators::full::{Axes, FullLimits};
-use calib_core::estimators::rotation::{PoseRest, Rejected, RotationLimits, Rotations, EARTH_RATE_RAD_S};
+use calib_core::estimators::rotation::{
+    PoseRest, Rejected, RotationLimits, Rotations, EARTH_RATE_RAD_S, MAX_ROTATION_MOVES, MAX_ROTATION_POSES,
+};
 use calib_core::Error;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -39,8 +41,8 @@ fn attitudes(one_axis: bool, n: usize) -> Vec<UnitQuaternion<f64>> {
 
 /// Records poses and the moves between them at `hz` into `r`, with `rate` times the nominal
 /// angular rate; pose `bad_bias` (if any) sees a gyro offset; no bias.
-fn record<const M: usize, const C: usize>(
-    r: &mut Rotations<M, C>,
+fn record<const M: usize, const C: usize, const P: usize>(
+    r: &mut Rotations<M, C, P>,
     atts: &[UnitQuaternion<f64>],
     hz: f64,
     rate: f64,
@@ -51,8 +53,8 @@ fn record<const M: usize, const C: usize>(
 
 /// [`record`] with a bias `bias(t)` (°/s, every axis) that each pose's rest measures, or that a
 /// `predicted` pose takes from t = 0 (its temperature, [`PoseRest::warm_c`], being `bias(t)`).
-fn record_drifting<const M: usize, const C: usize>(
-    r: &mut Rotations<M, C>,
+fn record_drifting<const M: usize, const C: usize, const P: usize>(
+    r: &mut Rotations<M, C, P>,
     atts: &[UnitQuaternion<f64>],
     hz: f64,
     rate: f64,
@@ -64,7 +66,7 @@ fn record_drifting<const M: usize, const C: usize>(
     let lim = RotationLimits::DEFAULT;
     let mut out = vec![];
     let mut t = 0.0;
-    let pose = |r: &mut Rotations<M, C>, q: &UnitQuaternion<f64>, i: usize, t: f64| {
+    let pose = |r: &mut Rotations<M, C, P>, q: &UnitQuaternion<f64>, i: usize, t: f64| {
         let a = q.inverse() * V3::z();
         let off = if bad_bias == Some(i) { 0.5 } else { 0.0 };
         // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled; its
@@ -125,14 +127,20 @@ fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
 
 #[test]
 fn a_store_sized_for_a_whole_log_keeps_every_move_the_firmwares_has_no_room_for() {
-    // 40 poses, 39 moves: the firmware's store keeps at most 32 (its RAM; here its chunks run
-    // out first); a PC's store sized for the log keeps them all.
+    // 40 poses, 39 moves: the firmware's store holds 32 poses and keeps at most 24 of the moves
+    // between them (its RAM; here its chunks may run out first); a PC's store sized for the log
+    // keeps them all.
     let atts = attitudes(false, 40);
     let mut board = <Rotations>::new();
-    let no_room = record(&mut board, &atts, 238.0, 1.0, None).iter().filter(|m| **m == Err(Rejected::Full)).count();
-    println!("MEASURED the firmware's store: {no_room} of 39 moves without room");
-    assert!(no_room >= 39 - 32, "{no_room}");
-    let mut pc = Rotations::<64, 8192>::new();
+    let no_room = record(&mut board, &atts[..MAX_ROTATION_POSES], 238.0, 1.0, None).iter().filter(|m| **m == Err(Rejected::Full)).count();
+    println!("MEASURED the firmware's store: {no_room} of {} moves without room", MAX_ROTATION_POSES - 1);
+    assert!(no_room >= MAX_ROTATION_POSES - 1 - MAX_ROTATION_MOVES, "{no_room}");
+    assert_eq!(
+        board.push_pose([0.0, 0.0, 1.0], 1e-5, PoseRest::default()),
+        Err(Error::CapacityExceeded { max: MAX_ROTATION_POSES as u8 }),
+        "a pose beyond the store is refused, named"
+    );
+    let mut pc = Rotations::<64, 8192, 64>::new();
     assert!(record(&mut pc, &atts, 238.0, 1.0, None).iter().all(|m| m.is_ok()));
     let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&pc, &RotationLimits::DEFAULT))).expect("the full K");
     assert_eq!(cal.rotation_moves, 39);

@@ -286,20 +286,20 @@ impl Axes {
     /// than 3 rig axes the rotations' axes must span three dimensions
     /// ([`Error::RotationAxesCoplanar`]); a rotation residual above its limit is
     /// [`Error::MovesInconsistent`].
-    pub fn solve_with<const M: usize, const C: usize>(
+    pub fn solve_with<const M: usize, const C: usize, const P: usize>(
         &self,
         limits: &FullLimits,
-        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
     ) -> Result<FullCal, Error> {
         self.solve_from(limits, rotations, None)
     }
 
     /// [`Self::solve_with`] with Gauss–Newton started at `start` (vec `K`, column-major) instead:
     /// the rotations are re-composed at every iterate, so the result does not depend on it.
-    pub fn solve_from<const M: usize, const C: usize>(
+    pub fn solve_from<const M: usize, const C: usize, const P: usize>(
         &self,
         limits: &FullLimits,
-        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
         start: Option<[f64; 9]>,
     ) -> Result<FullCal, Error> {
         self.solve_after(limits, rotations, start, 0, false)
@@ -310,10 +310,10 @@ impl Axes {
     /// cuts the solve into calls of bounded length ([`Self::solve_after`] then finishes it).
     /// The solve's checks are [`Self::solve_after`]'s: an error here is only that this step
     /// could not be taken.
-    pub fn iterate<const M: usize, const C: usize>(
+    pub fn iterate<const M: usize, const C: usize, const P: usize>(
         &self,
         limits: &FullLimits,
-        rotations: (&Rotations<M, C>, &RotationLimits),
+        rotations: (&Rotations<M, C, P>, &RotationLimits),
         k: Option<[f64; 9]>,
     ) -> Result<([f64; 9], f64), Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
@@ -323,10 +323,10 @@ impl Axes {
     /// [`Self::solve_from`] after `done` iterations already taken by [`Self::iterate`] up to
     /// `start`: at most the rest of [`GAUSS_NEWTON_ITERATIONS`] (none when `start` is the
     /// `last` iterate: converged, or the iterations ran out), and the result counts them all.
-    pub fn solve_after<const M: usize, const C: usize>(
+    pub fn solve_after<const M: usize, const C: usize, const P: usize>(
         &self,
         limits: &FullLimits,
-        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
         start: Option<[f64; 9]>,
         done: u8,
         last: bool,
@@ -371,9 +371,9 @@ impl Axes {
 /// Checks that the used rig axes `us` (unit) and the rotations together turn about three
 /// dimensions: ≥ [`NEED_AXES`] axes off one plane by `min_axis_angle_deg`, or rotation axes
 /// spread by `min_axis_spread`. Returns the axes' non-coplanarity (°) and smallest pair angle (rad).
-fn check_axes<const M: usize, const C: usize>(
+fn check_axes<const M: usize, const C: usize, const P: usize>(
     us: &[Vector3<f64>],
-    rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+    rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
     limits: &FullLimits,
 ) -> Result<(f64, f64), Error> {
     let n_axes = us.len();

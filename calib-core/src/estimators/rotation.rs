@@ -35,7 +35,7 @@
 //! `K` (their σ includes it); poses without an attitude (a log, a lost track) add no such term.
 
 use crate::estimators::accel::AccelCal;
-use crate::estimators::axis::{Poses, MAX_POSES};
+use crate::estimators::axis::Poses;
 use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
@@ -45,12 +45,15 @@ use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
 /// Rotation moves kept.
-pub const MAX_ROTATION_MOVES: usize = 32;
-/// Chunks of all moves together (32 B each): 288 of the gyro's (a 180° hand move takes ≈ 24; as
-/// many moves as 416 chunks of 5° held, of which 384 ran out before the hand-held goal in one
-/// drifting one-servo run in seven of drift-bench's), and each kept move's two turns inside its
-/// poses ([`PoseRest::rise_deg`]).
-pub const MAX_CHUNKS: usize = 288 + 2 * MAX_ROTATION_MOVES;
+pub const MAX_ROTATION_MOVES: usize = 24;
+/// Poses the moves run between, with their rests (48 B each): the firmware's hand-held step
+/// holds up to `Config::max_hand_poses` (20 by default) and ends when the store is full; a power
+/// of two, so that an index wraps without a division.
+pub const MAX_ROTATION_POSES: usize = 32;
+/// Chunks of all moves together (32 B each): 416 of the gyro's (a 180° hand move takes ≈ 35;
+/// with 384, one drifting one-servo run in seven of drift-bench's ran out before its hand-held
+/// goal), and each kept move's two turns inside its poses ([`PoseRest::rise_deg`]).
+pub const MAX_CHUNKS: usize = 416 + 2 * MAX_ROTATION_MOVES;
 /// Poses whose attitude is kept for the Earth's rate ([`Rotations::push_attitude`]): the
 /// firmware's hand-held step has up to 20 (`Config::max_hand_poses`); later poses' moves go
 /// without the Earth's term.
@@ -59,10 +62,11 @@ pub const EARTH_POSES: usize = 20;
 pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
 
 /// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
-/// below 3.4e-5 rad per chunk (`precision.rs`: a 540° move with coning at 952 Hz composes to
-/// within 3.8e-5 rad of its rotation integrated finely, 1.6e-5 with 5° chunks; 7.5° keeps 4 KB
-/// of RAM and a third of the solve's composing, and moves no benchmark row beyond its noise).
-pub const CHUNK_DEG: f64 = 7.5;
+/// below 1e-5 rad per chunk (`precision.rs`: a 540° move with coning at 952 Hz composes to
+/// within 1.6e-5 rad of its rotation integrated finely). Larger chunks were measured and not
+/// kept: at 7.5° that move is 3.8e-5 rad off but a drifting bias's E grows past its tests'
+/// bounds (6.3e-6, settled predictions 2.5e-5), at 6° the move is 6.8e-5 rad off.
+pub const CHUNK_DEG: f64 = 5.0;
 
 /// Requirements of the rotation constraints.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -355,15 +359,15 @@ struct Open {
     why: Option<Rejected>,
 }
 
-/// The static poses and the chunked moves between them (bounded, no heap): up to `M` kept moves
-/// and `C` chunks, the firmware's [`MAX_ROTATION_MOVES`] and [`MAX_CHUNKS`] unless a PC sizes
-/// them to a whole log.
+/// The static poses and the chunked moves between them (bounded, no heap): up to `M` kept moves,
+/// `C` chunks and `P` poses, the firmware's [`MAX_ROTATION_MOVES`], [`MAX_CHUNKS`] and
+/// [`MAX_ROTATION_POSES`] unless a PC sizes them to a whole log.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_CHUNKS> {
+pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_CHUNKS, const P: usize = MAX_ROTATION_POSES> {
     poses: Poses,
     /// Per pose (same index): the noise of its mean (g) and its rest.
-    sigma_g: [f32; MAX_POSES],
-    rest: [PoseRest; MAX_POSES],
+    sigma_g: [f32; P],
+    rest: [PoseRest; P],
     chunks: heapless::Vec<Chunk, C>,
     moves: heapless::Vec<RotationMove, M>,
     open: Option<Open>,
@@ -393,7 +397,7 @@ pub struct BiasJump {
 /// No rotation constraints, for the solvers that take them (their store's size is then moot).
 pub const NONE: Option<(&Rotations, &RotationLimits)> = None;
 
-impl<const M: usize, const C: usize> Default for Rotations<M, C> {
+impl<const M: usize, const C: usize, const P: usize> Default for Rotations<M, C, P> {
     fn default() -> Self {
         Self::new()
     }
@@ -444,7 +448,7 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
 
 /// `Exp(φ)` and the right Jacobian `J_r(φ)` of a chunk's rotation vector (rad): Rodrigues'
 /// coefficients `sin t / t`, `(1 − cos t) / t²`, `(t − sin t) / t³` by their Taylor series to
-/// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns [`CHUNK_DEG`] = 0.13 rad
+/// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns [`CHUNK_DEG`] = 0.09 rad
 /// raw and a sample's step more; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
 /// of the Cortex-M4F composes a move 100× faster than soft `f64`, to ≈ 1e-6 rad (tested).
 /// Both are `d I + u [φ]× + v φ φᵀ` (`[φ]×² = φ φᵀ − t² I`), built element by element on the
@@ -461,7 +465,7 @@ pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
     (m(1.0 - b * t2, a, b), m(1.0 - c * t2, -b, c))
 }
 
-impl<const M: usize, const C: usize> Rotations<M, C> {
+impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     /// Nothing recorded.
     pub const fn new() -> Self {
         let mut out = core::mem::MaybeUninit::uninit();
@@ -488,9 +492,9 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
         // SAFETY: the caller's contract.
         unsafe {
             addr_of_mut!((*p).poses).write(Poses::new());
-            addr_of_mut!((*p).sigma_g).write([0.0; MAX_POSES]);
+            addr_of_mut!((*p).sigma_g).write([0.0; P]);
             let mut i = 0;
-            while i < MAX_POSES {
+            while i < P {
                 addr_of_mut!((*p).rest[i]).write(PoseRest::NONE);
                 i += 1;
             }
@@ -509,14 +513,16 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
     /// noise of that mean per component (g) and its rest; returns its index. The move into it
     /// ends at its mean instant, the move out of it starts there ([`PoseRest::rise_deg`]).
     pub fn push_pose(&mut self, accel_g: Vec3, sigma_g: f32, rest: impl Into<PoseRest>) -> Result<u8, Error> {
-        let i = self.poses.push(accel_g)?;
-        let mut rest = rest.into();
-        if !rest.rise_deg.iter().all(|v| v.is_finite()) {
-            rest.rise_deg = [0.0; 3];
+        let i = self.poses.len();
+        let (Some(s), Some(r)) = (self.sigma_g.get_mut(i), self.rest.get_mut(i)) else {
+            return Err(Error::CapacityExceeded { max: P as u8 });
+        };
+        *s = if sigma_g.is_finite() { sigma_g } else { 0.0 };
+        *r = rest.into();
+        if !r.rise_deg.iter().all(|v| v.is_finite()) {
+            r.rise_deg = [0.0; 3];
         }
-        self.sigma_g[i as usize] = if sigma_g.is_finite() { sigma_g } else { 0.0 };
-        self.rest[i as usize] = rest;
-        Ok(i)
+        self.poses.push(accel_g)
     }
 
     /// Pose `pose`'s attitude (rotation from its body frame to the first rest's, from the gyro
@@ -537,7 +543,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
     /// their Earth's-rate term). `temps_c`: the two rests' mean temperatures (°C, NaN unknown).
     pub fn settle_bias(&mut self, before: &RestBias, after: &RestBias, after_attitude: Option<Matrix3<f32>>, temps_c: [f32; 2]) {
         let after_earth = after_attitude.map(|a| a.transpose());
-        for p in 0..self.poses.len().min(MAX_POSES) {
+        for p in 0..self.poses.len().min(P) {
             let old = self.rest[p];
             if !old.predicted || old.bias.t_s < before.t_s || old.bias.t_s > after.t_s {
                 continue;
@@ -564,7 +570,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
     /// temperature coefficient (°/s per °C) fitted over all the rests. A line in time misses the
     /// curve of a warming part's bias (DESIGN §4.5, `b(T)`); the walk stays on the line. Once.
     pub fn follow_warmup(&mut self, dps_per_c: &Vec3) {
-        for p in 0..self.poses.len().min(MAX_POSES) {
+        for p in 0..self.poses.len().min(P) {
             let warm_c = core::mem::replace(&mut self.rest[p].warm_c, f32::NAN);
             if warm_c.is_finite() && !self.rest[p].predicted {
                 let delta = dps_per_c.map(|c| c * warm_c);
@@ -622,7 +628,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
             int_err: 0.0,
             why: None,
         };
-        let rest = self.rest[from as usize % MAX_POSES];
+        let rest = self.rest[from as usize % P];
         self.push_turn(&mut o, rest.rise_deg, [-rest.span_s / 2.0, 0.0]);
         self.open = Some(o);
     }
@@ -675,11 +681,11 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
             flush(&mut self.chunks, &mut o, t_end);
         }
         // Back from the end of pose `to` to its mean instant: its turn undone.
-        let (end_s, rest) = ((t_end - o.t0) as f32, self.rest[to as usize % MAX_POSES]);
+        let (end_s, rest) = ((t_end - o.t0) as f32, self.rest[to as usize % P]);
         self.push_turn(&mut o, rest.rise_deg.map(|v| -v), [end_s + rest.span_s / 2.0, end_s]);
         let total = Vector3::from(o.total);
         let turn = total.norm();
-        let (ra, rb) = (self.rest[o.from as usize % MAX_POSES].bias, self.rest[to as usize % MAX_POSES].bias);
+        let (ra, rb) = (self.rest[o.from as usize % P].bias, self.rest[to as usize % P].bias);
         let (a, b) = (v64(ra.residual_dps), v64(rb.residual_dps));
         let (gi, gj) = (self.poses.get(o.from as usize).normalize(), self.poses.get(to as usize).normalize());
         let gravity_deg = angle_deg(&gi, &gj);
@@ -825,7 +831,7 @@ impl<const M: usize, const C: usize> Rotations<M, C> {
         // Σ R_<c s_c (1 − f_c), Σ R_<c s_c f_c and Σ s_c over the chunks (s_c its signed length,
         // f_c where its middle lies between the two rests, as `RestBias::integral_deg` weighs it).
         let (mut p, mut q, mut dt) = (Matrix3::<f32>::zeros(), Matrix3::<f32>::zeros(), 0.0f32);
-        let (ta, tb) = (self.rest[m.from as usize % MAX_POSES].bias.t_s, self.rest[m.to as usize % MAX_POSES].bias.t_s);
+        let (ta, tb) = (self.rest[m.from as usize % P].bias.t_s, self.rest[m.to as usize % P].bias.t_s);
         for c in self.chunks_of(m) {
             let s = c.span_s[1] - c.span_s[0];
             let mid = m.t0_s + 0.5 * (c.span_s[0] + c.span_s[1]) as f64;
@@ -1090,12 +1096,12 @@ mod tests {
             r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);
         }
         assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
-        assert_eq!(r.moves()[0].n, 11);
+        assert_eq!(r.moves()[0].n, 17);
         let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
         let cof = cofactor(&k).unwrap();
         let (rot, _, _) = r.compose(&r.moves()[0], &k, &cof);
         let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).into_inner();
-        // Stored and composed in f32: 11 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
+        // Stored and composed in f32: 17 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
         assert!((rot - expect).amax() < 1e-6, "{rot} vs {expect}");
     }
 }

@@ -83,7 +83,9 @@ pub struct Config {
     /// ([`crate::estimators::rotation::Rotations::add_last_at_identity`]), or it holds `max_hand_poses`.
     pub hand_k_sigma: f32,
     /// Most hand-held poses: the bias between the rests that bound the step is predicted, and
-    /// its error grows with the step's length.
+    /// its error grows with the step's length. At most
+    /// [`crate::estimators::rotation::MAX_ROTATION_POSES`] (32): a pose beyond the store fails
+    /// the calibration with [`crate::Error::CapacityExceeded`].
     pub max_hand_poses: u8,
     /// Smallest angle between two hand-held poses (°).
     pub accel_min_separation_deg: f32,

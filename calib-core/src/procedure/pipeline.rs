@@ -161,11 +161,11 @@ impl OneAxis {
     /// Solves a one-servo rig. `spin`: the spin's mean bias-corrected rate (°/s, sensor frame)
     /// and the shaft rate (°/s); `rotations`: the hand-held moves (`None` or none kept: no full
     /// `K`). `axes` is scratch for the full solve, started at the diagonal of the one-axis result.
-    pub fn solve<const M: usize, const C: usize>(
+    pub fn solve<const M: usize, const C: usize, const P: usize>(
         poses: &Poses,
         moves: &Moves,
         spin: Option<(Vec3, f32)>,
-        rotations: Option<(&Rotations<M, C>, &RotationLimits)>,
+        rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
         limits: (&GeometryLimits, &FullLimits),
         axes: &mut Axes,
     ) -> Self {
@@ -239,7 +239,11 @@ pub const MAX_OFF_TREND_DPS: f32 = 0.05;
 /// moves dropped when they are why too few are left ([`Rotations::drop_error`]: the most common
 /// reason with its numbers, [`Error::BiasDrifting`] for a changing bias). A slip
 /// moves the board, not the bias: it stays `MovesInconsistent` (or `AxisNotFixed`).
-pub fn blame<const M: usize, const C: usize>(e: Error, drift: &Drift, rotations: Option<(&Rotations<M, C>, &RotationLimits)>) -> Error {
+pub fn blame<const M: usize, const C: usize, const P: usize>(
+    e: Error,
+    drift: &Drift,
+    rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
+) -> Error {
     if let Some(mirrored) = rotations.and_then(|(r, _)| r.mirrored()) {
         return mirrored;
     }

@@ -217,8 +217,8 @@ fn a_move_chunked_in_f32_composes_as_in_f64_at_952_hz() {
     println!("MEASURED {:.1} deg: {rounding:.2e} rad from the f64 integration, {chunking:.2e} rad from the fine one", m.turn_deg);
     // 1e-5 rad over a 540 deg move: 1e-6 of the turn, 100x below the 1e-4 a K resolves.
     assert!(rounding < 1e-5, "{rounding:e} rad");
-    // The chunks' second-order (Bortz) vector: 3.8e-5 rad measured (1.6e-5 with 5° chunks);
-    // with its coning term at half strength 1.2e-3 rad, the turn a K error of 1.3e-4 makes.
+    // The chunks' second-order (Bortz) vector: 1.6e-5 rad measured; with its coning term at
+    // half strength 1.2e-3 rad, the turn a K error of 1.3e-4 makes.
     assert!(chunking < 5e-5, "{chunking:e} rad");
 }
 

@@ -20,9 +20,9 @@ pub(super) struct RotationFit {
 /// One Gauss–Newton iteration: the rig rows `rig` plus the rotation rows of `r` linearised at
 /// `k` (vec `K`; `None`: the rig's own `K` when it determines one, else `K = I`). Returns the
 /// next iterate and the largest change of an element.
-pub(super) fn step<const M: usize, const C: usize>(
+pub(super) fn step<const M: usize, const C: usize, const P: usize>(
     rig: &NormalEquations<9>,
-    r: &Rotations<M, C>,
+    r: &Rotations<M, C, P>,
     rl: &RotationLimits,
     k: Option<[f64; 9]>,
     limits: &FullLimits,
@@ -43,9 +43,9 @@ pub(super) fn step<const M: usize, const C: usize>(
 /// `start` (as [`step`]) until no element moves by [`GAUSS_NEWTON_STEP`], at most
 /// `max_iterations` times (none: `start` is the solution). A rotation residual above
 /// `max_residual_rms_deg` is [`Error::MovesInconsistent`].
-pub(super) fn with_rotations<const M: usize, const C: usize>(
+pub(super) fn with_rotations<const M: usize, const C: usize, const P: usize>(
     rig: &NormalEquations<9>,
-    r: &Rotations<M, C>,
+    r: &Rotations<M, C, P>,
     rl: &RotationLimits,
     start: Option<[f64; 9]>,
     max_iterations: u8,

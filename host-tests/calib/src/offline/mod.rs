@@ -181,7 +181,7 @@ pub struct Options {
 /// The PC's store of hand-held moves: every move of a log between up to [`MAX_POSES`] poses
 /// (the firmware keeps [`calib_core::estimators::rotation::MAX_ROTATION_MOVES`] in 480 chunks;
 /// a 180° hand move takes ~35 chunks).
-pub type HostRotations = Rotations<MAX_POSES, 8192>;
+pub type HostRotations = Rotations<MAX_POSES, 8192, MAX_POSES>;
 /// The PC's store of accelerometer poses (the firmware keeps
 /// [`calib_core::estimators::accel::MAX_ACCEL_POSES`]).
 pub const HOST_ACCEL_POSES: usize = 256;

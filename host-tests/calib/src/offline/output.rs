@@ -128,7 +128,7 @@ impl HandMoves {
     }
 
     /// The summary of `rotations`, recorded under `limits`.
-    pub fn of<const M: usize, const C: usize>(rotations: &Rotations<M, C>, limits: &RotationLimits) -> Self {
+    pub fn of<const M: usize, const C: usize, const P: usize>(rotations: &Rotations<M, C, P>, limits: &RotationLimits) -> Self {
         let dropped: std::collections::BTreeMap<_, _> =
             calib_core::estimators::rotation::Rejected::ALL.iter().zip(rotations.rejected()).map(|(r, n)| (r.name(), n)).collect();
         let kept = rotations.moves().len();
