@@ -11,7 +11,7 @@
 //! `bmm150_set_op_mode(BMM150_POWERMODE_SUSPEND)`).
 
 use crate::lsm9ds1::BusFault;
-use crate::watch::Watch;
+use crate::watch::{Shared, Watch};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -169,17 +169,17 @@ pub enum ReadError {
 
 impl core::fmt::Display for ReadError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match *self {
-            ReadError::Bus(BusFault::Nack) => f.write_str("BMM150: nothing acknowledges 0x10"),
-            ReadError::Bus(b) => write!(f, "BMM150 I2C: {b:?}"),
-            ReadError::WrongId(id) => write!(f, "BMM150: CHIP_ID 0x{id:02X} at 0x10 (expected 0x32)"),
-            ReadError::TrimInvalid => f.write_str("BMM150: its trim registers hold zeros (DIG_XYZ1, DIG_Z1 or DIG_Z2): no compensation"),
-            ReadError::ConfigMismatch { reg, wrote, read } => {
-                write!(f, "BMM150: register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
+        let shared = match *self {
+            ReadError::WrongId(id) => return write!(f, "BMM150: CHIP_ID 0x{id:02X} at 0x10 (expected 0x32)"),
+            ReadError::TrimInvalid => {
+                return f.write_str("BMM150: its trim registers hold zeros (DIG_XYZ1, DIG_Z1 or DIG_Z2): no compensation")
             }
-            ReadError::Stalled { ms, limit_ms } => write!(f, "BMM150: no new reading for {ms} ms (limit {limit_ms} ms): stopped"),
-            ReadError::Stuck { readings } => write!(f, "BMM150: {readings} readings in a row with the same counts: stuck"),
-        }
+            ReadError::Bus(b) => Shared::Bus(b),
+            ReadError::ConfigMismatch { reg, wrote, read } => Shared::ConfigMismatch { reg, wrote, read },
+            ReadError::Stalled { ms, limit_ms } => Shared::Stalled { ms, limit_ms },
+            ReadError::Stuck { readings } => Shared::Stuck { readings },
+        };
+        shared.write(f, "BMM150", ADDR)
     }
 }
 

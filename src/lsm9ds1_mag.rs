@@ -8,7 +8,7 @@
 //! the bus.
 
 use crate::lsm9ds1::BusFault;
-use crate::watch::Watch;
+use crate::watch::{Shared, Watch};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -169,17 +169,15 @@ pub enum Error {
 
 impl core::fmt::Display for Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match *self {
-            Error::Bus(BusFault::Nack) => f.write_str("LSM9DS1 magnetometer: nothing acknowledges 0x1E"),
-            Error::Bus(b) => write!(f, "LSM9DS1 magnetometer I2C: {b:?}"),
-            Error::WrongId(id) => write!(f, "LSM9DS1 magnetometer: WHO_AM_I_M 0x{id:02X} at 0x1E (expected 0x3D)"),
-            Error::ResetTimeout => write!(f, "LSM9DS1 magnetometer: no answer {RESET_TIMEOUT_MS} ms after its reset"),
-            Error::ConfigMismatch { reg, wrote, read } => {
-                write!(f, "LSM9DS1 magnetometer: register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
-            }
-            Error::Stalled { ms, limit_ms } => write!(f, "LSM9DS1 magnetometer: no new reading for {ms} ms (limit {limit_ms} ms): stopped"),
-            Error::Stuck { readings } => write!(f, "LSM9DS1 magnetometer: {readings} readings in a row with the same counts: stuck"),
-        }
+        let shared = match *self {
+            Error::WrongId(id) => return write!(f, "LSM9DS1 magnetometer: WHO_AM_I_M 0x{id:02X} at 0x1E (expected 0x3D)"),
+            Error::ResetTimeout => return write!(f, "LSM9DS1 magnetometer: no answer {RESET_TIMEOUT_MS} ms after its reset"),
+            Error::Bus(b) => Shared::Bus(b),
+            Error::ConfigMismatch { reg, wrote, read } => Shared::ConfigMismatch { reg, wrote, read },
+            Error::Stalled { ms, limit_ms } => Shared::Stalled { ms, limit_ms },
+            Error::Stuck { readings } => Shared::Stuck { readings },
+        };
+        shared.write(f, "LSM9DS1 magnetometer", ADDR)
     }
 }
 

@@ -1,6 +1,38 @@
 //! The checks both magnetometer drivers ([`crate::lsm9ds1_mag`], [`crate::bmm150`]) make of a
 //! part's readings: no new one for too long (stopped), or the same counts too many times in a
-//! row (stuck: a live part's noise moves the last digits of every reading).
+//! row (stuck: a live part's noise moves the last digits of every reading); and the words for
+//! the failures they share.
+
+use crate::lsm9ds1::BusFault;
+use core::fmt;
+
+/// A failure both magnetometer drivers have (each driver's error holds these and its own).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Shared {
+    /// An I2C transfer failed.
+    Bus(BusFault),
+    /// Register `reg` read `read` after `wrote` was written.
+    ConfigMismatch { reg: u8, wrote: u8, read: u8 },
+    /// No new reading for `ms` (limit `limit_ms`).
+    Stalled { ms: u32, limit_ms: u32 },
+    /// `readings` new readings in a row with the same counts.
+    Stuck { readings: u16 },
+}
+
+impl Shared {
+    /// The failure in words, for the part named `part` at I2C address `addr`.
+    pub(crate) fn write(self, f: &mut fmt::Formatter<'_>, part: &str, addr: u8) -> fmt::Result {
+        match self {
+            Shared::Bus(BusFault::Nack) => write!(f, "{part}: nothing acknowledges 0x{addr:02X}"),
+            Shared::Bus(b) => write!(f, "{part} I2C: {b:?}"),
+            Shared::ConfigMismatch { reg, wrote, read } => {
+                write!(f, "{part}: register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
+            }
+            Shared::Stalled { ms, limit_ms } => write!(f, "{part}: no new reading for {ms} ms (limit {limit_ms} ms): stopped"),
+            Shared::Stuck { readings } => write!(f, "{part}: {readings} readings in a row with the same counts: stuck"),
+        }
+    }
+}
 
 /// The last new reading's counts, how many in a row had them, and when it came.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -285,3 +285,29 @@ fn a_rev2_board_acks_0x10_and_the_driver_runs_its_bmm150() {
     assert!(m.suspended());
     assert_eq!((m.wakes, m.transactions), (0, 0));
 }
+
+#[test]
+fn both_magnetometers_name_their_shared_failures_with_their_part_and_address() {
+    use gyrocal_fw::lsm9ds1_mag::Error as Lsm;
+    let cases: [(String, &str); 10] = [
+        (ReadError::Bus(BusFault::Nack).to_string(), "BMM150: nothing acknowledges 0x10"),
+        (ReadError::Bus(BusFault::Overrun).to_string(), "BMM150 I2C: Overrun"),
+        (
+            ReadError::ConfigMismatch { reg: 0x4C, wrote: 0x28, read: 0x00 }.to_string(),
+            "BMM150: register 0x4C reads 0x00 after writing 0x28",
+        ),
+        (ReadError::Stuck { readings: 40 }.to_string(), "BMM150: 40 readings in a row with the same counts: stuck"),
+        (ReadError::WrongId(0x00).to_string(), "BMM150: CHIP_ID 0x00 at 0x10 (expected 0x32)"),
+        (Lsm::Bus(BusFault::Nack).to_string(), "LSM9DS1 magnetometer: nothing acknowledges 0x1E"),
+        (Lsm::Bus(BusFault::Bus).to_string(), "LSM9DS1 magnetometer I2C: Bus"),
+        (
+            Lsm::ConfigMismatch { reg: 0x20, wrote: 0xFC, read: 0x7C }.to_string(),
+            "LSM9DS1 magnetometer: register 0x20 reads 0x7C after writing 0xFC",
+        ),
+        (Lsm::Stalled { ms: 260, limit_ms: 250 }.to_string(), "LSM9DS1 magnetometer: no new reading for 260 ms (limit 250 ms): stopped"),
+        (Lsm::Stuck { readings: 80 }.to_string(), "LSM9DS1 magnetometer: 80 readings in a row with the same counts: stuck"),
+    ];
+    for (got, want) in cases {
+        assert_eq!(got, want);
+    }
+}
