@@ -5,6 +5,7 @@
 //! force `A`, seen in the sensor frame B, by `−θ` about `u`; `A·u` is the same in every pose.
 
 use crate::math::linalg::sym_eigen;
+use crate::math::vec3::to_f64;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -62,10 +63,11 @@ pub struct Geometry {
     pub plane_rms_g: f64,
 }
 
-/// Mean calibrated accelerometer readings (g, B) of the static rig poses (bounded, no heap).
+/// Mean calibrated accelerometer readings (g, B) of the static rig poses (bounded, no heap):
+/// kept in f32 (a pose's mean is known to ~1e-4 g; f32 rounds at 6e-8 g), computed with in f64.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Poses {
-    a: heapless::Vec<[f64; 3], MAX_POSES>,
+    a: heapless::Vec<Vec3, MAX_POSES>,
 }
 
 impl Poses {
@@ -94,27 +96,26 @@ impl Poses {
         if !a.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
-        self.a.push([a[0] as f64, a[1] as f64, a[2] as f64]).map_err(|_| Error::CapacityExceeded { max: MAX_POSES as u8 })?;
+        self.a.push(a).map_err(|_| Error::CapacityExceeded { max: MAX_POSES as u8 })?;
         Ok((self.a.len() - 1) as u8)
     }
 
     /// Pose `i` as a vector (g). Panics never: out-of-range indices give the last pose, zero when empty.
     pub fn get(&self, i: usize) -> Vector3<f64> {
-        let a = self.a.get(i).or(self.a.last()).copied().unwrap_or_default();
-        Vector3::new(a[0], a[1], a[2])
+        to_f64(self.a.get(i).or(self.a.last()).copied().unwrap_or_default())
     }
 
     /// Replaces every pose `a` by `f(a)` (e.g. raw readings by calibrated ones).
     pub fn map(&mut self, f: impl Fn(Vector3<f64>) -> Vector3<f64>) {
         for a in &mut self.a {
-            let v = f(Vector3::from(*a));
-            *a = [v[0], v[1], v[2]];
+            let v = f(to_f64(*a));
+            *a = [v[0] as f32, v[1] as f32, v[2] as f32];
         }
     }
 
     /// Iterator over the poses.
     pub fn iter(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
-        self.a.iter().map(|a| Vector3::new(a[0], a[1], a[2]))
+        self.a.iter().map(|a| to_f64(*a))
     }
 
     /// Plane fit of the poses whose bit is set in `mask` (bit `p`: pose `p`).
