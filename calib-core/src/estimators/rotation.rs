@@ -6,10 +6,11 @@
 //! Streaming and bounded: a move is kept as chunks of at most [`CHUNK_DEG`] of raw turn, each its
 //! bias-free gyro integral `Γ_c = ∫ w dt` (°) and its coning integral `β_c = ½ ∫ Γ(t) × w dt`
 //! (°², `Γ(t)` the chunk's integral so far). At any `K` a chunk's rotation vector is
-//! `φ_c = K Γ_c + det(K) K⁻ᵀ β_c` (exact for the cross product, `(K a) × (K b) = det K · K⁻ᵀ (a × b)`;
-//! the Bortz vector to second order, `φ̇ = ω + ½ φ × ω`), and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at
-//! every Gauss–Newton iterate: the result does not depend on where the iteration starts (no
-//! linearisation point is kept), and the memory is [`MAX_CHUNKS`] chunks of 32 bytes.
+//! `φ_c = K Γ_c + det(K) K⁻ᵀ β_c` (exact for the cross product,
+//! `(K a) × (K b) = det K · K⁻ᵀ (a × b)`; the Bortz vector to second order, `φ̇ = ω + ½ φ × ω`),
+//! and `R = Π_c Exp(φ_c)`. So the rotation is re-composed at every Gauss–Newton iterate: the
+//! result does not depend on where the iteration starts (no linearisation point is kept), and
+//! the memory is [`MAX_CHUNKS`] chunks of 32 bytes.
 //!
 //! Jacobian (vec `K` column-major, [`crate::estimators::full::vec_index`]): composing
 //! `J ← Exp(φ_c)ᵀ J + J_r(φ_c) (Γ_cᵀ ⊗ I)` (the preintegration recursion; the coning term's small
@@ -451,10 +452,10 @@ fn skew<T: nalgebra::RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
 /// `Exp(φ)` and the right Jacobian `J_r(φ)` of a chunk's rotation vector (rad): Rodrigues'
 /// coefficients `sin t / t`, `(1 − cos t) / t²`, `(t − sin t) / t³` by their Taylor series to
 /// `t⁸`, whose error is below 1e-13 for `t ≤ 0.25` rad (a chunk turns [`CHUNK_DEG`] = 0.09 rad
-/// raw and a sample's step more; no trigonometry is linked into the firmware for it). In `f32`: the single-precision FPU
-/// of the Cortex-M4F composes a move 100× faster than soft `f64`, to ≈ 1e-6 rad (tested).
-/// Both are `d I + u [φ]× + v φ φᵀ` (`[φ]×² = φ φᵀ − t² I`), built element by element on the
-/// FPU: no matrix products per sample.
+/// raw and a sample's step more; no trigonometry is linked into the firmware for it). In `f32`:
+/// the single-precision FPU of the Cortex-M4F composes a move 100× faster than soft `f64`, to
+/// ≈ 1e-6 rad (tested). Both are `d I + u [φ]× + v φ φᵀ` (`[φ]×² = φ φᵀ − t² I`), built element
+/// by element on the FPU: no matrix products per sample.
 pub(crate) fn exp_jr(phi: &Vector3<f32>) -> (Matrix3<f32>, Matrix3<f32>) {
     let p = [phi[0], phi[1], phi[2]];
     let t2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
