@@ -57,10 +57,6 @@ pub struct AccelCal {
     pub rms_before_g: f32,
     /// RMS of `|f| − 1` over the poses after calibration (g).
     pub rms_after_g: f32,
-    /// 1σ of the offsets (g).
-    pub sigma_offset_g: Vec3,
-    /// 1σ of the diagonal gains.
-    pub sigma_gain: Vec3,
     /// Condition number of the last Gauss-Newton normal matrix.
     pub condition: f32,
     /// Poses used.
@@ -75,8 +71,6 @@ impl AccelCal {
         model: AccelModel::None,
         rms_before_g: 0.0,
         rms_after_g: 0.0,
-        sigma_offset_g: [0.0; 3],
-        sigma_gain: [0.0; 3],
         condition: 1.0,
         poses: 0,
     };
@@ -92,12 +86,27 @@ impl AccelCal {
     }
 }
 
+/// The 1σ of an [`AccelCal`]'s offsets and diagonal gains ([`AccelCalibrator::sigma`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct AccelSigma {
+    /// 1σ of the offsets (g).
+    pub offset_g: Vec3,
+    /// 1σ of the diagonal gains.
+    pub gain: Vec3,
+    /// `χ²` of the fit's residuals against the poses' own 1σ.
+    pub chi2: f32,
+    /// Its degrees of freedom: poses less the model's parameters.
+    pub dof: u8,
+    /// The factor the variances were scaled by: `χ²/ν` where `χ²` lies beyond its 95 % point
+    /// (the residuals show an error the poses' 1σ do not), else 1.
+    pub scale: f32,
+}
+
 /// Static accelerometer poses (mean readings, g), with the linear fits accumulated as they come.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AccelCalibrator<const N: usize = MAX_ACCEL_POSES> {
     poses: heapless::Vec<[f64; 3], N>,
-    /// The poses' own 1σ (g).
-    sigma: heapless::Vec<f32, N>,
     lin6: NormalEquations<6>,
     lin9: NormalEquations<9>,
 }
@@ -108,7 +117,7 @@ type Params = [f64; 9];
 impl<const N: usize> AccelCalibrator<N> {
     /// No poses.
     pub const fn new() -> Self {
-        Self { poses: heapless::Vec::new(), sigma: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
+        Self { poses: heapless::Vec::new(), lin6: NormalEquations::new(), lin9: NormalEquations::new() }
     }
 
     /// Number of poses.
@@ -124,7 +133,6 @@ impl<const N: usize> AccelCalibrator<N> {
     /// Forgets every pose.
     pub fn clear(&mut self) {
         self.poses.clear();
-        self.sigma.clear();
         self.lin6 = NormalEquations::new();
         self.lin9 = NormalEquations::new();
     }
@@ -135,23 +143,16 @@ impl<const N: usize> AccelCalibrator<N> {
         nalgebra::Vector3::new(a[0], a[1], a[2])
     }
 
-    /// Adds the mean raw reading (g) of one static pose and its 1σ from the pose's own samples
-    /// (`std / √n`, g; 0 when unknown). The poses' 1σ are a floor under the σ of the fit: its
-    /// residual, with few poses more than unknowns, can be small by chance.
-    pub fn add_pose(&mut self, a: Vec3, sigma_g: f32) -> Result<(), Error> {
+    /// Adds the mean raw reading (g) of one static pose.
+    pub fn add_pose(&mut self, a: Vec3) -> Result<(), Error> {
         // Checked before the rows go in: a rejected pose leaves the fits as they were.
         let full = Error::CapacityExceeded { max: N.min(u8::MAX as usize) as u8 };
         if self.poses.is_full() {
             return Err(full);
         }
         let [x, y, z] = [a[0] as f64, a[1] as f64, a[2] as f64];
-        let s = sigma_g as f64;
-        if !(s.is_finite() && s >= 0.0) {
-            return Err(Error::NonFinite);
-        }
         self.lin6.add_row(&[x * x, y * y, z * z, x, y, z], 1.0, 1.0)?;
         self.lin9.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
-        self.sigma.push(sigma_g).map_err(|_| full)?;
         self.poses.push([x, y, z]).map_err(|_| full)
     }
 
@@ -225,46 +226,71 @@ impl<const N: usize> AccelCalibrator<N> {
             }
         }
         let sol = ne.solve()?;
-        let var = self.variances::<P>(&p, &ne.inverse()?, sol.rss, sol.dof);
-        let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i]) as f32);
-        let gains = if P == 6 { [3, 4, 5] } else { [3, 6, 8] };
-        self.calibration(&p, model, sol.condition, sigma([0, 1, 2]), sigma(gains))
+        self.calibration(&p, model, sol.condition)
     }
 
-    /// The parameters' variances (`inv = (JᵀJ)⁻¹`; `rss`, `dof` of the fit), the larger of two
-    /// estimates: the pooled one, `inv · max(rss / dof, floor²)` where `floor²` is the mean of the
-    /// poses' own variances (many samples each: a floor under a residual of few degrees of
-    /// freedom that came out small by chance); and the heteroskedasticity-consistent sandwich
-    /// (HC2, MacKinnon & White 1985), each pose's squared residual over one minus its leverage
-    /// but at least its own variance, for poses of unequal noise (hand-held among a rig's
-    /// still ones) that one pooled variance averages away.
-    fn variances<const P: usize>(&self, p: &Params, inv: &[[f64; P]; P], rss: f64, dof: u32) -> [f64; P] {
-        let floor2 = self.sigma.iter().map(|s| (*s as f64) * (*s as f64)).sum::<f64>() / self.poses.len().max(1) as f64;
-        let pooled = (rss / dof.max(1) as f64).max(floor2);
-        let mut var = [0.0; P];
-        for (a, s) in self.poses.iter().zip(&self.sigma) {
+    /// The 1σ of `cal`, fitted to these poses, from each pose's own 1σ `pose_sigma_g` (g, the
+    /// error of its mean along gravity, in the order the poses came) propagated through the
+    /// fit: `var = Σ s_i² t_i t_iᵀ` with `t_i = (JᵀJ)⁻¹ J_i` at the solution; scaled by
+    /// `χ²/ν` when `χ²`, the least `Σ (r_i / s_i)²` near the solution, lies beyond its 95 %
+    /// point, where the residuals show
+    /// an error the poses' own 1σ do not (a model that does not fit, a disturbed pose). The
+    /// residual alone is not the scale: with a few poses more than unknowns (12 poses, 9
+    /// parameters) its variance has 3 degrees of freedom and is often small by chance. `None`
+    /// for the identity, a count that differs from the poses' or a 1σ not above zero.
+    pub fn sigma(&self, cal: &AccelCal, pose_sigma_g: &[f64]) -> Option<AccelSigma> {
+        let o = cal.offset_g.map(|v| v as f64);
+        let m = cal.m.map(|r| r.map(|v| v as f64));
+        match cal.model {
+            AccelModel::SixParam => self.propagate::<6>(&[o[0], o[1], o[2], m[0][0], m[1][1], m[2][2], 0.0, 0.0, 0.0], pose_sigma_g),
+            AccelModel::NineParam => self.propagate::<9>(&[o[0], o[1], o[2], m[0][0], m[0][1], m[0][2], m[1][1], m[1][2], m[2][2]], pose_sigma_g),
+            AccelModel::None => None,
+        }
+    }
+
+    /// [`Self::sigma`] for the `P` parameters `p`.
+    fn propagate<const P: usize>(&self, p: &Params, pose_sigma_g: &[f64]) -> Option<AccelSigma> {
+        if pose_sigma_g.len() != self.poses.len() || !pose_sigma_g.iter().all(|s| *s > 0.0 && s.is_finite()) {
+            return None;
+        }
+        // The fit's own (unweighted) normal matrix, and the weighted equations of its residuals:
+        // their least sum, one linearised step from the solution, is the χ² of the poses
+        // weighted by their own 1σ (the unweighted residuals are not: a noisy pose pulls the
+        // fit away from the still ones).
+        let (mut ne, mut weighted) = (NormalEquations::<P>::new(), NormalEquations::<P>::new());
+        for (a, s) in self.poses.iter().zip(pose_sigma_g) {
             let (r, jac) = residual(p, a, P == 6);
-            let s = *s as f64;
+            let jac = core::array::from_fn(|i| jac[i]);
+            ne.add_row(&jac, 0.0, 1.0).ok()?;
+            weighted.add_row(&jac, -r, 1.0 / (s * s)).ok()?;
+        }
+        let inv = ne.inverse().ok()?;
+        let chi2 = weighted.solve().ok()?.rss.max(0.0);
+        let mut var = [0.0; P];
+        for (a, s) in self.poses.iter().zip(pose_sigma_g) {
+            let (_, jac) = residual(p, a, P == 6);
             let t: [f64; P] = core::array::from_fn(|k| (0..P).map(|j| inv[k][j] * jac[j]).sum());
-            let h: f64 = (0..P).map(|k| jac[k] * t[k]).sum();
-            let w = (r * r / (1.0 - h).max(0.05)).max(s * s);
             for (v, tk) in var.iter_mut().zip(t) {
-                *v += w * tk * tk;
+                *v += s * s * tk * tk;
             }
         }
-        core::array::from_fn(|k| var[k].max(inv[k][k] * pooled))
+        let dof = self.poses.len().saturating_sub(P);
+        // χ²'s 95 % point (Wilson & Hilferty 1931): ν (1 − 2/(9ν) + 1.645 √(2/(9ν)))³.
+        let nu = dof.max(1) as f64;
+        let c = 1.0 - 2.0 / (9.0 * nu) + 1.645 * libm::sqrt(2.0 / (9.0 * nu));
+        let scale = if dof > 0 && chi2 > nu * c * c * c { chi2 / nu } else { 1.0 };
+        let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i] * scale) as f32);
+        Some(AccelSigma {
+            offset_g: sigma([0, 1, 2]),
+            gain: sigma(if P == 6 { [3, 4, 5] } else { [3, 6, 8] }),
+            chi2: chi2 as f32,
+            dof: dof.min(u8::MAX as usize) as u8,
+            scale: scale as f32,
+        })
     }
 
-    /// The calibration of the refined parameters `p` with the 1σ of its offsets (g) and diagonal
-    /// gains; the same code for both models.
-    fn calibration(
-        &self,
-        p: &Params,
-        model: AccelModel,
-        condition: f64,
-        sigma_offset_g: Vec3,
-        sigma_gain: Vec3,
-    ) -> Result<AccelCal, Error> {
+    /// The calibration of the refined parameters `p`; the same code for both models.
+    fn calibration(&self, p: &Params, model: AccelModel, condition: f64) -> Result<AccelCal, Error> {
         let six = model == AccelModel::SixParam;
         let m = gain_matrix(p, six);
         if !(0..3).all(|i| m[i][i] > 0.0) || !p.iter().all(|v| v.is_finite()) {
@@ -278,8 +304,6 @@ impl<const N: usize> AccelCalibrator<N> {
             model,
             rms_before_g: rms(&|a| norm(a) - 1.0),
             rms_after_g: rms(&|a| residual(p, a, six).0),
-            sigma_offset_g,
-            sigma_gain,
             condition: condition as f32,
             poses: self.poses.len() as u8,
         })
@@ -368,7 +392,7 @@ mod tests {
         let o = [0.02, -0.015, 0.03];
         let mut c = <AccelCalibrator>::new();
         for f in [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]] {
-            c.add_pose(raw(&m, &o, f), 0.0).unwrap();
+            c.add_pose(raw(&m, &o, f)).unwrap();
         }
         let cal = c.solve6().unwrap();
         for i in 0..3 {
@@ -384,7 +408,7 @@ mod tests {
         let o = [0.02, -0.015, 0.03];
         let mut c = <AccelCalibrator>::new();
         for f in icosahedron() {
-            c.add_pose(raw(&m, &o, f), 0.0).unwrap();
+            c.add_pose(raw(&m, &o, f)).unwrap();
         }
         let cal = c.solve9().unwrap();
         for i in 0..3 {
@@ -399,7 +423,7 @@ mod tests {
     fn too_few_and_degenerate_poses_are_errors() {
         let mut c = <AccelCalibrator>::new();
         for f in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] {
-            c.add_pose(f, 0.0).unwrap();
+            c.add_pose(f).unwrap();
         }
         assert_eq!(c.solve6(), Err(Error::TooFewPoses { have: 3, need: 6 }));
         // Eight poses on one cone (a servo's): the ellipsoid is not determined.
@@ -407,26 +431,28 @@ mod tests {
         for k in 0..8 {
             let th = k as f64 * 0.7;
             let v = [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8];
-            c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32], 0.0).unwrap();
+            c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32]).unwrap();
         }
         assert!(matches!(c.solve6(), Err(Error::Singular | Error::IllConditioned { .. } | Error::AccelFitFailed)));
     }
 
     /// Fraction of the 9-parameter fit's offsets and diagonal gains within 1σ and 2σ over
-    /// `runs` sensors, each pose of `poses` given noise of 1σ `sigma(k)` (g) per axis on its mean.
-    fn coverage(poses: &[[f64; 3]], sigma: impl Fn(usize) -> f64, runs: usize) -> [f64; 2] {
+    /// `runs` sensors, each pose of `poses` given noise of 1σ `sigma(k)` (g) per axis on its
+    /// mean, and stated to the fit as `stated(k)`.
+    fn coverage(poses: &[[f64; 3]], sigma: impl Fn(usize) -> f64, stated: impl Fn(usize) -> f64, runs: usize) -> [f64; 2] {
         let mut noise = crate::math::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
         let (m, o) = ([[1.01, 0.002, -0.003], [0.0, 0.99, 0.001], [0.0, 0.0, 1.02]], [0.01, -0.02, 0.005]);
         let mut within = [0u32; 2];
+        let stated: heapless::Vec<f64, 32> = (0..poses.len()).map(stated).collect();
         for _ in 0..runs {
             let mut c = <AccelCalibrator>::new();
             for (k, f) in poses.iter().enumerate() {
-                let a = raw(&m, &o, *f).map(|v| (v as f64 + sigma(k) * noise.next()) as f32);
-                c.add_pose(a, sigma(k) as f32).unwrap();
+                c.add_pose(raw(&m, &o, *f).map(|v| (v as f64 + sigma(k) * noise.next()) as f32)).unwrap();
             }
             let cal = c.solve9().unwrap();
+            let sig = c.sigma(&cal, &stated).unwrap();
             for i in 0..3 {
-                let errs = [(cal.offset_g[i] as f64 - o[i], cal.sigma_offset_g[i]), (cal.m[i][i] as f64 - m[i][i], cal.sigma_gain[i])];
+                let errs = [(cal.offset_g[i] as f64 - o[i], sig.offset_g[i]), (cal.m[i][i] as f64 - m[i][i], sig.gain[i])];
                 for (e, s) in errs {
                     within[0] += (e.abs() <= s as f64) as u32;
                     within[1] += (e.abs() <= 2.0 * s as f64) as u32;
@@ -438,24 +464,60 @@ mod tests {
 
     #[test]
     fn sigma_covers_the_error_with_three_spare_poses() {
-        // 12 poses for 9 unknowns: the residual alone, from 3 degrees of freedom, is often small
-        // by chance (without the poses' own noise as a floor: 64 % / 89 %; with it 76 % / 97 %).
-        let [one, two] = coverage(&icosahedron(), |_| 1e-4, 1500);
-        assert!((0.60..=0.80).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+        // 12 poses for 9 unknowns, each pose's 1σ known: propagated, it covers as a 1σ should.
+        // The residual's 3 degrees of freedom would not (its variance alone: 64 % / 89 %).
+        let [one, two] = coverage(&icosahedron(), |_| 1e-4, |_| 1e-4, 1500);
+        assert!((0.62..=0.74).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 
     #[test]
     fn sigma_covers_the_error_of_noisy_poses_among_still_ones() {
         // 20 still rig poses round a cone and 12 hand-held ones ten times noisier: one pooled
-        // residual variance would be set by the still poses (without the sandwich: 50 % / 82 %;
-        // with it, each pose's variance at least its own noise: 75 % / 97 %).
+        // residual variance would be set by the still poses (50 % / 82 %); each pose's own
+        // variance propagated is not.
         let mut poses = [[0.0; 3]; 32];
         for (k, p) in poses.iter_mut().enumerate() {
             let th = k as f64 * core::f64::consts::TAU / 20.0;
             *p = if k < 20 { [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8] } else { icosahedron()[k - 20] };
         }
-        let [one, two] = coverage(&poses, |k| if k < 20 { 1e-5 } else { 1e-4 }, 1500);
-        assert!((0.60..=0.80).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+        let noise = |k: usize| if k < 20 { 1e-5 } else { 1e-4 };
+        let [one, two] = coverage(&poses, noise, noise, 1500);
+        assert!((0.62..=0.74).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+    }
+
+    #[test]
+    fn residuals_beyond_the_poses_own_sigma_scale_it() {
+        // Every pose's error three times what it states (a hand's motion its scatter does not
+        // show): χ² finds it and the 1σ grows with it; unscaled, a third of the errors would lie
+        // within 2σ.
+        let poses = [icosahedron(), icosahedron().map(|p| p.map(|v| -v))].concat();
+        let [one, two] = coverage(&poses, |_| 3e-4, |_| 1e-4, 1000);
+        assert!(one >= 0.55 && two >= 0.90, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
+        // Stated right, nothing is scaled: the test is at its 5 % level.
+        let mut noise = crate::math::test_noise::Gaussian::new(7);
+        let mut scaled = 0;
+        for _ in 0..400 {
+            let mut c = <AccelCalibrator>::new();
+            for f in &poses {
+                c.add_pose(f.map(|v| (v + 1e-4 * noise.next()) as f32)).unwrap();
+            }
+            let cal = c.solve9().unwrap();
+            scaled += (c.sigma(&cal, &[1e-4; 24]).unwrap().scale > 1.0) as u32;
+        }
+        assert!(scaled <= 40, "scaled in {scaled} of 400");
+    }
+
+    #[test]
+    fn sigma_needs_one_positive_sigma_per_pose() {
+        let mut c = <AccelCalibrator>::new();
+        for f in icosahedron() {
+            c.add_pose(f.map(|v| v as f32)).unwrap();
+        }
+        let cal = c.solve9().unwrap();
+        assert!(c.sigma(&cal, &[1e-4; 12]).is_some());
+        assert_eq!(c.sigma(&cal, &[1e-4; 11]), None);
+        assert_eq!(c.sigma(&cal, &[[1e-4; 11].as_slice(), &[0.0]].concat()), None);
+        assert_eq!(c.sigma(&AccelCal::IDENTITY, &[1e-4; 12]), None);
     }
 
     /// How often the F-test takes the 9-parameter model over `runs` sensors of gain `m` and the
@@ -467,7 +529,7 @@ mod tests {
         for _ in 0..runs {
             let mut c = AccelCalibrator::<32>::new();
             for f in poses {
-                c.add_pose(raw(m, &[0.01, -0.02, 0.005], *f).map(|v| (v as f64 + sigma * noise.next()) as f32), sigma as f32).unwrap();
+                c.add_pose(raw(m, &[0.01, -0.02, 0.005], *f).map(|v| (v as f64 + sigma * noise.next()) as f32)).unwrap();
             }
             let (fit, test) = crate::procedure::pipeline::fit_accel_tested(&c, &acc).unwrap();
             assert_eq!(fit.model == AccelModel::NineParam, test.unwrap().nine());

@@ -47,7 +47,7 @@ impl Procedure {
         }
         let sigma = capture.accel.radial_std_of_mean() as f32;
         if !extra {
-            if let Err(e) = self.accel_poses.add_pose(a, sigma) {
+            if let Err(e) = self.accel_poses.add_pose(a) {
                 return self.fail(e);
             }
             // Gravity's direction in the raw accelerometer's axes until it is calibrated.

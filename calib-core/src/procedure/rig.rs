@@ -74,7 +74,7 @@ impl Procedure {
         };
         let forward_pass = k < self.cfg.rig_steps() * TILT_SETTINGS as u16;
         if pan_tilt && forward_pass && j < self.cfg.pose_count as u16 {
-            if let Err(e) = self.accel_poses.add_pose(a, capture.accel.radial_std_of_mean() as f32) {
+            if let Err(e) = self.accel_poses.add_pose(a) {
                 return self.fail(e);
             }
         }

@@ -126,14 +126,13 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
         for _ in 0..proto.pose_samples {
             w.add(accel(f, rng));
         }
-        (w.mean().map(|v| v as f32), w.radial_std_of_mean() as f32)
+        w.mean().map(|v| v as f32)
     };
     // Accelerometer pre-calibration on the six axis poses.
     let accel_cal = if case.precalibrate_accel {
         let mut c = <AccelCalibrator>::new();
         for f in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y(), Vector3::z(), -Vector3::z()] {
-            let (a, sigma) = mean_pose(f, rng);
-            c.add_pose(a, sigma)?;
+            c.add_pose(mean_pose(f, rng))?;
         }
         Some(c.solve6()?)
     } else {
@@ -156,7 +155,7 @@ pub fn run(case: &PaperCase, proto: &PaperProtocol, rng: &mut impl Rng) -> Resul
     for _ in 0..proto.poses {
         let th = rng.random_range(0.0..std::f64::consts::TAU);
         let f = Rotation3::from_axis_angle(&Unit::new_normalize(u), -th) * up0;
-        let a = mean_pose(f, rng).0;
+        let a = mean_pose(f, rng);
         poses.push(accel_cal.map_or(a, |c| c.apply(a)))?;
     }
     let mut rot = Moments3::new();

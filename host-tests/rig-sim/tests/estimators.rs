@@ -104,7 +104,7 @@ proptest! {
         let rot = Rotation3::from_euler_angles(roll, 0.3, -0.2);
         for f in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y(), Vector3::z(), -Vector3::z()] {
             let f = rot * f;
-            c.add_pose(f32v(f.component_div(&m) + o), 0.0).unwrap();
+            c.add_pose(f32v(f.component_div(&m) + o)).unwrap();
         }
         let cal = c.solve6().unwrap();
         // Six poses along a rotated frame can make the diagonal model nearly singular (the
@@ -215,7 +215,7 @@ proptest! {
             let mut acc = <AccelCalibrator>::new();
             for p in set.iter() {
                 let _ = poses.push(*p);
-                let _ = acc.add_pose(*p, 0.0);
+                let _ = acc.add_pose(*p);
             }
             let mut moves = Moves::new();
             for (from, to, g) in &gammas {
@@ -244,7 +244,7 @@ proptest! {
         let mut c = <AccelCalibrator>::new();
         for v in rig_sim::harness::icosahedron() {
             let f = rot * v;
-            c.add_pose(f32v(minv * f + Vector3::from(o)), 0.0).unwrap();
+            c.add_pose(f32v(minv * f + Vector3::from(o))).unwrap();
         }
         let cal = c.solve9().unwrap();
         for i in 0..3 {

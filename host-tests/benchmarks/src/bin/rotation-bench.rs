@@ -64,10 +64,11 @@ fn covered_bias_accel(c: &offline::Calibration, rig: &Rig) -> [[usize; 3]; 3] {
     let u = t.accel_c.try_inverse().and_then(|ca_inv| (ca_inv.transpose() * ca_inv).cholesky()).map(|ch| ch.l().transpose());
     let mut out = [[0usize; 3]; 3];
     for k in 0..3 {
+        let s = c.accel_sigma.as_ref();
         let e = [
             Some(((c.bias.bias_dps[k] as f64 - t.gyro_bias_dps[k]).abs(), c.bias.sigma_dps[k] as f64)),
-            Some(((c.accel.offset_g[k] as f64 - t.accel_offset_g[k]).abs(), c.accel.sigma_offset_g[k] as f64)),
-            u.map(|u| ((c.accel.m[k][k] as f64 - u[(k, k)]).abs(), c.accel.sigma_gain[k] as f64)),
+            s.map(|s| ((c.accel.offset_g[k] as f64 - t.accel_offset_g[k]).abs(), s.offset_g[k] as f64)),
+            u.zip(s).map(|(u, s)| ((c.accel.m[k][k] as f64 - u[(k, k)]).abs(), s.gain[k] as f64)),
         ];
         for (o, e) in out.iter_mut().zip(e) {
             if let Some((e, s)) = e {

@@ -139,7 +139,7 @@ pub(super) fn calibrate(
     let settings = settings(&log);
     let pan_tilt = settings.len() >= 2;
 
-    let (accel, accel_test, handheld_poses) = accel(&log, pan_tilt)?;
+    let (accel, accel_sigma, accel_test, handheld_poses) = accel(&log, pan_tilt)?;
     let main_setting = settings.iter().max_by_key(|(_, n)| *n).map(|(t, _)| *t);
     let (poses, moves) = one_axis_rig(&log, main_setting, &accel)?;
     let rotations = rotations(&log, &accel, range_dps, &cfg.rotation);
@@ -199,6 +199,7 @@ pub(super) fn calibrate(
         full,
         bias: log.bias_at_end(),
         accel,
+        accel_sigma,
         sweep,
         paper,
         spin_rate: spin.map(|(_, w, source)| (w, source)),
@@ -225,19 +226,22 @@ pub(super) const HAND_HELD_STAGE: &str = "full K from the moves between hand-hel
 
 /// The accelerometer from the hand-held poses, and on a pan/tilt rig from every rig pose too
 /// (spread over pan × tilt, they are no cone), by the model the F-test chooses; identity below
-/// the poses a fit needs. Also the test and the number of poses used.
-fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, Option<pipeline::ModelTest>, usize), OfflineError> {
+/// the poses a fit needs. Also its 1σ from each pose's own ([`Segment::accel_sigma_of_mean`]),
+/// the test and the number of poses used.
+fn accel(log: &Log, pan_tilt: bool) -> Result<(AccelCal, Option<AccelSigma>, Option<pipeline::ModelTest>, usize), OfflineError> {
     let mut acc = AccelCalibrator::<HOST_ACCEL_POSES>::new();
+    let mut sigma = vec![];
     for s in log.ph.segments.iter().filter(|s| !s.is_rig_pose() || pan_tilt) {
-        if acc.add_pose(s.accel.mean().map(|v| v as f32), s.accel.radial_std_of_mean() as f32).is_err() {
+        if acc.add_pose(s.accel.mean().map(|v| v as f32)).is_err() {
             break;
         }
+        sigma.push(s.accel_sigma_of_mean(log.rows, log.ph.accel_noise_g));
     }
     let (cal, test) = match acc.len() {
         n if n >= pipeline::SIX_PARAM_POSES => pipeline::fit_accel_tested(&acc, &CONFIG.acceptance).map_err(stage("accelerometer"))?,
         _ => (AccelCal::IDENTITY, None),
     };
-    Ok((cal, test, acc.len()))
+    Ok((cal, acc.sigma(&cal, &sigma), test, acc.len()))
 }
 
 /// What the fixed-size stores left out of the data-driven path, each with its count, why, and

@@ -7,7 +7,7 @@
 //! steady gyro rate is the paper's constant-rate spin.
 
 use crate::csvlog::{Log, Row};
-use calib_core::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
+use calib_core::estimators::accel::{AccelCal, AccelCalibrator, AccelModel, AccelSigma};
 use calib_core::estimators::axis::{Poses, MAX_POSES};
 use calib_core::estimators::bias::{Bias, BiasEstimator, BiasLimits, Drift, RestBias};
 use calib_core::estimators::full::FullCal;
@@ -108,6 +108,9 @@ pub struct Calibration {
     pub bias: Bias,
     /// Accelerometer calibration (identity when the log has fewer than 6 hand-held poses).
     pub accel: AccelCal,
+    /// Its 1σ (`None`: no fit, or a replayed run of the firmware, whose procedure does not give
+    /// it).
+    pub accel_sigma: Option<AccelSigma>,
     /// Sweep estimator outcome.
     pub sweep: Result<GyroCal, Error>,
     /// Paper estimator outcome (`None` without a steady spin).
@@ -295,6 +298,7 @@ fn replayed(r: crate::replay::Replay, time_base: TimeBase, setup: Option<SensorS
         full: r.full,
         bias: r.bias,
         accel: r.accel,
+        accel_sigma: None,
         sweep: r.sweep.unwrap_or(Err(Error::NoUsableMove)),
         paper: r.paper,
         spin_rate: None,

@@ -34,6 +34,17 @@ pub struct MagQualityOut<'a> {
     pub axes: Option<&'a super::MagAxes>,
 }
 
+/// The accelerometer's fit and its 1σ.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccelQuality<'a> {
+    /// The fit's figures.
+    #[serde(flatten)]
+    pub fit: &'a AccelCal,
+    /// The 1σ of its offsets and diagonal gains (`null`: no fit, or a replayed run of the
+    /// firmware).
+    pub sigma: Option<&'a AccelSigma>,
+}
+
 /// One estimator's outcome: its result, or why it failed.
 #[derive(Debug, Clone, Serialize)]
 #[serde(untagged)]
@@ -153,7 +164,7 @@ pub struct QualityOut<'a> {
     /// The bias.
     pub bias: &'a Bias,
     /// The accelerometer fit.
-    pub accel: &'a AccelCal,
+    pub accel: AccelQuality<'a>,
     /// Why the accelerometer has its model: the F-test of the 9-parameter model's cross terms
     /// (`null`: only one model could be fitted).
     pub accel_model_test: Option<AccelModelOut>,
@@ -282,7 +293,7 @@ impl Calibration {
                     ..g.quality
                 }),
                 bias: &self.bias,
-                accel: &self.accel,
+                accel: AccelQuality { fit: &self.accel, sigma: self.accel_sigma.as_ref() },
                 accel_model_test: self.accel_test.map(|test| AccelModelOut {
                     test,
                     chosen: if test.nine() {
