@@ -243,7 +243,9 @@ impl<const N: usize> AccelCalibrator<N> {
         let m = cal.m.map(|r| r.map(|v| v as f64));
         match cal.model {
             AccelModel::SixParam => self.propagate::<6>(&[o[0], o[1], o[2], m[0][0], m[1][1], m[2][2], 0.0, 0.0, 0.0], pose_sigma_g),
-            AccelModel::NineParam => self.propagate::<9>(&[o[0], o[1], o[2], m[0][0], m[0][1], m[0][2], m[1][1], m[1][2], m[2][2]], pose_sigma_g),
+            AccelModel::NineParam => {
+                self.propagate::<9>(&[o[0], o[1], o[2], m[0][0], m[0][1], m[0][2], m[1][1], m[1][2], m[2][2]], pose_sigma_g)
+            }
             AccelModel::None => None,
         }
     }
