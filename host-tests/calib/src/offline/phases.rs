@@ -36,17 +36,16 @@ impl Segment {
     /// and `B` the mean square `5σ_v²/3`; a sway slower than the pose changes `v` across it by
     /// more than `B` shows. The 1σ is `√(2⟨B²⟩) / T`: with `6⟨B²⟩/5`, the fast motion's,
     /// rotation-bench's free hand had its gains within 2σ in 85 % and the arm's offsets within
-    /// 1σ in 55 %. The samples' spread over `√n`
-    /// would take a tremor that averages away for noise and miss a sway too slow to show in it.
-    /// `rows`: the log the segment indexes.
+    /// 1σ in 55 %. The samples' spread over `√n` would take a tremor that averages away for
+    /// noise and miss a sway too slow to show in it. `rows`: the log the segment indexes.
     pub fn accel_sigma_of_mean(&self, rows: &[Row], noise_g: f64) -> f64 {
         let rows = &rows[self.first..=self.last];
-        let mean = self.accel.mean();
-        let norm = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt().max(1e-9);
-        let along = |a: &[f32; 3]| (0..3).map(|k| a[k] as f64 * mean[k] / norm).sum::<f64>();
+        let mean = Vector3::from(self.accel.mean());
+        let norm = mean.norm().max(1e-9);
+        let u = mean / norm;
         let (mut b, mut b2) = (0.0, 0.0);
         for w in rows.windows(2) {
-            b += (along(&w[1].accel_g) - norm) * (w[1].t_s - w[0].t_s);
+            b += (Vector3::from(w[1].accel_g.map(f64::from)).dot(&u) - norm) * (w[1].t_s - w[0].t_s);
             b2 += b * b;
         }
         let n = rows.len() as f64;
