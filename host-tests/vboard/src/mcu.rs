@@ -79,6 +79,17 @@ pub struct Snapshot {
 /// (instructions); longer ones are fits and the solve.
 pub const SHORT_CALL: u64 = 200_000;
 
+/// Which calls into the procedure a profile ([`Mcu::profile`]) is of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Calls {
+    /// `Procedure::handle_sample` calls of up to [`SHORT_CALL`] instructions: the samples.
+    Samples = 0,
+    /// The longer `handle_sample` calls: the pose ends and the fits made in them.
+    LongSamples = 1,
+    /// `Procedure::handle_tick` calls: the fits and the solve's steps.
+    Ticks = 2,
+}
+
 /// The board.
 pub struct Mcu {
     uc: Unicorn<'static, ()>,
@@ -111,11 +122,10 @@ pub struct Mcu {
     pub handle_sample_max: Rc<Cell<u64>>,
     /// Instructions of the longest single `Procedure::handle_tick` call (a fit or a step of the solve).
     pub handle_tick_max: Rc<Cell<u64>>,
-    /// Instructions spent inside `Procedure::handle_sample` (callees included) per function's
-    /// start, while `profiling` is set: its flat profile ([`Mcu::profile`]), for the
-    /// calls of up to [`SHORT_CALL`] instructions (the samples) and for the longer ones (the
-    /// fits and the solve) apart.
-    pub blocks: Rc<RefCell<[std::collections::HashMap<u64, u64>; 2]>>,
+    /// Instructions spent inside `Procedure::handle_sample` and `handle_tick` (callees
+    /// included) per function's start, while `profiling` is set: their flat profiles
+    /// ([`Mcu::profile`]), indexed by [`Calls`].
+    pub blocks: Rc<RefCell<[std::collections::HashMap<u64, u64>; 3]>>,
     /// Whether `blocks` is kept (off by default: it costs emulation time).
     pub profiling: Rc<Cell<bool>>,
 }
@@ -217,7 +227,7 @@ impl Mcu {
         let (ht_max, tick_entry) = (handle_tick_max.clone(), firmware.handle_tick.map(|r| r.0));
         // The open `handle_tick` call: its first instruction count and return address.
         let tick_open: Cell<Option<(u64, u64)>> = Cell::new(None);
-        let blocks = Rc::new(RefCell::new([std::collections::HashMap::new(), std::collections::HashMap::new()]));
+        let blocks = Rc::new(RefCell::new([(); 3].map(|_| std::collections::HashMap::new())));
         let (profile, profiling) = (blocks.clone(), Rc::new(Cell::new(false)));
         let profile_on = profiling.clone();
         // The open call's instructions per function (by its start), filed as short or long when
@@ -245,31 +255,33 @@ impl Mcu {
             } else if let Some((t0, _)) = tick_open.get().filter(|t| t.1 == addr) {
                 ht_max.set(ht_max.get().max(n0 - t0));
                 tick_open.set(None);
-            }
-            if let Some((e0, ret)) = open.get() {
-                if addr != ret {
-                    if profile_on.get() {
-                        let f = fns.partition_point(|f| f.0 <= addr).checked_sub(1).map(|i| fns[i]).filter(|f| addr < f.1);
-                        let key = match f {
-                            Some((_, _, true)) => caller,
-                            Some((start, _, false)) => {
-                                caller = start;
-                                start
-                            }
-                            None => addr,
-                        };
-                        *call.entry(key).or_insert(0) += n - n0;
-                    }
-                } else {
-                    let long = usize::from(n0 - e0 > SHORT_CALL);
-                    for (a, k) in call.drain() {
-                        *profile.borrow_mut()[long].entry(a).or_insert(0) += k;
-                    }
-                    let (i, calls) = hs.get();
-                    hs.set((i + n0 - e0, calls + 1));
-                    hs_max.set(hs_max.get().max(n0 - e0));
-                    open.set(None);
+                for (a, k) in call.drain() {
+                    *profile.borrow_mut()[Calls::Ticks as usize].entry(a).or_insert(0) += k;
                 }
+            }
+            // The two never nest: the main loop calls each.
+            let inside = open.get().or(tick_open.get());
+            if profile_on.get() && inside.is_some_and(|o| o.1 != addr) {
+                let f = fns.partition_point(|f| f.0 <= addr).checked_sub(1).map(|i| fns[i]).filter(|f| addr < f.1);
+                let key = match f {
+                    Some((_, _, true)) => caller,
+                    Some((start, _, false)) => {
+                        caller = start;
+                        start
+                    }
+                    None => addr,
+                };
+                *call.entry(key).or_insert(0) += n - n0;
+            }
+            if let Some((e0, ret)) = open.get().filter(|o| o.1 == addr) {
+                let long = if n0 - e0 > SHORT_CALL { Calls::LongSamples } else { Calls::Samples };
+                for (a, k) in call.drain() {
+                    *profile.borrow_mut()[long as usize].entry(a).or_insert(0) += k;
+                }
+                let (i, calls) = hs.get();
+                hs.set((i + n0 - e0, calls + 1));
+                hs_max.set(hs_max.get().max(n0 - e0));
+                open.set(None);
             }
             if n >= budget.get() {
                 let _ = uc.emu_stop();
@@ -582,13 +594,12 @@ impl Mcu {
         Ok(())
     }
 
-    /// The flat profile of `Procedure::handle_sample` kept while `profiling` was set, of its
-    /// short calls (the samples) or of its `long` ones: its instructions per function (callees
-    /// apart, but a builtin's — software floating point, memcpy — charged to its caller), most
-    /// first.
-    pub fn profile(&self, long: bool) -> Vec<(String, u64)> {
+    /// The flat profile of the procedure's `calls` kept while `profiling` was set: their
+    /// instructions per function (callees apart, but a builtin's — software floating point,
+    /// memcpy — charged to its caller), most first.
+    pub fn profile(&self, calls: Calls) -> Vec<(String, u64)> {
         let mut per: std::collections::HashMap<&str, u64> = std::collections::HashMap::new();
-        for (addr, n) in self.blocks.borrow()[usize::from(long)].iter() {
+        for (addr, n) in self.blocks.borrow()[calls as usize].iter() {
             let fns = &self.firmware.functions;
             let i = fns.partition_point(|f| f.0 <= *addr);
             let name = i.checked_sub(1).map(|i| &fns[i]).filter(|f| *addr < f.1).map_or("?", |f| f.2.as_str());

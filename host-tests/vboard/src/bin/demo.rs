@@ -41,6 +41,7 @@ use rig_sim::nor::NorSim;
 use rig_sim::pan_tilt;
 use rig_sim::variant::Variant;
 use std::process::ExitCode;
+use vboard::mcu::Calls;
 use vboard::testbed::{build_firmware, message, Outcome, Testbed};
 
 /// The firmware on the emulated Nano 33 BLE, calibrating on a simulated rig.
@@ -171,10 +172,14 @@ fn main() -> ExitCode {
     );
     println!("[demo] peak stack: {} bytes (from power-on)", testbed.mcu.peak_stack().unwrap_or(0));
     if let Some(n) = profile {
-        for (long, what) in [(false, "its calls of a sample"), (true, "its long calls (fits, the solve)")] {
-            let profile = testbed.mcu.profile(long);
+        for (calls, what) in [
+            (Calls::Samples, "Procedure::handle_sample, its calls of a sample"),
+            (Calls::LongSamples, "Procedure::handle_sample, its long calls (pose ends, fits)"),
+            (Calls::Ticks, "Procedure::handle_tick (fits, the solve's steps)"),
+        ] {
+            let profile = testbed.mcu.profile(calls);
             let total: u64 = profile.iter().map(|p| p.1).sum();
-            println!("[demo] profile of Procedure::handle_sample, {what}: {total} instructions; the {n} costliest functions (callees apart, builtins charged to their caller):");
+            println!("[demo] profile of {what}: {total} instructions; the {n} costliest functions (callees apart, builtins charged to their caller):");
             for (name, i) in profile.iter().take(n) {
                 println!("[demo] {:>6.2} % {i:>12} {name}", 100.0 * *i as f64 / total.max(1) as f64);
             }
