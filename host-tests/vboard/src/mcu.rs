@@ -273,7 +273,7 @@ impl Mcu {
                 };
                 *call.entry(key).or_insert(0) += n - n0;
             }
-            if let Some((e0, ret)) = open.get().filter(|o| o.1 == addr) {
+            if let Some((e0, _)) = open.get().filter(|o| o.1 == addr) {
                 let long = if n0 - e0 > SHORT_CALL { Calls::LongSamples } else { Calls::Samples };
                 for (a, k) in call.drain() {
                     *profile.borrow_mut()[long as usize].entry(a).or_insert(0) += k;
