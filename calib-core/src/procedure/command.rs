@@ -92,11 +92,13 @@ impl ErrorClass {
     }
 }
 
-/// Progress and results, for the log.
+/// Progress and results, for the log. `R` is the record's place ([`Report::Done`]): the
+/// procedure's queue holds `()` there and [`super::Procedure::poll`] puts the record in, so that
+/// a queued command takes 128 B rather than 328.
 #[allow(missing_docs)] // variant fields are named with their units
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Report {
+pub enum Report<R = Record> {
     /// A phase started.
     Phase(Phase),
     /// Gyro bias measured.
@@ -145,16 +147,16 @@ pub enum Report {
     /// One gyro estimator failed (the other may still succeed).
     EstimatorFailed { method: Method, error: Error },
     /// The calibration was stored (verified) and is applied from now on.
-    Done(Record),
+    Done(R),
     /// The calibration failed; nothing was stored.
     Failed(Error),
 }
 
-/// A command to the I/O shell.
+/// A command to the I/O shell (`R`: the record's place, as in [`Report`]).
 #[allow(missing_docs)] // variant fields are named with their units
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Command {
+pub enum Command<R = Record> {
     /// Drive servo `channel` (0 = rotation, 1 = tilt) with a pulse (µs, already clamped).
     Servo { channel: u8, pulse_us: u16 },
     /// Stop driving servo `channel`.
@@ -162,12 +164,50 @@ pub enum Command {
     /// Show an LED pattern.
     Led(Led),
     /// Log a report.
-    Report(Report),
+    Report(Report<R>),
     /// Store this record in flash (power-fail safe; keep the previous one until it is written),
     /// then tell the procedure how it went: [`super::Procedure::handle_stored`].
-    Store(Record),
+    Store(R),
     /// Apply this calibration to every reading from now on.
-    Apply(Record),
+    Apply(R),
+}
+
+impl Command<()> {
+    /// The queued command with its record: `store` for [`Command::Store`] (the one being
+    /// stored), `stored` for [`Command::Apply`] and [`Report::Done`] (the one in flash). `None`
+    /// when that record is gone (a store the calibration's failure overtook): dropped.
+    pub(super) fn with_record(self, store: Option<Record>, stored: Option<Record>) -> Option<Command> {
+        use Report as R;
+        Some(match self {
+            Command::Servo { channel, pulse_us } => Command::Servo { channel, pulse_us },
+            Command::ServoOff { channel } => Command::ServoOff { channel },
+            Command::Led(l) => Command::Led(l),
+            Command::Store(()) => Command::Store(store?),
+            Command::Apply(()) => Command::Apply(stored?),
+            Command::Report(r) => Command::Report(match r {
+                R::Phase(p) => R::Phase(p),
+                R::Bias(b) => R::Bias(b),
+                R::AccelPose { index, accel_g } => R::AccelPose { index, accel_g },
+                R::Accel(a) => R::Accel(a),
+                R::Mag(m) => R::Mag(m),
+                R::RigPose { index, servo_deg, accel_g } => R::RigPose { index, servo_deg, accel_g },
+                R::Retake { index, retries } => R::Retake { index, retries },
+                R::Move { from, to, gyro_turn_deg } => R::Move { from, to, gyro_turn_deg },
+                R::Gyro(g) => R::Gyro(g),
+                R::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => {
+                    R::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves }
+                }
+                R::HandMove { from, to, rejected, turn_deg, spread, need, k_sigma, goal } => {
+                    R::HandMove { from, to, rejected, turn_deg, spread, need, k_sigma, goal }
+                }
+                R::Rotations { moves, rejected, residual_deg } => R::Rotations { moves, rejected, residual_deg },
+                R::TempCo(t) => R::TempCo(t),
+                R::EstimatorFailed { method, error } => R::EstimatorFailed { method, error },
+                R::Done(()) => R::Done(stored?),
+                R::Failed(e) => R::Failed(e),
+            }),
+        })
+    }
 }
 
 /// What a shell does with the procedure's commands: the one dispatch of every shell (the

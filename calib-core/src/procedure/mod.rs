@@ -19,7 +19,9 @@
 //! (one call queues at most 10 commands; the queue holds 16). A full queue fails the
 //! calibration with [`Error::CommandQueueFull`] at the end of the call that overflowed it, after
 //! every other state change of that call: the queue is emptied (a pending store with it) and
-//! holds only the failure's commands, so no store follows a failure. A [`Command::Store`] is answered with
+//! holds only the failure's commands, so no store follows a failure (nor does one a failure
+//! overtook before the shell polled: the queue holds no record, [`Procedure::poll`] takes it
+//! from the store under way). A [`Command::Store`] is answered with
 //! [`Procedure::handle_stored`]; only then are the result reported, applied and shown as done.
 //! [`Procedure::drive`] does both for a [`Shell`].
 
@@ -307,7 +309,8 @@ pub struct Procedure {
     step: Step,
     phase_t0: f64,
     last_sample_t: Option<f64>,
-    queue: Deque<Command, 16>,
+    /// The commands for the shell, their records left out ([`Command::with_record`]).
+    queue: Deque<Command<()>, 16>,
     rest: RestDetector,
     tainted: bool,
     servo_deg: Option<f32>,
@@ -466,7 +469,16 @@ impl Procedure {
 
     /// Next command for the shell.
     pub fn poll(&mut self) -> Option<Command> {
-        self.queue.pop_front()
+        let store = match self.step {
+            Step::Storing { record } => Some(record),
+            _ => None,
+        };
+        while let Some(c) = self.queue.pop_front() {
+            if let Some(c) = c.with_record(store, self.stored) {
+                return Some(c);
+            }
+        }
+        None
     }
 
     /// The button was pressed: starts a calibration (from idle, done or failed) or confirms
@@ -726,7 +738,7 @@ impl Procedure {
         !matches!(self.step, Step::Idle | Step::Finished(_))
     }
 
-    fn push(&mut self, c: Command) {
+    fn push(&mut self, c: Command<()>) {
         // Bounded by the contract (≤ 10 per call, drained after each). A shell that breaks it
         // fails the calibration when the call ends ([`Self::settle`]).
         if self.queue.push_back(c).is_err() {
@@ -847,5 +859,48 @@ impl Procedure {
                 Command::Apply(rec) => shell.apply(&rec),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::formats::record::tests::sample;
+
+    fn drain(p: &mut Procedure) -> heapless::Vec<Command, 16> {
+        core::iter::from_fn(|| p.poll()).collect()
+    }
+
+    #[test]
+    fn the_queue_hands_out_each_record_it_was_given() {
+        let mut p = Procedure::new(Config::default(), None);
+        p.handle_button(0.0);
+        drain(&mut p);
+        p.store(sample(), 1.0);
+        p.settle();
+        let cmds = drain(&mut p);
+        assert_eq!(cmds.last(), Some(&Command::Store(sample())), "{cmds:?}");
+        p.handle_stored(1.5, Ok(()));
+        let cmds = drain(&mut p);
+        assert_eq!(cmds[..2], [Command::Report(Report::Done(sample())), Command::Apply(sample())], "{cmds:?}");
+        assert_eq!(p.stored, Some(sample()));
+    }
+
+    #[test]
+    fn a_store_a_failure_overtook_is_never_handed_to_the_shell() {
+        // A shell that does not drain after the call that asks for the store: the store times
+        // out and the calibration fails before the shell polls. The failure is handed out; the
+        // record of the failed calibration is not, neither to store nor to apply.
+        let mut p = Procedure::new(Config::default(), None);
+        p.handle_button(0.0);
+        drain(&mut p);
+        p.store(sample(), 1.0);
+        p.settle();
+        p.handle_tick(1.0 + STORE_TIMEOUT_S as f64 + 0.1);
+        let cmds = drain(&mut p);
+        assert!(!cmds.iter().any(|c| matches!(c, Command::Store(_) | Command::Apply(_))), "{cmds:?}");
+        let timeout = Error::PhaseTimeout { phase: Phase::Store, limit_s: STORE_TIMEOUT_S };
+        assert!(cmds.contains(&Command::Report(Report::Failed(timeout))), "{cmds:?}");
+        assert_eq!(p.stored, None);
     }
 }

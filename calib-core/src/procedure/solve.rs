@@ -201,7 +201,7 @@ impl Procedure {
             Ok(record) => {
                 self.push(Command::Report(Report::TempCo(record.tempco)));
                 self.enter(Step::Storing { record }, t_s);
-                self.push(Command::Store(record));
+                self.push(Command::Store(()));
             }
             Err(e) => self.fail(e),
         }
@@ -222,8 +222,8 @@ impl Procedure {
                 self.stored = Some(record);
                 self.phase_t0 = t_s;
                 self.step = Step::Finished(Phase::Done);
-                self.push(Command::Report(Report::Done(record)));
-                self.push(Command::Apply(record));
+                self.push(Command::Report(Report::Done(())));
+                self.push(Command::Apply(()));
                 self.push(Command::Led(Led::Done));
             }
             Err(e) => self.fail(Error::Storage(e)),
