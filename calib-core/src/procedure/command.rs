@@ -98,6 +98,7 @@ impl ErrorClass {
 #[allow(missing_docs)] // variant fields are named with their units
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
 pub enum Report<R = Record> {
     /// A phase started.
     Phase(Phase),
@@ -177,35 +178,28 @@ impl Command<()> {
     /// stored), `stored` for [`Command::Apply`] and [`Report::Done`] (the one in flash). `None`
     /// when that record is gone (a store the calibration's failure overtook): dropped.
     pub(super) fn with_record(self, store: Option<Record>, stored: Option<Record>) -> Option<Command> {
-        use Report as R;
         Some(match self {
             Command::Servo { channel, pulse_us } => Command::Servo { channel, pulse_us },
             Command::ServoOff { channel } => Command::ServoOff { channel },
             Command::Led(l) => Command::Led(l),
             Command::Store(()) => Command::Store(store?),
             Command::Apply(()) => Command::Apply(stored?),
-            Command::Report(r) => Command::Report(match r {
-                R::Phase(p) => R::Phase(p),
-                R::Bias(b) => R::Bias(b),
-                R::AccelPose { index, accel_g } => R::AccelPose { index, accel_g },
-                R::Accel(a) => R::Accel(a),
-                R::Mag(m) => R::Mag(m),
-                R::RigPose { index, servo_deg, accel_g } => R::RigPose { index, servo_deg, accel_g },
-                R::Retake { index, retries } => R::Retake { index, retries },
-                R::Move { from, to, gyro_turn_deg } => R::Move { from, to, gyro_turn_deg },
-                R::Gyro(g) => R::Gyro(g),
-                R::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => {
-                    R::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves }
+            Command::Report(Report::Done(())) => Command::Report(Report::Done(stored?)),
+            Command::Report(r) => {
+                let mut out = core::mem::MaybeUninit::<Report>::uninit();
+                // SAFETY: `Report` is `repr(u8)`: each variant is laid out as a `repr(C)` struct
+                // of its `u8` tag and its fields (RFC 2195), so every variant but `Done` (the
+                // one that holds `R`, not this one) has the same layout whatever `R`; a
+                // `Report<()>` is no larger than a `Report`. `r`'s bytes are the same variant's.
+                unsafe {
+                    core::ptr::copy_nonoverlapping(
+                        &r as *const Report<()> as *const u8,
+                        out.as_mut_ptr() as *mut u8,
+                        size_of::<Report<()>>(),
+                    );
+                    Command::Report(out.assume_init())
                 }
-                R::HandMove { from, to, rejected, turn_deg, spread, need, k_sigma, goal } => {
-                    R::HandMove { from, to, rejected, turn_deg, spread, need, k_sigma, goal }
-                }
-                R::Rotations { moves, rejected, residual_deg } => R::Rotations { moves, rejected, residual_deg },
-                R::TempCo(t) => R::TempCo(t),
-                R::EstimatorFailed { method, error } => R::EstimatorFailed { method, error },
-                R::Done(()) => R::Done(stored?),
-                R::Failed(e) => R::Failed(e),
-            }),
+            }
         })
     }
 }

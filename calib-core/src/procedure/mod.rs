@@ -16,7 +16,8 @@
 //! beside it → validate → store → report → apply. No user action after the press.
 //!
 //! Contract: after every `handle_*` call, drain [`Procedure::poll`] until it returns `None`
-//! (one call queues at most 10 commands; the queue holds 16). A full queue fails the
+//! (one call queues at most 10 commands, 9 measured at the pan/tilt plan's end; the queue holds
+//! [`QUEUE`]). A full queue fails the
 //! calibration with [`Error::CommandQueueFull`] at the end of the call that overflowed it, after
 //! every other state change of that call: the queue is emptied (a pending store with it) and
 //! holds only the failure's commands, so no store follows a failure (nor does one a failure
@@ -301,6 +302,8 @@ pub const SOLVE_STEP_S: f64 = 0.25;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
+/// Commands the queue holds (132 B each): one call's at most 10 (module doc) and one spare.
+const QUEUE: usize = 11;
 
 /// The calibration procedure.
 pub struct Procedure {
@@ -310,7 +313,7 @@ pub struct Procedure {
     phase_t0: f64,
     last_sample_t: Option<f64>,
     /// The commands for the shell, their records left out ([`Command::with_record`]).
-    queue: Deque<Command<()>, 16>,
+    queue: Deque<Command<()>, QUEUE>,
     rest: RestDetector,
     tainted: bool,
     servo_deg: Option<f32>,
@@ -867,7 +870,7 @@ mod tests {
     use super::*;
     use crate::formats::record::tests::sample;
 
-    fn drain(p: &mut Procedure) -> heapless::Vec<Command, 16> {
+    fn drain(p: &mut Procedure) -> heapless::Vec<Command, QUEUE> {
         core::iter::from_fn(|| p.poll()).collect()
     }
 
@@ -884,6 +887,50 @@ mod tests {
         let cmds = drain(&mut p);
         assert_eq!(cmds[..2], [Command::Report(Report::Done(sample())), Command::Apply(sample())], "{cmds:?}");
         assert_eq!(p.stored, Some(sample()));
+    }
+
+    /// One report of every kind of payload, its fields all different, `Done` holding `r`.
+    fn every_report<R>(r: R) -> [Report<R>; 11] {
+        use crate::estimators::rotation::Rejected;
+        [
+            Report::Phase(Phase::HandHeld),
+            Report::AccelPose { index: 3, accel_g: [0.1, -0.2, 0.97] },
+            Report::RigPose { index: 9, servo_deg: 42.5, accel_g: [-0.3, 0.4, 0.86] },
+            Report::Retake { index: 4, retries: 2 },
+            Report::Move { from: 1, to: 2, gyro_turn_deg: 91.25 },
+            Report::HandMove {
+                from: 5,
+                to: 6,
+                rejected: Some(Rejected::Saturated),
+                turn_deg: 80.5,
+                spread: 0.2,
+                need: 0.05,
+                k_sigma: 3e-4,
+                goal: 2e-4,
+            },
+            Report::Rotations { moves: 7, rejected: [1, 2, 3, 4, 5, 6, 7], residual_deg: core::array::from_fn(|i| i as f32 * 0.01) },
+            Report::FullK {
+                k: [[1.01, 2e-3, 3e-3], [4e-3, 0.99, 5e-3], [6e-3, 7e-3, 1.02]],
+                sigma_k: [[1e-4; 3]; 3],
+                condition: 12.5,
+                non_coplanar_deg: 61.0,
+                residual_rms_deg: 0.02,
+                axes: 3,
+                moves: 17,
+            },
+            Report::EstimatorFailed { method: Method::Paper, error: Error::NoSpin { rate_dps: 1.5, min_dps: 5.0 } },
+            Report::Failed(Error::PoseDisturbed { index: 2, retries: 3 }),
+            Report::Done(r),
+        ]
+    }
+
+    #[test]
+    fn a_queued_report_comes_out_as_it_went_in() {
+        // `with_record` copies every report but `Done` byte for byte (`Report` is `repr(u8)`).
+        let rec = sample();
+        for (queued, want) in every_report(()).into_iter().zip(every_report(rec)) {
+            assert_eq!(Command::Report(queued).with_record(None, Some(rec)), Some(Command::Report(want)));
+        }
     }
 
     #[test]

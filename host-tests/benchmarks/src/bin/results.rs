@@ -179,7 +179,7 @@ fn demo_section(plain: &str, tilt: &str, raw: &str, no_probe: &str, rev2: &str, 
         after(plain, "(a fit or a step of the solve): "),
         after(plain, "peak stack: ")
     );
-    s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 160 KiB, static RAM 64 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";
+    s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 160 KiB, static RAM 48 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";
     for (name, check) in budgets {
         s += &format!("| {name} | {} B | {} B |\n", after(check, "flash "), after(check, "static RAM "));
     }
