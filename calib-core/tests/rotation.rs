@@ -9,8 +9,9 @@
 use calib_core::estimators::bias::RestBias;
 use calib_core::estimators::full::{Axes, FullLimits};
 use calib_core::estimators::rotation::{
-    PoseRest, Rejected, RotationLimits, Rotations, EARTH_RATE_RAD_S, MAX_ROTATION_MOVES, MAX_ROTATION_POSES,
+    PoseRest, Rejected, RotationLimits, Rotations, RowSum, EARTH_RATE_RAD_S, MAX_ROTATION_MOVES, MAX_ROTATION_POSES,
 };
+use calib_core::math::lsq::NormalEquations;
 use calib_core::Error;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -122,6 +123,29 @@ fn hand_held_moves_alone_give_the_full_k_whatever_the_start() {
     }
     for k in &results[1..] {
         assert!((k - results[0]).amax() < 1e-6, "the result moved with the start: {:.2e}", (k - results[0]).amax());
+    }
+}
+
+#[test]
+fn rows_added_a_batch_at_a_time_are_the_rows_added_at_once_bit_for_bit() {
+    // The firmware's solve adds the rotation rows in calls of bounded length: any batch size
+    // gives the very same normal equations and residual sums.
+    let mut r = <Rotations>::new();
+    assert!(record(&mut r, &attitudes(false, 10), 952.0, 1.0, None).iter().all(|m| m.is_ok()));
+    let (k, limits) = (vec_k(&(k_true() * 1.01)), RotationLimits::DEFAULT);
+    let mut once = NormalEquations::<9>::new();
+    let sums = r.add_rows(&mut once, &k, &limits).unwrap();
+    let chunks: usize = r.moves().iter().map(|m| m.chunks()).sum();
+    assert!(chunks > 40, "{chunks} chunks");
+    for max_chunks in [1, 7, 40, usize::MAX] {
+        let (mut ne, mut sum, mut calls) = (NormalEquations::<9>::new(), RowSum::new().unwrap(), 0);
+        while !r.add_rows_batch(&mut ne, &mut sum, &k, &limits, max_chunks).unwrap() {
+            calls += 1;
+            assert!(calls <= chunks, "no end");
+        }
+        assert_eq!(sum.finish(&mut ne, true).unwrap(), sums, "batches of {max_chunks} chunks");
+        assert_eq!(ne, once, "batches of {max_chunks} chunks");
+        assert!(max_chunks == usize::MAX || calls >= chunks / max_chunks.max(40) / 2, "{calls} calls");
     }
 }
 

@@ -69,6 +69,13 @@ pub const fn vec_index(row: usize, col: usize) -> usize {
     3 * col + row
 }
 
+/// The end of a Gauss–Newton iteration cut into calls ([`Axes::iterate_rig`]): the next iterate
+/// from `ne`, the rig's and the rotations' rows linearised at `k` (the Earth's rate
+/// marginalised out), and the largest change of an element.
+pub fn iterate_end(ne: &NormalEquations<9>, k: &[f64; 9]) -> Result<([f64; 9], f64), Error> {
+    gauss_newton::next(ne, k)
+}
+
 /// Requirements and noise levels of the full-`K` estimator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -305,22 +312,19 @@ impl Axes {
         self.solve_after(limits, rotations, start, 0, false)
     }
 
-    /// One Gauss–Newton iteration of [`Self::solve_with`] from `k` (vec `K`; `None`: where the
-    /// solve starts): the next iterate and the largest change of an element, for a caller that
-    /// cuts the solve into calls of bounded length ([`Self::solve_after`] then finishes it).
-    /// The solve's checks are [`Self::solve_after`]'s: an error here is only that this step
-    /// could not be taken.
-    pub fn iterate<const M: usize, const C: usize, const P: usize>(
-        &self,
-        limits: &FullLimits,
-        rotations: (&Rotations<M, C, P>, &RotationLimits),
-        k: Option<[f64; 9]>,
-    ) -> Result<([f64; 9], f64), Error> {
+    /// One Gauss–Newton iteration of [`Self::solve_with`] cut into calls of bounded length (the
+    /// firmware's solve; [`Self::solve_after`] then finishes it): this, the rig's rows (into
+    /// `ne`) and where the iteration from `k` linearises (vec `K`; `None`: where the solve
+    /// starts); then the rotations' rows a batch at a time into `ne`
+    /// ([`Rotations::add_rows_batch`]); then [`iterate_end`]. The solve's checks are
+    /// [`Self::solve_after`]'s: an error here is only that this step could not be taken.
+    pub fn iterate_rig(&self, limits: &FullLimits, ne: &mut NormalEquations<9>, k: Option<[f64; 9]>) -> Result<[f64; 9], Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
-        gauss_newton::step(&rig.equations()?.ne, rotations.0, rotations.1, k, limits)
+        *ne = rig.equations()?.ne;
+        Ok(gauss_newton::linearisation(ne, k, limits))
     }
 
-    /// [`Self::solve_from`] after `done` iterations already taken by [`Self::iterate`] up to
+    /// [`Self::solve_from`] after `done` iterations already taken by [`Self::iterate_rig`] up to
     /// `start`: at most the rest of [`GAUSS_NEWTON_ITERATIONS`] (none when `start` is the
     /// `last` iterate: converged, or the iterations ran out), and the result counts them all.
     pub fn solve_after<const M: usize, const C: usize, const P: usize>(

@@ -230,6 +230,13 @@ pub struct RotationMove {
     t0_s: f64,
 }
 
+impl RotationMove {
+    /// The chunks it is kept as: its cost in the solve ([`Rotations::add_rows_batch`]).
+    pub fn chunks(&self) -> usize {
+        self.n as usize
+    }
+}
+
 /// The bias-free gyro turn inside a pose, `A = Σ ω Δt` and `C = Σ t ω Δt` (° and °·s, sensor
 /// frame, MCU time), for the mean-instant integration of DESIGN §4.7: a pose's attitude is the
 /// mean over its samples, so a move is integrated from the mean instant of one pose to that of
@@ -383,6 +390,44 @@ pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_C
     earth: [Option<(Matrix3<f32>, Matrix3<f32>)>; EARTH_POSES],
     /// `M` of the latest measured rest (the first rest: `I`, it defines the frame).
     rest_earth: Option<Matrix3<f32>>,
+}
+
+/// The rotation rows' sums that [`Rotations::add_rows_batch`] carries from one batch of moves to
+/// the next: the Earth's rate's parts and the residual sums at the linearisation point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowSum {
+    /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns).
+    cross: [[f64; 3]; 9],
+    /// The normal equations of the Earth's rate `w` alone, with its prior `N(0, I/3)`.
+    earth: NormalEquations<3>,
+    /// Weighted residual sum; unweighted one of the rotation rows (rad²) and their count.
+    wrss: f64,
+    rss: f64,
+    n: usize,
+    /// The next kept move.
+    next: usize,
+}
+
+impl RowSum {
+    /// No move yet: the Earth's rate's prior alone.
+    pub fn new() -> Result<Self, Error> {
+        let mut earth = NormalEquations::<3>::new();
+        for b in 0..3 {
+            let mut unit = [0.0; 3];
+            unit[b] = 1.0;
+            earth.add_row(&unit, 0.0, 3.0)?;
+        }
+        Ok(Self { cross: [[0.0; 3]; 9], earth, wrss: 0.0, rss: 0.0, n: 0, next: 0 })
+    }
+
+    /// Ends the sums of `ne` (every move added): the Earth's rate marginalised out of `ne` if
+    /// `earth_rate`. Returns [`Rotations::add_rows`]'s residual sums and rows.
+    pub fn finish(&self, ne: &mut NormalEquations<9>, earth_rate: bool) -> Result<(f64, f64, usize), Error> {
+        if earth_rate {
+            ne.eliminate(&self.cross, &self.earth)?;
+        }
+        Ok((self.wrss, self.rss, self.n))
+    }
 }
 
 /// The largest bias change between the two rests of a move rejected as
@@ -892,18 +937,34 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         first: usize,
         earth_rate: bool,
     ) -> Result<(f64, f64, usize), Error> {
+        let mut sum = RowSum::new()?;
+        sum.next = first;
+        self.add_rows_batch(ne, &mut sum, k, limits, usize::MAX)?;
+        sum.finish(ne, earth_rate)
+    }
+
+    /// [`Self::add_rows`] a batch at a time, for a caller that bounds its calls' length: the rows
+    /// of the moves from `sum`'s next on, until they held `max_chunks` chunks (the cost of a move
+    /// is its chunks'), into `ne` and `sum`. True once every move is in: then
+    /// [`RowSum::finish`]. The same sums in the same order as [`Self::add_rows`]: the same bits.
+    pub fn add_rows_batch(
+        &self,
+        ne: &mut NormalEquations<9>,
+        sum: &mut RowSum,
+        k: &[f64; 9],
+        limits: &RotationLimits,
+        max_chunks: usize,
+    ) -> Result<bool, Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::estimators::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
         let sg = (limits.gamma_sigma_deg as f64).to_radians();
-        let (mut wrss, mut rss, mut n) = (0.0, 0.0, 0);
-        // The rows' `w` parts: Σ w h xᵀ, and the normal equations of `w` alone with its prior.
-        let (mut cross, mut earth) = ([[0.0; 3]; 9], NormalEquations::<3>::new());
-        for b in 0..3 {
-            let mut unit = [0.0; 3];
-            unit[b] = 1.0;
-            earth.add_row(&unit, 0.0, 3.0)?;
-        }
-        for m in self.moves().get(first..).unwrap_or_default() {
+        let mut chunks = 0;
+        for m in self.moves().get(sum.next..).unwrap_or_default() {
+            if chunks >= max_chunks {
+                return Ok(false);
+            }
+            chunks += m.n as usize;
+            sum.next += 1;
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
             let (gi, gj) = (pi.normalize(), pj.normalize());
             let dir = |p: &Vector3<f64>, i: u8| (self.sigma_g[i as usize] as f64 / p.norm()).max(limits.min_direction_sigma as f64);
@@ -922,7 +983,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                     let h: [f64; 9] = core::array::from_fn(|c| unit[c / 3] * e[c % 3]);
                     let res = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - target;
                     ne.add_row(&h, target, 1.0 / s2)?;
-                    wrss += res * res / s2;
+                    sum.wrss += res * res / s2;
                     Ok(())
                 };
                 for e in tangent_basis(&up) {
@@ -933,7 +994,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 }
                 continue;
             }
-            n += 2;
+            sum.n += 2;
             let w = 1.0 / s2;
             let (r, j, g) = self.compose(m, &km, &cof);
             let rg = r * gj;
@@ -946,20 +1007,17 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 ne.add_row(&h, y, w)?;
                 // The residual's part `ε·(R g_j × e)` from `ε = Ω G w`.
                 let x: [f64; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
-                for (c, row) in cross.iter_mut().enumerate() {
+                for (c, row) in sum.cross.iter_mut().enumerate() {
                     for b in 0..3 {
                         row[b] += w * h[c] * x[b];
                     }
                 }
-                earth.add_row(&x, y, w)?;
-                wrss += w * res * res;
-                rss += res * res;
+                sum.earth.add_row(&x, y, w)?;
+                sum.wrss += w * res * res;
+                sum.rss += res * res;
             }
         }
-        if earth_rate {
-            ne.eliminate(&cross, &earth)?;
-        }
-        Ok((wrss, rss, n))
+        Ok(true)
     }
 
     /// The misfit of every kept move at `K` (row-major): the angle (°) between `R g_j` and `g_i`;

@@ -80,10 +80,10 @@ impl Procedure {
             let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
             // Each kept move's rows once (a pose's work stays within the sensor FIFO's time).
             if rejected.is_none() {
-                self.rotations.add_last_at_identity(&mut self.hand_rows, &self.cfg.rotation);
+                self.rotations.add_last_at_identity(&mut self.rows, &self.cfg.rotation);
             }
             if extra || self.accel_poses.len() == need {
-                k_sigma = self.hand_rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
+                k_sigma = self.rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
             }
             let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
             self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));

@@ -43,7 +43,7 @@ use crate::estimators::full::{Axes, FullAxis, FullCal};
 use crate::estimators::gyro::Method;
 use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
-use crate::estimators::rotation::{self, PoseRest, PoseTurn, Rotations, MAX_ROTATION_MOVES};
+use crate::estimators::rotation::{self, PoseRest, PoseTurn, Rotations, RowSum, MAX_ROTATION_MOVES};
 use crate::estimators::sweep;
 use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
@@ -263,12 +263,20 @@ enum Step {
 }
 
 /// Where the stepped solve of the full `K` is ([`Step::Solving`]).
+#[allow(clippy::large_enum_variant)] // inside `Step`, whose pose captures are larger still: no RAM lost
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum SolveStage {
+    /// The temperature fit over the rests, and the hand-held moves' chunks made to follow its
+    /// warm-up ([`Rotations::follow_warmup`]).
+    Warmup,
     /// The diagonal (one-axis) estimators, and the start of the full `K`.
     Diagonal,
-    /// Gauss–Newton iterations, one a call.
+    /// A Gauss–Newton iteration: the rig's rows (into [`Procedure::rows`]) and where it
+    /// linearises (the step's `k` from then on).
     Iterate,
+    /// Its rotation rows, [`ROW_CHUNKS`] chunks of moves a call (`sum` carries their sums on),
+    /// and at the last batch the next iterate.
+    IterateRows { sum: RowSum },
     /// The rows at `k`, the covariance and the checks, with `k` the `last` iterate (else the
     /// solve goes on from it: an iteration could not be taken, and the solve names why).
     Solve { last: bool },
@@ -302,6 +310,9 @@ pub const SOLVE_STEP_S: f64 = 0.25;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
+/// Chunks of hand-held moves whose rotation rows one call of the solve adds
+/// ([`SolveStage::IterateRows`]): ≈ 7 k instructions a chunk on the MCU, with a move's own rows.
+const ROW_CHUNKS: usize = 160;
 /// Commands the queue holds (132 B each): one call's at most 10 (module doc) and one spare.
 const QUEUE: usize = 11;
 
@@ -327,8 +338,10 @@ pub struct Procedure {
     moves: Moves,
     axes: Axes,
     rotations: Rotations,
-    /// The kept hand-held moves' rows at `K = I` ([`Rotations::add_last_at_identity`]).
-    hand_rows: NormalEquations<9>,
+    /// The normal equations under way: in the hand-held step the kept moves' rows at `K = I`
+    /// ([`Rotations::add_last_at_identity`]); in the solve those of its Gauss–Newton iteration,
+    /// the rig's and then the rotations' a batch a call ([`SolveStage::IterateRows`]).
+    rows: NormalEquations<9>,
     full: Option<FullCal>,
     integ: Integrator,
     /// The rests so far (bias, poses): the bias tracked between them.
@@ -400,7 +413,7 @@ impl Procedure {
             addr_of_mut!((*p).moves).write(Moves::new());
             addr_of_mut!((*p).axes).write(Axes::new());
             Rotations::init_in(addr_of_mut!((*p).rotations));
-            addr_of_mut!((*p).hand_rows).write(NormalEquations::new());
+            addr_of_mut!((*p).rows).write(NormalEquations::new());
             addr_of_mut!((*p).full).write(None);
             addr_of_mut!((*p).integ).write(Integrator::new());
             addr_of_mut!((*p).drift).write(Drift::new());
@@ -765,7 +778,7 @@ impl Procedure {
         self.moves.clear();
         self.axes.clear();
         self.rotations.clear();
-        self.hand_rows = NormalEquations::new();
+        self.rows = NormalEquations::new();
         self.full = None;
         self.integ = Integrator::new();
         self.drift = Drift::new();

@@ -1,7 +1,7 @@
 //! The estimators at the end of the rig, the record built from their result, and the store.
 
 use super::*;
-use crate::estimators::full::{GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
+use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
 use crate::estimators::mag::MagMove;
 
 impl Procedure {
@@ -89,17 +89,14 @@ impl Procedure {
     }
 
     /// The end of the one-axis plan: the solve's steps follow on the ticks ([`Self::solve_step`]),
-    /// the diagonal estimators first.
+    /// the warm-up and the diagonal estimators first.
     pub(super) fn solve(&mut self, t_s: f64) {
-        self.step = Step::Solving { stage: SolveStage::Diagonal, k: None, iterations: 0, next_s: t_s };
+        self.step = Step::Solving { stage: SolveStage::Warmup, k: None, iterations: 0, next_s: t_s };
     }
 
-    /// The solve's first step: the diagonal estimators; with hand-held moves the full `K`
-    /// follows, one Gauss–Newton iteration a step; else the record of the one-axis `K`.
+    /// The diagonal estimators; with hand-held moves the full `K` follows, one Gauss–Newton
+    /// iteration a step; else the record of the one-axis `K`.
     fn diagonal(&mut self, t_s: f64) {
-        if let Some(tempco) = self.temp_fit.finish() {
-            self.rotations.follow_warmup(&tempco.dps_per_c);
-        }
         let solved = OneAxis::diagonal(&self.poses, &self.moves, self.gbar, &self.cfg.geometry);
         for (method, r) in [(Method::Sweep, Some(solved.sweep)), (Method::Paper, solved.paper)] {
             match r {
@@ -135,12 +132,34 @@ impl Procedure {
         let next = |stage, k, iterations| Step::Solving { stage, k, iterations, next_s: t_s + SOLVE_STEP_S };
         let rotations = (&self.rotations, &self.cfg.rotation);
         match (stage, self.full) {
+            (SolveStage::Warmup, _) => {
+                if let Some(tempco) = self.temp_fit.finish() {
+                    self.rotations.follow_warmup(&tempco.dps_per_c);
+                }
+                self.step = next(SolveStage::Diagonal, k, iterations);
+            }
             (SolveStage::Diagonal, _) => self.diagonal(t_s),
             (SolveStage::Iterate, _) => {
-                // On to the solve at the last iterate (converged, or the iterations ran out); a
-                // step that could not be taken is the solve's to name.
-                self.step = match self.axes.iterate(&self.cfg.full, rotations, k) {
-                    Ok((x, change)) => {
+                // A step that could not be taken is the solve's to name (from the last iterate).
+                self.step = match self.axes.iterate_rig(&self.cfg.full, &mut self.rows, k).and_then(|at| Ok((at, RowSum::new()?))) {
+                    Ok((at, sum)) => next(SolveStage::IterateRows { sum }, Some(at), iterations),
+                    Err(_) => next(SolveStage::Solve { last: false }, k, iterations),
+                };
+            }
+            (SolveStage::IterateRows { mut sum }, _) => {
+                let at = k.unwrap_or_default();
+                let rows = self.rotations.add_rows_batch(&mut self.rows, &mut sum, &at, &self.cfg.rotation, ROW_CHUNKS);
+                let end = |done: bool| -> Result<Option<([f64; 9], f64)>, Error> {
+                    if !done {
+                        return Ok(None);
+                    }
+                    sum.finish(&mut self.rows, true)?;
+                    iterate_end(&self.rows, &at).map(Some)
+                };
+                // On to the solve at the last iterate (converged, or the iterations ran out).
+                self.step = match rows.and_then(end) {
+                    Ok(None) => next(SolveStage::IterateRows { sum }, k, iterations),
+                    Ok(Some((x, change))) => {
                         let last = change < GAUSS_NEWTON_STEP || iterations + 1 >= GAUSS_NEWTON_ITERATIONS;
                         next(if last { SolveStage::Solve { last } } else { SolveStage::Iterate }, Some(x), iterations + 1)
                     }

@@ -18,8 +18,8 @@ pub(super) struct RotationFit {
 }
 
 /// One Gauss–Newton iteration: the rig rows `rig` plus the rotation rows of `r` linearised at
-/// `k` (vec `K`; `None`: the rig's own `K` when it determines one, else `K = I`). Returns the
-/// next iterate and the largest change of an element.
+/// `k` (vec `K`; `None`: [`linearisation`]). Returns the next iterate and the largest change of
+/// an element.
 pub(super) fn step<const M: usize, const C: usize, const P: usize>(
     rig: &NormalEquations<9>,
     r: &Rotations<M, C, P>,
@@ -27,14 +27,26 @@ pub(super) fn step<const M: usize, const C: usize, const P: usize>(
     k: Option<[f64; 9]>,
     limits: &FullLimits,
 ) -> Result<([f64; 9], f64), Error> {
+    let k = linearisation(rig, k, limits);
+    let mut total = *rig;
+    r.add_rows(&mut total, &k, rl)?;
+    next(&total, &k)
+}
+
+/// Where an iteration linearises: at `k`, or without one at the rig's own `K` when it
+/// determines one (`rig`, its rows), else at `K = I`.
+pub(super) fn linearisation(rig: &NormalEquations<9>, k: Option<[f64; 9]>, limits: &FullLimits) -> [f64; 9] {
     let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
-    let k = match k {
+    match k {
         Some(k) => k,
         None if rig.condition() <= limits.max_condition as f64 => rig.solve().map_or(identity, |s| s.x),
         None => identity,
-    };
-    let mut total = *rig;
-    r.add_rows(&mut total, &k, rl)?;
+    }
+}
+
+/// The next iterate from the rows linearised at `k` (`total`: the rig's and the rotations'),
+/// and the largest change of an element.
+pub(super) fn next(total: &NormalEquations<9>, k: &[f64; 9]) -> Result<([f64; 9], f64), Error> {
     let x = total.estimate()?;
     Ok((x, (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max)))
 }
