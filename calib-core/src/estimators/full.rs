@@ -47,6 +47,7 @@ use crate::estimators::sweep::MAX_MOVES;
 use crate::math::lsq::{NormalEquations, Solution};
 use crate::math::vec3::to_f64 as v64;
 use crate::{Error, Mat3, Vec3};
+pub use gauss_newton::{rotation_fit, RotationFit};
 use nalgebra::{Matrix3, Vector3};
 use rows::{Rig, RigEquations};
 
@@ -214,6 +215,17 @@ pub struct FullCal {
     pub iterations: u8,
 }
 
+/// What the rig's part of a solve gave ([`Axes::solve_rig`]), for its end ([`Axes::solve_end`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigPart {
+    used: u16,
+    skipped: u16,
+    per_axis: [u8; MAX_AXES],
+    n_axes: u8,
+    non_coplanar_deg: f64,
+    min_pair_rad: f64,
+}
+
 impl Axes {
     /// No poses, no moves.
     pub const fn new() -> Self {
@@ -327,6 +339,8 @@ impl Axes {
     /// [`Self::solve_from`] after `done` iterations already taken by [`Self::iterate_rig`] up to
     /// `start`: at most the rest of [`GAUSS_NEWTON_ITERATIONS`] (none when `start` is the
     /// `last` iterate: converged, or the iterations ran out), and the result counts them all.
+    /// In parts: [`Self::solve_rig`], the rotation rows at the solution, [`solve_k`],
+    /// [`Self::solve_end`] (the firmware runs each in calls of its own).
     pub fn solve_after<const M: usize, const C: usize, const P: usize>(
         &self,
         limits: &FullLimits,
@@ -335,36 +349,66 @@ impl Axes {
         done: u8,
         last: bool,
     ) -> Result<FullCal, Error> {
-        let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
-        let RigEquations { ne, used, skipped, per_axis } = rig.equations()?;
-        let rotations = rotations.filter(|(r, _)| !r.moves().is_empty());
-        let (us, n_axes) = rig.fits.used(&per_axis);
-        let (non_coplanar_deg, min_pair) = check_axes(&us[..n_axes], rotations, limits)?;
-        let (ne, rotation) = match rotations {
-            None => (ne, None),
+        let mut ne = NormalEquations::new();
+        let part = self.solve_rig(limits, rotations, &mut ne)?;
+        let rotation = match rotations.filter(|(r, _)| !r.moves().is_empty()) {
+            None => None,
             Some((r, rl)) => {
                 let left = if last && start.is_some() { 0 } else { GAUSS_NEWTON_ITERATIONS.saturating_sub(done).max(1) };
-                let (ne, mut fit) = gauss_newton::with_rotations(&ne, r, rl, start, left, limits)?;
+                let (total, mut fit) = gauss_newton::with_rotations(&ne, r, rl, start, left, limits)?;
                 fit.iterations += done;
-                (ne, Some(fit))
+                ne = total;
+                Some(fit)
             }
         };
         let (sol, condition) = solve_k(&ne, limits)?;
+        self.solve_end(limits, &part, &ne, &sol, condition, rotation)
+    }
+
+    /// The solve's first part: the rig's axes fitted, their rows (into `ne`) and the checks of
+    /// the axes with the rotations'.
+    pub fn solve_rig<const M: usize, const C: usize, const P: usize>(
+        &self,
+        limits: &FullLimits,
+        rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
+        ne: &mut NormalEquations<9>,
+    ) -> Result<RigPart, Error> {
+        let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
+        let RigEquations { ne: rows, used, skipped, per_axis } = rig.equations()?;
+        let (us, n_axes) = rig.fits.used(&per_axis);
+        let (non_coplanar_deg, min_pair_rad) = check_axes(&us[..n_axes], rotations.filter(|(r, _)| !r.moves().is_empty()), limits)?;
+        *ne = rows;
+        Ok(RigPart { used, skipped, per_axis, n_axes: n_axes as u8, non_coplanar_deg, min_pair_rad })
+    }
+
+    /// The solve's end: the result from `ne` (the rig's rows and the rotations' at the
+    /// solution, `part` and `rotation` what they gave) and its solution `sol` ([`solve_k`]):
+    /// the rig's residual and the 1σ of `K`.
+    pub fn solve_end(
+        &self,
+        limits: &FullLimits,
+        part: &RigPart,
+        ne: &NormalEquations<9>,
+        sol: &Solution<9>,
+        condition: f64,
+        rotation: Option<RotationFit>,
+    ) -> Result<FullCal, Error> {
+        let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
         let residual_rms_deg = rig.residual_rms_deg(&sol.x)?;
         Ok(FullCal {
             k: core::array::from_fn(|r| core::array::from_fn(|c| sol.x[vec_index(r, c)] as f32)),
-            sigma_k: rig.sigma_k(&ne, &sol)?,
+            sigma_k: rig.sigma_k(ne, sol)?,
             condition: condition as f32,
-            non_coplanar_deg: non_coplanar_deg as f32,
-            min_pair_angle_deg: min_pair.to_degrees() as f32,
+            non_coplanar_deg: part.non_coplanar_deg as f32,
+            min_pair_angle_deg: part.min_pair_rad.to_degrees() as f32,
             residual_rms_deg: residual_rms_deg as f32,
             noise_ratio: libm::sqrt(sol.rss / sol.dof.max(1) as f64) as f32,
             accel_sigma_g: rig.fits.sigma_a as f32,
-            moves: used,
-            moves_skipped: skipped,
+            moves: part.used,
+            moves_skipped: part.skipped,
             rows: ne.rows() as u16,
-            n_axes: n_axes as u8,
-            axes: rig.fits.reports(&per_axis),
+            n_axes: part.n_axes,
+            axes: rig.fits.reports(&part.per_axis),
             rotation_moves: rotation.map_or(0, |r| r.moves),
             rotation_residual_rms_deg: rotation.map_or(0.0, |r| r.residual_rms_deg),
             iterations: rotation.map_or(0, |r| r.iterations),
@@ -402,7 +446,10 @@ fn check_axes<const M: usize, const C: usize, const P: usize>(
 /// Solves the normal equations for vec `K` and checks it: a null direction (e.g. the upright
 /// bracket: `K → K + d (I − u_h u_hᵀ) K`) is named, not solved, and the diagonal must be a
 /// plausible scale. Returns the solution and the condition number.
-fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, f64), Error> {
+/// The solution of `ne` (the rig's rows and the rotations' at the solution) and its condition:
+/// a null direction ([`Error::FullKUnobservable`]) or an implausible diagonal
+/// ([`Error::ImplausibleScale`]) refused.
+pub fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, f64), Error> {
     // The solve's own condition number (one computation): beyond lsq's limit too, it is this.
     let unobservable = |condition: f64| Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition };
     let sol = ne.solve().map_err(|e| match e {

@@ -410,14 +410,8 @@ pub struct RowSum {
 
 impl RowSum {
     /// No move yet: the Earth's rate's prior alone.
-    pub fn new() -> Result<Self, Error> {
-        let mut earth = NormalEquations::<3>::new();
-        for b in 0..3 {
-            let mut unit = [0.0; 3];
-            unit[b] = 1.0;
-            earth.add_row(&unit, 0.0, 3.0)?;
-        }
-        Ok(Self { cross: [[0.0; 3]; 9], earth, wrss: 0.0, rss: 0.0, n: 0, next: 0 })
+    pub const fn new() -> Self {
+        Self { cross: [[0.0; 3]; 9], earth: NormalEquations::prior(3.0), wrss: 0.0, rss: 0.0, n: 0, next: 0 }
     }
 
     /// Ends the sums of `ne` (every move added): the Earth's rate marginalised out of `ne` if
@@ -937,7 +931,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         first: usize,
         earth_rate: bool,
     ) -> Result<(f64, f64, usize), Error> {
-        let mut sum = RowSum::new()?;
+        let mut sum = RowSum::new();
         sum.next = first;
         self.add_rows_batch(ne, &mut sum, k, limits, usize::MAX)?;
         sum.finish(ne, earth_rate)
@@ -947,6 +941,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     /// of the moves from `sum`'s next on, until they held `max_chunks` chunks (the cost of a move
     /// is its chunks'), into `ne` and `sum`. True once every move is in: then
     /// [`RowSum::finish`]. The same sums in the same order as [`Self::add_rows`]: the same bits.
+    #[inline(never)] // one copy for the solve's iterations and its end
     pub fn add_rows_batch(
         &self,
         ne: &mut NormalEquations<9>,

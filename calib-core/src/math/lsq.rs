@@ -58,6 +58,19 @@ impl<const N: usize> NormalEquations<N> {
         Self { xtx: [[0.0; N]; N], xty: [0.0; N], yty: 0.0, rows: 0 }
     }
 
+    /// The prior `β ~ N(0, I/w)`: the `N` unit rows `eᵢ·β ≈ 0` of weight `w` (the same sums as
+    /// adding them).
+    pub const fn prior(w: f64) -> Self {
+        let mut out = Self::new();
+        let mut i = 0;
+        while i < N {
+            out.xtx[i][i] = w;
+            i += 1;
+        }
+        out.rows = N as u32;
+        out
+    }
+
     /// Number of rows added.
     pub fn rows(&self) -> u32 {
         self.rows
@@ -129,6 +142,19 @@ impl<const N: usize> NormalEquations<N> {
     pub fn solve(&self) -> Result<Solution<N>, Error> {
         let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
         let (rss, dof, condition) = solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, &mut x, covariance.as_flattened_mut())?;
+        Ok(Solution { x, rss, dof, covariance, condition })
+    }
+
+    /// The [`Solution`] [`Self::solve`] gave, from its parts but the covariance, which is
+    /// computed again, bit for bit the same: for a caller that keeps a solution across calls
+    /// without its `N × N` covariance.
+    pub fn solution(&self, x: [f64; N], rss: f64, dof: u32, condition: f64) -> Result<Solution<N>, Error> {
+        let mut l = [0.0; MAX_N * MAX_N];
+        if !cholesky_in(self.xtx.as_flattened(), &mut l[..N * N], N, 1e-13) {
+            return Err(Error::Singular);
+        }
+        let mut covariance = [[0.0; N]; N];
+        scaled_inverse(&l[..N * N], N, rss, dof, covariance.as_flattened_mut());
         Ok(Solution { x, rss, dof, covariance, condition })
     }
 }
@@ -211,12 +237,18 @@ fn solve(xtx: &[f64], xty: &[f64], yty: f64, rows: u32, x: &mut [f64], covarianc
     let fit: f64 = (0..n).map(|i| x[i] * xty[i]).sum();
     let rss = (yty - fit).max(0.0);
     let dof = rows - n as u32;
+    scaled_inverse(l, n, rss, dof, covariance);
+    Ok((rss, dof, condition))
+}
+
+/// The covariance from the Cholesky factor `l` (`n × n`) of the normal matrix: its inverse scaled by the
+/// residual variance `rss / dof` (and the few-dof factor).
+fn scaled_inverse(l: &[f64], n: usize, rss: f64, dof: u32, covariance: &mut [f64]) {
     let s2 = if dof > 0 { rss / dof as f64 * few_dof_factor(dof as f64) } else { 0.0 };
     cholesky_inverse_in(l, covariance, n);
     for c in covariance.iter_mut() {
         *c *= s2;
     }
-    Ok((rss, dof, condition))
 }
 
 #[cfg(test)]

@@ -39,7 +39,7 @@ pub use config::{Config, ServoKind, TILT_SETTINGS};
 use crate::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::estimators::axis::Poses;
 use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
-use crate::estimators::full::{Axes, FullAxis, FullCal};
+use crate::estimators::full::{self, Axes, FullAxis, FullCal, RigPart, RotationFit};
 use crate::estimators::gyro::Method;
 use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
@@ -277,9 +277,17 @@ enum SolveStage {
     /// Its rotation rows, [`ROW_CHUNKS`] chunks of moves a call (`sum` carries their sums on),
     /// and at the last batch the next iterate.
     IterateRows { sum: RowSum },
-    /// The rows at `k`, the covariance and the checks, with `k` the `last` iterate (else the
-    /// solve goes on from it: an iteration could not be taken, and the solve names why).
-    Solve { last: bool },
+    /// The solve at the last iterate `k` (converged, or the iterations ran out): the rig's rows
+    /// (into [`Procedure::rows`]) and the axes' checks; when an iteration `failed`, its error
+    /// once the checks (which name a bad geometry better) pass.
+    Solve { failed: Option<Error> },
+    /// The rotation rows at `k`, [`ROW_CHUNKS`] chunks a call.
+    SolveRows { part: RigPart, sum: RowSum },
+    /// The solution of the rows and its condition ([`full::solve_k`]).
+    SolveK { part: RigPart, rotation: RotationFit },
+    /// The result: the rig's residual and the 1σ of `K` ([`Axes::solve_end`]), from the
+    /// solution's parts but its covariance, which is computed again.
+    SolveEnd { part: RigPart, rotation: RotationFit, x: [f64; 9], rss: f64, dof: u32, condition: f64 },
     /// Solved (in `full`): the magnetometer's alignment refined with it, each move's misfit,
     /// the record stored.
     Store,

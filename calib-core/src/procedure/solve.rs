@@ -121,59 +121,88 @@ impl Procedure {
         }
     }
 
-    /// One call of the solve ([`Step::Solving`]), each a few million instructions on the MCU,
-    /// between two FIFO reads: the diagonal estimators; a Gauss–Newton iteration of the full
-    /// `K`; once it converged (or the iterations ran out, or a step could not be taken) the
-    /// rows at the solution, its covariance and checks ([`Axes::solve_after`]); the
-    /// magnetometer refined with it, each move's misfit and the store.
+    /// One call of the solve ([`Step::Solving`]), each under 2 M instructions on the MCU (one
+    /// FIFO's time), between two FIFO reads: the warm-up; the diagonal estimators; each
+    /// Gauss–Newton iteration of the full `K` (the rig's rows, then the rotations' a batch a
+    /// call); once it converged (or the iterations ran out, or a step could not be taken) the
+    /// solve at the last iterate in the parts of [`Axes::solve_after`]; the magnetometer refined
+    /// with it, each move's misfit and the store. The stage changes in place.
     #[inline(never)]
     pub(super) fn solve_step(&mut self, t_s: f64) {
-        let Step::Solving { stage, k, iterations, .. } = self.step else { return };
-        let next = |stage, k, iterations| Step::Solving { stage, k, iterations, next_s: t_s + SOLVE_STEP_S };
-        let rotations = (&self.rotations, &self.cfg.rotation);
-        match (stage, self.full) {
-            (SolveStage::Warmup, _) => {
+        let Step::Solving { stage, k, iterations, next_s } = &mut self.step else { return };
+        *next_s = t_s + SOLVE_STEP_S;
+        let (limits, rl, at) = (&self.cfg.full, &self.cfg.rotation, k.unwrap_or_default());
+        // The call's work: `Some` stage to go on with, `None` another batch of this one, an
+        // error the solve's end. An iteration's error goes on to the solve, whose checks name a
+        // bad geometry better, and is the solve's otherwise.
+        let step: Result<Option<SolveStage>, Error> = match stage {
+            SolveStage::Warmup => {
                 if let Some(tempco) = self.temp_fit.finish() {
                     self.rotations.follow_warmup(&tempco.dps_per_c);
                 }
-                self.step = next(SolveStage::Diagonal, k, iterations);
+                Ok(Some(SolveStage::Diagonal))
             }
-            (SolveStage::Diagonal, _) => self.diagonal(t_s),
-            (SolveStage::Iterate, _) => {
-                // A step that could not be taken is the solve's to name (from the last iterate).
-                self.step = match self.axes.iterate_rig(&self.cfg.full, &mut self.rows, k).and_then(|at| Ok((at, RowSum::new()?))) {
-                    Ok((at, sum)) => next(SolveStage::IterateRows { sum }, Some(at), iterations),
-                    Err(_) => next(SolveStage::Solve { last: false }, k, iterations),
-                };
+            SolveStage::Diagonal => return self.diagonal(t_s),
+            SolveStage::Iterate => match self.axes.iterate_rig(limits, &mut self.rows, *k) {
+                Ok(a) => {
+                    *k = Some(a);
+                    Ok(Some(SolveStage::IterateRows { sum: RowSum::new() }))
+                }
+                Err(e) => Ok(Some(SolveStage::Solve { failed: Some(e) })),
+            },
+            SolveStage::IterateRows { sum } => {
+                let rows = self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS).and_then(|done| match done {
+                    false => Ok(None),
+                    true => sum.finish(&mut self.rows, true).and_then(|_| iterate_end(&self.rows, &at)).map(Some),
+                });
+                match rows {
+                    Ok(None) => Ok(None),
+                    Ok(Some((x, change))) => {
+                        *k = Some(x);
+                        *iterations += 1;
+                        let last = change < GAUSS_NEWTON_STEP || *iterations >= GAUSS_NEWTON_ITERATIONS;
+                        Ok(Some(if last { SolveStage::Solve { failed: None } } else { SolveStage::Iterate }))
+                    }
+                    Err(e) => Ok(Some(SolveStage::Solve { failed: Some(e) })),
+                }
             }
-            (SolveStage::IterateRows { mut sum }, _) => {
-                let at = k.unwrap_or_default();
-                let rows = self.rotations.add_rows_batch(&mut self.rows, &mut sum, &at, &self.cfg.rotation, ROW_CHUNKS);
-                let end = |done: bool| -> Result<Option<([f64; 9], f64)>, Error> {
-                    if !done {
+            SolveStage::Solve { failed } => {
+                let failed = *failed;
+                self.axes.solve_rig(limits, Some((&self.rotations, rl)), &mut self.rows).and_then(|part| match failed {
+                    Some(e) => Err(e),
+                    None => Ok(Some(SolveStage::SolveRows { part, sum: RowSum::new() })),
+                })
+            }
+            SolveStage::SolveRows { part, sum } => {
+                let (part, done) = (*part, *iterations);
+                self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS).and_then(|more| {
+                    if !more {
                         return Ok(None);
                     }
-                    sum.finish(&mut self.rows, true)?;
-                    iterate_end(&self.rows, &at).map(Some)
-                };
-                // On to the solve at the last iterate (converged, or the iterations ran out).
-                self.step = match rows.and_then(end) {
-                    Ok(None) => next(SolveStage::IterateRows { sum }, k, iterations),
-                    Ok(Some((x, change))) => {
-                        let last = change < GAUSS_NEWTON_STEP || iterations + 1 >= GAUSS_NEWTON_ITERATIONS;
-                        next(if last { SolveStage::Solve { last } } else { SolveStage::Iterate }, Some(x), iterations + 1)
-                    }
-                    Err(_) => next(SolveStage::Solve { last: false }, k, iterations),
-                };
+                    let (_, rss, n) = sum.finish(&mut self.rows, true)?;
+                    let rotation = full::rotation_fit(&self.rotations, rl, rss, n, done)?;
+                    Ok(Some(SolveStage::SolveK { part, rotation }))
+                })
             }
-            (SolveStage::Solve { last }, _) => match self.axes.solve_after(&self.cfg.full, Some(rotations), k, iterations, last) {
-                Ok(f) => {
+            SolveStage::SolveK { part, rotation } => full::solve_k(&self.rows, limits).map(|(sol, condition)| {
+                Some(SolveStage::SolveEnd { part: *part, rotation: *rotation, x: sol.x, rss: sol.rss, dof: sol.dof, condition })
+            }),
+            SolveStage::SolveEnd { part, rotation, x, rss, dof, condition } => {
+                let sol = self.rows.solution(*x, *rss, *dof, *condition);
+                sol.and_then(|sol| self.axes.solve_end(limits, part, &self.rows, &sol, *condition, Some(*rotation))).map(|f| {
                     self.full = Some(f);
-                    self.step = next(SolveStage::Store, k, iterations);
-                }
-                Err(e) => self.finish_full(Err(e), t_s),
-            },
-            (SolveStage::Store, full) => self.finish_full(full.ok_or(Error::NoUsableMove), t_s),
+                    Some(SolveStage::Store)
+                })
+            }
+            SolveStage::Store => {
+                let full = self.full.ok_or(Error::NoUsableMove);
+                return self.finish_full(full, t_s);
+            }
+        };
+        match step {
+            Ok(Some(next)) => *stage = next,
+            Ok(None) => {}
+            Err(e) => self.finish_full(Err(e), t_s),
         }
     }
 

@@ -7,14 +7,31 @@ use crate::math::lsq::NormalEquations;
 use crate::Error;
 
 /// What the rotation constraints gave.
-#[derive(Clone, Copy)]
-pub(super) struct RotationFit {
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RotationFit {
     /// Rotation moves used.
     pub moves: u16,
     /// RMS residual of the rotation rows at the solution (°).
     pub residual_rms_deg: f32,
     /// Gauss–Newton iterations.
     pub iterations: u8,
+}
+
+/// The rotation rows at the solution ([`Rotations::add_rows`]'s unweighted residual sum `rss`
+/// over `n` rows, of `r`'s moves) after `iterations`: a residual above
+/// `max_residual_rms_deg` is [`Error::MovesInconsistent`].
+pub fn rotation_fit<const M: usize, const C: usize, const P: usize>(
+    r: &Rotations<M, C, P>,
+    rl: &RotationLimits,
+    rss: f64,
+    n: usize,
+    iterations: u8,
+) -> Result<RotationFit, Error> {
+    let rms_deg = libm::sqrt(rss / n.max(1) as f64).to_degrees();
+    if !(rms_deg <= rl.max_residual_rms_deg as f64) {
+        return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
+    }
+    Ok(RotationFit { moves: r.moves().len() as u16, residual_rms_deg: rms_deg as f32, iterations })
 }
 
 /// One Gauss–Newton iteration: the rig rows `rig` plus the rotation rows of `r` linearised at
@@ -78,9 +95,5 @@ pub(super) fn with_rotations<const M: usize, const C: usize, const P: usize>(
     // The rows at the solution, for its covariance and residual.
     let mut total = *rig;
     let (_, rss, n) = r.add_rows(&mut total, &k, rl)?;
-    let rms_deg = libm::sqrt(rss / n.max(1) as f64).to_degrees();
-    if !(rms_deg <= rl.max_residual_rms_deg as f64) {
-        return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
-    }
-    Ok((total, RotationFit { moves: r.moves().len() as u16, residual_rms_deg: rms_deg as f32, iterations }))
+    Ok((total, rotation_fit(r, rl, rss, n, iterations)?))
 }
