@@ -424,6 +424,12 @@ impl RowSum {
     }
 }
 
+impl Default for RowSum {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// The largest bias change between the two rests of a move rejected as
 /// [`Rejected::BiasDrifted`].
 #[derive(Debug, Clone, Copy, PartialEq)]
