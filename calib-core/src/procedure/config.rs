@@ -210,11 +210,24 @@ impl Config {
         1 + 2 * (self.pose_count.max(2) as u16 - 1) * self.round_trips.max(1) as u16
     }
 
+    /// The plan this build runs: [`Self::pan_tilt`], unless calib-core is built for one plan
+    /// alone (features `pan-tilt-only`, which wins, or `one-servo-only`: the firmware's builds),
+    /// whose code alone is then linked.
+    pub const fn is_pan_tilt(&self) -> bool {
+        if cfg!(feature = "pan-tilt-only") {
+            true
+        } else if cfg!(feature = "one-servo-only") {
+            false
+        } else {
+            self.pan_tilt
+        }
+    }
+
     /// Rig steps in one run: with the pan/tilt plan `rig_steps` at every tilt setting, then the
     /// tilt moves back through the settings at pan `pose_first_deg` (the return half of the
     /// hinge's back-and-forth pairs).
     pub fn plan_steps(&self) -> u16 {
-        if self.pan_tilt {
+        if self.is_pan_tilt() {
             self.rig_steps() * TILT_SETTINGS as u16 + TILT_SETTINGS as u16 - 1
         } else {
             self.rig_steps()
@@ -226,7 +239,7 @@ impl Config {
     /// of the return (step 0 of the settings in reverse order).
     pub fn plan_at(&self, k: u16) -> (usize, u16) {
         let (per, n) = (self.rig_steps(), TILT_SETTINGS as u16);
-        match self.pan_tilt {
+        match self.is_pan_tilt() {
             false => (0, k),
             true if k < per * n => ((k / per) as usize, k % per),
             true => ((n - 2).saturating_sub(k - per * n) as usize, 0),

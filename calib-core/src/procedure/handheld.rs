@@ -12,7 +12,7 @@ impl Procedure {
                 self.note_rest(capture, capture.rest(self.bias));
                 self.push(Command::Report(Report::Bias(b)));
                 // The pan/tilt plan fits the accelerometer to its own rig poses.
-                if self.cfg.pan_tilt {
+                if self.cfg.is_pan_tilt() {
                     self.begin_rig(t_s);
                 } else if self.accel_cal.model == AccelModel::None {
                     self.servo_deg = None;

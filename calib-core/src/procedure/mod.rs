@@ -39,7 +39,7 @@ pub use config::{Config, ServoKind, TILT_SETTINGS};
 use crate::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
 use crate::estimators::axis::Poses;
 use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
-use crate::estimators::full::{self, Axes, FullAxis, FullCal, RigPart, RotationFit};
+use crate::estimators::full::{self, Axes, FullAxis, FullCal, RigPart, RotationFit, GAUSS_NEWTON_ITERATIONS};
 use crate::estimators::gyro::Method;
 use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
@@ -288,9 +288,10 @@ enum SolveStage {
     /// The result: the rig's residual and the 1σ of `K` ([`Axes::solve_end`]), from the
     /// solution's parts but its covariance, which is computed again.
     SolveEnd { part: RigPart, rotation: RotationFit, x: [f64; 9], rss: f64, dof: u32, condition: f64 },
-    /// Solved (in `full`): the magnetometer's alignment refined with it, each move's misfit,
-    /// the record stored.
+    /// Solved (in `full`): the magnetometer's alignment refined with it.
     Store,
+    /// Each move's misfit reported, the record stored.
+    StoreEnd,
 }
 
 /// The paper's spin: mean bias-free rate over its middle and, for a continuous servo whose
@@ -321,6 +322,14 @@ const STORE_TIMEOUT_S: f32 = 5.0;
 /// Chunks of hand-held moves whose rotation rows one call of the solve adds
 /// ([`SolveStage::IterateRows`]): ≈ 7 k instructions a chunk on the MCU, with a move's own rows.
 const ROW_CHUNKS: usize = 160;
+/// Most calls of the one-servo solve ([`SolveStage`]): the warm-up, the diagonal estimators,
+/// every Gauss–Newton iteration's rig rows and row batches, the solve's four parts with its
+/// batches, the magnetometer's refinement and the store. A batch ends past [`ROW_CHUNKS`]: one
+/// more than the chunks fill.
+pub const MAX_SOLVE_STEPS: usize = {
+    let batches = rotation::MAX_CHUNKS.div_ceil(ROW_CHUNKS) + 1;
+    2 + GAUSS_NEWTON_ITERATIONS as usize * (1 + batches) + 3 + batches + 2
+};
 /// Commands the queue holds (132 B each): one call's at most 10 (module doc) and one spare.
 const QUEUE: usize = 11;
 
@@ -453,7 +462,7 @@ impl Procedure {
     /// poses when the stored accelerometer calibration is reused or the pan/tilt plan fits it.
     pub fn plan(&self) -> (u16, u8) {
         let reuse = self.stored_accel().is_some();
-        let hand = if self.cfg.pan_tilt || reuse { 0 } else { self.cfg.accel_poses.max(6) };
+        let hand = if self.cfg.is_pan_tilt() || reuse { 0 } else { self.cfg.accel_poses.max(6) };
         (self.cfg.plan_steps(), hand)
     }
 
@@ -581,7 +590,7 @@ impl Procedure {
     /// usually taken before the board is lifted off it. A non-finite reading fails the
     /// calibration there.
     pub fn handle_mag(&mut self, t_s: f64, m_ut: Vec3) {
-        if matches!(self.step, Step::HandHeld { .. }) && !self.accel_poses.is_empty() && t_s.is_finite() {
+        if matches!(self.step, Step::HandHeld { .. }) && self.one_servo() && !self.accel_poses.is_empty() && t_s.is_finite() {
             match self.mag.add_sample(m_ut) {
                 Ok(()) => self.window_read.mag.add(m_ut),
                 Err(e) => self.fail(e),
@@ -606,7 +615,7 @@ impl Procedure {
         // The solve's steps and the store need no samples: the solve advances on the ticks
         // alone, one step a tick (the shell ticks after each FIFO read).
         if let Step::Solving { next_s, .. } = self.step {
-            if t_s >= next_s {
+            if t_s >= next_s && self.one_servo() {
                 self.solve_step(t_s);
             }
         } else if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {
@@ -614,7 +623,7 @@ impl Procedure {
             if gap > self.cfg.sample_timeout_s as f64 {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
             }
-            if matches!(self.step, Step::Reattach) {
+            if matches!(self.step, Step::Reattach) && self.one_servo() {
                 self.fit_due(t_s);
             }
         }
@@ -654,14 +663,15 @@ impl Procedure {
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
         let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
-        if matches!(self.step, Step::HandHeld { .. }) {
+        let hand = matches!(self.step, Step::HandHeld { .. }) && self.one_servo();
+        if hand {
             self.window_turn.add(s.t_s, dt, g);
         }
-        if let Some(a) = self.attitude {
+        if let Some(a) = self.attitude.filter(|_| self.one_servo()) {
             // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the samples):
             // lost. (A knock that clips only the accelerometer turns nothing unseen.)
             let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
-            self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp_jr(&phi).0);
+            self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp(&phi));
         }
         let (wt, turn) = if window.is_some() {
             self.tainted = false;
@@ -691,6 +701,7 @@ impl Procedure {
                     }
                 }
             }
+            Step::HandHeld { .. } if !hand => {}
             Step::HandHeld { mut capture } => {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some(w) = window {
@@ -758,6 +769,12 @@ impl Procedure {
         self.check_timeout(s.t_s);
     }
 
+    /// The one-servo plan (hand-held step, the stepped solve): the pan/tilt plan has neither,
+    /// and a firmware built for it links neither ([`Config::is_pan_tilt`]).
+    fn one_servo(&self) -> bool {
+        !self.cfg.is_pan_tilt()
+    }
+
     fn running(&self) -> bool {
         !matches!(self.step, Step::Idle | Step::Finished(_))
     }
@@ -797,7 +814,7 @@ impl Procedure {
         self.mag_pending = false;
         self.accel_due = AccelDue::Done;
         self.accel_nine = None;
-        self.mag_cal = self.stored.filter(|_| !self.cfg.pan_tilt && self.stored_accel().is_some()).and_then(|r| r.mag);
+        self.mag_cal = self.stored.filter(|_| !self.cfg.is_pan_tilt() && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
         self.attitude = None;
         self.gbar = None;
@@ -830,7 +847,7 @@ impl Procedure {
         self.step = Step::Finished(Phase::Failed);
         self.last_pulse = None;
         self.push(Command::ServoOff { channel: 0 });
-        if self.cfg.pan_tilt {
+        if self.cfg.is_pan_tilt() {
             self.last_tilt_pulse = None;
             self.push(Command::ServoOff { channel: 1 });
         }

@@ -9,7 +9,7 @@ impl Procedure {
             self.push(Command::ServoOff { channel: 0 });
         }
         self.set_angle(self.cfg.pose_first_deg);
-        if self.cfg.pan_tilt {
+        if self.cfg.is_pan_tilt() {
             self.set_tilt(self.cfg.tilt_settings_deg[0]);
         }
     }
@@ -64,7 +64,7 @@ impl Procedure {
     }
 
     pub(super) fn finish_pose(&mut self, k: u16, capture: &Capture, s: &Sample) {
-        let (pan_tilt, (setting, j)) = (self.cfg.pan_tilt, self.cfg.plan_at(k));
+        let (pan_tilt, (setting, j)) = (self.cfg.is_pan_tilt(), self.cfg.plan_at(k));
         // The pan/tilt plan keeps the raw means: its accelerometer is fitted to them at the end,
         // from the first visit of every pan angle at every setting.
         let a = if pan_tilt { capture.accel_mean() } else { self.accel_cal.apply(capture.accel_mean()) };

@@ -126,7 +126,7 @@ impl Procedure {
     /// Gauss–Newton iteration of the full `K` (the rig's rows, then the rotations' a batch a
     /// call); once it converged (or the iterations ran out, or a step could not be taken) the
     /// solve at the last iterate in the parts of [`Axes::solve_after`]; the magnetometer refined
-    /// with it, each move's misfit and the store. The stage changes in place.
+    /// with it; each move's misfit and the store. The stage changes in place.
     #[inline(never)]
     pub(super) fn solve_step(&mut self, t_s: f64) {
         let Step::Solving { stage, k, iterations, next_s } = &mut self.step else { return };
@@ -151,11 +151,8 @@ impl Procedure {
                 Err(e) => Ok(Some(SolveStage::Solve { failed: Some(e) })),
             },
             SolveStage::IterateRows { sum } => {
-                let rows = self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS).and_then(|done| match done {
-                    false => Ok(None),
-                    true => sum.finish(&mut self.rows, true).and_then(|_| iterate_end(&self.rows, &at)).map(Some),
-                });
-                match rows {
+                let rows = self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS);
+                match rows.and_then(|done| done.map(|_| iterate_end(&self.rows, &at)).transpose()) {
                     Ok(None) => Ok(None),
                     Ok(Some((x, change))) => {
                         *k = Some(x);
@@ -175,14 +172,9 @@ impl Procedure {
             }
             SolveStage::SolveRows { part, sum } => {
                 let (part, done) = (*part, *iterations);
-                self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS).and_then(|more| {
-                    if !more {
-                        return Ok(None);
-                    }
-                    let (_, rss, n) = sum.finish(&mut self.rows, true)?;
-                    let rotation = full::rotation_fit(&self.rotations, rl, rss, n, done)?;
-                    Ok(Some(SolveStage::SolveK { part, rotation }))
-                })
+                let rows = self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS);
+                rows.and_then(|sums| sums.map(|(_, rss, n)| full::rotation_fit(&self.rotations, rl, rss, n, done)).transpose())
+                    .map(|fit| fit.map(|rotation| SolveStage::SolveK { part, rotation }))
             }
             SolveStage::SolveK { part, rotation } => full::solve_k(&self.rows, limits).map(|(sol, condition)| {
                 Some(SolveStage::SolveEnd { part: *part, rotation: *rotation, x: sol.x, rss: sol.rss, dof: sol.dof, condition })
@@ -195,6 +187,13 @@ impl Procedure {
                 })
             }
             SolveStage::Store => {
+                *stage = SolveStage::StoreEnd;
+                if let Some(f) = self.full {
+                    self.refine_mag(&f.k);
+                }
+                return;
+            }
+            SolveStage::StoreEnd => {
                 let full = self.full.ok_or(Error::NoUsableMove);
                 return self.finish_full(full, t_s);
             }
@@ -206,12 +205,10 @@ impl Procedure {
         }
     }
 
-    /// The full `K` of the one-axis plan with hand-held moves: the magnetometer refined with it,
-    /// each move's misfit reported and the record stored (or the failure said).
+    /// The full `K` of the one-axis plan with hand-held moves (the magnetometer refined with it
+    /// in the call before): each move's misfit reported and the record stored (or the failure
+    /// said).
     fn finish_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
-        if let Ok(f) = &full {
-            self.refine_mag(&f.k);
-        }
         // Each move's misfit at the solution (none without one).
         let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
         let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());

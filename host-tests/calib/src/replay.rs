@@ -145,9 +145,9 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         }
         prev_t = r.t_s;
     }
-    // A log that ends while the board solves: its steps need no samples (at most 12 of them,
-    // one a tick once the procedure's spacing has passed).
-    for i in 1..=16 {
+    // A log that ends while the board solves: its steps need no samples (one a tick once the
+    // procedure's spacing has passed), and their count is bounded.
+    for i in 1..=calib_core::procedure::MAX_SOLVE_STEPS {
         if p.phase() != Phase::Store {
             break;
         }
