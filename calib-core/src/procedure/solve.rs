@@ -121,8 +121,9 @@ impl Procedure {
         }
     }
 
-    /// One call of the solve ([`Step::Solving`]), each under 2 M instructions on the MCU (one
-    /// FIFO's time), between two FIFO reads: the warm-up; the diagonal estimators; each
+    /// One call of the solve ([`Step::Solving`]), between two FIFO reads, each under 2 M
+    /// instructions on the MCU in the demos but the magnetometer's refinement (≈ 2.5 M): the
+    /// warm-up; the diagonal estimators; each
     /// Gauss–Newton iteration of the full `K` (the rig's rows, then the rotations' a batch a
     /// call); once it converged (or the iterations ran out, or a step could not be taken) the
     /// solve at the last iterate in the parts of [`Axes::solve_after`]; the magnetometer refined
