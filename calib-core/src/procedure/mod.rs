@@ -266,6 +266,8 @@ enum Step {
 #[allow(clippy::large_enum_variant)] // inside `Step`, whose pose captures are larger still: no RAM lost
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum SolveStage {
+    /// The pan/tilt plan's accelerometer, fitted to its rig poses, which it then calibrates.
+    PanTilt,
     /// The temperature fit over the rests, and the hand-held moves' chunks made to follow its
     /// warm-up ([`Rotations::follow_warmup`]).
     Warmup,
@@ -283,12 +285,14 @@ enum SolveStage {
     Solve { failed: Option<Error> },
     /// The rotation rows at `k`, [`ROW_CHUNKS`] chunks a call.
     SolveRows { part: RigPart, sum: RowSum },
-    /// The solution of the rows and its condition ([`full::solve_k`]).
-    SolveK { part: RigPart, rotation: RotationFit },
+    /// The solution of the rows and its condition ([`full::solve_k`]); `rotation` what the
+    /// rotations gave (none with the pan/tilt plan).
+    SolveK { part: RigPart, rotation: Option<RotationFit> },
     /// The result: the rig's residual and the 1σ of `K` ([`Axes::solve_end`]), from the
     /// solution's parts but its covariance, which is computed again.
-    SolveEnd { part: RigPart, rotation: RotationFit, x: [f64; 9], rss: f64, dof: u32, condition: f64 },
-    /// Solved (in `full`): the magnetometer's alignment refined with it.
+    SolveEnd { part: RigPart, rotation: Option<RotationFit>, x: [f64; 9], rss: f64, dof: u32, condition: f64 },
+    /// Solved (in `full`): the magnetometer's alignment refined with it; with the pan/tilt plan
+    /// the sweep estimator beside it and the store.
     Store,
     /// Each move's misfit reported, the record stored.
     StoreEnd,
@@ -615,7 +619,7 @@ impl Procedure {
         // The solve's steps and the store need no samples: the solve advances on the ticks
         // alone, one step a tick (the shell ticks after each FIFO read).
         if let Step::Solving { next_s, .. } = self.step {
-            if t_s >= next_s && self.one_servo() {
+            if t_s >= next_s {
                 self.solve_step(t_s);
             }
         } else if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {

@@ -5,10 +5,15 @@ use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON
 use crate::estimators::mag::MagMove;
 
 impl Procedure {
-    /// The end of the pan/tilt plan: the accelerometer from the rig poses, the poses calibrated
-    /// with it, the full `K`, and beside it the one-axis sweep estimator of the tilt setting whose
-    /// pan axis is the most oblique to the sensor axes.
+    /// The end of the pan/tilt plan: its steps follow on the ticks ([`Self::solve_step`]), the
+    /// accelerometer's fit first.
     pub(super) fn solve_full(&mut self, t_s: f64) {
+        self.step = Step::Solving { stage: SolveStage::PanTilt, k: None, iterations: 0, next_s: t_s };
+    }
+
+    /// The pan/tilt plan's first step: the accelerometer from the rig poses and the poses
+    /// calibrated with it; the solve of the full `K` follows ([`SolveStage::Solve`]).
+    fn pan_tilt_accel(&mut self) {
         if let Err(e) = self.fit_accel(pipeline::fit_nine(&self.accel_poses)) {
             // Poses too little spread for the accelerometer: the rig's geometry, seen on the raw
             // poses, says what to change (an upright bracket's pan axis is vertical; coplanar
@@ -24,7 +29,15 @@ impl Procedure {
             return self.fail(geometry.err().unwrap_or(e));
         }
         self.axes.calibrate_poses(&self.accel_cal);
-        let full = self.axes.solve(&self.cfg.full);
+    }
+
+    /// The end of the full `K` (or its error): with the pan/tilt plan, beside it the one-axis
+    /// sweep estimator of the tilt setting whose pan axis is the most oblique to the sensor
+    /// axes, then the store; with the one-servo plan [`Self::finish_full`].
+    fn end_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+        if self.one_servo() {
+            return self.finish_full(full, t_s);
+        }
         let oblique = |a: &FullAxis| a.u.iter().fold(f32::INFINITY, |m, c| m.min(c.abs()));
         let setting = match &full {
             Ok(f) => (0..TILT_SETTINGS).max_by(|&a, &b| oblique(&f.axes[a]).total_cmp(&oblique(&f.axes[b]))).unwrap_or(0),
@@ -121,8 +134,9 @@ impl Procedure {
         }
     }
 
-    /// One call of the solve ([`Step::Solving`]), between two FIFO reads, each under 2 M
-    /// instructions on the MCU in the demos but the magnetometer's refinement (≈ 2.5 M): the
+    /// One call of the solve ([`Step::Solving`]), between two FIFO reads. The pan/tilt plan:
+    /// its accelerometer, the solve in parts below, the sweep estimator beside it and the store.
+    /// The one-servo plan: the
     /// warm-up; the diagonal estimators; each
     /// Gauss–Newton iteration of the full `K` (the rig's rows, then the rotations' a batch a
     /// call); once it converged (or the iterations ran out, or a step could not be taken) the
@@ -137,6 +151,16 @@ impl Procedure {
         // error the solve's end. An iteration's error goes on to the solve, whose checks name a
         // bad geometry better, and is the solve's otherwise.
         let step: Result<Option<SolveStage>, Error> = match stage {
+            // Each plan's own stages (a firmware built for one plan links the other's not).
+            SolveStage::Warmup | SolveStage::Diagonal | SolveStage::Iterate | SolveStage::IterateRows { .. } if self.cfg.is_pan_tilt() => {
+                return
+            }
+            SolveStage::PanTilt if !self.cfg.is_pan_tilt() => return,
+            SolveStage::PanTilt => {
+                *stage = SolveStage::Solve { failed: None };
+                self.pan_tilt_accel();
+                return;
+            }
             SolveStage::Warmup => {
                 if let Some(tempco) = self.temp_fit.finish() {
                     self.rotations.follow_warmup(&tempco.dps_per_c);
@@ -166,8 +190,11 @@ impl Procedure {
             }
             SolveStage::Solve { failed } => {
                 let failed = *failed;
+                let none = self.cfg.is_pan_tilt() || self.rotations.moves().is_empty();
                 self.axes.solve_rig(limits, Some((&self.rotations, rl)), &mut self.rows).and_then(|part| match failed {
                     Some(e) => Err(e),
+                    // The pan/tilt plan: no rotations.
+                    None if none => Ok(Some(SolveStage::SolveK { part, rotation: None })),
                     None => Ok(Some(SolveStage::SolveRows { part, sum: RowSum::new() })),
                 })
             }
@@ -175,34 +202,34 @@ impl Procedure {
                 let (part, done) = (*part, *iterations);
                 let rows = self.rotations.add_rows_batch(&mut self.rows, sum, &at, rl, ROW_CHUNKS);
                 rows.and_then(|sums| sums.map(|(_, rss, n)| full::rotation_fit(&self.rotations, rl, rss, n, done)).transpose())
-                    .map(|fit| fit.map(|rotation| SolveStage::SolveK { part, rotation }))
+                    .map(|fit| fit.map(|rotation| SolveStage::SolveK { part, rotation: Some(rotation) }))
             }
             SolveStage::SolveK { part, rotation } => full::solve_k(&self.rows, limits).map(|(sol, condition)| {
                 Some(SolveStage::SolveEnd { part: *part, rotation: *rotation, x: sol.x, rss: sol.rss, dof: sol.dof, condition })
             }),
             SolveStage::SolveEnd { part, rotation, x, rss, dof, condition } => {
                 let sol = self.rows.solution(*x, *rss, *dof, *condition);
-                sol.and_then(|sol| self.axes.solve_end(limits, part, &self.rows, &sol, *condition, Some(*rotation))).map(|f| {
+                sol.and_then(|sol| self.axes.solve_end(limits, part, &self.rows, &sol, *condition, *rotation)).map(|f| {
                     self.full = Some(f);
                     Some(SolveStage::Store)
                 })
             }
-            SolveStage::Store => {
+            SolveStage::Store if !self.cfg.is_pan_tilt() => {
                 *stage = SolveStage::StoreEnd;
                 if let Some(f) = self.full {
                     self.refine_mag(&f.k);
                 }
                 return;
             }
-            SolveStage::StoreEnd => {
+            SolveStage::Store | SolveStage::StoreEnd => {
                 let full = self.full.ok_or(Error::NoUsableMove);
-                return self.finish_full(full, t_s);
+                return self.end_full(full, t_s);
             }
         };
         match step {
             Ok(Some(next)) => *stage = next,
             Ok(None) => {}
-            Err(e) => self.finish_full(Err(e), t_s),
+            Err(e) => self.end_full(Err(e), t_s),
         }
     }
 
