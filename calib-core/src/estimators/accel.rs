@@ -159,7 +159,7 @@ impl<const N: usize> AccelCalibrator<N> {
     /// Fits the 6-parameter model (needs ≥ 6 well-spread poses).
     pub fn solve6(&self) -> Result<AccelCal, Error> {
         self.need(6)?;
-        let s = self.lin6.solve()?.x;
+        let s = self.lin6.estimate()?;
         let mut p: Params = [0.0; 9];
         let mut sum = 1.0;
         for i in 0..3 {
@@ -179,7 +179,8 @@ impl<const N: usize> AccelCalibrator<N> {
     /// Fits the 9-parameter model (needs ≥ 9 well-spread poses).
     pub fn solve9(&self) -> Result<AccelCal, Error> {
         self.need(9)?;
-        let q = self.lin9.solve()?.x;
+        // The quadric's parameters alone: `refine` checks the last step's equations in full.
+        let q = self.lin9.estimate()?;
         let shape = [[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]];
         let l = cholesky(&shape, 1e-12).ok_or(Error::AccelFitFailed)?;
         let inv = cholesky_inverse(&l);

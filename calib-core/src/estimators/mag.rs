@@ -500,23 +500,46 @@ fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
     crate::math::vec3::sqrtf((0..3).map(|i| (a[i] - b[i]) * (a[i] - b[i])).sum())
 }
 
-/// The icosahedron face (0..20) nearest to direction `v`: the face centres are the dodecahedron's
-/// vertices, `(±1, ±1, ±1)` and the cyclic permutations of `(0, ±1/φ, ±φ)`.
-fn face(v: &Vector3<f64>) -> u32 {
-    let (phi, iphi) = (1.618_033_988_749_895, 0.618_033_988_749_895);
-    let sign = |s: u32, bit: u32| if s & (1 << bit) != 0 { -1.0 } else { 1.0 };
-    let mut centres = [[0.0f64; 3]; COVERAGE_BINS];
-    for s in 0..8 {
-        centres[s as usize] = [sign(s, 0), sign(s, 1), sign(s, 2)];
+/// The icosahedron's face centres ([`face`]): the dodecahedron's vertices, `(±1, ±1, ±1)` and
+/// the cyclic permutations of `(0, ±1/φ, ±φ)`, each of length √3.
+const FACE_CENTRES: [[f32; 3]; COVERAGE_BINS] = {
+    let (phi, iphi) = (1.618_034_f32, 0.618_034_f32);
+    const fn sign(s: usize, bit: u32) -> f32 {
+        if s & (1 << bit) != 0 {
+            -1.0
+        } else {
+            1.0
+        }
     }
-    for s in 0..4u32 {
+    let mut centres = [[0.0f32; 3]; COVERAGE_BINS];
+    let mut s = 0;
+    while s < 8 {
+        centres[s] = [sign(s, 0), sign(s, 1), sign(s, 2)];
+        s += 1;
+    }
+    let mut s = 0;
+    while s < 4 {
         let (a, b) = (sign(s, 0) * iphi, sign(s, 1) * phi);
-        let k = 8 + 3 * s as usize;
+        let k = 8 + 3 * s;
         (centres[k], centres[k + 1], centres[k + 2]) = ([0.0, a, b], [a, b, 0.0], [b, 0.0, a]);
+        s += 1;
     }
-    // Every centre has length √3: the largest dot product is the nearest centre.
-    let dot = |c: &[f64; 3]| c[0] * v[0] + c[1] * v[1] + c[2] * v[2];
-    (0..COVERAGE_BINS).fold(0, |best, k| if dot(&centres[k]) > dot(&centres[best]) { k } else { best }) as u32
+    centres
+};
+
+/// The icosahedron face (0..20) nearest to direction `v`: the largest dot product with a face
+/// centre (single precision: a coverage bin, on the FPU).
+fn face(v: &Vector3<f64>) -> u32 {
+    let v = [v[0] as f32, v[1] as f32, v[2] as f32];
+    let dot = |c: &[f32; 3]| c[0] * v[0] + c[1] * v[1] + c[2] * v[2];
+    let mut best = (0, f32::NEG_INFINITY);
+    for (k, c) in FACE_CENTRES.iter().enumerate() {
+        let d = dot(c);
+        if d > best.1 {
+            best = (k as u32, d);
+        }
+    }
+    best.0
 }
 
 #[cfg(test)]
