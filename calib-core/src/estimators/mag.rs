@@ -11,7 +11,7 @@
 //!    `R`'s angles for a small rotation (two Gauss–Newton steps).
 
 use crate::math::linalg::{inverse3, sym_eigen};
-use crate::math::lsq::NormalEquations;
+use crate::math::lsq::{NormalEquations, Solution};
 use crate::math::vec3::{mat_to_f64, to_f64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
@@ -268,58 +268,71 @@ impl MagCalibrator {
     }
 
     /// The ellipsoid alone (`A` symmetric, no alignment): what the usual tools fit.
-    pub fn fit_ellipsoid(&self) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
+    pub fn fit_ellipsoid(&self) -> Result<Ellipsoid, Error> {
         self.fit_ellipsoid_without(None)
     }
 
     /// [`Self::fit_ellipsoid`] without the points within [`EXCLUDE_UT`] of `near` (µT, raw): a
     /// disturbed pose's readings.
-    fn fit_ellipsoid_without(&self, near: Option<[f32; 3]>) -> Result<(Matrix3<f64>, Vector3<f64>, f64), Error> {
-        let kept = |m: &[f32; 3]| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT);
-        let points = || self.points().filter(move |(m, _)| kept(m));
-        let n = points().count();
+    fn fit_ellipsoid_without(&self, near: Option<[f32; 3]>) -> Result<Ellipsoid, Error> {
+        let c = self.ellipsoid_centre(near)?;
+        let mut ne = NormalEquations::<9>::new();
+        self.add_ellipsoid_rows(&mut ne, &c, near, 0..usize::MAX)?;
+        ellipsoid_from(&ne, &c)
+    }
+
+    /// The first part of [`Self::fit_ellipsoid`] (for a caller that runs each part in a call of
+    /// its own): the kept points' mean (µT, raw), the origin of the fit's rows (for their
+    /// conditioning); [`Error::MagTooFew`] with too few points. (`near`: see
+    /// [`Self::fit_ellipsoid_without`].)
+    pub fn ellipsoid_centre(&self, near: Option<[f32; 3]>) -> Result<Vector3<f64>, Error> {
+        let kept = self.points().filter(|(m, _)| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT));
+        let (sum, n) = kept.fold((Vector3::zeros(), 0usize), |(s, n), (m, _)| (s + to_f64(m), n + 1));
         if n < MIN_SAMPLES {
             return Err(self.too_few());
         }
-        // Quadric xᵀQx + bᵀx = 1 (9 unknowns), centred on the samples' mean for conditioning.
-        let c = points().fold(Vector3::zeros(), |s, (m, _)| s + to_f64(m)) / n as f64;
-        let mut ne = NormalEquations::<9>::new();
-        for (m, k) in points() {
+        Ok(sum / n as f64)
+    }
+
+    /// The quadric's rows `xᵀQx + bᵀx = 1` (9 unknowns, `x` about `c` in 50 µT) of the kept
+    /// points numbered `range` (before `near`'s are left out) into `ne`; whether it reached
+    /// the last point.
+    pub fn add_ellipsoid_rows(
+        &self,
+        ne: &mut NormalEquations<9>,
+        c: &Vector3<f64>,
+        near: Option<[f32; 3]>,
+        range: core::ops::Range<usize>,
+    ) -> Result<bool, Error> {
+        let kept = |m: &[f32; 3]| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT);
+        let mut points = self.points().skip(range.start);
+        for (m, k) in points.by_ref().take(range.end - range.start).filter(|(m, _)| kept(m)) {
             let p = (to_f64(m) - c) / 50.0;
             let (x, y, z) = (p[0], p[1], p[2]);
             ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
         }
-        // The parameters alone (no condition number: a 9×9 eigen-decomposition costs ~2 M
-        // instructions on the MCU); a degenerate spread fails the eigenvalue and coverage checks.
-        let q = ne.estimate()?;
-        let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
-        let inv = inverse3(&shape).ok_or(Error::Singular)?;
-        let centre = -0.5 * inv * Vector3::new(q[6], q[7], q[8]);
-        let s = 1.0 + centre.dot(&(shape * centre));
-        if !(s > 0.0) {
-            return Err(Error::MagFitFailed);
+        Ok(points.next().is_none())
+    }
+
+    /// The ellipsoid and its alignment ([`Self::solve`]'s second part): the die's rotation `R`
+    /// and the fit of the gravity–field angle; [`Error::MagTooFew`] with too few poses.
+    pub fn alignment(&self, e: &Ellipsoid) -> Result<Alignment, Error> {
+        if self.poses.len() < MIN_POSES {
+            return Err(self.too_few());
         }
-        let p = shape / s;
-        let (vals, vecs) =
-            sym_eigen(&[[p[(0, 0)], p[(0, 1)], p[(0, 2)]], [p[(1, 0)], p[(1, 1)], p[(1, 2)]], [p[(2, 0)], p[(2, 1)], p[(2, 2)]]]);
-        if !vals.iter().all(|v| *v > 0.0) {
-            return Err(Error::MagFitFailed);
-        }
-        // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
-        let v = Matrix3::from_fn(|r, k| vecs[r][k]);
-        let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
-        let field = 50.0 / crate::math::linalg::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
-        let a_s = sqrt * (field / 50.0);
-        Ok((a_s, c + centre * 50.0, field))
+        self.align(&e.0, &e.1, None)
     }
 
     /// The calibration: ellipsoid, alignment, quality and the checks of `limits`.
     pub fn solve(&self, limits: &MagLimits) -> Result<MagCal, Error> {
-        let (a_s, o, field) = self.fit_ellipsoid()?;
-        if self.poses.len() < MIN_POSES {
-            return Err(self.too_few());
-        }
-        let (r, sol) = self.align(&a_s, &o, None)?;
+        let e = self.fit_ellipsoid()?;
+        self.finish(&e, &self.alignment(&e)?, limits)
+    }
+
+    /// [`Self::solve`]'s last part: the calibration from the ellipsoid `e` and its alignment,
+    /// its quality and the checks of `limits`.
+    pub fn finish(&self, e: &Ellipsoid, alignment: &Alignment, limits: &MagLimits) -> Result<MagCal, Error> {
+        let (&(a_s, o, field), (r, sol)) = (e, alignment);
         let a = r * a_s;
         let c = sol.x[3];
         let dip = asin(-c);
@@ -436,12 +449,7 @@ impl MagCalibrator {
     /// The die's rotation `R` and the fit (`x[3]` = `−sin(dip)`) from the gravity–field angle
     /// of the poses (`skip` left out): `f̂ · (I + [θ]×) û = c`, i.e. `f̂·û + θ·(û × f̂) = c`,
     /// re-linearised about the last `R` (three steps).
-    fn align(
-        &self,
-        a_s: &Matrix3<f64>,
-        o: &Vector3<f64>,
-        skip: Option<usize>,
-    ) -> Result<(Matrix3<f64>, crate::math::lsq::Solution<4>), Error> {
+    fn align(&self, a_s: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<Alignment, Error> {
         let mut r = Matrix3::identity();
         let mut sol = None;
         for _ in 0..3 {
@@ -483,6 +491,41 @@ impl MagCalibrator {
         }
         worst.map_or(Ok(()), |(_, e)| Err(e))
     }
+}
+
+/// The ellipsoid's map onto the sphere: `A_s` (symmetric, scaled to the field), its centre
+/// (µT, raw: the hard iron) and the field's strength `B` (µT, the radii's geometric mean).
+pub type Ellipsoid = (Matrix3<f64>, Vector3<f64>, f64);
+
+/// The die's rotation `R` onto the accelerometer and the fit of the gravity–field angle
+/// (`x[3]` = `−sin(dip)`).
+pub type Alignment = (Matrix3<f64>, Solution<4>);
+
+/// [`MagCalibrator::fit_ellipsoid`]'s last part: the ellipsoid from the quadric's rows `ne`
+/// about `c` ([`MagCalibrator::add_ellipsoid_rows`]).
+pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<f64>) -> Result<Ellipsoid, Error> {
+    // The parameters alone (no condition number: a 9×9 eigen-decomposition costs ~2 M
+    // instructions on the MCU); a degenerate spread fails the eigenvalue and coverage checks.
+    let q = ne.estimate()?;
+    let shape = Matrix3::new(q[0], q[3], q[4], q[3], q[1], q[5], q[4], q[5], q[2]);
+    let inv = inverse3(&shape).ok_or(Error::Singular)?;
+    let centre = -0.5 * inv * Vector3::new(q[6], q[7], q[8]);
+    let s = 1.0 + centre.dot(&(shape * centre));
+    if !(s > 0.0) {
+        return Err(Error::MagFitFailed);
+    }
+    let p = shape / s;
+    let (vals, vecs) =
+        sym_eigen(&[[p[(0, 0)], p[(0, 1)], p[(0, 2)]], [p[(1, 0)], p[(1, 1)], p[(1, 2)]], [p[(2, 0)], p[(2, 1)], p[(2, 2)]]]);
+    if !vals.iter().all(|v| *v > 0.0) {
+        return Err(Error::MagFitFailed);
+    }
+    // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
+    let v = Matrix3::from_fn(|r, k| vecs[r][k]);
+    let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
+    let field = 50.0 / crate::math::linalg::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
+    let a_s = sqrt * (field / 50.0);
+    Ok((a_s, c + centre * 50.0, field))
 }
 
 /// Tilt-compensated heading (°, 0..360, clockwise from magnetic north seen from above) of the

@@ -105,40 +105,48 @@ impl Procedure {
         }
         // The accelerometer's fits and the magnetometer's follow on the ticks (`fit_due`).
         self.accel_due = AccelDue::Nine;
-        self.enter(Step::Reattach, t_s)
+        self.enter(Step::Reattach { mag: MagFit::Waiting, pressed: false }, t_s)
     }
 
     /// The hand-held step's fits, one a tick, each within the sensor's FIFO time (the shell
     /// drains it between ticks): the accelerometer's 9-parameter fit at once, its 6-parameter
-    /// fit and the choice [`ACCEL_FIT_AFTER_S`] after the step ended, the magnetometer's
-    /// [`MAG_FIT_AFTER_S`] after it; the button may come first ([`Self::handle_button`]).
+    /// fit and the choice [`ACCEL_FIT_AFTER_S`] after the step ended, the magnetometer's in
+    /// parts ([`MagFit`]) from [`MAG_FIT_AFTER_S`] after it, [`SOLVE_STEP_S`] apart; once the
+    /// button was pressed ([`Self::handle_button`]) the rest a tick each, then the rig.
     pub(super) fn fit_due(&mut self, t_s: f64) {
-        let since = t_s - self.phase_t0;
+        let Step::Reattach { mag, pressed } = self.step else { return };
+        if !self.one_servo() {
+            return;
+        }
         match self.accel_due {
             AccelDue::Nine => {
                 self.accel_nine = pipeline::fit_nine(&self.accel_poses);
                 self.accel_due = AccelDue::Choice;
             }
-            AccelDue::Choice if since >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
-            AccelDue::Done if self.mag_pending && since >= MAG_FIT_AFTER_S => self.fit_mag_pending(),
-            _ => {}
+            AccelDue::Choice if pressed || t_s - self.phase_t0 >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
+            AccelDue::Choice => {}
+            AccelDue::Done => match mag {
+                MagFit::Due { at_s, stage } if pressed || t_s >= at_s => self.fit_mag_step(t_s, stage),
+                MagFit::Waiting | MagFit::Done if pressed => self.begin_rig(t_s),
+                _ => {}
+            },
         }
     }
 
-    /// The accelerometer's fit if it is due ([`Self::fit_accel`], with the 9-parameter fit
-    /// made on an earlier tick or now): the hand-held poses then calibrated, the magnetometer
-    /// due; a failure fails the calibration.
-    pub(super) fn fit_accel_pending(&mut self) {
-        let due = core::mem::replace(&mut self.accel_due, AccelDue::Done);
-        if due != AccelDue::Done {
-            let nine = if due == AccelDue::Nine { pipeline::fit_nine(&self.accel_poses) } else { self.accel_nine.take() };
-            match self.fit_accel(nine) {
-                Ok(()) => {
-                    self.mag_pending = true;
-                    self.rotations.calibrate_poses(&self.accel_cal);
+    /// The accelerometer's fit by the model [`pipeline::ModelTest`] chooses, with the
+    /// 9-parameter fit made on an earlier tick: the hand-held poses then calibrated, the
+    /// magnetometer due; a failure fails the calibration.
+    fn fit_accel_pending(&mut self) {
+        self.accel_due = AccelDue::Done;
+        let nine = self.accel_nine.take();
+        match self.fit_accel(nine) {
+            Ok(()) => {
+                self.rotations.calibrate_poses(&self.accel_cal);
+                if let Step::Reattach { mag, .. } = &mut self.step {
+                    *mag = MagFit::Due { at_s: self.phase_t0 + MAG_FIT_AFTER_S, stage: MagStage::Start };
                 }
-                Err(e) => self.fail(e),
             }
+            Err(e) => self.fail(e),
         }
     }
 
@@ -172,33 +180,49 @@ impl Procedure {
         self.temp_fit.add(capture.temp_c(), &rest);
     }
 
-    /// The magnetometer's fit if it is due ([`Self::fit_mag`]; a failure fails the calibration).
-    pub(super) fn fit_mag_pending(&mut self) {
-        if core::mem::take(&mut self.mag_pending) {
-            if let Err(e) = self.fit_mag() {
-                self.fail(e);
+    /// One part of the magnetometer's fit to the hand-held step's readings in the calibrated
+    /// accelerometer's frame ([`MagStage`]), the next [`SOLVE_STEP_S`] later; the calibration
+    /// reported at the end, nothing to do when none was read (no magnetometer). A failure fails
+    /// the calibration.
+    fn fit_mag_step(&mut self, t_s: f64, stage: MagStage) {
+        let mag = &mut self.mag;
+        let next = match stage {
+            MagStage::Start if mag.samples() == 0 && mag.poses() == 0 => Ok(None),
+            MagStage::Start => {
+                let accel = self.accel_cal;
+                mag.map_poses(|f| accel.apply(f));
+                // The hand-held step's rows are done with: the ellipsoid's take their place.
+                self.rows = NormalEquations::new();
+                mag.ellipsoid_centre(None).map(|centre| Some(MagStage::Rows { centre, next: 0 }))
             }
-        }
-    }
-
-    /// Fits the magnetometer to the hand-held step's readings in the calibrated accelerometer's
-    /// frame and reports it; nothing to do when none was read (no magnetometer).
-    fn fit_mag(&mut self) -> Result<(), Error> {
-        if self.mag.samples() == 0 && self.mag.poses() == 0 {
-            return Ok(());
-        }
-        let accel = self.accel_cal;
-        self.mag.map_poses(|f| accel.apply(f));
-        // A disturbed pose is named by its hand-held pose number (the field is read from pose 1 on).
-        let cal = self.mag.solve(&MagLimits::default()).map_err(|e| match e {
-            Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => {
-                Error::MagDisturbed { pose: pose.saturating_add(self.mag_first_pose), field_ut, expected_ut, dip_deg, expected_dip_deg }
+            MagStage::Rows { centre, next } => {
+                let from = usize::from(next);
+                match mag.add_ellipsoid_rows(&mut self.rows, &centre, None, from..from + MAG_ROWS_PER_CALL) {
+                    Ok(false) => Ok(Some(MagStage::Rows { centre, next: next.saturating_add(MAG_ROWS_PER_CALL as u16) })),
+                    Ok(true) => ellipsoid_from(&self.rows, &centre).map(|e| Some(MagStage::Align(e))),
+                    Err(e) => Err(e),
+                }
             }
-            e => e,
-        })?;
-        self.mag_cal = Some(cal);
-        self.push(Command::Report(Report::Mag(cal)));
-        Ok(())
+            MagStage::Align(e) => mag.alignment(&e).map(|a| Some(MagStage::Finish(e, a))),
+            MagStage::Finish(e, a) => mag.finish(&e, &a, &MagLimits::default()).map(|cal| {
+                self.mag_cal = Some(cal);
+                self.push(Command::Report(Report::Mag(cal)));
+                None
+            }),
+        };
+        let fit = match next {
+            Ok(Some(stage)) => MagFit::Due { at_s: t_s + SOLVE_STEP_S, stage },
+            Ok(None) => MagFit::Done,
+            // A disturbed pose is named by its hand-held pose number (the field is read from pose 1 on).
+            Err(Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg }) => {
+                let pose = pose.saturating_add(self.mag_first_pose);
+                return self.fail(Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg });
+            }
+            Err(e) => return self.fail(e),
+        };
+        if let Step::Reattach { mag, .. } = &mut self.step {
+            *mag = fit;
+        }
     }
 
     /// Fits the accelerometer to the poses by the model [`pipeline::ModelTest`] chooses (`nine`:

@@ -41,7 +41,7 @@ use crate::estimators::axis::Poses;
 use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::estimators::full::{self, Axes, FullAxis, FullCal, RigPart, RotationFit, GAUSS_NEWTON_ITERATIONS};
 use crate::estimators::gyro::Method;
-use crate::estimators::mag::{MagCal, MagCalibrator, MagLimits};
+use crate::estimators::mag::{ellipsoid_from, Alignment, Ellipsoid, MagCal, MagCalibrator, MagLimits};
 use crate::estimators::rest::{RestDetector, RestState, Window};
 use crate::estimators::rotation::{self, PoseRest, PoseTurn, Rotations, RowSum, MAX_ROTATION_MOVES};
 use crate::estimators::sweep;
@@ -221,6 +221,35 @@ enum AccelDue {
     Done,
 }
 
+/// The magnetometer's fit after the hand-held step, in parts, one a call
+/// ([`Procedure::fit_due`], [`SOLVE_STEP_S`] apart): the ellipsoid's rows a batch a call
+/// ([`MAG_ROWS_PER_CALL`] points), its alignment, the calibration and its checks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum MagFit {
+    /// Not yet due: the accelerometer's fit comes first.
+    Waiting,
+    /// Due at `at_s` (MCU time, s), and `stage` next.
+    Due { at_s: f64, stage: MagStage },
+    /// Made (or nothing to fit).
+    Done,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum MagStage {
+    /// The poses into the calibrated accelerometer's frame, the points' centre.
+    Start,
+    /// The ellipsoid's rows from point `next` on (the procedure's `rows` hold them).
+    Rows {
+        centre: Vector3<f64>,
+        next: u16,
+    },
+    Align(Ellipsoid),
+    Finish(Ellipsoid, Alignment),
+}
+
+/// Points of the magnetometer's ellipsoid a call adds to its rows (~0.8 M instructions).
+const MAG_ROWS_PER_CALL: usize = 64;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Step {
     Idle,
@@ -231,7 +260,12 @@ enum Step {
     HandHeld {
         capture: Capture,
     },
-    Reattach,
+    /// Waiting for the board back on the shaft and the button (`pressed`) while the hand-held
+    /// step's fits are made ([`Procedure::fit_due`]).
+    Reattach {
+        mag: MagFit,
+        pressed: bool,
+    },
     /// Moving to rig step `k` (started at `t0`).
     Move {
         k: u16,
@@ -310,10 +344,10 @@ struct Spin {
 /// How long after the hand-held step ends (its 9-parameter accelerometer fit, ~0.2 s on the
 /// MCU) the accelerometer's 6-parameter fit and choice are made (s): by the samples' time, so
 /// that the shell has drained the sensor's FIFO in between (the next sample of the same batch
-/// would follow the first fit at once). Unless the button comes first.
+/// would follow the first fit at once), or at the next tick once the button was pressed.
 const ACCEL_FIT_AFTER_S: f64 = 0.5;
-/// How long after the hand-held step ends the magnetometer is fitted (s), after the
-/// accelerometer's second fit, unless the button comes first.
+/// How long after the hand-held step ends the magnetometer's fit starts (s), after the
+/// accelerometer's second fit.
 const MAG_FIT_AFTER_S: f64 = 1.0;
 
 /// Least time between two steps of the solve (s): the shell reads the sensor's FIFO between
@@ -360,7 +394,8 @@ pub struct Procedure {
     axes: Axes,
     rotations: Rotations,
     /// The normal equations under way: in the hand-held step the kept moves' rows at `K = I`
-    /// ([`Rotations::add_last_at_identity`]); in the solve those of its Gauss–Newton iteration,
+    /// ([`Rotations::add_last_at_identity`]); then the magnetometer's ellipsoid's
+    /// ([`MagStage::Rows`]); in the solve those of its Gauss–Newton iteration,
     /// the rig's and then the rotations' a batch a call ([`SolveStage::IterateRows`]).
     rows: NormalEquations<9>,
     full: Option<FullCal>,
@@ -378,8 +413,6 @@ pub struct Procedure {
     /// The magnetometer's calibration of this run (or the stored one, reused with its
     /// accelerometer's).
     mag_cal: Option<MagCal>,
-    /// The accelerometer's fit is done: the magnetometer's is due ([`Self::fit_due`]).
-    mag_pending: bool,
     /// The accelerometer's fits still due after the hand-held step, and the 9-parameter one made.
     accel_due: AccelDue,
     accel_nine: Option<AccelCal>,
@@ -443,7 +476,6 @@ impl Procedure {
             addr_of_mut!((*p).window_read).write(WindowReadings { temp: Moments3::new(), mag: Moments3::new() });
             addr_of_mut!((*p).mag).write(MagCalibrator::new());
             addr_of_mut!((*p).mag_cal).write(None);
-            addr_of_mut!((*p).mag_pending).write(false);
             addr_of_mut!((*p).accel_due).write(AccelDue::Done);
             addr_of_mut!((*p).accel_nine).write(None);
             addr_of_mut!((*p).mag_first_pose).write(0);
@@ -477,7 +509,7 @@ impl Procedure {
             Step::WaitRest => Phase::WaitRest,
             Step::Bias { .. } => Phase::Bias,
             Step::HandHeld { .. } => Phase::HandHeld,
-            Step::Reattach => Phase::Reattach,
+            Step::Reattach { .. } => Phase::Reattach,
             Step::Move { .. } | Step::Pose { .. } => Phase::RigPoses,
             Step::Spin { .. } => Phase::Spin,
             Step::Solving { .. } | Step::Storing { .. } => Phase::Store,
@@ -527,12 +559,10 @@ impl Procedure {
                 self.start(t_s);
                 true
             }
-            Step::Reattach => {
-                self.fit_accel_pending();
-                self.fit_mag_pending();
-                if self.running() {
-                    self.begin_rig(t_s);
-                }
+            Step::Reattach { ref mut pressed, .. } => {
+                // The rig starts once the hand-held step's fits are made (`fit_due`).
+                *pressed = true;
+                self.fit_due(t_s);
                 true
             }
             _ => false,
@@ -627,9 +657,7 @@ impl Procedure {
             if gap > self.cfg.sample_timeout_s as f64 {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
             }
-            if matches!(self.step, Step::Reattach) && self.one_servo() {
-                self.fit_due(t_s);
-            }
+            self.fit_due(t_s);
         }
         self.check_timeout(t_s);
     }
@@ -686,7 +714,7 @@ impl Procedure {
             (WindowReadings::default(), PoseTurn::new())
         };
         match self.step {
-            Step::Idle | Step::Finished(_) | Step::Reattach | Step::Solving { .. } | Step::Storing { .. } => {}
+            Step::Idle | Step::Finished(_) | Step::Reattach { .. } | Step::Solving { .. } | Step::Storing { .. } => {}
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
                     if self.bias.is_none() {
@@ -815,7 +843,6 @@ impl Procedure {
         self.rest_temp_c = f32::NAN;
         self.window_read = WindowReadings::default();
         self.mag = MagCalibrator::new();
-        self.mag_pending = false;
         self.accel_due = AccelDue::Done;
         self.accel_nine = None;
         self.mag_cal = self.stored.filter(|_| !self.cfg.is_pan_tilt() && self.stored_accel().is_some()).and_then(|r| r.mag);
@@ -873,7 +900,7 @@ impl Procedure {
         let (since, limit) = match self.step {
             Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
             Step::HandHeld { .. } => (self.phase_t0, c.handheld_timeout_s),
-            Step::Reattach => (self.phase_t0, c.reattach_timeout_s),
+            Step::Reattach { .. } => (self.phase_t0, c.reattach_timeout_s),
             Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
             Step::Spin { spin } => (spin.ramp.t0, spin.ramp.duration_s as f32 + c.rest_timeout_s),

@@ -95,6 +95,26 @@ fn configs(setup: SensorSetup) -> [(&'static str, Config); 4] {
     ]
 }
 
+/// Ticks after the re-clamp's press within which the procedure starts the rig: the
+/// accelerometer's choice and the magnetometer's parts (its points a batch a tick), with room.
+const MAX_FIT_TICKS: usize = 32;
+
+/// The re-clamp's press in a replay of a log, at `t_s`, the sample before the log's first
+/// commanded row after the hand-held step: the press came before it on the board, which made
+/// the hand-held step's fits still due a tick each (they need no samples), then started the
+/// rig; here they are ticked at `t_s`.
+pub fn press_to_rig(p: &mut Procedure, t_s: f64, shell: &mut impl Shell) {
+    p.handle_button(t_s);
+    p.drive(t_s, shell);
+    for _ in 0..MAX_FIT_TICKS {
+        if p.phase() != Phase::Reattach {
+            break;
+        }
+        p.handle_tick(t_s);
+        p.drive(t_s, shell);
+    }
+}
+
 /// Logged angles are written with two decimals.
 fn same(a: Option<f32>, b: Option<f32>) -> bool {
     match (a, b) {
@@ -123,8 +143,7 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
             p.drive(prev_t, &mut out);
             started = true;
         } else if p.phase() == Phase::Reattach && commanded {
-            p.handle_button(prev_t);
-            p.drive(prev_t, &mut out);
+            press_to_rig(&mut p, prev_t, &mut out);
         }
         if !same(p.servo_deg(), r.servo_deg) || !same(p.tilt_deg(), r.tilt_deg) {
             return None;

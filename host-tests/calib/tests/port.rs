@@ -184,8 +184,12 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
                 wait_for(&mut m, Command::RawLog);
                 return Ok(0);
             }
-            p.handle_button(prev_t);
-            p.drive(prev_t, &mut sh);
+            if started {
+                calib::replay::press_to_rig(&mut p, prev_t, &mut sh);
+            } else {
+                p.handle_button(prev_t);
+                p.drive(prev_t, &mut sh);
+            }
             started = true;
         }
         // The board's temperature, as its raw log writes it (the simulated log's).
