@@ -112,7 +112,8 @@ pub struct AccelCalibrator<const N: usize = MAX_ACCEL_POSES> {
 }
 
 /// Parameters of a Gauss-Newton iteration: offsets then the gain entries it fits.
-type Params = [f64; 9];
+/// The fit's parameters: `[o; kx, ky, kz]` (6) or `[o; m00, m01, m02, m11, m12, m22]` (9).
+pub type Params = [f64; 9];
 
 impl<const N: usize> AccelCalibrator<N> {
     /// No poses.
@@ -178,8 +179,16 @@ impl<const N: usize> AccelCalibrator<N> {
 
     /// Fits the 9-parameter model (needs ≥ 9 well-spread poses).
     pub fn solve9(&self) -> Result<AccelCal, Error> {
+        let mut ne = NormalEquations::new();
+        let p = self.solve9_params(&mut ne)?;
+        self.calibration9(&p, &ne)
+    }
+
+    /// [`Self::solve9`]'s first part (for a caller that runs each in a call of its own): the
+    /// parameters, by Gauss–Newton from the quadric's, the last iteration's equations in `ne`.
+    pub fn solve9_params(&self, ne: &mut NormalEquations<9>) -> Result<Params, Error> {
         self.need(9)?;
-        // The quadric's parameters alone: `refine` checks the last step's equations in full.
+        // The quadric's parameters alone: the last step's equations are checked in full.
         let q = self.lin9.estimate()?;
         let shape = [[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]];
         let l = cholesky(&shape, 1e-12).ok_or(Error::AccelFitFailed)?;
@@ -195,7 +204,13 @@ impl<const N: usize> AccelCalibrator<N> {
         // shape / s = L Lᵀ = Mᵀ M with M = Lᵀ / √s upper triangular.
         let r = 1.0 / libm::sqrt(s);
         let p: Params = [o[0], o[1], o[2], l[0][0] * r, l[1][0] * r, l[2][0] * r, l[1][1] * r, l[2][1] * r, l[2][2] * r];
-        self.refine::<9>(p, AccelModel::NineParam)
+        self.iterate::<9>(p, ne)
+    }
+
+    /// [`Self::solve9`]'s second part: the calibration at `p` from the last iteration's
+    /// equations `ne` ([`Self::solve9_params`]), their condition checked.
+    pub fn calibration9(&self, p: &Params, ne: &NormalEquations<9>) -> Result<AccelCal, Error> {
+        self.calibration(p, AccelModel::NineParam, ne.check()?)
     }
 
     fn need(&self, n: usize) -> Result<(), Error> {
@@ -206,12 +221,17 @@ impl<const N: usize> AccelCalibrator<N> {
     }
 
     /// Gauss-Newton on `|M (a − o)| − 1` over the poses; `P` = 6 (diagonal) or 9 (triangular).
-    fn refine<const P: usize>(&self, mut p: Params, model: AccelModel) -> Result<AccelCal, Error> {
-        // The iterates by their estimate alone; the last one's equations solved in full (its
-        // condition number, residual and degrees of freedom).
+    fn refine<const P: usize>(&self, p: Params, model: AccelModel) -> Result<AccelCal, Error> {
         let mut ne = NormalEquations::<P>::new();
+        let p = self.iterate(p, &mut ne)?;
+        self.calibration(&p, model, ne.check()?)
+    }
+
+    /// [`Self::refine`]'s iterates, by their estimate alone, from `p`; the last one's equations
+    /// (checked in full by the caller: their condition number) left in `ne`.
+    fn iterate<const P: usize>(&self, mut p: Params, ne: &mut NormalEquations<P>) -> Result<Params, Error> {
         for _ in 0..GAUSS_NEWTON_STEPS {
-            ne = NormalEquations::<P>::new();
+            *ne = NormalEquations::<P>::new();
             for a in &self.poses {
                 let (r, jac) = residual(&p, a, P == 6);
                 ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
@@ -226,8 +246,7 @@ impl<const N: usize> AccelCalibrator<N> {
                 break;
             }
         }
-        let sol = ne.solve()?;
-        self.calibration(&p, model, sol.condition)
+        Ok(p)
     }
 
     /// The 1σ of `cal`, fitted to these poses, from each pose's own 1σ `pose_sigma_g` (g, the

@@ -399,11 +399,7 @@ impl MagCalibrator {
             let a = rot * a0;
             let u = |i: usize| -> Vector3<f64> { (a * (to_f64(self.poses[i].1) - o)).normalize() };
             let mut ne = NormalEquations::<4>::new();
-            for (i, p) in self.poses.iter().enumerate() {
-                let (f, ui) = (to_f64(p.0).normalize(), u(i));
-                let x = ui.cross(&f);
-                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&ui), 1.0)?;
-            }
+            self.angle_rows(&mut ne, &a, &o, None)?;
             for m in moves.iter().filter(|m| (m.from as usize) < n && (m.to as usize) < n) {
                 let (ui, uj, r) = (u(m.from as usize), u(m.to as usize), mat_to_f64(&m.r));
                 let res = ui - r * uj;
@@ -454,16 +450,24 @@ impl MagCalibrator {
         let mut sol = None;
         for _ in 0..3 {
             let mut ne = NormalEquations::<4>::new();
-            for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-                let (f, u) = (to_f64(p.0).normalize(), (r * a_s * (to_f64(p.1) - o)).normalize());
-                let x = u.cross(&f);
-                ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
-            }
+            self.angle_rows(&mut ne, &(r * a_s), o, skip)?;
             let s = ne.solve()?;
             r = cayley(&Vector3::new(s.x[0], s.x[1], s.x[2])) * r;
             sol = Some(s);
         }
         Ok((r, sol.ok_or(Error::MagFitFailed)?))
+    }
+
+    /// The gravity–field angle's rows of the poses (but `skip`) through `a`, `o`, linearised in
+    /// the rotation `θ` of [`Self::align`]: `f̂·û + θ·(û × f̂) = c`.
+    #[inline(never)]
+    fn angle_rows(&self, ne: &mut NormalEquations<4>, a: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<(), Error> {
+        for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
+            let (f, u) = (to_f64(p.0).normalize(), (a * (to_f64(p.1) - o)).normalize());
+            let x = u.cross(&f);
+            ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
+        }
+        Ok(())
     }
 
     /// Every pose (but `skip`) sees `field` (µT) at `dip` (rad) through `a`, `o`, within

@@ -145,6 +145,12 @@ impl<const N: usize> NormalEquations<N> {
         Ok(Solution { x, rss, dof, covariance, condition })
     }
 
+    /// [`Self::solve`]'s checks alone, its errors or the condition number: for a caller that
+    /// needs neither the solution nor its covariance (the last equations of an iteration).
+    pub fn check(&self) -> Result<f64, Error> {
+        self.solve().map(|s| s.condition)
+    }
+
     /// The [`Solution`] [`Self::solve`] gave, from its parts but the covariance, which is
     /// computed again, bit for bit the same: for a caller that keeps a solution across calls
     /// without its `N × N` covariance.

@@ -104,46 +104,47 @@ impl Procedure {
             return;
         }
         // The accelerometer's fits and the magnetometer's follow on the ticks (`fit_due`).
-        self.accel_due = AccelDue::Nine;
-        self.enter(Step::Reattach { mag: MagFit::Waiting, pressed: false }, t_s)
+        self.enter(Step::Reattach { accel: AccelFit::Nine, mag: MagFit::Waiting, pressed: false }, t_s)
     }
 
-    /// The hand-held step's fits, one a tick, each within the sensor's FIFO time (the shell
-    /// drains it between ticks): the accelerometer's 9-parameter fit at once, its 6-parameter
-    /// fit and the choice [`ACCEL_FIT_AFTER_S`] after the step ended, the magnetometer's in
-    /// parts ([`MagFit`]) from [`MAG_FIT_AFTER_S`] after it, [`SOLVE_STEP_S`] apart; once the
-    /// button was pressed ([`Self::handle_button`]) the rest a tick each, then the rig.
+    /// The hand-held step's fits in parts, one a tick, each within the sensor's FIFO time (the
+    /// shell reads it between ticks): the accelerometer's ([`AccelFit`]), then the
+    /// magnetometer's ([`MagFit`]); then, once the button was pressed ([`Self::handle_button`]),
+    /// the rig.
     pub(super) fn fit_due(&mut self, t_s: f64) {
-        let Step::Reattach { mag, pressed } = self.step else { return };
+        let Step::Reattach { accel, mag, pressed } = self.step else { return };
         if !self.one_servo() {
             return;
         }
-        match self.accel_due {
-            AccelDue::Nine => {
-                self.accel_nine = pipeline::fit_nine(&self.accel_poses);
-                self.accel_due = AccelDue::Choice;
-            }
-            AccelDue::Choice if pressed || t_s - self.phase_t0 >= ACCEL_FIT_AFTER_S => self.fit_accel_pending(),
-            AccelDue::Choice => {}
-            AccelDue::Done => match mag {
-                MagFit::Due { at_s, stage } if pressed || t_s >= at_s => self.fit_mag_step(t_s, stage),
-                MagFit::Waiting | MagFit::Done if pressed => self.begin_rig(t_s),
-                _ => {}
+        let next = match accel {
+            AccelFit::Nine => match pipeline::nine_params(&self.accel_poses, &mut self.rows) {
+                Some(p) => AccelFit::NineEnd(p),
+                None => AccelFit::Choice(None),
             },
+            AccelFit::NineEnd(p) => AccelFit::Choice(self.accel_poses.calibration9(&p, &self.rows).ok()),
+            AccelFit::Choice(nine) => return self.fit_accel_pending(nine),
+            AccelFit::Done => {
+                return match mag {
+                    MagFit::Due(stage) => self.fit_mag_step(stage),
+                    MagFit::Waiting | MagFit::Done if pressed => self.begin_rig(t_s),
+                    _ => {}
+                }
+            }
+        };
+        if let Step::Reattach { accel, .. } = &mut self.step {
+            *accel = next;
         }
     }
 
     /// The accelerometer's fit by the model [`pipeline::ModelTest`] chooses, with the
     /// 9-parameter fit made on an earlier tick: the hand-held poses then calibrated, the
     /// magnetometer due; a failure fails the calibration.
-    fn fit_accel_pending(&mut self) {
-        self.accel_due = AccelDue::Done;
-        let nine = self.accel_nine.take();
+    fn fit_accel_pending(&mut self, nine: Option<AccelCal>) {
         match self.fit_accel(nine) {
             Ok(()) => {
                 self.rotations.calibrate_poses(&self.accel_cal);
-                if let Step::Reattach { mag, .. } = &mut self.step {
-                    *mag = MagFit::Due { at_s: self.phase_t0 + MAG_FIT_AFTER_S, stage: MagStage::Start };
+                if let Step::Reattach { accel, mag, .. } = &mut self.step {
+                    (*accel, *mag) = (AccelFit::Done, MagFit::Due(MagStage::Start));
                 }
             }
             Err(e) => self.fail(e),
@@ -181,10 +182,10 @@ impl Procedure {
     }
 
     /// One part of the magnetometer's fit to the hand-held step's readings in the calibrated
-    /// accelerometer's frame ([`MagStage`]), the next [`SOLVE_STEP_S`] later; the calibration
+    /// accelerometer's frame ([`MagStage`]), the next on the next tick; the calibration
     /// reported at the end, nothing to do when none was read (no magnetometer). A failure fails
     /// the calibration.
-    fn fit_mag_step(&mut self, t_s: f64, stage: MagStage) {
+    fn fit_mag_step(&mut self, stage: MagStage) {
         let mag = &mut self.mag;
         let next = match stage {
             MagStage::Start if mag.samples() == 0 && mag.poses() == 0 => Ok(None),
@@ -211,7 +212,7 @@ impl Procedure {
             }),
         };
         let fit = match next {
-            Ok(Some(stage)) => MagFit::Due { at_s: t_s + SOLVE_STEP_S, stage },
+            Ok(Some(stage)) => MagFit::Due(stage),
             Ok(None) => MagFit::Done,
             // A disturbed pose is named by its hand-held pose number (the field is read from pose 1 on).
             Err(Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg }) => {

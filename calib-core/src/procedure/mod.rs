@@ -36,7 +36,7 @@ mod solve;
 pub use command::{Command, ErrorClass, Led, Report, Shell};
 pub use config::{Config, ServoKind, TILT_SETTINGS};
 
-use crate::estimators::accel::{AccelCal, AccelCalibrator, AccelModel};
+use crate::estimators::accel::{AccelCal, AccelCalibrator, AccelModel, Params};
 use crate::estimators::axis::Poses;
 use crate::estimators::bias::{Bias, BiasEstimator, Drift, RestBias, TempFit};
 use crate::estimators::full::{self, Axes, FullAxis, FullCal, RigPart, RotationFit, GAUSS_NEWTON_ITERATIONS};
@@ -210,26 +210,30 @@ impl Ramp {
     }
 }
 
-/// The accelerometer's fits after the hand-held step, one a tick ([`Procedure::fit_due`]).
+/// The accelerometer's fits after the hand-held step, one part a tick ([`Procedure::fit_due`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum AccelDue {
-    /// The 9-parameter fit (at the first tick).
+enum AccelFit {
+    /// The 9-parameter fit's parameters (at the first tick; [`pipeline::nine_params`], the
+    /// procedure's `rows` keep its equations).
     Nine,
-    /// The 6-parameter fit and the choice between the two ([`ACCEL_FIT_AFTER_S`] later).
-    Choice,
+    /// Its calibration from them ([`AccelCalibrator::calibration9`]).
+    NineEnd(Params),
+    /// The 6-parameter fit and the choice between the two, with the 9-parameter fit if there
+    /// is one.
+    Choice(Option<AccelCal>),
     /// None due.
     Done,
 }
 
-/// The magnetometer's fit after the hand-held step, in parts, one a call
-/// ([`Procedure::fit_due`], [`SOLVE_STEP_S`] apart): the ellipsoid's rows a batch a call
-/// ([`MAG_ROWS_PER_CALL`] points), its alignment, the calibration and its checks.
+/// The magnetometer's fit after the hand-held step, in parts, one a tick
+/// ([`Procedure::fit_due`]): the ellipsoid's rows a batch a call ([`MAG_ROWS_PER_CALL`]
+/// points), its alignment, the calibration and its checks.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum MagFit {
     /// Not yet due: the accelerometer's fit comes first.
     Waiting,
-    /// Due at `at_s` (MCU time, s), and `stage` next.
-    Due { at_s: f64, stage: MagStage },
+    /// `stage` next.
+    Due(MagStage),
     /// Made (or nothing to fit).
     Done,
 }
@@ -263,6 +267,7 @@ enum Step {
     /// Waiting for the board back on the shaft and the button (`pressed`) while the hand-held
     /// step's fits are made ([`Procedure::fit_due`]).
     Reattach {
+        accel: AccelFit,
         mag: MagFit,
         pressed: bool,
     },
@@ -300,8 +305,12 @@ enum Step {
 #[allow(clippy::large_enum_variant)] // inside `Step`, whose pose captures are larger still: no RAM lost
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum SolveStage {
-    /// The pan/tilt plan's accelerometer, fitted to its rig poses, which it then calibrates.
+    /// The pan/tilt plan's accelerometer, fitted to its rig poses, which it then calibrates,
+    /// in parts ([`AccelFit`]'s): the 9-parameter fit's parameters, its calibration, the
+    /// choice.
     PanTilt,
+    PanTiltNine(Params),
+    PanTiltAccel(Option<AccelCal>),
     /// The temperature fit over the rests, and the hand-held moves' chunks made to follow its
     /// warm-up ([`Rotations::follow_warmup`]).
     Warmup,
@@ -312,19 +321,36 @@ enum SolveStage {
     Iterate,
     /// Its rotation rows, [`ROW_CHUNKS`] chunks of moves a call (`sum` carries their sums on),
     /// and at the last batch the next iterate.
-    IterateRows { sum: RowSum },
+    IterateRows {
+        sum: RowSum,
+    },
     /// The solve at the last iterate `k` (converged, or the iterations ran out): the rig's rows
     /// (into [`Procedure::rows`]) and the axes' checks; when an iteration `failed`, its error
     /// once the checks (which name a bad geometry better) pass.
-    Solve { failed: Option<Error> },
+    Solve {
+        failed: Option<Error>,
+    },
     /// The rotation rows at `k`, [`ROW_CHUNKS`] chunks a call.
-    SolveRows { part: RigPart, sum: RowSum },
+    SolveRows {
+        part: RigPart,
+        sum: RowSum,
+    },
     /// The solution of the rows and its condition ([`full::solve_k`]); `rotation` what the
     /// rotations gave (none with the pan/tilt plan).
-    SolveK { part: RigPart, rotation: Option<RotationFit> },
+    SolveK {
+        part: RigPart,
+        rotation: Option<RotationFit>,
+    },
     /// The result: the rig's residual and the 1σ of `K` ([`Axes::solve_end`]), from the
     /// solution's parts but its covariance, which is computed again.
-    SolveEnd { part: RigPart, rotation: Option<RotationFit>, x: [f64; 9], rss: f64, dof: u32, condition: f64 },
+    SolveEnd {
+        part: RigPart,
+        rotation: Option<RotationFit>,
+        x: [f64; 9],
+        rss: f64,
+        dof: u32,
+        condition: f64,
+    },
     /// Solved (in `full`): the magnetometer's alignment refined with it; with the pan/tilt plan
     /// the sweep estimator beside it and the store.
     Store,
@@ -340,15 +366,6 @@ struct Spin {
     rate: Moments3,
     gravity: GravityTurn,
 }
-
-/// How long after the hand-held step ends (its 9-parameter accelerometer fit, ~0.2 s on the
-/// MCU) the accelerometer's 6-parameter fit and choice are made (s): by the samples' time, so
-/// that the shell has drained the sensor's FIFO in between (the next sample of the same batch
-/// would follow the first fit at once), or at the next tick once the button was pressed.
-const ACCEL_FIT_AFTER_S: f64 = 0.5;
-/// How long after the hand-held step ends the magnetometer's fit starts (s), after the
-/// accelerometer's second fit.
-const MAG_FIT_AFTER_S: f64 = 1.0;
 
 /// Least time between two steps of the solve (s): the shell reads the sensor's FIFO between
 /// them and drains what a step held back (≈ 0.14 s of samples' log rows; a USB port that is
@@ -413,9 +430,6 @@ pub struct Procedure {
     /// The magnetometer's calibration of this run (or the stored one, reused with its
     /// accelerometer's).
     mag_cal: Option<MagCal>,
-    /// The accelerometer's fits still due after the hand-held step, and the 9-parameter one made.
-    accel_due: AccelDue,
-    accel_nine: Option<AccelCal>,
     /// The hand-held pose number of the magnetometer's first pose.
     mag_first_pose: u8,
     /// The bias-free gyro turn since then (hand-held phase only).
@@ -476,8 +490,6 @@ impl Procedure {
             addr_of_mut!((*p).window_read).write(WindowReadings { temp: Moments3::new(), mag: Moments3::new() });
             addr_of_mut!((*p).mag).write(MagCalibrator::new());
             addr_of_mut!((*p).mag_cal).write(None);
-            addr_of_mut!((*p).accel_due).write(AccelDue::Done);
-            addr_of_mut!((*p).accel_nine).write(None);
             addr_of_mut!((*p).mag_first_pose).write(0);
             addr_of_mut!((*p).window_turn).write(PoseTurn::new());
             addr_of_mut!((*p).attitude).write(None);
@@ -843,8 +855,6 @@ impl Procedure {
         self.rest_temp_c = f32::NAN;
         self.window_read = WindowReadings::default();
         self.mag = MagCalibrator::new();
-        self.accel_due = AccelDue::Done;
-        self.accel_nine = None;
         self.mag_cal = self.stored.filter(|_| !self.cfg.is_pan_tilt() && self.stored_accel().is_some()).and_then(|r| r.mag);
         self.window_turn = PoseTurn::new();
         self.attitude = None;

@@ -1,7 +1,7 @@
 //! The calibration's decisions, made once: the firmware's procedure and the offline tool both
 //! call these, so that they choose, gate and reject alike.
 
-use crate::estimators::accel::{AccelCal, AccelCalibrator};
+use crate::estimators::accel::{AccelCal, AccelCalibrator, Params};
 use crate::estimators::axis::{turn_deg, GeometryLimits, Poses};
 use crate::estimators::bias::Drift;
 use crate::estimators::full::{Axes, FullCal, FullLimits};
@@ -9,6 +9,7 @@ use crate::estimators::gyro::GyroCal;
 use crate::estimators::rotation::{RotationLimits, Rotations};
 use crate::estimators::sweep::Moves;
 use crate::estimators::{paper, sweep};
+use crate::math::lsq::NormalEquations;
 use crate::math::vec3::to_f64 as v64;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
@@ -79,7 +80,15 @@ impl ModelTest {
 /// when it fails): the half of [`fit_accel_tested`] the board makes a sample before the other
 /// half ([`choose_accel`]), so that neither call outlasts the sensor's FIFO.
 pub fn fit_nine<const N: usize>(poses: &AccelCalibrator<N>) -> Option<AccelCal> {
-    (poses.len() >= NINE_PARAM_POSES).then(|| poses.solve9().ok()).flatten()
+    let mut ne = NormalEquations::new();
+    nine_params(poses, &mut ne).and_then(|p| poses.calibration9(&p, &ne).ok())
+}
+
+/// [`fit_nine`]'s first part (the board makes each in a call of its own): the parameters
+/// ([`AccelCalibrator::solve9_params`], the last iteration's equations in `ne`); `None` as
+/// [`fit_nine`]. The second is [`AccelCalibrator::calibration9`].
+pub fn nine_params<const N: usize>(poses: &AccelCalibrator<N>, ne: &mut NormalEquations<9>) -> Option<Params> {
+    (poses.len() >= NINE_PARAM_POSES).then(|| poses.solve9_params(ne).ok()).flatten()
 }
 
 /// The accelerometer fit the poses support: the 6-parameter one, or the 9-parameter one where

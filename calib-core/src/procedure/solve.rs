@@ -11,10 +11,11 @@ impl Procedure {
         self.step = Step::Solving { stage: SolveStage::PanTilt, k: None, iterations: 0, next_s: t_s };
     }
 
-    /// The pan/tilt plan's first step: the accelerometer from the rig poses and the poses
-    /// calibrated with it; the solve of the full `K` follows ([`SolveStage::Solve`]).
-    fn pan_tilt_accel(&mut self) {
-        if let Err(e) = self.fit_accel(pipeline::fit_nine(&self.accel_poses)) {
+    /// The pan/tilt plan's accelerometer from the rig poses (`nine`: its 9-parameter fit, if
+    /// made) and the poses calibrated with it; the solve of the full `K` follows
+    /// ([`SolveStage::Solve`]).
+    fn pan_tilt_accel(&mut self, nine: Option<AccelCal>) {
+        if let Err(e) = self.fit_accel(nine) {
             // Poses too little spread for the accelerometer: the rig's geometry, seen on the raw
             // poses, says what to change (an upright bracket's pan axis is vertical; coplanar
             // axes); else the fit's own error.
@@ -155,10 +156,16 @@ impl Procedure {
             SolveStage::Warmup | SolveStage::Diagonal | SolveStage::Iterate | SolveStage::IterateRows { .. } if self.cfg.is_pan_tilt() => {
                 return
             }
-            SolveStage::PanTilt if !self.cfg.is_pan_tilt() => return,
-            SolveStage::PanTilt => {
+            SolveStage::PanTilt | SolveStage::PanTiltNine(_) | SolveStage::PanTiltAccel(_) if !self.cfg.is_pan_tilt() => return,
+            SolveStage::PanTilt => Ok(Some(match pipeline::nine_params(&self.accel_poses, &mut self.rows) {
+                Some(p) => SolveStage::PanTiltNine(p),
+                None => SolveStage::PanTiltAccel(None),
+            })),
+            SolveStage::PanTiltNine(p) => Ok(Some(SolveStage::PanTiltAccel(self.accel_poses.calibration9(p, &self.rows).ok()))),
+            SolveStage::PanTiltAccel(nine) => {
+                let nine = *nine;
                 *stage = SolveStage::Solve { failed: None };
-                self.pan_tilt_accel();
+                self.pan_tilt_accel(nine);
                 return;
             }
             SolveStage::Warmup => {
