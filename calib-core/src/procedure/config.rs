@@ -210,6 +210,17 @@ impl Config {
         1 + 2 * (self.pose_count.max(2) as u16 - 1) * self.round_trips.max(1) as u16
     }
 
+    /// The servo this build drives: the `servo` field, a positional one when calib-core is
+    /// built with `positional-only` (the firmware's builds: the continuous servo's code is not
+    /// linked).
+    pub const fn servo(&self) -> ServoKind {
+        if cfg!(feature = "positional-only") {
+            ServoKind::Positional
+        } else {
+            self.servo
+        }
+    }
+
     /// The plan this build runs: [`Self::pan_tilt`], unless calib-core is built for one plan
     /// alone (features `pan-tilt-only`, which wins, or `one-servo-only`: the firmware's builds),
     /// whose code alone is then linked.

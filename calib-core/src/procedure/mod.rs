@@ -772,7 +772,7 @@ impl Procedure {
                     self.set_angle(deg);
                 }
                 if done {
-                    if let (ServoKind::Continuous { .. }, 0) = (self.cfg.servo, ramp.channel) {
+                    if let (ServoKind::Continuous { .. }, 0) = (self.cfg.servo(), ramp.channel) {
                         self.push(Command::ServoOff { channel: 0 });
                     }
                     self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };

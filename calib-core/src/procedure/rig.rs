@@ -5,7 +5,7 @@ use super::*;
 
 impl Procedure {
     pub(super) fn park_servo(&mut self) {
-        if let ServoKind::Continuous { .. } = self.cfg.servo {
+        if let ServoKind::Continuous { .. } = self.cfg.servo() {
             self.push(Command::ServoOff { channel: 0 });
         }
         self.set_angle(self.cfg.pose_first_deg);
@@ -18,7 +18,7 @@ impl Procedure {
     /// only the nominal angle (commanded speed × time) logged in the `servo_deg` column.
     pub(super) fn set_angle(&mut self, deg: f32) {
         self.servo_deg = Some(deg);
-        if let ServoKind::Positional = self.cfg.servo {
+        if let ServoKind::Positional = self.cfg.servo() {
             let pulse = self.cfg.pulse_for_deg(deg);
             if self.last_pulse != Some(pulse) {
                 self.last_pulse = Some(pulse);
@@ -31,7 +31,7 @@ impl Procedure {
     /// `rate_dps`, or a continuous servo at speed `dir` (±1) for `secs`.
     pub(super) fn start_ramp(&mut self, t_s: f64, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
         let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
-        match self.cfg.servo {
+        match self.cfg.servo() {
             ServoKind::Positional => {
                 Ramp { channel: 0, from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 }
             }
@@ -90,7 +90,7 @@ impl Procedure {
             // (about the hinge, axis id `TILT_SETTINGS`); every other step by a pan move about
             // the setting's own axis.
             let tilt_move = pan_tilt && j == 0;
-            let (channel, commanded) = match self.cfg.servo {
+            let (channel, commanded) = match self.cfg.servo() {
                 _ if tilt_move => (1, self.cfg.tilt_settings_deg[setting] - self.cfg.tilt_settings_deg[self.cfg.plan_at(k - 1).0]),
                 ServoKind::Positional => (0, self.cfg.step_deg(j) - self.cfg.step_deg(j - 1)),
                 ServoKind::Continuous { nominal_rate_dps, move_s, .. } => (0, nominal_rate_dps * move_s),
@@ -118,7 +118,7 @@ impl Procedure {
             } else {
                 // Forward over the first half of each round trip, back over the second.
                 let forward = self.cfg.pose_slot(nj) > self.cfg.pose_slot(j);
-                let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo { move_s } else { 0.0 };
+                let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo() { move_s } else { 0.0 };
                 let dir = if forward { 1.0 } else { -1.0 };
                 self.start_ramp(s.t_s, self.cfg.step_deg(nj), self.cfg.move_rate_dps, dir, move_s)
             };
@@ -140,7 +140,7 @@ impl Procedure {
         self.servo_deg = None;
         self.last_pulse = None;
         // A continuous servo's speed is unknown: the rate at which gravity turns about the axis.
-        let commanded = matches!(self.cfg.servo, ServoKind::Positional).then_some(self.cfg.spin_rate_dps);
+        let commanded = matches!(self.cfg.servo(), ServoKind::Positional).then_some(self.cfg.spin_rate_dps);
         let (omega, _) = pipeline::spin_rate(commanded, &spin.gravity);
         if spin.rate.count() > 0 {
             // The spin's bias: the last pose's rest, just before it.
