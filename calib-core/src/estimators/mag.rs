@@ -47,6 +47,8 @@ const EXCLUDE_UT: f32 = 2.0 * MIN_SPACING_UT;
 pub const MIN_SAMPLES: usize = 30;
 /// Poses the alignment needs (4 unknowns).
 pub const MIN_POSES: usize = 6;
+/// Gauss–Newton steps of [`MagCalibrator::refine`].
+pub const REFINE_STEPS: usize = 3;
 /// Directions of the sphere ([`COVERAGE_BINS`] cells) the samples must reach.
 pub const MIN_COVERAGE: f32 = 0.6;
 /// Sphere cells of the coverage figure: the faces of an icosahedron (nearest face centre).
@@ -392,10 +394,18 @@ impl MagCalibrator {
     /// (re-linearised, three steps). The rotation about the field's own direction, which the
     /// angle leaves weakest, is what the moves add. Hard and soft iron, field and residual stay.
     pub fn refine(&self, cal: &MagCal, moves: &[MagMove]) -> Result<MagCal, Error> {
+        let (rot, sol) = self.refine_steps(cal, moves, Matrix3::identity(), REFINE_STEPS)?;
+        Ok(self.refined(cal, &rot, &sol))
+    }
+
+    /// [`Self::refine`] in parts (for a caller that runs each in a call of its own): `steps`
+    /// (≥ 1) of its [`REFINE_STEPS`] from the die's rotation `rot` (the identity at first);
+    /// the rotation and the last step's fit. [`Self::refined`] is the result.
+    pub fn refine_steps(&self, cal: &MagCal, moves: &[MagMove], mut rot: Matrix3<f64>, steps: usize) -> Result<Alignment, Error> {
         let (a0, o) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut));
         let n = self.poses.len();
-        let (mut rot, mut sol) = (Matrix3::<f64>::identity(), None);
-        for _ in 0..3 {
+        let mut sol = None;
+        for _ in 0..steps {
             let a = rot * a0;
             let u = |i: usize| -> Vector3<f64> { (a * (to_f64(self.poses[i].1) - o)).normalize() };
             let mut ne = NormalEquations::<4>::new();
@@ -412,8 +422,13 @@ impl MagCalibrator {
             rot = cayley(&Vector3::new(s.x[0], s.x[1], s.x[2])) * rot;
             sol = Some(s);
         }
-        let sol = sol.ok_or(Error::MagFitFailed)?;
-        let a = rot * a0;
+        Ok((rot, sol.ok_or(Error::MagFitFailed)?))
+    }
+
+    /// [`Self::refine`]'s result: `cal` with the die's rotation `rot` and the fit `sol` of
+    /// [`Self::refine_steps`].
+    pub fn refined(&self, cal: &MagCal, rot: &Matrix3<f64>, sol: &Solution<4>) -> MagCal {
+        let a = rot * mat_to_f64(&cal.a);
         // The die's rotation: A's polar factor, A (AᵀA)^(−1/2).
         let ata = a.transpose() * a;
         let m: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| ata[(i, j)]));
@@ -421,14 +436,14 @@ impl MagCalibrator {
         let v = Matrix3::from_fn(|r, k| vecs[r][k]);
         let inv_sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| 1.0 / libm::sqrt(vals[i].max(1e-12)))) * v.transpose();
         let c = sol.x[3];
-        Ok(MagCal {
+        MagCal {
             a: core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)),
             dip_deg: asin(-c).to_degrees() as f32,
             sigma_dip_deg: (sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6))).to_degrees() as f32,
             alignment_deg: angle_of(&(a * inv_sqrt)).to_degrees() as f32,
             sigma_alignment_deg: (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max).to_degrees() as f32,
             ..*cal
-        })
+        }
     }
 
     /// The error of pose `k` when the others, fitted without it and its readings, agree.

@@ -351,9 +351,13 @@ enum SolveStage {
         dof: u32,
         condition: f64,
     },
-    /// Solved (in `full`): the magnetometer's alignment refined with it; with the pan/tilt plan
-    /// the sweep estimator beside it and the store.
+    /// Solved (in `full`): the magnetometer's alignment refined with it, its first steps; with
+    /// the pan/tilt plan the sweep estimator beside it and the store.
     Store,
+    /// The refinement's last step from the die's rotation `rot` the first ones reached.
+    RefineMag {
+        rot: Matrix3<f64>,
+    },
     /// Each move's misfit reported, the record stored.
     StoreEnd,
 }

@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
-use crate::estimators::mag::MagMove;
+use crate::estimators::mag::{MagMove, REFINE_STEPS};
 
 impl Procedure {
     /// The end of the pan/tilt plan: its steps follow on the ticks ([`Self::solve_step`]), the
@@ -221,10 +221,24 @@ impl Procedure {
                     Some(SolveStage::Store)
                 })
             }
+            // The magnetometer's refinement in two calls: its first steps, then the last.
             SolveStage::Store if !self.cfg.is_pan_tilt() => {
+                let next = match self.full.and_then(|f| self.refine_mag(&f.k, Matrix3::identity(), REFINE_STEPS - 1)) {
+                    Some((_, (rot, _))) => SolveStage::RefineMag { rot },
+                    None => SolveStage::StoreEnd,
+                };
+                if let Step::Solving { stage, .. } = &mut self.step {
+                    *stage = next;
+                }
+                return;
+            }
+            SolveStage::RefineMag { rot } => {
+                let rot = *rot;
                 *stage = SolveStage::StoreEnd;
-                if let Some(f) = self.full {
-                    self.refine_mag(&f.k);
+                if let Some((cal, (rot, sol))) = self.full.and_then(|f| self.refine_mag(&f.k, rot, 1)) {
+                    let c = self.mag.refined(&cal, &rot, &sol);
+                    self.mag_cal = Some(c);
+                    self.push(Command::Report(Report::Mag(c)));
                 }
                 return;
             }
@@ -251,15 +265,16 @@ impl Procedure {
         self.store_full(full, t_s)
     }
 
-    /// The magnetometer's alignment refined with the hand-held moves as the full `K` turns them
-    /// ([`MagCalibrator::refine`]) and reported again, when this run fitted it and every
-    /// hand-held pose from its first has its field (so that the moves' poses are its poses); else
-    /// the fit at the re-clamp stays.
-    fn refine_mag(&mut self, k: &crate::Mat3) {
-        let Some(cal) = self.mag_cal.filter(|_| self.mag.poses() > 0) else { return };
+    /// `steps` of the magnetometer's refinement ([`MagCalibrator::refine_steps`]) from the die's
+    /// rotation `rot`, with the hand-held moves as the full `K` turns them, when this run fitted
+    /// it and every hand-held pose from its first has its field (so that the moves' poses are
+    /// its poses): the fit refined and where the steps reached; `None` (the fit at the re-clamp
+    /// stays) otherwise or when a step fails.
+    fn refine_mag(&self, k: &crate::Mat3, rot: Matrix3<f64>, steps: usize) -> Option<(MagCal, Alignment)> {
+        let cal = self.mag_cal.filter(|_| self.mag.poses() > 0)?;
         let first = self.mag_first_pose;
         if self.mag.poses() + first as usize != self.accel_poses.len() {
-            return;
+            return None;
         }
         let mut moves = heapless::Vec::<MagMove, MAX_ROTATION_MOVES>::new();
         for m in self.rotations.moves() {
@@ -269,10 +284,7 @@ impl Procedure {
                 let _ = moves.push(MagMove { from, to, r });
             }
         }
-        if let Ok(c) = self.mag.refine(&cal, &moves) {
-            self.mag_cal = Some(c);
-            self.push(Command::Report(Report::Mag(c)));
-        }
+        self.mag.refine_steps(&cal, &moves, rot, steps).ok().map(|a| (cal, a))
     }
 
     /// Hands a built record to the shell to store (or fails: a NaN or an infinite number).
