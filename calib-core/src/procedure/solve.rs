@@ -153,7 +153,13 @@ impl Procedure {
         // bad geometry better, and is the solve's otherwise.
         let step: Result<Option<SolveStage>, Error> = match stage {
             // Each plan's own stages (a firmware built for one plan links the other's not).
-            SolveStage::Warmup | SolveStage::Diagonal | SolveStage::Iterate | SolveStage::IterateRows { .. } if self.cfg.is_pan_tilt() => {
+            SolveStage::Warmup
+            | SolveStage::Diagonal
+            | SolveStage::Iterate
+            | SolveStage::IterateRows { .. }
+            | SolveStage::RefineMag { .. }
+                if self.cfg.is_pan_tilt() =>
+            {
                 return
             }
             SolveStage::PanTilt | SolveStage::PanTiltNine(_) | SolveStage::PanTiltAccel(_) if !self.cfg.is_pan_tilt() => return,
