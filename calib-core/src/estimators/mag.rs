@@ -340,7 +340,7 @@ impl MagCalibrator {
         let dip = asin(-c);
         let sigma_dip = sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6));
         let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max);
-        let angle = angle_of(&r);
+        let angle = angle_of(r);
         // Per pose: field strength and dip against the fit's.
         if let Err(e) = self.check_poses(&a, &o, field, dip, None, limits) {
             // A magnet near one pose pulls the ellipsoid and the alignment towards it, so that

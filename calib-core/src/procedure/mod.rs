@@ -228,6 +228,7 @@ enum AccelFit {
 /// The magnetometer's fit after the hand-held step, in parts, one a tick
 /// ([`Procedure::fit_due`]): the ellipsoid's rows a batch a call ([`MAG_ROWS_PER_CALL`]
 /// points), its alignment, the calibration and its checks.
+#[allow(clippy::large_enum_variant)] // inside `Step::Reattach`, smaller than `Step::Solving`: no RAM lost
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum MagFit {
     /// Not yet due: the accelerometer's fit comes first.
@@ -238,6 +239,7 @@ enum MagFit {
     Done,
 }
 
+#[allow(clippy::large_enum_variant)] // as `MagFit`
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum MagStage {
     /// The poses into the calibrated accelerometer's frame, the points' centre.
