@@ -632,8 +632,12 @@ fn main() -> ! {
         let pressed = button.update(now, button_pin.is_low().unwrap_or(false));
         take_commands(now, pressed, &p.POWER, procedure, &mut io, &mut sensing);
         procedure.drive(now, &mut io);
-        procedure.handle_tick(now);
-        procedure.drive(now, &mut io);
+        // A long sample call (a pose's end, ~20 ms) and a tick's step (≤ 30 ms) together would
+        // outlast the 952 Hz FIFO's 34 ms: after one, the tick waits for the next loop's read.
+        if clock.now_s() - now < FIFO_POLL_S {
+            procedure.handle_tick(now);
+            procedure.drive(now, &mut io);
+        }
         io.flush_servos(clock.now_us());
 
         let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());

@@ -141,6 +141,50 @@ impl Moments3 {
     }
 }
 
+/// Running mean of a scalar (a temperature, °C) from the exact sum of [`Moments3`]'s fixed point:
+/// `Σq` in an `i64`, so that a merge equals the sequential sum bit for bit. A non-finite value
+/// poisons the mean (NaN).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Mean {
+    n: u32,
+    poisoned: bool,
+    s1: i64,
+}
+
+impl Mean {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self { n: 0, poisoned: false, s1: 0 }
+    }
+
+    /// Adds one value.
+    pub fn add(&mut self, x: f32) {
+        self.n += 1;
+        self.poisoned |= !x.is_finite();
+        self.s1 += fixed(x) as i64;
+    }
+
+    /// Adds all values summarised by `other`.
+    pub fn merge(&mut self, other: &Mean) {
+        self.n += other.n;
+        self.poisoned |= other.poisoned;
+        self.s1 += other.s1;
+    }
+
+    /// Number of values added.
+    pub fn count(&self) -> u32 {
+        self.n
+    }
+
+    /// The mean (NaN if a non-finite value was added, 0 when empty), rounded once to f32.
+    pub fn mean(&self) -> f32 {
+        if self.poisoned {
+            return f32::NAN;
+        }
+        (self.s1 as f64 / (self.n.max(1) as f64 * SCALE as f64)) as f32
+    }
+}
+
 /// Running mean, standard deviation and range of a scalar: the spread of the dot-product
 /// invariant in the quality report.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -190,6 +234,26 @@ impl Spread {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mean_is_moments3_first_mean() {
+        let xs = [21.5f32, 21.75, 22.0625, -3.0, 1e-3];
+        let (mut m, mut v) = (Mean::new(), Moments3::new());
+        xs.iter().for_each(|&x| {
+            m.add(x);
+            v.add([x, 0.0, 0.0]);
+        });
+        assert_eq!(m.count(), 5);
+        assert_eq!(m.mean(), v.mean()[0] as f32);
+        let (mut a, mut b) = (Mean::new(), Mean::new());
+        xs[..2].iter().for_each(|&x| a.add(x));
+        xs[2..].iter().for_each(|&x| b.add(x));
+        a.merge(&b);
+        assert_eq!(a, m);
+        m.add(f32::NAN);
+        assert!(m.mean().is_nan());
+        assert_eq!(Mean::new().mean(), 0.0);
+    }
 
     #[test]
     fn moments_match_two_pass() {

@@ -104,7 +104,7 @@ impl Procedure {
             return;
         }
         // The accelerometer's fits and the magnetometer's follow on the ticks (`fit_due`).
-        self.enter(Step::Reattach { accel: AccelFit::Nine, mag: MagFit::Waiting, pressed: false }, t_s)
+        self.enter(Step::Reattach { accel: AccelFit::Nine, mag: MagFit::Due(MagStage::Start), pressed: false }, t_s)
     }
 
     /// The hand-held step's fits in parts, one a tick, each within the sensor's FIFO time (the
@@ -126,7 +126,7 @@ impl Procedure {
             AccelFit::Done => {
                 return match mag {
                     MagFit::Due(stage) => self.fit_mag_step(stage),
-                    MagFit::Waiting | MagFit::Done if pressed => self.begin_rig(t_s),
+                    MagFit::Done if pressed => self.begin_rig(t_s),
                     _ => {}
                 }
             }
@@ -143,8 +143,8 @@ impl Procedure {
         match self.fit_accel(nine) {
             Ok(()) => {
                 self.rotations.calibrate_poses(&self.accel_cal);
-                if let Step::Reattach { accel, mag, .. } = &mut self.step {
-                    (*accel, *mag) = (AccelFit::Done, MagFit::Due(MagStage::Start));
+                if let Step::Reattach { accel, .. } = &mut self.step {
+                    *accel = AccelFit::Done;
                 }
             }
             Err(e) => self.fail(e),

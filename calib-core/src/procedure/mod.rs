@@ -48,7 +48,7 @@ use crate::estimators::sweep;
 use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
 use crate::math::lsq::NormalEquations;
-use crate::math::stats::Moments3;
+use crate::math::stats::{Mean, Moments3};
 use crate::math::vec3::{sub, to_f64 as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
 use crate::{Error, Vec3};
@@ -125,8 +125,8 @@ impl Phase {
 struct Capture {
     accel: Moments3,
     gyro: Moments3,
-    /// Temperature (°C, first component) of the samples of its windows that had one.
-    temp: Moments3,
+    /// Temperature (°C) of the samples of its windows that had one.
+    temp: Mean,
     /// Magnetometer readings (raw, µT) during its windows.
     mag: Moments3,
     /// The bias-free gyro turn over its windows (hand-held poses: the sway inside the pose).
@@ -139,8 +139,8 @@ struct Capture {
 /// What the shell read beside the IMU's samples since the rest detector's last window closed.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct WindowReadings {
-    /// Temperatures (°C, first component).
-    temp: Moments3,
+    /// Temperatures (°C).
+    temp: Mean,
     /// Magnetometer readings (raw, µT).
     mag: Moments3,
 }
@@ -186,7 +186,7 @@ impl Capture {
     /// Its mean temperature (°C; NaN when none was read).
     fn temp_c(&self) -> f32 {
         if self.temp.count() > 0 {
-            self.temp.mean()[0] as f32
+            self.temp.mean()
         } else {
             f32::NAN
         }
@@ -200,13 +200,13 @@ struct Ramp {
     from_deg: f32,
     to_deg: f32,
     t0: f64,
-    duration_s: f64,
+    duration_s: f32,
 }
 
 impl Ramp {
     fn at(&self, t: f64) -> (f32, bool) {
-        let x = if self.duration_s > 0.0 { ((t - self.t0) / self.duration_s).clamp(0.0, 1.0) } else { 1.0 };
-        (self.from_deg + (self.to_deg - self.from_deg) * x as f32, x >= 1.0)
+        let x = if self.duration_s > 0.0 { ((t - self.t0) as f32 / self.duration_s).clamp(0.0, 1.0) } else { 1.0 };
+        (self.from_deg + (self.to_deg - self.from_deg) * x, x >= 1.0)
     }
 }
 
@@ -231,9 +231,7 @@ enum AccelFit {
 #[allow(clippy::large_enum_variant)] // inside `Step::Reattach`, smaller than `Step::Solving`: no RAM lost
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum MagFit {
-    /// Not yet due: the accelerometer's fit comes first.
-    Waiting,
-    /// `stage` next.
+    /// `stage` next (consulted once the accelerometer's fit is done).
     Due(MagStage),
     /// Made (or nothing to fit).
     Done,
@@ -446,7 +444,7 @@ pub struct Procedure {
     /// sample saturated or turned more than 0.25 rad from the last (a gap).
     attitude: Option<Matrix3<f32>>,
     gbar: Option<(Vec3, f32)>,
-    temp: Moments3,
+    temp: Mean,
     /// A command did not fit in the queue during this call ([`Self::settle`]).
     overflow: bool,
 }
@@ -493,14 +491,14 @@ impl Procedure {
             addr_of_mut!((*p).drift).write(Drift::new());
             addr_of_mut!((*p).temp_fit).write(TempFit::new());
             addr_of_mut!((*p).rest_temp_c).write(f32::NAN);
-            addr_of_mut!((*p).window_read).write(WindowReadings { temp: Moments3::new(), mag: Moments3::new() });
+            addr_of_mut!((*p).window_read).write(WindowReadings { temp: Mean::new(), mag: Moments3::new() });
             addr_of_mut!((*p).mag).write(MagCalibrator::new());
             addr_of_mut!((*p).mag_cal).write(None);
             addr_of_mut!((*p).mag_first_pose).write(0);
             addr_of_mut!((*p).window_turn).write(PoseTurn::new());
             addr_of_mut!((*p).attitude).write(None);
             addr_of_mut!((*p).gbar).write(None);
-            addr_of_mut!((*p).temp).write(Moments3::new());
+            addr_of_mut!((*p).temp).write(Mean::new());
             addr_of_mut!((*p).overflow).write(false);
             out.assume_init_mut()
         }
@@ -696,41 +694,42 @@ impl Procedure {
         if !finite {
             return self.fail(Error::NonFinite);
         }
-        if let Some(last) = self.last_sample_t {
-            if !(s.t_s > last) {
-                return; // duplicate or out-of-order timestamp: dropped
-            }
+        let last = self.last_sample_t;
+        if last.is_some_and(|last| !(s.t_s > last)) {
+            return; // duplicate or out-of-order timestamp: dropped
         }
-        let dt = self.last_sample_t.map_or(0.0, |last| s.t_s - last);
         self.last_sample_t = Some(s.t_s);
         let gyro_saturated = s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
         let saturated = gyro_saturated || s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g);
         self.tainted |= saturated;
         // The window's temperatures join the calibration's as the window closes.
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
-            self.window_read.temp.add([t, 0.0, 0.0]);
+            self.window_read.temp.add(t);
         }
         let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
         let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
         let hand = matches!(self.step, Step::HandHeld { .. }) && self.one_servo();
-        if hand {
-            self.window_turn.add(s.t_s, dt, g);
+        if hand || self.attitude.is_some() {
+            let dt = last.map_or(0.0, |last| s.t_s - last);
+            if hand {
+                self.window_turn.add(s.t_s, dt, g);
+            }
+            if let Some(a) = self.attitude.filter(|_| self.one_servo()) {
+                // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the
+                // samples): lost. (A knock that clips only the accelerometer turns nothing unseen.)
+                let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
+                self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp(&phi));
+            }
         }
-        if let Some(a) = self.attitude.filter(|_| self.one_servo()) {
-            // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the samples):
-            // lost. (A knock that clips only the accelerometer turns nothing unseen.)
-            let phi = Vector3::from(g).map(|v| v.to_radians() * dt as f32);
-            self.attitude = (!gyro_saturated && phi.norm_squared() <= 0.0625).then(|| a * rotation::exp(&phi));
-        }
-        let (wt, turn) = if window.is_some() {
+        // A closed window with what was read during it (taken only then: the captures and the
+        // readings are hundreds of bytes, not copied a sample).
+        let closed = window.map(|w| {
             self.tainted = false;
             let wt = core::mem::take(&mut self.window_read);
             self.temp.merge(&wt.temp);
-            (wt, core::mem::take(&mut self.window_turn))
-        } else {
-            (WindowReadings::default(), PoseTurn::new())
-        };
+            (w, wt, core::mem::take(&mut self.window_turn))
+        });
         match self.step {
             Step::Idle | Step::Finished(_) | Step::Reattach { .. } | Step::Solving { .. } | Step::Storing { .. } => {}
             Step::WaitRest => {
@@ -742,27 +741,31 @@ impl Procedure {
                     }
                 }
             }
-            Step::Bias { mut capture } => {
-                if let Some(w) = window {
-                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.bias_s) {
-                        CaptureStep::Pending => self.step = Step::Bias { capture },
-                        CaptureStep::Disturbed => self.retake(0, capture, |c| Step::Bias { capture: c }),
-                        CaptureStep::Done => self.finish_bias(&capture, s.t_s),
+            Step::Bias { ref mut capture } => {
+                if let Some((w, wt, turn)) = &closed {
+                    match capture.feed(w, wt, turn, tainted, self.cfg.bias_s) {
+                        CaptureStep::Pending => {}
+                        CaptureStep::Disturbed => {
+                            let c = *capture;
+                            self.retake(0, c, |c| Step::Bias { capture: c })
+                        }
+                        CaptureStep::Done => {
+                            let c = *capture;
+                            self.finish_bias(&c, s.t_s)
+                        }
                     }
                 }
             }
             Step::HandHeld { .. } if !hand => {}
-            Step::HandHeld { mut capture } => {
+            Step::HandHeld { ref mut capture } => {
                 self.rotations.add(s.t_s, g, saturated);
-                if let Some(w) = window {
-                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.hand_pose_s) {
-                        CaptureStep::Done => {
-                            self.finish_accel_pose(&capture, s.t_s);
-                            // The next move starts at this sample (its first interval is the next).
-                            self.rotations.add(s.t_s, g, saturated);
-                        }
-                        // A disturbed hand-held pose is simply taken again: the user is moving it.
-                        CaptureStep::Pending | CaptureStep::Disturbed => self.step = Step::HandHeld { capture },
+                if let Some((w, wt, turn)) = &closed {
+                    // A disturbed hand-held pose is simply taken again: the user is moving it.
+                    if let CaptureStep::Done = capture.feed(w, wt, turn, tainted, self.cfg.hand_pose_s) {
+                        let c = *capture;
+                        self.finish_accel_pose(&c, s.t_s);
+                        // The next move starts at this sample (its first interval is the next).
+                        self.rotations.add(s.t_s, g, saturated);
                     }
                 }
             }
@@ -784,39 +787,48 @@ impl Procedure {
                     self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
                 }
             }
-            Step::Pose { k, mut capture, since } => {
+            Step::Pose { k, ref mut capture, since } => {
                 if saturated {
                     // The shaft may still be settling: a clipped sample corrupts the move's integral.
                     return self.fail(Error::Saturated);
                 }
                 self.integ.add(s.t_s, g);
-                if let Some(w) = window {
-                    match capture.feed(&w, &wt, &turn, tainted, self.cfg.pose_average_s) {
-                        CaptureStep::Pending => self.step = Step::Pose { k, capture, since },
-                        CaptureStep::Disturbed => self.retake(k.min(255) as u8, capture, |c| Step::Pose { k, capture: c, since }),
-                        CaptureStep::Done => self.finish_pose(k, &capture, s),
+                if let Some((w, wt, turn)) = &closed {
+                    match capture.feed(w, wt, turn, tainted, self.cfg.pose_average_s) {
+                        CaptureStep::Pending => {}
+                        CaptureStep::Disturbed => {
+                            let c = *capture;
+                            self.retake(k.min(255) as u8, c, |c| Step::Pose { k, capture: c, since })
+                        }
+                        CaptureStep::Done => {
+                            let c = *capture;
+                            self.finish_pose(k, &c, s)
+                        }
                     }
                 }
             }
-            Step::Spin { mut spin } => {
+            Step::Spin { ref mut spin } => {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
                 let elapsed = s.t_s - spin.ramp.t0;
-                let duration = spin.ramp.duration_s;
-                self.set_angle(spin.ramp.at(s.t_s).0);
+                let duration = spin.ramp.duration_s as f64;
+                let deg = spin.ramp.at(s.t_s).0;
                 if self.cfg.steady.averaged(elapsed, duration) {
                     spin.rate.add(g);
-                    spin.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
+                    // The rate gravity turns at is a continuous servo's (a positional one's is
+                    // commanded).
+                    if let ServoKind::Continuous { .. } = self.cfg.servo() {
+                        spin.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
+                    }
                 }
-                if elapsed >= duration {
+                let done = (elapsed >= duration).then_some(*spin);
+                self.set_angle(deg);
+                if let Some(spin) = done {
                     self.finish_spin(&spin, s.t_s);
-                } else {
-                    self.step = Step::Spin { spin };
                 }
             }
         }
-        self.check_timeout(s.t_s);
     }
 
     /// The one-servo plan (hand-held step, the stepped solve): the pan/tilt plan has neither,
@@ -865,7 +877,7 @@ impl Procedure {
         self.window_turn = PoseTurn::new();
         self.attitude = None;
         self.gbar = None;
-        self.temp = Moments3::new();
+        self.temp = Mean::new();
         if let Some(acc) = self.stored_accel() {
             self.accel_cal = acc;
         }
@@ -917,9 +929,9 @@ impl Procedure {
             Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
             Step::HandHeld { .. } => (self.phase_t0, c.handheld_timeout_s),
             Step::Reattach { .. } => (self.phase_t0, c.reattach_timeout_s),
-            Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s as f32 + c.rest_timeout_s),
+            Step::Move { ramp, .. } => (ramp.t0, ramp.duration_s + c.rest_timeout_s),
             Step::Pose { since, .. } => (since, c.rest_timeout_s + c.pose_average_s),
-            Step::Spin { spin } => (spin.ramp.t0, spin.ramp.duration_s as f32 + c.rest_timeout_s),
+            Step::Spin { spin } => (spin.ramp.t0, spin.ramp.duration_s + c.rest_timeout_s),
             // Steps every call: nothing to wait for.
             Step::Solving { .. } => return,
             Step::Storing { .. } => (self.phase_t0, STORE_TIMEOUT_S),

@@ -33,12 +33,12 @@ impl Procedure {
         let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
         match self.cfg.servo() {
             ServoKind::Positional => {
-                Ramp { channel: 0, from_deg, to_deg, t0: t_s, duration_s: ((to_deg - from_deg).abs() / rate_dps.max(1.0)) as f64 }
+                Ramp { channel: 0, from_deg, to_deg, t0: t_s, duration_s: (to_deg - from_deg).abs() / rate_dps.max(1.0) }
             }
             ServoKind::Continuous { neutral_us, span_us, speed, nominal_rate_dps, .. } => {
                 let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
                 self.push(Command::Servo { channel: 0, pulse_us: pulse });
-                Ramp { channel: 0, from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs as f64 }
+                Ramp { channel: 0, from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs }
             }
         }
     }
@@ -113,7 +113,7 @@ impl Procedure {
             let (next_setting, nj) = self.cfg.plan_at(next);
             let ramp = if pan_tilt && nj == 0 {
                 let (from_deg, to_deg) = (self.cfg.tilt_settings_deg[setting], self.cfg.tilt_settings_deg[next_setting]);
-                let duration_s = ((to_deg - from_deg).abs() / self.cfg.move_rate_dps.max(1.0)) as f64;
+                let duration_s = (to_deg - from_deg).abs() / self.cfg.move_rate_dps.max(1.0);
                 Ramp { channel: 1, from_deg, to_deg, t0: s.t_s, duration_s }
             } else {
                 // Forward over the first half of each round trip, back over the second.
@@ -127,7 +127,10 @@ impl Procedure {
             self.solve_full(s.t_s);
         } else if self.cfg.spin_rate_dps > 0.0 {
             let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.spin_rate_dps, 1.0, self.cfg.spin_s);
-            let axis = self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u);
+            // The axis gravity turns about: a continuous servo's rate (a positional one's is
+            // commanded).
+            let continuous = matches!(self.cfg.servo(), ServoKind::Continuous { .. });
+            let axis = self.poses.geometry(&self.cfg.geometry, false).ok().filter(|_| continuous).map(|g| g.u);
             let spin = Spin { ramp, rate: Moments3::new(), gravity: GravityTurn::new(axis) };
             self.enter(Step::Spin { spin }, s.t_s);
         } else {

@@ -332,7 +332,7 @@ impl Procedure {
     fn temp_c(&self) -> Option<f32> {
         let mut temp = self.temp;
         temp.merge(&self.window_read.temp);
-        (temp.count() > 0).then(|| temp.mean()[0] as f32)
+        (temp.count() > 0).then(|| temp.mean())
     }
 
     /// The gyro bias a record made at MCU time `t_s` holds, with its 1σ: the rests' at the

@@ -55,9 +55,9 @@ impl Firmware {
                 stack_top = Some(sym.address());
             } else if name.contains("Procedure") && sym.size() > 0 {
                 let a = sym.address() & !1;
-                if name.contains("handle_sample") {
+                if names(name, "handle_sample") {
                     handle_sample = Some((a, a + sym.size()));
-                } else if name.contains("handle_tick") {
+                } else if names(name, "handle_tick") {
                     handle_tick = Some((a, a + sym.size()));
                 }
             }
@@ -138,4 +138,11 @@ mod tests {
         assert_eq!(demangle("_RNvNtNtCs7NhdfSRABLd_17compiler_builtins5float3add8___adddf3"), "compiler_builtins::float::add::__adddf3");
         assert_eq!(demangle("__aeabi_dsub"), "__aeabi_dsub");
     }
+}
+
+/// Whether symbol `name` (mangled or not) names the function `ident` itself: `ident` not
+/// followed by more of an identifier (`handle_sample`, not `handle_samples_lost`; a mangled
+/// name's hash length digits may follow).
+fn names(name: &str, ident: &str) -> bool {
+    name.match_indices(ident).any(|(i, _)| !name[i + ident.len()..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_'))
 }

@@ -12,6 +12,9 @@
 //! `--rev2` (with any of the modes below): the same firmware on a Nano 33 BLE Rev2, its BMI270 at
 //! 0x68 (Bosch's configuration upload, the FIFO in header mode); `board=rev2`.
 //!
+//! `--odr952`: the `odr952` firmware, the LSM9DS1's gyro and accelerometer at 952 Hz (8× the
+//! samples through the same procedure; issue 50's per-sample budget holds there too).
+//!
 //! `--raw-log OUT.csv`: the firmware's raw-log mode (a long press before the calibration, another
 //! after it) and the message text of every line from the header on written to OUT.csv, exactly
 //! what `probe-rs run --log-format "{s}" > OUT.csv` would write; `calib OUT.csv` calibrates it.
@@ -74,6 +77,9 @@ struct Args {
     /// A Nano 33 BLE Rev2 (BMI270 at 0x68) instead of a Rev1 (LSM9DS1): the same firmware.
     #[arg(long)]
     rev2: bool,
+    /// The `odr952` firmware: the LSM9DS1 at 952 Hz (the rig's sensor model follows it).
+    #[arg(long, conflicts_with = "rev2")]
+    odr952: bool,
     /// Where the demo writes its files (`--usb`: the raw log `demo-usb.csv`); default
     /// `target/demo` in the workspace.
     #[arg(long, value_name = "DIR")]
@@ -86,7 +92,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, rev2, out, profile } = Args::parse_from(calib::cli_args());
+    let Args { seed, quiet, no_probe, raw_log, tilt, usb, touch, rev2, odr952, out, profile } = Args::parse_from(calib::cli_args());
     let (board, board_name) = if rev2 { (Board::Rev2, "rev2") } else { (Board::Rev1, "rev1") };
     let out = out.unwrap_or_else(|| calib::firmware::target_dir().join("demo"));
     if let Err(e) = std::fs::create_dir_all(&out) {
@@ -94,9 +100,10 @@ fn main() -> ExitCode {
         return ExitCode::from(2);
     }
 
-    let features: &[&str] = if tilt { &["tilt-servo"] } else { &[] };
-    println!("[demo] building the firmware (cargo build --release{})", if tilt { " --features tilt-servo" } else { "" });
-    let elf = match build_firmware(features) {
+    let features: Vec<&str> = [(tilt, "tilt-servo"), (odr952, "odr952")].into_iter().filter(|f| f.0).map(|f| f.1).collect();
+    let shown = if features.is_empty() { String::new() } else { format!(" --features {}", features.join(",")) };
+    println!("[demo] building the firmware (cargo build --release{shown})");
+    let elf = match build_firmware(&features) {
         Ok(e) => e,
         Err(e) => {
             eprintln!("[demo] {e}");
