@@ -30,7 +30,7 @@ use embedded_hal::digital::InputPin;
 use gyrocal_fw::bmi270::{self, Bmi270};
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
-use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, SensorConfig, SensorError, FIFO_DEPTH};
+use gyrocal_fw::lsm9ds1::{Lsm9ds1, Odr, RawSample, SensorConfig, SensorError, FIFO_DEPTH};
 use gyrocal_fw::serial::{self, Command};
 use gyrocal_fw::stamp::Stamper;
 use gyrocal_fw::storage::{Storage, StoreError};
@@ -283,29 +283,46 @@ impl Sensing {
         let Some(s) = self.sensor.as_mut() else { return };
         let mag_ut = self.mag.poll(s.bus_mut(), false, now, clock, &mut io.console);
         let (stamper, raw, live, setup) = (&mut self.stamper, self.raw, &mut self.live, self.config.setup());
-        let result = s.fifo_status().and_then(|st| {
-            let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
-            let batch = stamper.batch(t_read, n);
-            // An overrun, flagged or seen by the samples' count (a slot read after it, e.g. past
-            // a long call inside the last batch, clears the flag: `Batch::late`).
-            if st.overrun || batch.late(t_read, n) {
-                io.console.send(Log::Warn, "FIFO overrun: samples lost");
-                stamper.restart();
-                // At least one sample overwritten: a running calibration fails (named).
-                procedure.handle_samples_lost(1);
-                procedure.drive(now, io);
+        // Read until less than a quarter of it is left (at most 3 batches): the slots that arrive
+        // while a batch is read (a quarter of a period each at 400 kHz) or during a long sample
+        // call in it (a pose's end, ~20 ms) would otherwise wait a poll period, and the tick's
+        // step after them (≤ 30 ms) overrun the 952 Hz FIFO's 34 ms.
+        let mut result = Ok(0);
+        for round in 0..3 {
+            let mag_ut = mag_ut.filter(|_| round == 0);
+            result = s.fifo_status().and_then(|st| {
+                let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
+                let batch = stamper.batch(t_read, n);
+                // An overrun, flagged or seen by the samples' count (a slot read after it, e.g. past
+                // a long call inside the last batch, clears the flag: `Batch::late`).
+                if st.overrun || batch.late(t_read, n) {
+                    io.console.send(Log::Warn, "FIFO overrun: samples lost");
+                    stamper.restart();
+                    // At least one sample overwritten: a running calibration fails (named).
+                    procedure.handle_samples_lost(1);
+                    procedure.drive(now, io);
+                }
+                // One reading per batch; a failed one leaves the samples without it.
+                let temp_c = s.temperature_c().ok();
+                // The batch read whole before the procedure sees it: a long call on one of its
+                // samples (a pose's end) must not be followed by slot reads, which would clear
+                // an overrun flag the next status read is to find.
+                let mut slots = [RawSample::default(); FIFO_DEPTH as usize];
+                for slot in &mut slots[..n] {
+                    *slot = s.read_slot()?;
+                }
+                for (i, raw_slot) in slots[..n].iter().enumerate() {
+                    let (accel_g, gyro_dps) = s.convert(raw_slot);
+                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                    // A new field reading goes with the batch's newest sample (read just before).
+                    feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, live, procedure, io);
+                }
+                Ok(n)
+            });
+            if !matches!(result, Ok(n) if n >= FIFO_DEPTH as usize / 4) {
+                break;
             }
-            // One reading per batch; a failed one leaves the samples without it.
-            let temp_c = s.temperature_c().ok();
-            for i in 0..n {
-                let raw_slot = s.read_slot()?;
-                let (accel_g, gyro_dps) = s.convert(&raw_slot);
-                let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
-                // A new field reading goes with the batch's newest sample (read just before).
-                feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, live, procedure, io);
-            }
-            Ok(())
-        });
+        }
         if let Err(e) = result {
             io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
             procedure.handle_sensor_fault();
@@ -632,12 +649,8 @@ fn main() -> ! {
         let pressed = button.update(now, button_pin.is_low().unwrap_or(false));
         take_commands(now, pressed, &p.POWER, procedure, &mut io, &mut sensing);
         procedure.drive(now, &mut io);
-        // A long sample call (a pose's end, ~20 ms) and a tick's step (≤ 30 ms) together would
-        // outlast the 952 Hz FIFO's 34 ms: after one, the tick waits for the next loop's read.
-        if clock.now_s() - now < FIFO_POLL_S {
-            procedure.handle_tick(now);
-            procedure.drive(now, &mut io);
-        }
+        procedure.handle_tick(now);
+        procedure.drive(now, &mut io);
         io.flush_servos(clock.now_us());
 
         let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());

@@ -92,6 +92,8 @@ pub struct Lsm9ds1Model {
     produced: usize,
     sw_resets: usize,
     dropped: usize,
+    /// Overruns: runs of drops, each from a FIFO that was not flagged overrun yet.
+    overruns: usize,
     history: Vec<([f32; 3], [f32; 3])>,
     /// The part does not answer before this time (booting).
     busy_until: f64,
@@ -141,6 +143,7 @@ impl Lsm9ds1Model {
             produced: 0,
             sw_resets: 0,
             dropped: 0,
+            overruns: 0,
             history: Vec::new(),
             busy_until: 0.0,
             powered: true,
@@ -268,6 +271,12 @@ impl Lsm9ds1Model {
         (self.produced, self.dropped)
     }
 
+    /// Overruns since configuration: runs of lost samples, each ended by a slot read (which
+    /// clears the flag, FIFO_SRC's OVRN).
+    pub fn overruns(&self) -> usize {
+        self.overruns
+    }
+
     /// The rig readings (accel g, gyro °/s) of every sample produced, in order.
     pub fn history(&self) -> &[([f32; 3], [f32; 3])] {
         &self.history
@@ -373,6 +382,7 @@ impl Lsm9ds1Model {
             if fifo_on {
                 if self.fifo.len() == FIFO_DEPTH as usize {
                     self.fifo.pop_front();
+                    self.overruns += usize::from(!self.overrun);
                     self.overrun = true;
                     self.dropped += 1;
                 }
