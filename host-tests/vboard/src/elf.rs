@@ -128,9 +128,16 @@ fn physical_address(elf: &[u8], offset: u64) -> Option<u64> {
     })
 }
 
+/// Whether symbol `name` (mangled or not) names the function `ident` itself: `ident` not
+/// followed by more of an identifier (`handle_sample`, not `handle_samples_lost`; a mangled
+/// name's hash length digits may follow).
+fn names(name: &str, ident: &str) -> bool {
+    name.match_indices(ident).any(|(i, _)| !name[i + ident.len()..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_'))
+}
+
 #[cfg(test)]
 mod tests {
-    use super::demangle;
+    use super::{demangle, names};
 
     #[test]
     fn names_read_as_paths() {
@@ -138,11 +145,12 @@ mod tests {
         assert_eq!(demangle("_RNvNtNtCs7NhdfSRABLd_17compiler_builtins5float3add8___adddf3"), "compiler_builtins::float::add::__adddf3");
         assert_eq!(demangle("__aeabi_dsub"), "__aeabi_dsub");
     }
-}
 
-/// Whether symbol `name` (mangled or not) names the function `ident` itself: `ident` not
-/// followed by more of an identifier (`handle_sample`, not `handle_samples_lost`; a mangled
-/// name's hash length digits may follow).
-fn names(name: &str, ident: &str) -> bool {
-    name.match_indices(ident).any(|(i, _)| !name[i + ident.len()..].starts_with(|c: char| c.is_ascii_alphabetic() || c == '_'))
+    #[test]
+    fn a_function_is_named_by_its_whole_identifier() {
+        let mangled = "_ZN10calib_core9procedure9Procedure13handle_sample17h5f86772b79c39b4bE";
+        assert!(names(mangled, "handle_sample"));
+        assert!(!names("_ZN10calib_core9procedure9Procedure19handle_samples_lost17hb21a3cc4d776929aE", "handle_sample"));
+        assert!(names("calib_core::procedure::Procedure::handle_tick", "handle_tick"));
+    }
 }
