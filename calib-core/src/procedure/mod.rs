@@ -380,7 +380,7 @@ pub const SOLVE_STEP_S: f64 = 0.25;
 const STORE_TIMEOUT_S: f32 = 5.0;
 /// Chunks of hand-held moves whose rotation rows one call of the solve adds
 /// ([`SolveStage::IterateRows`]): ≈ 7 k instructions a chunk on the MCU, with a move's own rows.
-const ROW_CHUNKS: usize = 160;
+const ROW_CHUNKS: usize = 120;
 /// Most calls of the one-servo solve ([`SolveStage`]): the warm-up, the diagonal estimators,
 /// every Gauss–Newton iteration's rig rows and row batches, the solve's four parts with its
 /// batches, the magnetometer's refinement and the store. A batch ends past [`ROW_CHUNKS`]: one
