@@ -293,8 +293,8 @@ impl Sensing {
             result = s.fifo_status().and_then(|st| {
                 let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
                 let batch = stamper.batch(t_read, n);
-                // An overrun, flagged or seen by the samples' count (a slot read after it, e.g. past
-                // a long call inside the last batch, clears the flag: `Batch::late`).
+                // An overrun, flagged or seen by the samples' count (`Batch::late`: a slot read
+                // after it clears the flag).
                 if st.overrun || batch.late(t_read, n) {
                     io.console.send(Log::Warn, "FIFO overrun: samples lost");
                     stamper.restart();

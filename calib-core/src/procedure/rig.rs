@@ -130,7 +130,7 @@ impl Procedure {
             // The axis gravity turns about: a continuous servo's rate (a positional one's is
             // commanded).
             let continuous = matches!(self.cfg.servo(), ServoKind::Continuous { .. });
-            let axis = self.poses.geometry(&self.cfg.geometry, false).ok().filter(|_| continuous).map(|g| g.u);
+            let axis = continuous.then(|| self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u)).flatten();
             let spin = Spin { ramp, rate: Moments3::new(), gravity: GravityTurn::new(axis) };
             self.enter(Step::Spin { spin }, s.t_s);
         } else {
