@@ -2,7 +2,8 @@
 //! the configuration file upload, the sensor configuration and its checks, as Bosch's
 //! BMI270_SensorAPI does them (v2.86.1; every step and its source: `docs/rev2-sources.md`).
 //!
-//! The configuration file [`CONFIG`] is Bosch's `bmi270_config_file[]`, under this licence:
+//! The configuration file [`CONFIG`] is Bosch's `bmi270_maximum_fifo_config_file[]`, under this
+//! licence:
 //!
 //! Copyright (c) 2023 Bosch Sensortec GmbH. All rights reserved. BSD-3-Clause.
 //! Redistribution and use in source and binary forms, with or without modification, are
@@ -31,9 +32,27 @@ use embedded_hal::i2c::I2c;
 pub const ADDR: u8 = 0x68;
 /// CHIP_ID of a BMI270.
 pub const CHIP_ID: u8 = 0x24;
-/// Bosch's configuration file (8192 bytes; SHA-256 2d75e68e…178db, `docs/rev2-sources.md`), from
-/// the `bmi2` crate, which ships it as `BMI270_CONFIG_FILE` (rig-sim's tests pin the hash).
-pub static CONFIG: &[u8; 8192] = &bmi2::config::BMI270_CONFIG_FILE;
+/// Bosch's "maximum FIFO" configuration file (`bmi270_maximum_fifo.c`, v2.86.1; 328 bytes,
+/// SHA-256 e17bf316…83ffe, pinned by rig-sim's tests; `docs/rev2-sources.md`): the accelerometer,
+/// gyro and a 6 KB FIFO, none of the 8 KiB file's features (which this firmware does not use).
+/// GYR_CAS is then at [`reg::GYR_CAS`].
+pub static CONFIG: [u8; 328] = [
+    0xc8, 0x2e, 0x00, 0x2e, 0x80, 0x2e, 0x1a, 0x00, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e,
+    0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0x90, 0x32, 0x21, 0x2e, 0x59, 0xf5, 0x10, 0x30, 0x21, 0x2e, 0x6a, 0xf5,
+    0x1a, 0x24, 0x22, 0x00, 0x80, 0x2e, 0x3b, 0x00, 0xc8, 0x2e, 0x44, 0x47, 0x22, 0x00, 0x37, 0x00, 0xa4, 0x00, 0xff, 0x0f, 0xd1, 0x00,
+    0x07, 0xad, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1,
+    0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e,
+    0x00, 0xc1, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x11, 0x24, 0xfc, 0xf5, 0x80, 0x30, 0x40, 0x42, 0x50, 0x50, 0x00, 0x30, 0x12, 0x24,
+    0xeb, 0x00, 0x03, 0x30, 0x00, 0x2e, 0xc1, 0x86, 0x5a, 0x0e, 0xfb, 0x2f, 0x21, 0x2e, 0xfc, 0xf5, 0x13, 0x24, 0x63, 0xf5, 0xe0, 0x3c,
+    0x48, 0x00, 0x22, 0x30, 0xf7, 0x80, 0xc2, 0x42, 0xe1, 0x7f, 0x3a, 0x25, 0xfc, 0x86, 0xf0, 0x7f, 0x41, 0x33, 0x98, 0x2e, 0xc2, 0xc4,
+    0xd6, 0x6f, 0xf1, 0x30, 0xf1, 0x08, 0xc4, 0x6f, 0x11, 0x24, 0xff, 0x03, 0x12, 0x24, 0x00, 0xfc, 0x61, 0x09, 0xa2, 0x08, 0x36, 0xbe,
+    0x2a, 0xb9, 0x13, 0x24, 0x38, 0x00, 0x64, 0xbb, 0xd1, 0xbe, 0x94, 0x0a, 0x71, 0x08, 0xd5, 0x42, 0x21, 0xbd, 0x91, 0xbc, 0xd2, 0x42,
+    0xc1, 0x42, 0x00, 0xb2, 0xfe, 0x82, 0x05, 0x2f, 0x50, 0x30, 0x21, 0x2e, 0x21, 0xf2, 0x00, 0x2e, 0x00, 0x2e, 0xd0, 0x2e, 0xf0, 0x6f,
+    0x02, 0x30, 0x02, 0x42, 0x20, 0x26, 0xe0, 0x6f, 0x02, 0x31, 0x03, 0x40, 0x9a, 0x0a, 0x02, 0x42, 0xf0, 0x37, 0x05, 0x2e, 0x5e, 0xf7,
+    0x10, 0x08, 0x12, 0x24, 0x1e, 0xf2, 0x80, 0x42, 0x83, 0x84, 0xf1, 0x7f, 0x0a, 0x25, 0x13, 0x30, 0x83, 0x42, 0x3b, 0x82, 0xf0, 0x6f,
+    0x00, 0x2e, 0x00, 0x2e, 0xd0, 0x2e, 0x12, 0x40, 0x52, 0x42, 0x00, 0x2e, 0x12, 0x40, 0x52, 0x42, 0x3e, 0x84, 0x00, 0x40, 0x40, 0x42,
+    0x7e, 0x82, 0xe1, 0x7f, 0xf2, 0x7f, 0x98, 0x2e, 0x6a, 0xd6, 0x21, 0x30, 0x23, 0x2e, 0x61, 0xf5, 0xeb, 0x2c, 0xe1, 0x6f,
+];
 
 /// Register addresses (Bosch's `bmi2_defs.h`; the two RANGE registers and ERR_REG as Zephyr
 /// names them).
@@ -48,10 +67,9 @@ pub mod reg {
     pub const EVENT: u8 = 0x1B;
     /// INTERNAL_STATUS: bits 3:0 the initialisation's message.
     pub const INTERNAL_STATUS: u8 = 0x21;
-    /// FEAT_PAGE: the feature page the 16-byte window at FEATURES shows.
-    pub const FEAT_PAGE: u8 = 0x2F;
-    /// FEATURES: a 16-byte window on the selected feature page (page 0 offset 0x0C: GYR_CAS).
-    pub const FEATURES: u8 = 0x30;
+    /// GYR_CAS with the maximum-FIFO configuration (Bosch's `BMI2_GYR_CAS_GPIO0_ADDR`; the
+    /// step counter's SC_OUT_0 with the full one).
+    pub const GYR_CAS: u8 = 0x1E;
     /// GYR_OFF_COMP_6: bit 7 the gyro user gain (GYR_USR_GAIN 0x78–0x7A) is applied.
     pub const GYR_OFF_COMP_6: u8 = 0x77;
     /// FIFO_LENGTH_0 (byte count bits 7:0); FIFO_LENGTH_1 (bits 13:8) follows.
@@ -107,8 +125,7 @@ pub const APS_GAP_US: u32 = 900;
 pub const UPLOAD_CHUNK: usize = 32;
 /// After a register write with power save off, before the next access (µs): Bosch's API waits
 /// 2 (`BMI2_NORMAL_MODE_DELAY_IN_US`, Zephyr the same), Zephyr's upload 1000 after each chunk;
-/// five times Bosch's keeps back-to-back TWIM transfers (a few µs apart) off the limit and
-/// costs 5 ms over the upload's 512 writes.
+/// five times Bosch's keeps back-to-back TWIM transfers (a few µs apart) off the limit.
 pub const WRITE_GAP_US: u32 = 10;
 /// Bosch reads INTERNAL_STATUS once, 20 ms after INIT_CTRL = 1 (an older API waited 140 ms):
 /// polled every [`STATUS_POLL_MS`] up to this (ms).
@@ -135,7 +152,9 @@ pub const FRAME_SENSORTIME: u8 = 0x44;
 pub const FRAME_CONFIG: u8 = 0x48;
 /// FIFO header: read past the data.
 pub const FRAME_OVER_READ: u8 = 0x80;
-/// The FIFO's size (bytes): a read takes all of it, so that no frame is ever cut.
+/// Bytes a FIFO read takes at most (the part's FIFO holds 6 KB with [`CONFIG`]): more waiting
+/// are read by the next read (a frame the burst cuts is repeated whole, [`parse_fifo`]); at
+/// 100 Hz this is 1.5 s of frames, and no call into the procedure is a tenth of it.
 pub const FIFO_BYTES: usize = 2048;
 /// What a FIFO read takes beyond FIFO_LENGTH: a frame that arrives during the burst (13 bytes)
 /// and the sensortime frame (4), which the part sends only once a burst has read the FIFO empty
@@ -320,10 +339,8 @@ impl core::fmt::Display for Bmi270Error {
     }
 }
 
-/// Offset of GYR_CAS in feature page 0 (Bosch's `BMI270_GYRO_CROSS_SENSE_STRT_ADDR`).
-const GYR_CAS_OFFSET: usize = 0x0C;
-
-/// GYR_CAS from its feature byte: 7-bit two's complement (Bosch's `get_gyro_cross_sense`).
+/// GYR_CAS from its byte: 7-bit two's complement, bit 7 not part of it (Bosch's
+/// `get_gyro_cross_sense`).
 pub const fn gyr_cas(byte: u8) -> i8 {
     let v = byte & 0x7F;
     if v & 0x40 != 0 {
@@ -500,13 +517,9 @@ impl<I: I2c> Bmi270<I> {
         if status != INIT_OK {
             return Err(Bmi270Error::Init(status));
         }
-        // GYR_CAS from feature page 0 (a 16-byte window read as Bosch's bmi2_get_feat_config),
-        // and whether the user gain is on: the raw data's terms the record states.
-        self.write(reg::FEAT_PAGE, &[0])?;
-        delay.delay_us(WRITE_GAP_US);
-        let mut page = [0u8; 16];
-        self.read(reg::FEATURES, &mut page)?;
-        self.gyr_cas = gyr_cas(page[GYR_CAS_OFFSET]);
+        // GYR_CAS (as Bosch's API reads it after this configuration's load) and whether the
+        // user gain is on: the raw data's terms the record states.
+        self.gyr_cas = gyr_cas(self.read1(reg::GYR_CAS)?);
         self.user_gain = self.read1(reg::GYR_OFF_COMP_6)? & 0x80 != 0;
         let c = self.cfg;
         for (r, v) in

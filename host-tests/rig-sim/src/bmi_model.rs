@@ -8,14 +8,16 @@
 //!   write ([`WRITE_GAP_S`]) is lost the same way.
 //! - The configuration upload: INIT_DATA (0x5E, the address does not increment) takes a burst at
 //!   the word address in INIT_ADDR_0/1, only while INIT_CTRL = 0 and power save is off. INIT_CTRL
-//!   = 1 starts the initialisation: 15 ms later INTERNAL_STATUS reads 0x01 if the 8192 bytes are
-//!   Bosch's configuration file, else 0x02 (init error); 0x00 until then.
+//!   = 1 starts the initialisation: 15 ms later INTERNAL_STATUS reads 0x01 if the bytes uploaded
+//!   since the reset are one of Bosch's BMI270 configuration files ([`Loaded`]: the full 8192
+//!   bytes, or the 328 of the maximum-FIFO one), else 0x02 (init error); 0x00 until then.
 //! - ACC_CONF/GYR_CONF checked once initialised: an ODR or bandwidth the part does not have sets
 //!   EVENT's error code (1 accelerometer, 2 gyro, 3 both).
 //! - The data registers hold the latest sample handed in ([`Bmi270Model::set_sample`]: the
 //!   rig's, by the board model that owns the rig) in counts at the configured full scales while
 //!   PWR_CTRL enables that sensor (0 otherwise).
-//! - The FIFO (2048 bytes) in header mode (FIFO_CONFIG_1 bit 4) with the sensors its acc_en and
+//! - The FIFO (2048 bytes with the full configuration, 6144 with the maximum-FIFO one: Bosch's
+//!   README, "supports a 6kB FIFO") in header mode (FIFO_CONFIG_1 bit 4) with the sensors its acc_en and
 //!   gyr_en bits (6, 7) take: each sample enters as a 0x8C frame (gyro then accelerometer, 6
 //!   bytes each) while both produce, as 0x84 (accelerometer, 6 bytes) or 0x88 (gyro) while only
 //!   one does (`bmi2_defs.h` headers and payload lengths). The gyro produces nothing for
@@ -39,9 +41,11 @@
 //!   read the FIFO empty gets one sensortime frame (0x44 and the count when it starts), then 0x80
 //!   (Bosch's FIFO over-read rule, as the BMA400 datasheet states it; a burst that stops at
 //!   FIFO_LENGTH gets none).
-//! - The feature pages (FEAT_PAGE 0x2F selects one, 0x30–0x3F is its 16-byte window, read in one
-//!   burst as Bosch's `bmi2_get_feat_config` does): page 0 offset 0x0C holds GYR_CAS (7-bit two's
-//!   complement) once the configuration is loaded (0 before). The part's raw data are the rig's
+//! - GYR_CAS (7-bit two's complement), where the loaded configuration puts it (0 before): with
+//!   the full one on the feature pages (FEAT_PAGE 0x2F selects one, 0x30–0x3F is its 16-byte
+//!   window, read in one burst as Bosch's `bmi2_get_feat_config` does), page 0 offset 0x0C;
+//!   with the maximum-FIFO one, which has no feature pages, in 0x1E (`BMI2_GYR_CAS_GPIO0_ADDR`,
+//!   Bosch's `get_gyro_cross_sense`; the full one's step counter SC_OUT_0 there reads 0). The part's raw data are the rig's
 //!   readings; a rig made for it (`RigConfig::on_bmi270`) has the raw z→x coupling GYR_CAS/512
 //!   on top of its cross-axis draw, as the part whose factory trim GYR_CAS measures it.
 //! - TEMPERATURE_0/1 (0x22/0x23): int16 little-endian, °C = raw / 512 + 23 (Bosch's
@@ -63,9 +67,40 @@
 use crate::lsm_model::{bus_time_s, BusError};
 use embedded_hal::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
-/// Bosch's configuration file the part needs (the `bmi2` crate's copy; its SHA-256 is checked
-/// against Bosch's source in the tests).
+/// Bosch's full configuration file (`bmi270_config_file[]`, the `bmi2` crate's copy; its SHA-256
+/// is checked against Bosch's source in the tests).
 pub static BOSCH_CONFIG: &[u8; 8192] = &bmi2::config::BMI270_CONFIG_FILE;
+
+/// Bosch's maximum-FIFO configuration file (`bmi270_maximum_fifo_config_file[]`, BMI270_SensorAPI
+/// v2.86.1, BSD-3-Clause: Copyright (c) 2023 Bosch Sensortec GmbH, the licence in the firmware's
+/// `src/bmi270.rs`), typed here from Bosch's source, not taken from the firmware's copy; its
+/// SHA-256 is pinned in the tests.
+pub static BOSCH_MAX_FIFO_CONFIG: [u8; 328] = [
+    0xc8, 0x2e, 0x00, 0x2e, 0x80, 0x2e, 0x1a, 0x00, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e,
+    0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0xc8, 0x2e, 0x00, 0x2e, 0x90, 0x32, 0x21, 0x2e, 0x59, 0xf5, 0x10, 0x30, 0x21, 0x2e, 0x6a, 0xf5,
+    0x1a, 0x24, 0x22, 0x00, 0x80, 0x2e, 0x3b, 0x00, 0xc8, 0x2e, 0x44, 0x47, 0x22, 0x00, 0x37, 0x00, 0xa4, 0x00, 0xff, 0x0f, 0xd1, 0x00,
+    0x07, 0xad, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1,
+    0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e, 0x00, 0xc1, 0x80, 0x2e,
+    0x00, 0xc1, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x11, 0x24, 0xfc, 0xf5, 0x80, 0x30, 0x40, 0x42, 0x50, 0x50, 0x00, 0x30, 0x12, 0x24,
+    0xeb, 0x00, 0x03, 0x30, 0x00, 0x2e, 0xc1, 0x86, 0x5a, 0x0e, 0xfb, 0x2f, 0x21, 0x2e, 0xfc, 0xf5, 0x13, 0x24, 0x63, 0xf5, 0xe0, 0x3c,
+    0x48, 0x00, 0x22, 0x30, 0xf7, 0x80, 0xc2, 0x42, 0xe1, 0x7f, 0x3a, 0x25, 0xfc, 0x86, 0xf0, 0x7f, 0x41, 0x33, 0x98, 0x2e, 0xc2, 0xc4,
+    0xd6, 0x6f, 0xf1, 0x30, 0xf1, 0x08, 0xc4, 0x6f, 0x11, 0x24, 0xff, 0x03, 0x12, 0x24, 0x00, 0xfc, 0x61, 0x09, 0xa2, 0x08, 0x36, 0xbe,
+    0x2a, 0xb9, 0x13, 0x24, 0x38, 0x00, 0x64, 0xbb, 0xd1, 0xbe, 0x94, 0x0a, 0x71, 0x08, 0xd5, 0x42, 0x21, 0xbd, 0x91, 0xbc, 0xd2, 0x42,
+    0xc1, 0x42, 0x00, 0xb2, 0xfe, 0x82, 0x05, 0x2f, 0x50, 0x30, 0x21, 0x2e, 0x21, 0xf2, 0x00, 0x2e, 0x00, 0x2e, 0xd0, 0x2e, 0xf0, 0x6f,
+    0x02, 0x30, 0x02, 0x42, 0x20, 0x26, 0xe0, 0x6f, 0x02, 0x31, 0x03, 0x40, 0x9a, 0x0a, 0x02, 0x42, 0xf0, 0x37, 0x05, 0x2e, 0x5e, 0xf7,
+    0x10, 0x08, 0x12, 0x24, 0x1e, 0xf2, 0x80, 0x42, 0x83, 0x84, 0xf1, 0x7f, 0x0a, 0x25, 0x13, 0x30, 0x83, 0x42, 0x3b, 0x82, 0xf0, 0x6f,
+    0x00, 0x2e, 0x00, 0x2e, 0xd0, 0x2e, 0x12, 0x40, 0x52, 0x42, 0x00, 0x2e, 0x12, 0x40, 0x52, 0x42, 0x3e, 0x84, 0x00, 0x40, 0x40, 0x42,
+    0x7e, 0x82, 0xe1, 0x7f, 0xf2, 0x7f, 0x98, 0x2e, 0x6a, 0xd6, 0x21, 0x30, 0x23, 0x2e, 0x61, 0xf5, 0xeb, 0x2c, 0xe1, 0x6f,
+];
+
+/// The configuration file the part runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Loaded {
+    /// [`BOSCH_CONFIG`]: the features, a 2 KB FIFO.
+    Full,
+    /// [`BOSCH_MAX_FIFO_CONFIG`]: no features, a 6 KB FIFO.
+    MaxFifo,
+}
 
 /// I2C address.
 pub const ADDR: u8 = 0x68;
@@ -89,6 +124,7 @@ const CHIP_ID: u8 = 0x00;
 const ACC_X_LSB: u8 = 0x0C;
 const EVENT: u8 = 0x1B;
 const INTERNAL_STATUS: u8 = 0x21;
+const GPIO0: u8 = 0x1E;
 const FEAT_PAGE: u8 = 0x2F;
 const FEATURES: u8 = 0x30;
 const ACC_CONF: u8 = 0x40;
@@ -109,8 +145,10 @@ const FIFO_DOWNS: u8 = 0x45;
 const FIFO_CONFIG_1: u8 = 0x49;
 const SENSORTIME_0: u8 = 0x18;
 const TEMPERATURE_0: u8 = 0x22;
-/// FIFO size (bytes).
+/// FIFO size with [`Loaded::Full`] (bytes).
 pub const FIFO_BYTES: usize = 2048;
+/// FIFO size with [`Loaded::MaxFifo`] (bytes).
+pub const MAX_FIFO_BYTES: usize = 6144;
 
 /// The BMI270.
 #[derive(Clone)]
@@ -122,6 +160,8 @@ pub struct Bmi270Model {
     skipped: usize,
     regs: [u8; 0x80],
     upload: Vec<u8>,
+    /// Bytes of the upload area written since the reset (its highest offset + 1).
+    uploaded: usize,
     now_s: f64,
     /// The part does not answer before this time (s).
     away_until: f64,
@@ -141,7 +181,7 @@ pub struct Bmi270Model {
     /// Each transaction advances true time by its bus time at this rate (Hz), if set (a model
     /// that owns the clock; the board model advances it itself).
     pub bus_hz: Option<f64>,
-    /// The part's GYR_CAS (−64..63), reported on feature page 0.
+    /// The part's GYR_CAS (−64..63), reported where the loaded configuration puts it.
     pub gyr_cas: i8,
     /// Samples produced since power-on, the true time of the last one and the interval before it
     /// (s): the sensortime clock.
@@ -185,6 +225,7 @@ impl Bmi270Model {
             skipped: 0,
             regs: [0; 0x80],
             upload: vec![0; 8192],
+            uploaded: 0,
             now_s,
             away_until: 0.0,
             last_access_s: f64::NEG_INFINITY,
@@ -230,6 +271,7 @@ impl Bmi270Model {
         self.regs[0x77] = if self.user_gain_after_reset { 0x80 } else { 0 };
         self.regs[FIFO_DOWNS as usize] = self.fifo_downs_after_reset;
         self.upload.fill(0);
+        self.uploaded = 0;
         self.init_started = None;
         self.fifo.clear();
         self.skipped = 0;
@@ -316,7 +358,7 @@ impl Bmi270Model {
                 break;
             }
             let Some((_, frame)) = self.landing.pop_front() else { break };
-            while self.fifo.len() + frame.len() > FIFO_BYTES {
+            while self.fifo.len() + frame.len() > self.fifo_bytes() {
                 self.drop_oldest_frame();
                 self.skipped += 1;
             }
@@ -405,12 +447,33 @@ impl Bmi270Model {
     }
 
     fn initialised(&self) -> bool {
-        self.status() == 1
+        self.loaded().is_some()
+    }
+
+    /// The configuration the part runs: the initialisation has ended, on one of Bosch's files.
+    pub fn loaded(&self) -> Option<Loaded> {
+        match self.init_started {
+            Some(t) if self.now_s >= t + INIT_S => match &self.upload[..self.uploaded] {
+                u if u == BOSCH_CONFIG.as_slice() => Some(Loaded::Full),
+                u if u == BOSCH_MAX_FIFO_CONFIG.as_slice() => Some(Loaded::MaxFifo),
+                _ => None,
+            },
+            _ => None,
+        }
+    }
+
+    /// The FIFO's size (bytes) with the loaded configuration.
+    fn fifo_bytes(&self) -> usize {
+        if self.loaded() == Some(Loaded::MaxFifo) {
+            MAX_FIFO_BYTES
+        } else {
+            FIFO_BYTES
+        }
     }
 
     fn status(&self) -> u8 {
         match self.init_started {
-            Some(t) if self.now_s >= t + INIT_S => u8::from(self.upload.as_slice() != BOSCH_CONFIG.as_slice()) + 1,
+            Some(t) if self.now_s >= t + INIT_S => 2 - u8::from(self.initialised()),
             _ => 0,
         }
     }
@@ -435,9 +498,11 @@ impl Bmi270Model {
             SENSORTIME_0..=0x1A => self.sensortime().to_le_bytes()[(r - SENSORTIME_0) as usize],
             TEMPERATURE_0 | 0x23 => self.temperature_raw().to_le_bytes()[(r - TEMPERATURE_0) as usize],
             EVENT => self.config_error() << 2,
-            // Feature page 0, offset 0x0C: GYR_CAS, 7 bits.
-            0x3C if self.regs[FEAT_PAGE as usize] == 0 && self.initialised() => self.gyr_cas as u8 & 0x7F,
+            // GYR_CAS, 7 bits: feature page 0 offset 0x0C, or GPIO0 without feature pages.
+            0x3C if self.regs[FEAT_PAGE as usize] == 0 && self.loaded() == Some(Loaded::Full) => self.gyr_cas as u8 & 0x7F,
             FEATURES..=0x3F => 0,
+            GPIO0 if self.loaded() == Some(Loaded::MaxFifo) => self.gyr_cas as u8 & 0x7F,
+            GPIO0 => 0,
             ACC_X_LSB..=0x17 => {
                 let s = self.last;
                 let (dps, g) = (
@@ -467,6 +532,7 @@ impl Bmi270Model {
                     let at = 2 * word + k;
                     if let Some(slot) = self.upload.get_mut(at) {
                         *slot = if self.flip_upload_byte == Some(at) { b ^ 1 } else { b };
+                        self.uploaded = self.uploaded.max(at + 1);
                     }
                 }
             }

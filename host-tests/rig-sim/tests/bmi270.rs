@@ -4,7 +4,7 @@
 
 use calib_core::formats::record::{Sensor, SensorSetup};
 use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
-use rig_sim::bmi_model::{Bmi270Model, BOSCH_CONFIG, GYR_START_S};
+use rig_sim::bmi_model::{Bmi270Model, Loaded, BOSCH_CONFIG, BOSCH_MAX_FIFO_CONFIG, GYR_START_S};
 use sha2::{Digest, Sha256};
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -45,11 +45,57 @@ fn bus() -> Bus {
 }
 
 #[test]
-fn the_configuration_file_is_boschs() {
-    // SHA-256 of `bmi270_config_file[]` in BMI270_SensorAPI's bmi270.c (v2.86.1, docs/rev2-sources.md).
-    let hash: String = Sha256::digest(CONFIG).iter().map(|b| format!("{b:02x}")).collect();
-    assert_eq!(hash, "2d75e68e343a13ff99be98261dfbd99d9e8c6f267da9e3c5aeb883276ad178db");
-    assert_eq!(CONFIG.as_slice(), BOSCH_CONFIG.as_slice());
+fn the_configuration_files_are_boschs() {
+    // SHA-256 of BMI270_SensorAPI's (v2.86.1, docs/rev2-sources.md) `bmi270_config_file[]`
+    // (bmi270.c) and `bmi270_maximum_fifo_config_file[]` (bmi270_maximum_fifo.c): the model's
+    // two, and the firmware's copy of the second.
+    let hash = |b: &[u8]| -> String { Sha256::digest(b).iter().map(|b| format!("{b:02x}")).collect() };
+    assert_eq!(hash(BOSCH_CONFIG), "2d75e68e343a13ff99be98261dfbd99d9e8c6f267da9e3c5aeb883276ad178db");
+    assert_eq!(hash(&BOSCH_MAX_FIFO_CONFIG), "e17bf316de8139afa8f9b27cd3520845c7809fb418cdd3f8439dcdcdea683ffe");
+    assert_eq!(hash(&CONFIG), hash(&BOSCH_MAX_FIFO_CONFIG));
+}
+
+/// The model runs either of Bosch's files, each with its own GYR_CAS place and FIFO size, and
+/// nothing else: a firmware reading GYR_CAS where its configuration does not put it reads 0.
+#[test]
+fn the_model_runs_boschs_two_configurations_and_puts_gyr_cas_where_each_does() {
+    use embedded_hal::i2c::I2c;
+    for (file, loaded) in
+        [(&BOSCH_CONFIG[..], Some(Loaded::Full)), (&BOSCH_MAX_FIFO_CONFIG[..], Some(Loaded::MaxFifo)), (&BOSCH_CONFIG[..328], None)]
+    {
+        let b = bus();
+        let mut m = b.0.borrow_mut();
+        // Each access 1 ms after the previous one's end (the power-save gap is 450 µs).
+        let put = |m: &mut Bmi270Model, bytes: &[u8]| {
+            let t = m.now_s() + 0.001;
+            m.advance_to(t);
+            m.write(bmi270::ADDR, bytes).unwrap();
+        };
+        put(&mut m, &[bmi270::reg::PWR_CONF, 0]);
+        put(&mut m, &[bmi270::reg::INIT_CTRL, 0]);
+        for (i, chunk) in file.chunks(64).enumerate() {
+            let word = (i * 32) as u16;
+            put(&mut m, &[bmi270::reg::INIT_ADDR_0, (word & 0x0F) as u8, (word >> 4) as u8]);
+            put(&mut m, &[[bmi270::reg::INIT_DATA].as_slice(), chunk].concat());
+        }
+        put(&mut m, &[bmi270::reg::INIT_CTRL, 1]);
+        let t = m.now_s() + 0.02;
+        m.advance_to(t);
+        assert_eq!(m.loaded(), loaded);
+        let mut status = [0u8];
+        m.write_read(bmi270::ADDR, &[bmi270::reg::INTERNAL_STATUS], &mut status).unwrap();
+        assert_eq!(status[0], if loaded.is_some() { 1 } else { 2 });
+        let (mut page, mut gpio0) = ([0u8; 16], [0u8]);
+        m.write_read(bmi270::ADDR, &[0x30], &mut page).unwrap();
+        m.write_read(bmi270::ADDR, &[bmi270::reg::GYR_CAS], &mut gpio0).unwrap();
+        let cas = rig_sim::bmi_model::GYR_CAS as u8 & 0x7F;
+        let want = match loaded {
+            Some(Loaded::Full) => (cas, 0),
+            Some(Loaded::MaxFifo) => (0, cas),
+            None => (0, 0),
+        };
+        assert_eq!((page[0x0C], gpio0[0]), want, "{loaded:?}");
+    }
 }
 
 #[test]
@@ -59,9 +105,11 @@ fn the_driver_brings_the_bmi270_up_as_boschs_api_does_and_reads_the_rig() {
     {
         let m = b.0.borrow();
         assert_eq!((m.resets, m.lost_accesses), (1, 0), "one soft reset; no access inside a power-save gap");
-        // Mostly the 8 KiB upload at 400 kHz (9 bit times a byte: 184 ms), well inside the 2 s watchdog.
+        // The 328-byte upload at 400 kHz (9 bit times a byte: 7.4 ms), the soft reset's and the
+        // initialisation's waits (2 + 15 ms, the latter polled every 5 ms) and the power-save
+        // gaps: well inside the 2 s watchdog (the 8 KiB file took 240 ms).
         println!("init took {:.1} ms of model time", m.now_s() * 1e3);
-        assert!(m.now_s() > 0.184 && m.now_s() < 0.3);
+        assert!(m.now_s() > 0.0074 + 0.002 + 0.015 && m.now_s() < 0.06);
     }
     // In counts at ±2 g and ±500 °/s, back in g and °/s.
     let (accel, gyro) = s.read_sample().unwrap();
@@ -74,7 +122,7 @@ fn the_driver_brings_the_bmi270_up_as_boschs_api_does_and_reads_the_rig() {
 }
 
 #[test]
-fn gyr_cas_is_read_from_feature_page_0_as_seven_bit_twos_complement() {
+fn gyr_cas_is_read_from_gpio0_as_seven_bit_twos_complement() {
     assert_eq!([bmi270::gyr_cas(0x3F), bmi270::gyr_cas(0x40), bmi270::gyr_cas(0x7F), bmi270::gyr_cas(0xC1)], [63, -64, -1, -63]);
     for (cas, gain) in [(-64, true), (63, false), (0, true)] {
         let b = bus();
@@ -106,7 +154,7 @@ fn what_the_part_rejects_the_driver_names() {
     }
     // A byte of the upload disturbed on the bus: INTERNAL_STATUS says init error (2).
     let b = bus();
-    b.0.borrow_mut().flip_upload_byte = Some(4000);
+    b.0.borrow_mut().flip_upload_byte = Some(200);
     let e = Bmi270::init(b.clone(), Config::DEFAULT, &mut ModelDelay(b.clone(), 1.0)).err().map(|e| e.0);
     assert_eq!(e, Some(Bmi270Error::Init(2)));
     // A full scale the part does not have: refused before any transfer.
@@ -181,12 +229,13 @@ fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     assert!(got.iter().enumerate().all(|(k, (a, g))| *a == [0.0, 0.0, 1.0] && (g[0] - k as f32).abs() < 0.01), "{got:?}");
     // Empty: nothing (the over-read header ends the data).
     assert_eq!(s.read_fifo(|_, _| {}).unwrap(), bmi270::FifoRead::default());
-    // 2 KiB hold 157 frames: 200 samples lose 43, said by a skip frame at the head.
-    for k in 0..200 {
+    // 6 KB hold 472 frames: 600 samples lose 128, said by a skip frame at the head. A read
+    // takes at most FIFO_BYTES (158 frames and the skip frame), the next ones the rest.
+    for k in 0..600 {
         b.0.borrow_mut().set_sample(t0 + 0.03 + 0.01 * k as f64, [0.0, 0.0, 1.0], [0.0; 3]);
     }
-    let r = s.read_fifo(|_, _| {}).unwrap();
-    assert_eq!((r.samples, r.lost), (157, 43));
+    let reads: Vec<_> = (0..4).map(|_| s.read_fifo(|_, _| {}).map(|r| (r.samples, r.lost)).unwrap()).collect();
+    assert_eq!(reads, [(158, 128), (158, 0), (156, 0), (0, 0)]);
     // The parser on its own: tag bits ignored, a sensortime frame read, a cut frame left for the
     // next burst (issue 32 point 3: it was counted lost).
     let mut bytes = vec![0x44, 1, 2, 3, 0x8D];
