@@ -8,7 +8,7 @@ use common::calib;
 use rig_sim::sim::{Rig, RigConfig};
 use rig_sim::variant::Variant;
 
-mod common;
+use crate::common;
 
 /// The simulator's gyro random walk here (°/s/√s).
 const GYRO_RW: f64 = 5e-4;

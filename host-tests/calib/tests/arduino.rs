@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 
-mod common;
+use crate::common;
 
 const LIB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../calib-core/arduino/GyroCal");
 const ARDUINO_LSM9DS1: [f32; 4] = [119.0, 2000.0, 4.0, 0.0];

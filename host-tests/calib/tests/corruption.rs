@@ -19,7 +19,7 @@ use calib_core::procedure::Phase;
 use common::calib;
 use std::path::{Path, PathBuf};
 
-mod common;
+use crate::common;
 
 /// A session as a log, with the options it calibrates with.
 struct Session {

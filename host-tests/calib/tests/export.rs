@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-mod common;
+use crate::common;
 
 /// A simulated log and calib's result on it, shared by the tests.
 fn calibrated() -> &'static (String, offline::Calibration) {

@@ -9,7 +9,7 @@ use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::{Rig, RigConfig, ServoModel};
 use rig_sim::variant::Variant;
 
-mod common;
+use crate::common;
 
 fn errors(k: [[f32; 3]; 3], truth: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|i| k[i][i] as f64 / truth[i] - 1.0)

@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-mod common;
+use crate::common;
 
 /// Two simulated runs of the default procedure on one rig, shared by the tests: the first from
 /// an empty flash, the second from the record the first stored.

@@ -12,7 +12,7 @@ use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
 
-mod common;
+use crate::common;
 
 /// The SVG rendered to RGBA pixels (width, pixels).
 fn render(svg: &str) -> (usize, Vec<[u8; 4]>) {

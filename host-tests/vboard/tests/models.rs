@@ -2,7 +2,7 @@
 //! register level (no firmware), and the emulated CPU on a few hand-assembled instructions: fast,
 //! and each one fails if the model loses its strictness.
 
-mod common;
+use crate::common;
 
 use common::{periph, r, w, wait, Ram};
 use embedded_hal::i2c::{I2c, Operation};

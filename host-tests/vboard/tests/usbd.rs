@@ -2,7 +2,7 @@
 //! register-level driver written here (what nrf-usbd + usb-device + usbd-serial do, reduced to
 //! the requests the host sends): no firmware, fast.
 
-mod common;
+use crate::common;
 
 use common::{periph, r, w, wait, Ram};
 use rig_sim::lsm_model::Board;
