@@ -63,6 +63,8 @@ pub const CTRL8_SW_RESET: u8 = 1 << 0;
 pub const CTRL9_FIFO_EN: u8 = 1 << 1;
 /// FIFO_CTRL continuous mode (FMODE = 110): the newest 32 slots, oldest overwritten.
 pub const FIFO_MODE_CONTINUOUS: u8 = 0b110 << 5;
+/// FIFO_CTRL: bypass mode (FMODE 000: the FIFO off and empty).
+pub const FIFO_MODE_BYPASS: u8 = 0;
 /// FIFO_SRC overrun flag.
 pub const FIFO_SRC_OVRN: u8 = 1 << 6;
 
@@ -436,6 +438,21 @@ impl<I: I2c> Lsm9ds1<I> {
         let mut b = [0u8; 6];
         self.i2c.write_read(ADDR_AG, &[r], &mut b).map_err(|e| SensorError::Bus(BusFault::of(e)))?;
         Ok(b)
+    }
+
+    /// The FIFO off (bypass mode: empty, it cannot overrun) for a stretch whose samples are not
+    /// wanted and that outlasts it (a flash page erase stalls the CPU for up to 85 ms; at 952 Hz
+    /// the FIFO holds 34 ms).
+    pub fn pause_fifo(&mut self) -> Result<(), SensorError> {
+        self.write(reg::FIFO_CTRL, FIFO_MODE_BYPASS)
+    }
+
+    /// The FIFO on again after [`Self::pause_fifo`]: it starts empty and its first slot is junk,
+    /// as after [`Self::init`].
+    pub fn resume_fifo(&mut self) -> Result<(), SensorError> {
+        self.write(reg::FIFO_CTRL, FIFO_MODE_CONTINUOUS)?;
+        self.discard = 1;
+        Ok(())
     }
 
     /// Unread FIFO slots (not counting a slot still to be discarded) and the overrun flag.

@@ -283,12 +283,13 @@ impl Sensing {
         let Some(s) = self.sensor.as_mut() else { return };
         let mag_ut = self.mag.poll(s.bus_mut(), false, now, clock, &mut io.console);
         let (stamper, raw, live, setup) = (&mut self.stamper, self.raw, &mut self.live, self.config.setup());
-        // Read until less than a quarter of it is left (at most 3 batches): the slots that arrive
-        // while a batch is read (a quarter of a period each at 400 kHz) or during a long sample
-        // call in it (a pose's end, ~20 ms) would otherwise wait a poll period, and the tick's
-        // step after them (≤ 30 ms) overrun the 952 Hz FIFO's 34 ms.
+        // Read until at most one slot is left (at most 4 batches: 32 slots take 8.6 ms at
+        // 400 kHz, in which 8 more arrive at 952 Hz, then 2, then 0-1): the tick after the read
+        // may run a step of a fit or of the solve (≤ 2 M instructions, 31 ms), and at 952 Hz
+        // the FIFO holds 34 ms. A FIFO full at the status read loses a sample unseen if one
+        // arrives before the first slot is read (the read clears the overrun flag).
         let mut result = Ok(0);
-        for round in 0..3 {
+        for round in 0..4 {
             let mag_ut = mag_ut.filter(|_| round == 0);
             result = s.fifo_status().and_then(|st| {
                 let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
@@ -319,7 +320,7 @@ impl Sensing {
                 }
                 Ok(n)
             });
-            if !matches!(result, Ok(n) if n >= FIFO_DEPTH as usize / 4) {
+            if !matches!(result, Ok(n) if n >= 2) {
                 break;
             }
         }
@@ -335,6 +336,24 @@ impl Sensing {
 }
 
 impl Sensing {
+    /// The LSM9DS1's FIFO paused ([`Lsm9ds1::pause_fifo`]); false without one, or if the write
+    /// failed (the FIFO then runs on, and an overrun is named as any other).
+    fn pause_fifo(&mut self) -> bool {
+        self.sensor.as_mut().is_some_and(|s| s.pause_fifo().is_ok())
+    }
+
+    /// The FIFO on again after [`Self::pause_fifo`], its timestamps started anew; a failed write
+    /// reinitialises the sensor (named).
+    fn resume_fifo(&mut self, io: &mut Io) {
+        let Some(s) = self.sensor.as_mut() else { return };
+        self.stamper.restart();
+        if let Err(e) = s.resume_fifo() {
+            io.console.say(Log::Error, format_args!("LSM9DS1 FIFO not resumed: {e}; reinitialising"));
+            self.bus = self.sensor.take().map(|s| s.release());
+            self.mag.reset();
+        }
+    }
+
     /// The setup the sensor runs at (the Rev2's BMI270, or the LSM9DS1's).
     fn setup(&self) -> SensorSetup {
         self.rev2.as_ref().map_or(self.config.setup(), |b| b.setup())
@@ -650,7 +669,14 @@ fn main() -> ! {
         take_commands(now, pressed, &p.POWER, procedure, &mut io, &mut sensing);
         procedure.drive(now, &mut io);
         procedure.handle_tick(now);
+        // A store's page erase stalls the CPU for up to 85 ms (PS tERASEPAGE), beyond the
+        // 952 Hz FIFO's 34 ms: the LSM9DS1's FIFO is paused around it (the calibration is over,
+        // the samples of that stretch are not wanted). The BMI270's 6 KB hold 4.7 s.
+        let paused = procedure.storing() && sensing.pause_fifo();
         procedure.drive(now, &mut io);
+        if paused {
+            sensing.resume_fifo(&mut io);
+        }
         io.flush_servos(clock.now_us());
 
         let applied = io.applied.is_some_and(|r| r.setup == sensing.setup());

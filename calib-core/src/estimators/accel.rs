@@ -15,7 +15,8 @@ use crate::{Error, Mat3, Vec3};
 
 /// Largest number of accelerometer poses kept.
 pub const MAX_ACCEL_POSES: usize = 32;
-const GAUSS_NEWTON_STEPS: usize = 12;
+/// Gauss–Newton iterates of an accelerometer fit, at most.
+pub const GAUSS_NEWTON_STEPS: usize = 12;
 
 /// Which accelerometer model a calibration uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -187,6 +188,13 @@ impl<const N: usize> AccelCalibrator<N> {
     /// [`Self::solve9`]'s first part (for a caller that runs each in a call of its own): the
     /// parameters, by Gauss–Newton from the quadric's, the last iteration's equations in `ne`.
     pub fn solve9_params(&self, ne: &mut NormalEquations<9>) -> Result<Params, Error> {
+        let p = self.start9()?;
+        self.iterate::<9>(p, ne)
+    }
+
+    /// [`Self::solve9_params`]'s start: the quadric's linear fit and from it the triangular
+    /// model's parameters, for [`Self::gauss_newton_step`] to refine.
+    pub fn start9(&self) -> Result<Params, Error> {
         self.need(9)?;
         // The quadric's parameters alone: the last step's equations are checked in full.
         let q = self.lin9.estimate()?;
@@ -203,14 +211,19 @@ impl<const N: usize> AccelCalibrator<N> {
         }
         // shape / s = L Lᵀ = Mᵀ M with M = Lᵀ / √s upper triangular.
         let r = 1.0 / libm::sqrt(s);
-        let p: Params = [o[0], o[1], o[2], l[0][0] * r, l[1][0] * r, l[2][0] * r, l[1][1] * r, l[2][1] * r, l[2][2] * r];
-        self.iterate::<9>(p, ne)
+        Ok([o[0], o[1], o[2], l[0][0] * r, l[1][0] * r, l[2][0] * r, l[1][1] * r, l[2][1] * r, l[2][2] * r])
     }
 
     /// [`Self::solve9`]'s second part: the calibration at `p` from the last iteration's
     /// equations `ne` ([`Self::solve9_params`]), their condition checked.
     pub fn calibration9(&self, p: &Params, ne: &NormalEquations<9>) -> Result<AccelCal, Error> {
         self.calibration(p, AccelModel::NineParam, ne.check()?)
+    }
+
+    /// [`Self::calibration9`] with the equations' condition number already computed
+    /// ([`NormalEquations::condition`]: a caller that runs the two in calls of their own).
+    pub fn calibration9_given(&self, p: &Params, ne: &NormalEquations<9>, condition: f64) -> Result<AccelCal, Error> {
+        self.calibration(p, AccelModel::NineParam, ne.check_given(condition)?)
     }
 
     fn need(&self, n: usize) -> Result<(), Error> {
@@ -231,22 +244,28 @@ impl<const N: usize> AccelCalibrator<N> {
     /// (checked in full by the caller: their condition number) left in `ne`.
     fn iterate<const P: usize>(&self, mut p: Params, ne: &mut NormalEquations<P>) -> Result<Params, Error> {
         for _ in 0..GAUSS_NEWTON_STEPS {
-            *ne = NormalEquations::<P>::new();
-            for a in &self.poses {
-                let (r, jac) = residual(&p, a, P == 6);
-                ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
-            }
-            let x = ne.estimate()?;
-            let mut step = 0.0f64;
-            for i in 0..P {
-                p[i] += x[i];
-                step = step.max(x[i].abs());
-            }
-            if step < 1e-12 {
+            if self.gauss_newton_step(&mut p, ne)? {
                 break;
             }
         }
         Ok(p)
+    }
+
+    /// One Gauss–Newton iterate of [`Self::iterate`]: the equations at `p` (left in `ne`) and `p`
+    /// moved by their estimate; true once that step is below 1e-12.
+    pub fn gauss_newton_step<const P: usize>(&self, p: &mut Params, ne: &mut NormalEquations<P>) -> Result<bool, Error> {
+        *ne = NormalEquations::<P>::new();
+        for a in &self.poses {
+            let (r, jac) = residual(p, a, P == 6);
+            ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
+        }
+        let x = ne.estimate()?;
+        let mut step = 0.0f64;
+        for i in 0..P {
+            p[i] += x[i];
+            step = step.max(x[i].abs());
+        }
+        Ok(step < 1e-12)
     }
 
     /// The 1σ of `cal`, fitted to these poses, from each pose's own 1σ `pose_sigma_g` (g, the

@@ -661,15 +661,19 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         }
     }
 
-    /// The kept moves into and out of pose `p` lose `delta` (°/s) more of its bias.
+    /// The kept moves into and out of pose `p` lose `delta` (°/s) more of its bias: a chunk over
+    /// `[t₀, t₁]` loses `delta (t₁ − t₀) w`, `w` pose `p`'s weight on the line between the move's
+    /// two rests at the chunk's middle ([`RestBias::integral_deg`] with `delta` at `p`'s end and
+    /// 0 at the other). In f32 from the move's start (times within a move: ≤ 1e-6 s of error).
     fn shift_bias(&mut self, p: usize, delta: Vec3) {
         for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
-            let only =
-                |q: u8| RestBias { t_s: self.rest[q as usize].bias.t_s, residual_dps: if q as usize == p { delta } else { [0.0; 3] } };
-            let (da, db) = (only(m.from), only(m.to));
+            let at = |q: u8| (self.rest[q as usize].bias.t_s - m.t0_s) as f32;
+            let (ta, span) = (at(m.from), at(m.to) - at(m.from));
+            let (wa, wb) = (f32::from(u8::from(m.from as usize == p)), f32::from(u8::from(m.to as usize == p)));
             for c in &mut self.chunks[m.first as usize..(m.first + m.n) as usize] {
-                let lost = da.integral_deg(&db, m.t0_s + c.span_s[0] as f64, m.t0_s + c.span_s[1] as f64);
-                c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - lost[k]) as f32);
+                let f = if span > 0.0 { (0.5 * (c.span_s[0] + c.span_s[1]) - ta) / span } else { 0.5 };
+                let lost = (c.span_s[1] - c.span_s[0]) * (wa + (wb - wa) * f);
+                c.gamma = core::array::from_fn(|k| c.gamma[k] - delta[k] * lost);
             }
         }
     }

@@ -141,7 +141,8 @@ impl<const N: usize> NormalEquations<N> {
     /// Solves by Cholesky. Errors: fewer rows than unknowns, a singular or ill-conditioned matrix.
     pub fn solve(&self) -> Result<Solution<N>, Error> {
         let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
-        let (rss, dof, condition) = solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, &mut x, covariance.as_flattened_mut())?;
+        let (rss, dof, condition) =
+            solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, None, &mut x, covariance.as_flattened_mut())?;
         Ok(Solution { x, rss, dof, covariance, condition })
     }
 
@@ -149,6 +150,14 @@ impl<const N: usize> NormalEquations<N> {
     /// needs neither the solution nor its covariance (the last equations of an iteration).
     pub fn check(&self) -> Result<f64, Error> {
         self.solve().map(|s| s.condition)
+    }
+
+    /// [`Self::check`] with its condition number already computed ([`Self::condition`], most of
+    /// the work): the same result, for a caller that runs the two in calls of their own.
+    pub fn check_given(&self, condition: f64) -> Result<f64, Error> {
+        let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
+        solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, Some(condition), &mut x, covariance.as_flattened_mut())
+            .map(|(_, _, c)| c)
     }
 
     /// The [`Solution`] [`Self::solve`] gave, from its parts but the covariance, which is
@@ -224,8 +233,17 @@ pub fn few_dof_factor(dof: f64) -> f64 {
 }
 
 /// [`NormalEquations::solve`] with `n = xty.len()` unknowns (`xtx` its row-major lower triangle):
-/// writes `x` and the covariance, returns `(rss, dof, condition)`.
-fn solve(xtx: &[f64], xty: &[f64], yty: f64, rows: u32, x: &mut [f64], covariance: &mut [f64]) -> Result<(f64, u32, f64), Error> {
+/// writes `x` and the covariance, returns `(rss, dof, condition)` (`known`: the condition number,
+/// computed before).
+fn solve(
+    xtx: &[f64],
+    xty: &[f64],
+    yty: f64,
+    rows: u32,
+    known: Option<f64>,
+    x: &mut [f64],
+    covariance: &mut [f64],
+) -> Result<(f64, u32, f64), Error> {
     let n = xty.len();
     if (rows as usize) < n {
         return Err(Error::TooFewRows { have: rows, need: n as u32 });
@@ -235,7 +253,7 @@ fn solve(xtx: &[f64], xty: &[f64], yty: f64, rows: u32, x: &mut [f64], covarianc
     if !cholesky_in(xtx, l, n, 1e-13) {
         return Err(Error::Singular);
     }
-    let condition = condition(xtx, n);
+    let condition = known.unwrap_or_else(|| condition(xtx, n));
     if !(condition <= MAX_CONDITION) {
         return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
     }

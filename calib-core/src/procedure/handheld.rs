@@ -19,7 +19,7 @@ impl Procedure {
                     self.last_pulse = None;
                     self.push(Command::ServoOff { channel: 0 });
                     self.attitude = Some(Matrix3::identity());
-                    self.enter(Step::HandHeld { capture: Capture::default() }, t_s);
+                    self.enter(Step::HandHeld { capture: Capture::default(), due: HandDue::None }, t_s);
                 } else {
                     self.begin_rig(t_s);
                 }
@@ -29,6 +29,13 @@ impl Procedure {
     }
 
     pub(super) fn finish_accel_pose(&mut self, capture: &Capture, t_s: f64) {
+        // The previous pose's end first, if its ticks have not finished it (it may end the step).
+        for _ in 0..2 {
+            self.hand_due(t_s);
+        }
+        if !matches!(self.step, Step::HandHeld { .. }) {
+            return;
+        }
         let a = capture.accel_mean();
         let min_sep = self.cfg.accel_min_separation_deg as f64;
         let new = v64(a);
@@ -41,7 +48,7 @@ impl Procedure {
             let old = poses.get(i);
             crate::math::trig::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
         });
-        self.step = Step::HandHeld { capture: Capture::default() };
+        self.step = Step::HandHeld { capture: Capture::default(), due: HandDue::None };
         if !distinct {
             return;
         }
@@ -73,31 +80,56 @@ impl Procedure {
             self.rotations.push_attitude(to, att);
         }
         self.push(Command::Report(Report::AccelPose { index: to, accel_g: a }));
-        let (mut k_sigma, goal, mut room) = (f32::NAN, self.cfg.hand_k_sigma, true);
         if to > 0 {
             let rejected = self.rotations.end(to, &self.cfg.rotation).err();
-            room = rejected != Some(rotation::Rejected::Full);
-            let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
-            // Each kept move's rows once (a pose's work stays within the sensor FIFO's time).
-            if rejected.is_none() {
-                self.rotations.add_last_at_identity(&mut self.rows, &self.cfg.rotation);
-            }
-            if extra || self.accel_poses.len() == need {
-                k_sigma = self.rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32);
-            }
-            let (spread, need) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
-            self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need, k_sigma, goal }));
+            self.step = Step::HandHeld { capture: Capture::default(), due: HandDue::Rows { to, rejected } };
         }
         self.rotations.begin(to);
+    }
+
+    /// One part of a hand-held pose's end ([`HandDue`]), the next on the next tick.
+    fn hand_due(&mut self, t_s: f64) {
+        let Step::HandHeld { due, .. } = self.step else { return };
+        let next = match due {
+            HandDue::None => return,
+            HandDue::Rows { to, rejected } => {
+                // Each kept move's rows once.
+                if rejected.is_none() {
+                    self.rotations.add_last_at_identity(&mut self.rows, &self.cfg.rotation);
+                }
+                HandDue::Report { to, rejected }
+            }
+            HandDue::Report { .. } => HandDue::None,
+        };
+        if let Step::HandHeld { due, .. } = &mut self.step {
+            *due = next;
+        }
+        if let HandDue::Report { to, rejected } = due {
+            self.hand_move_end(to, rejected, t_s);
+        }
+    }
+
+    /// The move into hand-held pose `to` reported with `K`'s 1σ by the moves so far; the step
+    /// ends once the moves give `K` to its goal (or no pose has room), or fails when their axes
+    /// are coplanar.
+    fn hand_move_end(&mut self, to: u8, rejected: Option<rotation::Rejected>, t_s: f64) {
+        let (goal, room, need) = (self.cfg.hand_k_sigma, rejected != Some(rotation::Rejected::Full), self.cfg.accel_poses.max(6) as usize);
+        let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
+        let k_sigma = if self.accel_poses.len() >= need {
+            self.rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32)
+        } else {
+            f32::NAN
+        };
+        let (spread, min_spread) = (self.rotations.axis_spread(), self.cfg.rotation.min_axis_spread);
+        self.push(Command::Report(Report::HandMove { from: to - 1, to, rejected, turn_deg, spread, need: min_spread, k_sigma, goal }));
         if self.accel_poses.len() < need {
             return;
         }
         // The hand-held moves must turn about three dimensions to give the full K: named at
         // once, not after further poses. (Counting the moves dropped for a changing bias:
         // `fail` names the drift then.)
-        let spread = self.rotations.axis_spread();
-        if self.rotations.moves_before_drift() >= 3 && !(spread >= self.cfg.rotation.min_axis_spread) {
-            return self.fail(Error::RotationAxesCoplanar { spread, limit: self.cfg.rotation.min_axis_spread });
+        if self.rotations.moves_before_drift() >= 3 && !(spread >= min_spread) {
+            return self.fail(Error::RotationAxesCoplanar { spread, limit: min_spread });
         }
         // Further poses while the moves leave K short of the goal (and there is room for them).
         if !(k_sigma <= goal) && usize::from(to) + 1 < usize::from(self.cfg.max_hand_poses) && room {
@@ -112,16 +144,24 @@ impl Procedure {
     /// magnetometer's ([`MagFit`]); then, once the button was pressed ([`Self::handle_button`]),
     /// the rig.
     pub(super) fn fit_due(&mut self, t_s: f64) {
-        let Step::Reattach { accel, mag, pressed } = self.step else { return };
+        let Step::Reattach { accel, mag, pressed } = self.step else { return self.hand_due(t_s) };
         if !self.one_servo() {
             return;
         }
         let next = match accel {
-            AccelFit::Nine => match pipeline::nine_params(&self.accel_poses, &mut self.rows) {
-                Some(p) => AccelFit::NineEnd(p),
-                None => AccelFit::Choice(None),
+            AccelFit::Nine if self.accel_poses.len() < pipeline::NINE_PARAM_POSES => AccelFit::Choice(None),
+            AccelFit::Nine => match self.accel_poses.start9() {
+                Ok(p) => AccelFit::NineIter { p, left: crate::estimators::accel::GAUSS_NEWTON_STEPS as u8 },
+                Err(_) => AccelFit::Choice(None),
             },
-            AccelFit::NineEnd(p) => AccelFit::Choice(self.accel_poses.calibration9(&p, &self.rows).ok()),
+            AccelFit::NineIter { mut p, left } => match self.accel_poses.gauss_newton_step(&mut p, &mut self.rows) {
+                Ok(true) => AccelFit::NineEnd(p),
+                Ok(false) if left <= 1 => AccelFit::NineEnd(p),
+                Ok(false) => AccelFit::NineIter { p, left: left - 1 },
+                Err(_) => AccelFit::Choice(None),
+            },
+            AccelFit::NineEnd(p) => AccelFit::NineCal(p, self.rows.condition()),
+            AccelFit::NineCal(p, condition) => AccelFit::Choice(self.accel_poses.calibration9_given(&p, &self.rows, condition).ok()),
             AccelFit::Choice(nine) => return self.fit_accel_pending(nine),
             AccelFit::Done => {
                 return match mag {

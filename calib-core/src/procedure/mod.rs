@@ -210,14 +210,29 @@ impl Ramp {
     }
 }
 
+/// A hand-held pose's end after its sample, one part a tick ([`Procedure::fit_due`]): the move
+/// into pose `to` (`rejected`: why it was not kept) joins the rows, then `K`'s 1σ by the moves
+/// so far, the report and whether the step goes on. (At 952 Hz the FIFO holds 34 ms: a pose's
+/// end in one call outlasted it.)
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum HandDue {
+    None,
+    Rows { to: u8, rejected: Option<rotation::Rejected> },
+    Report { to: u8, rejected: Option<rotation::Rejected> },
+}
+
 /// The accelerometer's fits after the hand-held step, one part a tick ([`Procedure::fit_due`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum AccelFit {
-    /// The 9-parameter fit's parameters (at the first tick; [`pipeline::nine_params`], the
-    /// procedure's `rows` keep its equations).
+    /// The 9-parameter fit's start (at the first tick; [`AccelCalibrator::start9`]).
     Nine,
-    /// Its calibration from them ([`AccelCalibrator::calibration9`]).
+    /// Its Gauss–Newton at `p`, one iterate a tick, `left` at most ([`pipeline::nine_params`]
+    /// in parts; the procedure's `rows` keep the last iterate's equations).
+    NineIter { p: Params, left: u8 },
+    /// Its equations' condition number ([`NormalEquations::condition`]: the most of the check).
     NineEnd(Params),
+    /// Its calibration from them with it ([`AccelCalibrator::calibration9_given`]).
+    NineCal(Params, f64),
     /// The 6-parameter fit and the choice between the two, with the 9-parameter fit if there
     /// is one.
     Choice(Option<AccelCal>),
@@ -263,6 +278,7 @@ enum Step {
     },
     HandHeld {
         capture: Capture,
+        due: HandDue,
     },
     /// Waiting for the board back on the shaft and the button (`pressed`) while the hand-held
     /// step's fits are made ([`Procedure::fit_due`]).
@@ -354,9 +370,11 @@ enum SolveStage {
     /// Solved (in `full`): the magnetometer's alignment refined with it, its first steps; with
     /// the pan/tilt plan the sweep estimator beside it and the store.
     Store,
-    /// The refinement's last step from the die's rotation `rot` the first ones reached.
+    /// The refinement's next step (one a call, `left` of them) from the die's rotation `rot`
+    /// the steps before reached.
     RefineMag {
         rot: Matrix3<f64>,
+        left: u8,
     },
     /// Each move's misfit reported, the record stored.
     StoreEnd,
@@ -516,6 +534,12 @@ impl Procedure {
         let reuse = self.stored_accel().is_some();
         let hand = if self.cfg.is_pan_tilt() || reuse { 0 } else { self.cfg.accel_poses.max(6) };
         (self.cfg.plan_steps(), hand)
+    }
+
+    /// A record was handed to the shell to store ([`Command::Store`] queued or under way): the
+    /// samples are not wanted until it is answered.
+    pub fn storing(&self) -> bool {
+        matches!(self.step, Step::Storing { .. })
     }
 
     /// The current phase.
@@ -757,7 +781,7 @@ impl Procedure {
                 }
             }
             Step::HandHeld { .. } if !hand => {}
-            Step::HandHeld { ref mut capture } => {
+            Step::HandHeld { ref mut capture, .. } => {
                 self.rotations.add(s.t_s, g, saturated);
                 if let Some((w, wt, turn)) = &closed {
                     // A disturbed hand-held pose is simply taken again: the user is moving it.

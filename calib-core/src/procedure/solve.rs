@@ -227,10 +227,10 @@ impl Procedure {
                     Some(SolveStage::Store)
                 })
             }
-            // The magnetometer's refinement in two calls: its first steps, then the last.
+            // The magnetometer's refinement, one step a call: the first, then the others.
             SolveStage::Store if !self.cfg.is_pan_tilt() => {
-                let next = match self.full.and_then(|f| self.refine_mag(&f.k, Matrix3::identity(), REFINE_STEPS - 1)) {
-                    Some((_, (rot, _))) => SolveStage::RefineMag { rot },
+                let next = match self.full.and_then(|f| self.refine_mag(&f.k, Matrix3::identity(), 1)) {
+                    Some((_, (rot, _))) => SolveStage::RefineMag { rot, left: (REFINE_STEPS - 1) as u8 },
                     None => SolveStage::StoreEnd,
                 };
                 if let Step::Solving { stage, .. } = &mut self.step {
@@ -238,13 +238,20 @@ impl Procedure {
                 }
                 return;
             }
-            SolveStage::RefineMag { rot } => {
-                let rot = *rot;
-                *stage = SolveStage::StoreEnd;
-                if let Some((cal, (rot, sol))) = self.full.and_then(|f| self.refine_mag(&f.k, rot, 1)) {
-                    let c = self.mag.refined(&cal, &rot, &sol);
-                    self.mag_cal = Some(c);
-                    self.push(Command::Report(Report::Mag(c)));
+            SolveStage::RefineMag { rot, left } => {
+                let (rot, left) = (*rot, *left);
+                let next = match self.full.and_then(|f| self.refine_mag(&f.k, rot, 1)) {
+                    Some((cal, (rot, sol))) if left <= 1 => {
+                        let c = self.mag.refined(&cal, &rot, &sol);
+                        self.mag_cal = Some(c);
+                        self.push(Command::Report(Report::Mag(c)));
+                        SolveStage::StoreEnd
+                    }
+                    Some((_, (rot, _))) => SolveStage::RefineMag { rot, left: left - 1 },
+                    None => SolveStage::StoreEnd,
+                };
+                if let Step::Solving { stage, .. } = &mut self.step {
+                    *stage = next;
                 }
                 return;
             }

@@ -158,6 +158,8 @@ pub struct Bmi270Model {
     fifo: std::collections::VecDeque<u8>,
     /// Frames dropped since the last read (a full FIFO).
     skipped: usize,
+    /// Frames dropped since power-on, and the runs of them (each ended by a read).
+    dropped: (usize, usize),
     regs: [u8; 0x80],
     upload: Vec<u8>,
     /// Bytes of the upload area written since the reset (its highest offset + 1).
@@ -223,6 +225,7 @@ impl Bmi270Model {
             last: ([0.0; 3], [0.0; 3]),
             fifo: std::collections::VecDeque::new(),
             skipped: 0,
+            dropped: (0, 0),
             regs: [0; 0x80],
             upload: vec![0; 8192],
             uploaded: 0,
@@ -360,6 +363,7 @@ impl Bmi270Model {
             let Some((_, frame)) = self.landing.pop_front() else { break };
             while self.fifo.len() + frame.len() > self.fifo_bytes() {
                 self.drop_oldest_frame();
+                self.dropped = (self.dropped.0 + 1, self.dropped.1 + usize::from(self.skipped == 0));
                 self.skipped += 1;
             }
             self.fifo.extend(frame);
@@ -380,6 +384,11 @@ impl Bmi270Model {
             }
         }
         (self.frame_left, self.frame_read) = (0, vec![]);
+    }
+
+    /// Frames a full FIFO dropped since power-on, and in how many runs (each a skip frame).
+    pub fn dropped(&self) -> (usize, usize) {
+        self.dropped
     }
 
     /// The die temperature (°C) the next sample is produced at.

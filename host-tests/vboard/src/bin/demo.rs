@@ -178,6 +178,11 @@ fn main() -> ExitCode {
         if calls > 0 { instr as f64 / calls as f64 } else { 0.0 }
     );
     println!("[demo] peak stack: {} bytes (from power-on)", testbed.mcu.peak_stack().unwrap_or(0));
+    let (dropped, overruns) = {
+        let p = testbed.mcu.periph.borrow();
+        p.sensor.bmi().map_or((p.sensor.counts().1, p.sensor.overruns()), |b| b.dropped())
+    };
+    println!("[demo] FIFO overruns: {overruns}, samples dropped: {dropped} (the whole run, the solve and the store included)");
     if let Some(n) = profile {
         for (calls, what) in [
             (Calls::Samples, "Procedure::handle_sample, its calls of a sample"),
