@@ -1194,6 +1194,40 @@ mod tests {
         assert_eq!(<Rotations>::new().drift_error(), None);
     }
 
+    /// [`Rotations::shift_bias`] in `f32` from the move's start against the `f64` integral it
+    /// replaced ([`RestBias::integral_deg`] of each chunk): a 20 s move at 952 Hz starting an
+    /// hour in, its rests 1000 s apart, a shift of 0.3 °/s at either end. Each chunk agrees
+    /// within an `f32` step of its 5° (the old path rounded to `f32` too).
+    #[test]
+    fn bias_shifts_in_f32_match_the_f64_integral() {
+        let lim = RotationLimits::DEFAULT;
+        for p in [0usize, 1] {
+            let mut r = <Rotations>::new();
+            let (t_from, t_to) = (3600.0, 4600.0);
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t_from, residual_dps: [0.0; 3] }).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t_to, residual_dps: [0.0; 3] }).unwrap();
+            r.begin(0);
+            for k in 0..=20 * 952 {
+                r.add(t_from + 500.0 + f64::from(k) / 952.0, [9.0, -4.0, 2.0], false);
+            }
+            assert_eq!(r.end(1, &lim), Ok(()));
+            let before = r.chunks.clone();
+            let delta = [0.3, -0.2, 0.1];
+            r.shift_bias(p, delta);
+            let m = r.moves[0];
+            let only = |q: usize| RestBias { t_s: r.rest[q].bias.t_s, residual_dps: if q == p { delta } else { [0.0; 3] } };
+            let mut worst = 0.0f64;
+            for (c0, c1) in before[m.first as usize..(m.first + m.n) as usize].iter().zip(&r.chunks[m.first as usize..]) {
+                let lost = only(0).integral_deg(&only(1), m.t0_s + c0.span_s[0] as f64, m.t0_s + c0.span_s[1] as f64);
+                for k in 0..3 {
+                    let want = (c0.gamma[k] as f64 - lost[k]) as f32;
+                    worst = worst.max((c1.gamma[k] - want).abs() as f64);
+                }
+            }
+            assert!(m.n > 30 && worst <= 1e-6, "pose {p}: {} chunks, worst {worst:e} deg", m.n);
+        }
+    }
+
     #[test]
     fn exp_and_its_right_jacobian_match_finite_differences() {
         let phi = Vector3::new(0.08f32, -0.05, 0.12);
