@@ -275,8 +275,8 @@ impl Drift {
     /// calibration hands over) with its 1σ per axis (°/s): the line's prediction error `s² Σ wᵢ²
     /// cᵢ²` (the prediction is `Σ wᵢ cᵢ bᵢ`), `s²` a rest's scatter about the line (times
     /// [`crate::math::lsq::few_dof_factor`] of the effective rests `(Σw)²/Σw²` beyond the line's two;
-    /// with fewer than [`MIN_SCATTER_DOF`] of them, at least `rest_sigma_dps²`, a rest mean's own
-    /// noise), a bias walk of [`BIAS_WALK_DPS_RTSEC`] from the latest rest to
+    /// at least `rest_sigma_dps²`, a rest mean's own noise: from a few rests the scatter can fall
+    /// below it by chance, the rests' means cannot), a bias walk of [`BIAS_WALK_DPS_RTSEC`] from the latest rest to
     /// `t_s`, and the Earth's rate every rest measures as bias in its own pose
     /// ([`EARTH_RATE_AXIS_DPS`]).
     pub fn predict(&self, t_s: f64, rest_sigma_dps: Vec3) -> Option<(RestBias, Vec3)> {
@@ -293,7 +293,7 @@ impl Drift {
             let floor = rest_sigma_dps[k] as f64 * rest_sigma_dps[k] as f64;
             // E[Σw r²] = σ² Σw (1 − params / n_eff).
             let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) * crate::math::lsq::few_dof_factor(dof) } else { 0.0 };
-            let s2 = if dof >= MIN_SCATTER_DOF { scatter } else { scatter.max(floor) };
+            let s2 = scatter.max(floor);
             libm::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
         });
         Some((RestBias { t_s, residual_dps: l.at(t_s) }, sigma))
@@ -311,10 +311,6 @@ impl Drift {
 /// 1σ per axis of the Earth's rate (15.04 °/h) along an axis of unknown direction (`/√3`), °/s:
 /// a rest measures it as bias, in the attitude the board happens to have.
 pub const EARTH_RATE_AXIS_DPS: f64 = crate::estimators::rotation::EARTH_RATE_RAD_S * (180.0 / core::f64::consts::PI) / 1.732_050_8;
-
-/// Weighted rests beyond a line's two parameters from which [`Drift::predict`] trusts their
-/// scatter alone.
-pub const MIN_SCATTER_DOF: f64 = 3.0;
 
 /// Least temperature span (°C) over the rests for [`TempFit`] to give a coefficient.
 pub const MIN_TEMP_SPAN_C: f32 = 1.0;

@@ -71,12 +71,16 @@ impl<'a> Log<'a> {
     }
 
     /// The gyro bias at the log's end on the rests' line with its 1σ ([`Drift::predict`], the
-    /// floor a rest mean's noise): the bias as the calibration hands over. (The pooled mean the
+    /// floor a rest mean's noise: the rig's still poses' own when the log has them, else the
+    /// pooled one): the bias as the calibration hands over. (The pooled mean the
     /// moves are corrected against is the bias of no instant when it drifts.)
     fn bias_at_end(&self) -> Bias {
         let t_end = self.rows.last().map_or(0.0, |r| r.t_s);
         let n = self.ph.segments.iter().zip(&self.rests).filter(|(_, r)| r.1).map(|(s, _)| s.gyro.count()).next_back().unwrap_or(1);
-        let floor = self.bias.noise_dps.map(|v| v / (n.max(1) as f32).sqrt());
+        // A rest's own noise: the rig's still poses' ([`rest_noise_dps`]; the pooled figure
+        // holds a hand's sway) when the log has them.
+        let noise = rest_noise_dps(self.ph).map_or(self.bias.noise_dps, |v| [v; 3]);
+        let floor = noise.map(|v| v / (n.max(1) as f32).sqrt());
         match self.drift().predict(t_end, floor) {
             Some((r, sigma_dps)) => {
                 Bias { bias_dps: core::array::from_fn(|k| self.bias.bias_dps[k] + r.residual_dps[k]), sigma_dps, ..self.bias }
