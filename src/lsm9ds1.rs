@@ -63,7 +63,8 @@ pub const CTRL8_SW_RESET: u8 = 1 << 0;
 pub const CTRL9_FIFO_EN: u8 = 1 << 1;
 /// FIFO_CTRL continuous mode (FMODE = 110): the newest 32 slots, oldest overwritten.
 pub const FIFO_MODE_CONTINUOUS: u8 = 0b110 << 5;
-/// FIFO_CTRL: bypass mode (FMODE 000: the FIFO off and empty).
+/// FIFO_CTRL: bypass mode (FMODE 000: "FIFO turned off", LSM9DS1 datasheet DocID025715, FIFO
+/// modes; it holds no sample, so it cannot overrun).
 pub const FIFO_MODE_BYPASS: u8 = 0;
 /// FIFO_SRC overrun flag.
 pub const FIFO_SRC_OVRN: u8 = 1 << 6;

@@ -328,10 +328,15 @@ impl Sensing {
             io.console.say(Log::Error, format_args!("LSM9DS1 read failed: {e}; reinitialising"));
             procedure.handle_sensor_fault();
             procedure.drive(now, io);
-            self.bus = self.sensor.take().map(|s| s.release());
-            self.mag.reset();
-            self.next_try_s = now + 0.5;
+            self.reinitialise(now);
         }
+    }
+
+    /// The LSM9DS1 released and brought up again from 0.5 s on (its magnetometer with it).
+    fn reinitialise(&mut self, now: f64) {
+        self.bus = self.sensor.take().map(|s| s.release());
+        self.mag.reset();
+        self.next_try_s = now + 0.5;
     }
 }
 
@@ -344,13 +349,12 @@ impl Sensing {
 
     /// The FIFO on again after [`Self::pause_fifo`], its timestamps started anew; a failed write
     /// reinitialises the sensor (named).
-    fn resume_fifo(&mut self, io: &mut Io) {
+    fn resume_fifo(&mut self, now: f64, io: &mut Io) {
         let Some(s) = self.sensor.as_mut() else { return };
         self.stamper.restart();
         if let Err(e) = s.resume_fifo() {
             io.console.say(Log::Error, format_args!("LSM9DS1 FIFO not resumed: {e}; reinitialising"));
-            self.bus = self.sensor.take().map(|s| s.release());
-            self.mag.reset();
+            self.reinitialise(now);
         }
     }
 
@@ -675,7 +679,7 @@ fn main() -> ! {
         let paused = procedure.storing() && sensing.pause_fifo();
         procedure.drive(now, &mut io);
         if paused {
-            sensing.resume_fifo(&mut io);
+            sensing.resume_fifo(clock.now_s(), &mut io);
         }
         io.flush_servos(clock.now_us());
 
