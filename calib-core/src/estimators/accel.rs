@@ -316,10 +316,8 @@ impl<const N: usize> AccelCalibrator<N> {
             }
         }
         let dof = self.poses.len().saturating_sub(P);
-        // χ²'s 95 % point (Wilson & Hilferty 1931): ν (1 − 2/(9ν) + 1.645 √(2/(9ν)))³.
         let nu = dof.max(1) as f64;
-        let c = 1.0 - 2.0 / (9.0 * nu) + 1.645 * libm::sqrt(2.0 / (9.0 * nu));
-        let scale = if dof > 0 && chi2 > nu * c * c * c { chi2 / nu } else { 1.0 };
+        let scale = if dof > 0 && chi2 > crate::math::lsq::chi2_95(nu) { chi2 / nu } else { 1.0 };
         let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i] * scale) as f32);
         Some(AccelSigma {
             offset_g: sigma([0, 1, 2]),

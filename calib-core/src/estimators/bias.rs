@@ -273,13 +273,11 @@ impl Drift {
 
     /// The bias at `t_s` on the line of the latest rests ([`PREDICT_MEMORY_S`]: the bias a
     /// calibration hands over) with its 1σ per axis (°/s): the line's prediction error `s² Σ wᵢ²
-    /// cᵢ²` (the prediction is `Σ wᵢ cᵢ bᵢ`), `s²` a rest's scatter about the line (times
-    /// [`crate::math::lsq::few_dof_factor`] of the effective rests `(Σw)²/Σw²` beyond the line's two;
-    /// at least `rest_sigma_dps²`, a rest mean's own noise: from a few rests the scatter can fall
-    /// below it by chance, the rests' means cannot), a bias walk of [`BIAS_WALK_DPS_RTSEC`] from the latest rest to
-    /// `t_s`, and the Earth's rate every rest measures as bias in its own pose
-    /// ([`EARTH_RATE_AXIS_DPS`]).
-    pub fn predict(&self, t_s: f64, rest_sigma_dps: Vec3) -> Option<(RestBias, Vec3)> {
+    /// cᵢ²` (the prediction is `Σ wᵢ cᵢ bᵢ`), `s²` a rest's variance ([`RestNoise`]: its own
+    /// noise, or the rests' scatter about the line where that exceeds it), a bias walk of
+    /// [`BIAS_WALK_DPS_RTSEC`] from the latest rest to `t_s`, and the Earth's rate every rest
+    /// measures as bias in its own pose ([`EARTH_RATE_AXIS_DPS`]).
+    pub fn predict(&self, t_s: f64, noise: RestNoise) -> Option<(RestBias, Vec3)> {
         self.last?;
         let l = &self.recent;
         let params = if l.spread().1.is_some() { 2.0 } else { 1.0 };
@@ -290,10 +288,19 @@ impl Drift {
             let (mean, slope) = l.fit(k);
             // Σw (b − mean − slope (t − t̄))².
             let ss = (l.bb[k] - l.b[k] * mean - slope * (l.tb[k] - l.s[1] * mean)).max(0.0);
-            let floor = rest_sigma_dps[k] as f64 * rest_sigma_dps[k] as f64;
             // E[Σw r²] = σ² Σw (1 − params / n_eff).
-            let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) * crate::math::lsq::few_dof_factor(dof) } else { 0.0 };
-            let s2 = scatter.max(floor);
+            let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) } else { 0.0 };
+            let s2 = match noise {
+                RestNoise::Own(sigma) => {
+                    let own = sigma[k] as f64 * sigma[k] as f64;
+                    if dof > 0.0 && scatter * dof > own * crate::math::lsq::chi2_95(dof) {
+                        scatter
+                    } else {
+                        own
+                    }
+                }
+                RestNoise::Bound(sigma) => scatter.max(sigma[k] as f64 * sigma[k] as f64),
+            };
             libm::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
         });
         Some((RestBias { t_s, residual_dps: l.at(t_s) }, sigma))
@@ -306,6 +313,21 @@ impl Drift {
             _ => 0.0,
         }
     }
+}
+
+/// A rest mean's noise (1σ per axis, °/s) as [`Drift::predict`] takes it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RestNoise {
+    /// Still rests' own (their samples' spread over `√n`, from hundreds of samples): the rests'
+    /// scatter about their line takes its place only where it exceeds it beyond chance (χ²'s
+    /// 95 % point, as the accelerometer's 1σ: [`crate::math::lsq::chi2_95`]), a drift the line
+    /// does not follow.
+    Own(Vec3),
+    /// A rough one: rests held by a hand, whose means carry their sway's net turn, with the
+    /// spread of every still segment pooled (a hand's tremor and sway in it). The larger of it
+    /// and the rests' scatter about their line is their variance: from the few rests of a log
+    /// (3-4 effective beyond the line's two) the scatter can fall below it by chance.
+    Bound(Vec3),
 }
 
 /// 1σ per axis of the Earth's rate (15.04 °/h) along an axis of unknown direction (`/√3`), °/s:
@@ -656,7 +678,7 @@ mod tests {
                 let n = 0.007 * noise.next();
                 d.add(RestBias { t_s: t, residual_dps: [(curve(t) + n) as f32, 0.0, 0.0] });
             }
-            let (at, sigma) = d.predict(82.0, [0.007; 3]).unwrap();
+            let (at, sigma) = d.predict(82.0, RestNoise::Own([0.007; 3])).unwrap();
             let e = (at.residual_dps[0] as f64 - curve(82.0)).abs();
             within[0] += (e <= sigma[0] as f64) as u32;
             within[1] += (e <= 2.0 * sigma[0] as f64) as u32;
@@ -666,6 +688,44 @@ mod tests {
         let rms = libm::sqrt(err2 / runs as f64);
         assert!((0.6..=0.85).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
         assert!(rms < 0.01 && rms < 0.1 * curve(82.0), "RMS {rms:.4}");
+    }
+
+    /// Still rests (a rest every 4 s for 80 s, each mean with 0.007 °/s of its own noise), 2000
+    /// times: on a constant bias the σ is the rests' own noise propagated, whatever their
+    /// scatter, but in the ~5 % of runs whose scatter exceeds χ²'s 95 % point (measured 5.0 %);
+    /// on a bias walking at 0.01 °/s/√s (0.02 °/s between rests, 3 times their noise) the
+    /// scatter takes its place and the bias predicted for the last rest (80 s) lies within its
+    /// 1σ and 2σ as an honest σ promises (measured 67 % / 97 %).
+    #[test]
+    fn still_rests_take_their_own_noise_unless_the_scatter_exceeds_it() {
+        let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
+        let runs = 2000;
+        let run = |noise: &mut crate::math::test_noise::Gaussian, walk: f64| {
+            let (mut d, mut b) = (Drift::new(), 0.0);
+            for i in 0..=20 {
+                if i > 0 {
+                    b += walk * 2.0 * noise.next();
+                }
+                d.add(RestBias { t_s: 4.0 * i as f64, residual_dps: [(b + 0.007 * noise.next()) as f32, 0.0, 0.0] });
+            }
+            let (at, sigma) = d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap();
+            ((at.residual_dps[0] as f64 - b).abs(), sigma[0] as f64)
+        };
+        let own = {
+            let mut d = Drift::new();
+            for i in 0..=20 {
+                d.add(RestBias { t_s: 4.0 * i as f64, residual_dps: [0.0; 3] });
+            }
+            d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as f64
+        };
+        let constant = (0..runs).filter(|_| run(&mut noise, 0.0).1 == own).count() as f64 / runs as f64;
+        assert!((0.92..=0.97).contains(&constant), "own noise's sigma in {constant:.3} of the runs");
+        let within = (0..runs).fold([0u32; 2], |w, _| {
+            let (e, s) = run(&mut noise, 0.01);
+            [w[0] + (e <= s) as u32, w[1] + (e <= 2.0 * s) as u32]
+        });
+        let [one, two] = within.map(|n| n as f64 / runs as f64);
+        assert!((0.6..=0.8).contains(&one) && two >= 0.92, "walking: within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 
     #[test]

@@ -232,6 +232,14 @@ pub fn few_dof_factor(dof: f64) -> f64 {
     }
 }
 
+/// χ²'s 95 % point for `nu` degrees of freedom (Wilson & Hilferty 1931: `ν (1 − 2/(9ν) +
+/// 1.645 √(2/(9ν)))³`, within 1 % for `ν ≥ 2`; fractional `ν` as is): a residual sum beyond it
+/// says the residuals exceed the noise they were weighted by.
+pub fn chi2_95(nu: f64) -> f64 {
+    let c = 1.0 - 2.0 / (9.0 * nu) + 1.645 * libm::sqrt(2.0 / (9.0 * nu));
+    nu * c * c * c
+}
+
 /// [`NormalEquations::solve`] with `n = xty.len()` unknowns (`xtx` its row-major lower triangle):
 /// writes `x` and the covariance, returns `(rss, dof, condition)` (`known`: the condition number,
 /// computed before).

@@ -1,6 +1,7 @@
 //! The estimators at the end of the rig, the record built from their result, and the store.
 
 use super::*;
+use crate::estimators::bias::RestNoise;
 use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
 use crate::estimators::mag::{MagMove, REFINE_STEPS};
 
@@ -350,7 +351,7 @@ impl Procedure {
     pub fn bias_at(&self, t_s: f64) -> Option<Bias> {
         let first = self.bias?;
         let residual = self.temp_c().and_then(|t| self.temp_fit.residual_at(t)).or_else(|| self.drift.at(t_s).map(|r| r.residual_dps));
-        let sigma = self.drift.predict(t_s, first.sigma_dps).map_or(first.sigma_dps, |(_, s)| s);
+        let sigma = self.drift.predict(t_s, RestNoise::Own(first.sigma_dps)).map_or(first.sigma_dps, |(_, s)| s);
         let bias_dps = residual.map_or(first.bias_dps, |r| core::array::from_fn(|k| first.bias_dps[k] + r[k]));
         Some(Bias { bias_dps, sigma_dps: sigma, ..first })
     }

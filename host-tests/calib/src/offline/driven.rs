@@ -4,6 +4,7 @@
 //! accepted, whom an error blames) are calib-core's [`pipeline`] ones, as in the firmware.
 
 use super::*;
+use calib_core::estimators::bias::RestNoise;
 
 /// The log's phases with the bias they are corrected by.
 struct Log<'a> {
@@ -79,9 +80,12 @@ impl<'a> Log<'a> {
         let n = self.ph.segments.iter().zip(&self.rests).filter(|(_, r)| r.1).map(|(s, _)| s.gyro.count()).next_back().unwrap_or(1);
         // A rest's own noise: the rig's still poses' ([`rest_noise_dps`]; the pooled figure
         // holds a hand's sway) when the log has them.
-        let noise = rest_noise_dps(self.ph).map_or(self.bias.noise_dps, |v| [v; 3]);
-        let floor = noise.map(|v| v / (n.max(1) as f32).sqrt());
-        match self.drift().predict(t_end, floor) {
+        let of_mean = |v: f32| v / (n.max(1) as f32).sqrt();
+        let noise = match rest_noise_dps(self.ph) {
+            Some(v) => RestNoise::Own([of_mean(v); 3]),
+            None => RestNoise::Bound(self.bias.noise_dps.map(of_mean)),
+        };
+        match self.drift().predict(t_end, noise) {
             Some((r, sigma_dps)) => {
                 Bias { bias_dps: core::array::from_fn(|k| self.bias.bias_dps[k] + r.residual_dps[k]), sigma_dps, ..self.bias }
             }
