@@ -116,6 +116,10 @@ impl Moves {
     }
 
     /// Records a move from pose `from` to pose `to` with its gyro integral.
+    // Not inlined: the pan/tilt plan's copy from its full-K moves (`load_setting`) would be a
+    // `memmove` (LLVM cannot prove the two stores apart), which links compiler_builtins'
+    // 1.5 KiB memmove into that build.
+    #[inline(never)]
     pub fn push(&mut self, from: u8, to: u8, gamma_deg: [f64; 3]) -> Result<(), Error> {
         if !gamma_deg.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
