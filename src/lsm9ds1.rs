@@ -337,6 +337,9 @@ pub struct FifoStatus {
     pub level: u8,
     /// Slots were overwritten since the last read (samples lost).
     pub overrun: bool,
+    /// Every slot unread: a sample that lands before the first slot is read overwrites the
+    /// oldest, and that read clears the overrun flag (a loss no status read shows).
+    pub full: bool,
 }
 
 /// The accelerometer/gyroscope part of an LSM9DS1.
@@ -460,7 +463,7 @@ impl<I: I2c> Lsm9ds1<I> {
     pub fn fifo_status(&mut self) -> Result<FifoStatus, SensorError> {
         let src = self.read(reg::FIFO_SRC)?;
         let level = (src & 0x3F).min(FIFO_DEPTH);
-        Ok(FifoStatus { level: level.saturating_sub(self.discard), overrun: src & FIFO_SRC_OVRN != 0 })
+        Ok(FifoStatus { level: level.saturating_sub(self.discard), overrun: src & FIFO_SRC_OVRN != 0, full: level == FIFO_DEPTH })
     }
 
     /// Pops one FIFO slot (after throwing away the junk first slot, if still due): the gyro

@@ -287,7 +287,8 @@ impl Sensing {
         // 400 kHz, in which 8 more arrive at 952 Hz, then 2, then 0-1): the tick after the read
         // may run a step of a fit or of the solve (≤ 2 M instructions, 31 ms), and at 952 Hz
         // the FIFO holds 34 ms. A FIFO full at the status read loses a sample unseen if one
-        // arrives before the first slot is read (the read clears the overrun flag).
+        // arrives before the first slot is read (the read clears the overrun flag): it is named
+        // as a loss that may have happened.
         let mut result = Ok(0);
         for round in 0..4 {
             let mag_ut = mag_ut.filter(|_| round == 0);
@@ -296,8 +297,9 @@ impl Sensing {
                 let batch = stamper.batch(t_read, n);
                 // An overrun, flagged or seen by the samples' count (`Batch::late`: a slot read
                 // after it clears the flag).
-                if st.overrun || batch.late(t_read, n) {
-                    io.console.send(Log::Warn, "FIFO overrun: samples lost");
+                let lost = st.overrun || batch.late(t_read, n);
+                if lost || st.full {
+                    io.console.send(Log::Warn, if lost { "FIFO overrun: samples lost" } else { "FIFO found full: a sample may be lost" });
                     stamper.restart();
                     // At least one sample overwritten: a running calibration fails (named).
                     procedure.handle_samples_lost(1);

@@ -143,9 +143,15 @@ fn every_overrun_at_952_hz_is_named() {
     // after the record's line that ends `calibrate`.
     b.run_for(1.0);
     let ((_, dropped), overruns) = (b.mcu.periph.borrow().sensor.counts(), b.mcu.periph.borrow().sensor.overruns());
-    let named = b.mcu.log.iter().filter(|l| vboard::testbed::message(l).contains("FIFO overrun: samples lost")).count();
-    println!("MEASURED odr952 calibration {outcome:?}: {dropped} samples dropped in {overruns} overruns, {named} named");
-    assert_eq!(named, overruns, "{dropped} samples dropped in {overruns} overruns, {named} named");
+    let count = |m: &str| b.mcu.log.iter().filter(|l| vboard::testbed::message(l).contains(m)).count();
+    // A loss seen (the flag, or the samples' count), or a FIFO found full: one that lands
+    // before the first slot read is lost with its flag (the build of b1c0296 lost one so).
+    let (named, maybe) = (count("FIFO overrun: samples lost"), count("FIFO found full: a sample may be lost"));
+    println!("MEASURED odr952 calibration {outcome:?}: {dropped} samples dropped in {overruns} overruns, {named} named, {maybe} FIFOs found full");
+    assert!(
+        named <= overruns && named + maybe >= overruns,
+        "{dropped} samples dropped in {overruns} overruns, {named} named, {maybe} found full"
+    );
     // And there are none: every call within the FIFO's time, the FIFO read down to a slot
     // before a tick, and paused around the store's page erase (issue 50).
     assert_eq!((overruns, dropped), (0, 0));
