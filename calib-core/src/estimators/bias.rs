@@ -293,7 +293,9 @@ impl Drift {
             let s2 = match noise {
                 RestNoise::Own(sigma) => {
                     let own = sigma[k] as f64 * sigma[k] as f64;
-                    if dof > 0.0 && scatter * dof > own * crate::math::lsq::chi2_95(dof) {
+                    // Below one degree of freedom the scatter says nothing (and the χ² point's
+                    // approximation fails).
+                    if dof >= 1.0 && scatter * dof > own * crate::math::lsq::chi2_95(dof) {
                         scatter
                     } else {
                         own
