@@ -337,8 +337,10 @@ pub struct FifoStatus {
     pub level: u8,
     /// Slots were overwritten since the last read (samples lost).
     pub overrun: bool,
-    /// Every slot unread: a sample that lands before the first slot is read overwrites the
-    /// oldest, and that read clears the overrun flag (a loss no status read shows).
+    /// Every slot unread (FSS = 32): a sample that lands before the first slot is read
+    /// overwrites the oldest, and that read clears the overrun flag (a loss no status read
+    /// shows). ST DocID025715, FIFO_SRC (2Fh): OVRN is 1 while the FIFO is completely filled
+    /// and at least one sample has been overwritten.
     pub full: bool,
 }
 
