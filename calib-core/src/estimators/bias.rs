@@ -293,9 +293,12 @@ impl Drift {
             let s2 = match noise {
                 RestNoise::Own(sigma) => {
                     let own = sigma[k] as f64 * sigma[k] as f64;
-                    // Below one degree of freedom the scatter says nothing (and the χ² point's
-                    // approximation fails).
-                    if dof >= 1.0 && scatter * dof > own * crate::math::lsq::chi2_95(dof) {
+                    if dof < 1.0 {
+                        // Too few rests to test the scatter (the χ² point's approximation fails
+                        // there too): the larger of it, scaled for its few degrees of freedom,
+                        // and the own noise.
+                        (scatter * crate::math::lsq::few_dof_factor(dof)).max(own)
+                    } else if scatter * dof > own * crate::math::lsq::chi2_95(dof) {
                         scatter
                     } else {
                         own
@@ -323,7 +326,8 @@ pub enum RestNoise {
     /// Still rests' own (their samples' spread over `√n`, from hundreds of samples): the rests'
     /// scatter about their line takes its place only where it exceeds it beyond chance (χ²'s
     /// 95 % point, as the accelerometer's 1σ: [`crate::math::lsq::chi2_95`]), a drift the line
-    /// does not follow.
+    /// does not follow. Below one degree of freedom beyond the line, where no test can be
+    /// made, the larger of the two (the scatter times [`crate::math::lsq::few_dof_factor`]).
     Own(Vec3),
     /// A rough one: rests held by a hand, whose means carry their sway's net turn, with the
     /// spread of every still segment pooled (a hand's tremor and sway in it). The larger of it
@@ -664,6 +668,16 @@ mod tests {
         assert_eq!(gap.off_trend_dps(), 0.0);
     }
 
+    /// A rest every 4 s for 80 s, on x the bias `x(t)` gives (°/s).
+    fn every_4_s(mut x: impl FnMut(f64) -> f64) -> Drift {
+        let mut d = Drift::new();
+        for i in 0..=20 {
+            let t = 4.0 * i as f64;
+            d.add(RestBias { t_s: t, residual_dps: [x(t) as f32, 0.0, 0.0] });
+        }
+        d
+    }
+
     /// A warm-up (0.2 °/s along 1 − e^(−t/60 s)) seen by a rest every 4 s for 80 s, each rest
     /// mean with 0.007 °/s of noise, 2000 times: the bias predicted for the end (82 s) lies
     /// within its 1σ and 2σ of the curve there as an honest σ promises, and far closer than the
@@ -674,12 +688,7 @@ mod tests {
         let curve = |t: f64| 0.2 * (1.0 - libm::exp(-t / 60.0));
         let (mut within, mut err2, runs) = ([0u32; 2], 0.0, 2000);
         for _ in 0..runs {
-            let mut d = Drift::new();
-            for i in 0..=20 {
-                let t = 4.0 * i as f64;
-                let n = 0.007 * noise.next();
-                d.add(RestBias { t_s: t, residual_dps: [(curve(t) + n) as f32, 0.0, 0.0] });
-            }
+            let d = every_4_s(|t| curve(t) + 0.007 * noise.next());
             let (at, sigma) = d.predict(82.0, RestNoise::Own([0.007; 3])).unwrap();
             let e = (at.residual_dps[0] as f64 - curve(82.0)).abs();
             within[0] += (e <= sigma[0] as f64) as u32;
@@ -703,23 +712,17 @@ mod tests {
         let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
         let runs = 2000;
         let run = |noise: &mut crate::math::test_noise::Gaussian, walk: f64| {
-            let (mut d, mut b) = (Drift::new(), 0.0);
-            for i in 0..=20 {
-                if i > 0 {
+            let mut b = 0.0;
+            let d = every_4_s(|t| {
+                if t > 0.0 {
                     b += walk * 2.0 * noise.next();
                 }
-                d.add(RestBias { t_s: 4.0 * i as f64, residual_dps: [(b + 0.007 * noise.next()) as f32, 0.0, 0.0] });
-            }
+                b + 0.007 * noise.next()
+            });
             let (at, sigma) = d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap();
             ((at.residual_dps[0] as f64 - b).abs(), sigma[0] as f64)
         };
-        let own = {
-            let mut d = Drift::new();
-            for i in 0..=20 {
-                d.add(RestBias { t_s: 4.0 * i as f64, residual_dps: [0.0; 3] });
-            }
-            d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as f64
-        };
+        let own = every_4_s(|_| 0.0).predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as f64;
         let constant = (0..runs).filter(|_| run(&mut noise, 0.0).1 == own).count() as f64 / runs as f64;
         assert!((0.92..=0.97).contains(&constant), "own noise's sigma in {constant:.3} of the runs");
         let within = (0..runs).fold([0u32; 2], |w, _| {
@@ -730,6 +733,21 @@ mod tests {
         assert!((0.6..=0.8).contains(&one) && two >= 0.92, "walking: within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 
+    /// Three rests 4 s apart (0.8 effective rests beyond the line's two): too few to test their
+    /// scatter, which then counts, scaled for its few degrees of freedom, beside their own noise.
+    #[test]
+    fn still_rests_too_few_to_test_keep_their_scatter() {
+        let three = |b: f32| {
+            let mut d = Drift::new();
+            for (t, b) in [(0.0, 0.0), (4.0, b), (8.0, 0.0)] {
+                d.add(RestBias { t_s: t, residual_dps: [b; 3] });
+            }
+            d.predict(8.0, RestNoise::Own([0.001; 3])).unwrap().1[0]
+        };
+        let (quiet, scattered) = (three(0.0), three(0.05));
+        assert!(scattered > 10.0 * quiet, "{scattered} against {quiet}");
+    }
+
     /// Hand-held rests (a rest every 4 s for 80 s) whose means carry a sway's net turn, 0.02 °/s
     /// each, beside a pooled floor of 0.007 °/s, 2000 times: the scatter is their variance and
     /// the bias predicted for the last rest lies within its 1σ and 2σ as an honest σ promises
@@ -738,13 +756,7 @@ mod tests {
     fn hand_held_rests_take_the_larger_of_their_scatter_and_the_floor() {
         let mut noise = crate::math::test_noise::Gaussian::new(0x6a09_e667_f3bc_c909);
         let (mut within, runs) = ([0u32; 2], 2000);
-        let rests = |noise: &mut crate::math::test_noise::Gaussian| {
-            let mut d = Drift::new();
-            for i in 0..=20 {
-                d.add(RestBias { t_s: 4.0 * i as f64, residual_dps: [(0.02 * noise.next()) as f32, 0.0, 0.0] });
-            }
-            d
-        };
+        let rests = |noise: &mut crate::math::test_noise::Gaussian| every_4_s(|_| 0.02 * noise.next());
         for _ in 0..runs {
             let (at, sigma) = rests(&mut noise).predict(80.0, RestNoise::Bound([0.007; 3])).unwrap();
             let e = (at.residual_dps[0] as f64).abs();
