@@ -23,7 +23,7 @@ use calib_core::formats::protocol::{self, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::text::{Fixed, Level as Log, V3};
 use calib_core::math::stats::Moments3;
-use calib_core::math::vec3::to_f64;
+use calib_core::math::vec3::to_real;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
 use core::mem::MaybeUninit;
 use embedded_hal::digital::InputPin;
@@ -458,7 +458,7 @@ fn feed(sample: Sample, mag_ut: Option<[f32; 3]>, setup: SensorSetup, raw: bool,
     if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
         live.rate.add(rec.apply_gyro(gyro_dps));
         if let (Some(cal), Some(m)) = (rec.mag, mag_ut) {
-            live.heading_deg = heading_deg(to_f64(rec.accel().apply(accel_g)), to_f64(cal.apply(m))).map(|h| h as f32);
+            live.heading_deg = heading_deg(to_real(rec.accel().apply(accel_g)), to_real(cal.apply(m))).map(|h| h as f32);
         }
     }
     procedure.handle_sample(&sample);

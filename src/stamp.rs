@@ -7,14 +7,12 @@
 //! constant that no integral sees). So samples get evenly spaced times at the measured period,
 //! never the nominal ODR, and not the batch-to-batch jitter of the read times.
 
-use calib_core::math::lsq::NormalEquations;
-
 /// Assigns MCU timestamps to FIFO samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stamper {
     nominal_period_s: f64,
-    /// Rows `[1, k_newest] · [t₀, P] ≈ t_read`, indices from the first sample since (re)start.
-    fit: NormalEquations<2>,
+    /// Rows `t_read ≈ t₀ + k_newest·P`, indices from the first sample since (re)start.
+    fit: LineSums,
     first_read_s: Option<f64>,
     received: u64,
     line: Option<(f64, f64)>,
@@ -31,13 +29,7 @@ const LATE_S: f64 = 0.005;
 impl Stamper {
     /// `nominal_hz` is used only until the period has been measured.
     pub fn new(nominal_hz: f32) -> Self {
-        Self {
-            nominal_period_s: 1.0 / nominal_hz.max(1.0) as f64,
-            fit: NormalEquations::new(),
-            first_read_s: None,
-            received: 0,
-            line: None,
-        }
+        Self { nominal_period_s: 1.0 / nominal_hz.max(1.0) as f64, fit: LineSums::EMPTY, first_read_s: None, received: 0, line: None }
     }
 
     /// The measured sample period (s), or the nominal one before it can be measured.
@@ -64,12 +56,11 @@ impl Stamper {
         self.received += n as u64;
         if n > 0 && dated {
             // Times relative to the first read keep the sums well conditioned.
-            let _ = self.fit.add_row(&[1.0, (self.received - 1) as f64], t_read_s - t0, 1.0);
-            if self.fit.rows() >= MIN_BATCHES {
-                // The line alone: its condition number and covariance are not used.
-                if let Ok(x) = self.fit.estimate() {
-                    if x[1] > 0.5 * self.nominal_period_s && x[1] < 2.0 * self.nominal_period_s {
-                        self.line = Some((t0 + x[0], x[1]));
+            self.fit.add((self.received - 1) as f64, t_read_s - t0);
+            if self.fit.n >= MIN_BATCHES {
+                if let Some((a, p)) = self.fit.line() {
+                    if p > 0.5 * self.nominal_period_s && p < 2.0 * self.nominal_period_s {
+                        self.line = Some((t0 + a, p));
                     }
                 }
             }
@@ -84,6 +75,39 @@ impl Stamper {
     /// Forgets the history (after a FIFO overrun the sample count no longer matches the time).
     pub fn restart(&mut self) {
         *self = Self::new((1.0 / self.nominal_period_s) as f32);
+    }
+}
+
+/// The sums of a least-squares line `t ≈ a + k·p` through rows `(k, t)`, in `f64`: sample
+/// indices reach millions and times thousands of seconds, beyond `f32`'s 24 bits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LineSums {
+    n: u32,
+    k: f64,
+    kk: f64,
+    t: f64,
+    kt: f64,
+}
+
+impl LineSums {
+    const EMPTY: LineSums = LineSums { n: 0, k: 0.0, kk: 0.0, t: 0.0, kt: 0.0 };
+
+    fn add(&mut self, k: f64, t: f64) {
+        self.n += 1;
+        self.k += k;
+        self.kk += k * k;
+        self.t += t;
+        self.kt += k * t;
+    }
+
+    /// `(a, p)`; `None` while every row has one index.
+    fn line(&self) -> Option<(f64, f64)> {
+        let n = self.n as f64;
+        let d = n * self.kk - self.k * self.k;
+        (d > 0.0).then(|| {
+            let p = (n * self.kt - self.k * self.t) / d;
+            ((self.t - p * self.k) / n, p)
+        })
     }
 }
 

@@ -15,7 +15,7 @@ use calib_core::estimators::mag::heading_deg;
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::region::{self, ADDRESS, PAGE, SLOTS};
 use calib_core::math::stats::Moments3;
-use calib_core::math::vec3::to_f64;
+use calib_core::math::vec3::to_real;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
@@ -167,7 +167,7 @@ fn main() -> ! {
             let m = rate.mean();
             let cal = if rec.is_some() { "calibrated" } else { "raw" };
             defmt::info!(
-                "rate [{=f64} {=f64} {=f64}] dps ({=str}, 1 s mean); turned [{=f64} {=f64} {=f64}] deg since boot",
+                "rate [{} {} {}] dps ({=str}, 1 s mean); turned [{} {} {}] deg since boot",
                 m[0],
                 m[1],
                 m[2],
@@ -179,8 +179,8 @@ fn main() -> ! {
             rate = Moments3::new();
             if let (Some(c), Some(m), true) = (mag_cal, field, gravity.count() > 0) {
                 let f = gravity.mean().map(|v| v as f32);
-                if let Some(h) = heading_deg(to_f64(f), to_f64(c.apply(m))) {
-                    defmt::info!("heading {=f64} deg (tilt-compensated, clockwise from magnetic north)", h);
+                if let Some(h) = heading_deg(to_real(f), to_real(c.apply(m))) {
+                    defmt::info!("heading {} deg (tilt-compensated, clockwise from magnetic north)", h);
                 }
             }
             gravity = Moments3::new();

@@ -11,6 +11,7 @@
 
 use crate::math::linalg::{cholesky, cholesky_inverse};
 use crate::math::lsq::NormalEquations;
+use crate::math::real::{self, Real};
 use crate::{Error, Mat3, Vec3};
 
 /// Largest number of accelerometer poses kept.
@@ -107,14 +108,14 @@ pub struct AccelSigma {
 /// Static accelerometer poses (mean readings, g), with the linear fits accumulated as they come.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AccelCalibrator<const N: usize = MAX_ACCEL_POSES> {
-    poses: heapless::Vec<[f64; 3], N>,
+    poses: heapless::Vec<[Real; 3], N>,
     lin6: NormalEquations<6>,
     lin9: NormalEquations<9>,
 }
 
 /// Parameters of a Gauss-Newton iteration: offsets then the gain entries it fits.
 /// The fit's parameters: `[o; kx, ky, kz]` (6) or `[o; m00, m01, m02, m11, m12, m22]` (9).
-pub type Params = [f64; 9];
+pub type Params = [Real; 9];
 
 impl<const N: usize> AccelCalibrator<N> {
     /// No poses.
@@ -140,7 +141,7 @@ impl<const N: usize> AccelCalibrator<N> {
     }
 
     /// Pose `i` (raw g); the last pose for an out-of-range index, zero when empty.
-    pub fn pose(&self, i: usize) -> nalgebra::Vector3<f64> {
+    pub fn pose(&self, i: usize) -> nalgebra::Vector3<Real> {
         let a = self.poses.get(i).or(self.poses.last()).copied().unwrap_or_default();
         nalgebra::Vector3::new(a[0], a[1], a[2])
     }
@@ -152,7 +153,7 @@ impl<const N: usize> AccelCalibrator<N> {
         if self.poses.is_full() {
             return Err(full);
         }
-        let [x, y, z] = [a[0] as f64, a[1] as f64, a[2] as f64];
+        let [x, y, z] = [a[0] as Real, a[1] as Real, a[2] as Real];
         self.lin6.add_row(&[x * x, y * y, z * z, x, y, z], 1.0, 1.0)?;
         self.lin9.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, 1.0)?;
         self.poses.push([x, y, z]).map_err(|_| full)
@@ -173,7 +174,7 @@ impl<const N: usize> AccelCalibrator<N> {
         }
         let d = 1.0 / sum;
         for i in 0..3 {
-            p[3 + i] = libm::sqrt(s[i] * d);
+            p[3 + i] = real::sqrt(s[i] * d);
         }
         self.refine::<6>(p, AccelModel::SixParam)
     }
@@ -203,14 +204,14 @@ impl<const N: usize> AccelCalibrator<N> {
         let inv = cholesky_inverse(&l);
         let mut o = [0.0; 3];
         for (i, oi) in o.iter_mut().enumerate() {
-            *oi = -0.5 * (0..3).map(|j| inv[i][j] * q[6 + j]).sum::<f64>();
+            *oi = -0.5 * (0..3).map(|j| inv[i][j] * q[6 + j]).sum::<Real>();
         }
-        let s = 1.0 + (0..3).map(|i| (0..3).map(|j| o[i] * shape[i][j] * o[j]).sum::<f64>()).sum::<f64>();
+        let s = 1.0 + (0..3).map(|i| (0..3).map(|j| o[i] * shape[i][j] * o[j]).sum::<Real>()).sum::<Real>();
         if !(s > 0.0) {
             return Err(Error::AccelFitFailed);
         }
         // shape / s = L Lᵀ = Mᵀ M with M = Lᵀ / √s upper triangular.
-        let r = 1.0 / libm::sqrt(s);
+        let r = 1.0 / real::sqrt(s);
         Ok([o[0], o[1], o[2], l[0][0] * r, l[1][0] * r, l[2][0] * r, l[1][1] * r, l[2][1] * r, l[2][2] * r])
     }
 
@@ -222,7 +223,7 @@ impl<const N: usize> AccelCalibrator<N> {
 
     /// [`Self::calibration9`] with the equations' condition number already computed
     /// ([`NormalEquations::condition`]: a caller that runs the two in calls of their own).
-    pub fn calibration9_given(&self, p: &Params, ne: &NormalEquations<9>, condition: f64) -> Result<AccelCal, Error> {
+    pub fn calibration9_given(&self, p: &Params, ne: &NormalEquations<9>, condition: Real) -> Result<AccelCal, Error> {
         self.calibration(p, AccelModel::NineParam, ne.check_given(condition)?)
     }
 
@@ -260,7 +261,7 @@ impl<const N: usize> AccelCalibrator<N> {
             ne.add_row(&core::array::from_fn(|i| jac[i]), -r, 1.0)?;
         }
         let x = ne.estimate()?;
-        let mut step = 0.0f64;
+        let mut step = 0.0 as Real;
         for i in 0..P {
             p[i] += x[i];
             step = step.max(x[i].abs());
@@ -277,9 +278,9 @@ impl<const N: usize> AccelCalibrator<N> {
     /// residual alone is not the scale: with a few poses more than unknowns (12 poses, 9
     /// parameters) its variance has 3 degrees of freedom and is often small by chance. `None`
     /// for the identity, a count that differs from the poses' or a 1σ not above zero.
-    pub fn sigma(&self, cal: &AccelCal, pose_sigma_g: &[f64]) -> Option<AccelSigma> {
-        let o = cal.offset_g.map(|v| v as f64);
-        let m = cal.m.map(|r| r.map(|v| v as f64));
+    pub fn sigma(&self, cal: &AccelCal, pose_sigma_g: &[Real]) -> Option<AccelSigma> {
+        let o = cal.offset_g.map(|v| v as Real);
+        let m = cal.m.map(|r| r.map(|v| v as Real));
         match cal.model {
             AccelModel::SixParam => self.propagate::<6>(&[o[0], o[1], o[2], m[0][0], m[1][1], m[2][2], 0.0, 0.0, 0.0], pose_sigma_g),
             AccelModel::NineParam => {
@@ -290,7 +291,7 @@ impl<const N: usize> AccelCalibrator<N> {
     }
 
     /// [`Self::sigma`] for the `P` parameters `p`.
-    fn propagate<const P: usize>(&self, p: &Params, pose_sigma_g: &[f64]) -> Option<AccelSigma> {
+    fn propagate<const P: usize>(&self, p: &Params, pose_sigma_g: &[Real]) -> Option<AccelSigma> {
         if pose_sigma_g.len() != self.poses.len() || !pose_sigma_g.iter().all(|s| *s > 0.0 && s.is_finite()) {
             return None;
         }
@@ -310,15 +311,15 @@ impl<const N: usize> AccelCalibrator<N> {
         let mut var = [0.0; P];
         for (a, s) in self.poses.iter().zip(pose_sigma_g) {
             let (_, jac) = residual(p, a, P == 6);
-            let t: [f64; P] = core::array::from_fn(|k| (0..P).map(|j| inv[k][j] * jac[j]).sum());
+            let t: [Real; P] = core::array::from_fn(|k| (0..P).map(|j| inv[k][j] * jac[j]).sum());
             for (v, tk) in var.iter_mut().zip(t) {
                 *v += s * s * tk * tk;
             }
         }
         let dof = self.poses.len().saturating_sub(P);
-        let nu = dof.max(1) as f64;
+        let nu = dof.max(1) as Real;
         let scale = if dof > 0 && chi2 > crate::math::lsq::chi2_95(nu) { chi2 / nu } else { 1.0 };
-        let sigma = |i: [usize; 3]| i.map(|i| libm::sqrt(var[i] * scale) as f32);
+        let sigma = |i: [usize; 3]| i.map(|i| real::sqrt(var[i] * scale) as f32);
         Some(AccelSigma {
             offset_g: sigma([0, 1, 2]),
             gain: sigma(if P == 6 { [3, 4, 5] } else { [3, 6, 8] }),
@@ -329,14 +330,15 @@ impl<const N: usize> AccelCalibrator<N> {
     }
 
     /// The calibration of the refined parameters `p`; the same code for both models.
-    fn calibration(&self, p: &Params, model: AccelModel, condition: f64) -> Result<AccelCal, Error> {
+    fn calibration(&self, p: &Params, model: AccelModel, condition: Real) -> Result<AccelCal, Error> {
         let six = model == AccelModel::SixParam;
         let m = gain_matrix(p, six);
         if !(0..3).all(|i| m[i][i] > 0.0) || !p.iter().all(|v| v.is_finite()) {
             return Err(Error::AccelFitFailed);
         }
-        let rms =
-            |f: &dyn Fn(&[f64; 3]) -> f64| libm::sqrt(self.poses.iter().map(|a| f(a) * f(a)).sum::<f64>() / self.poses.len() as f64) as f32;
+        let rms = |f: &dyn Fn(&[Real; 3]) -> Real| {
+            real::sqrt(self.poses.iter().map(|a| f(a) * f(a)).sum::<Real>() / self.poses.len() as Real) as f32
+        };
         Ok(AccelCal {
             m: m.map(|row| row.map(|v| v as f32)),
             offset_g: [p[0] as f32, p[1] as f32, p[2] as f32],
@@ -349,12 +351,12 @@ impl<const N: usize> AccelCalibrator<N> {
     }
 }
 
-fn norm(v: &[f64; 3]) -> f64 {
-    libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+fn norm(v: &[Real; 3]) -> Real {
+    real::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
 /// Gain matrix from the parameters: `[o; kx, ky, kz]` (`six`) or `[o; m00, m01, m02, m11, m12, m22]`.
-fn gain_matrix(p: &Params, six: bool) -> [[f64; 3]; 3] {
+fn gain_matrix(p: &Params, six: bool) -> [[Real; 3]; 3] {
     if six {
         [[p[3], 0.0, 0.0], [0.0, p[4], 0.0], [0.0, 0.0, p[5]]]
     } else {
@@ -365,14 +367,14 @@ fn gain_matrix(p: &Params, six: bool) -> [[f64; 3]; 3] {
 /// Residual `|M (a − o)| − 1` (g) and its gradient with respect to the parameters (the first 6
 /// when `six`). One copy for both models: not inlined.
 #[inline(never)]
-fn residual(p: &Params, a: &[f64; 3], six: bool) -> (f64, Params) {
+fn residual(p: &Params, a: &[Real; 3], six: bool) -> (Real, Params) {
     let m = gain_matrix(p, six);
     let d = [a[0] - p[0], a[1] - p[1], a[2] - p[2]];
-    let f: [f64; 3] = core::array::from_fn(|i| (0..3).map(|j| m[i][j] * d[j]).sum());
+    let f: [Real; 3] = core::array::from_fn(|i| (0..3).map(|j| m[i][j] * d[j]).sum());
     let n = norm(&f).max(1e-12);
     let mut jac = [0.0; 9];
     for k in 0..3 {
-        jac[k] = -(0..3).map(|i| m[i][k] * f[i]).sum::<f64>() / n;
+        jac[k] = -(0..3).map(|i| m[i][k] * f[i]).sum::<Real>() / n;
     }
     if six {
         for i in 0..3 {
@@ -395,17 +397,17 @@ mod tests {
     use super::*;
 
     /// Raw reading of a true unit specific force `f` for `a = M⁻¹ f + o` (M triangular).
-    fn raw(m: &[[f64; 3]; 3], o: &[f64; 3], f: [f64; 3]) -> Vec3 {
+    fn raw(m: &[[Real; 3]; 3], o: &[Real; 3], f: [Real; 3]) -> Vec3 {
         // Back-substitution of the upper-triangular M.
         let mut d = [0.0; 3];
         for i in (0..3).rev() {
-            let s: f64 = (i + 1..3).map(|j| m[i][j] * d[j]).sum();
+            let s: Real = (i + 1..3).map(|j| m[i][j] * d[j]).sum();
             d[i] = (f[i] - s) / m[i][i];
         }
         [(d[0] + o[0]) as f32, (d[1] + o[1]) as f32, (d[2] + o[2]) as f32]
     }
 
-    fn icosahedron() -> [[f64; 3]; 12] {
+    fn icosahedron() -> [[Real; 3]; 12] {
         let t = (1.0 + libm::sqrt(5.0)) / 2.0;
         let n = libm::sqrt(1.0 + t * t);
         let v = [
@@ -435,8 +437,8 @@ mod tests {
         }
         let cal = c.solve6().unwrap();
         for i in 0..3 {
-            assert!((cal.m[i][i] as f64 - m[i][i]).abs() < 2e-6, "{:?}", cal.m);
-            assert!((cal.offset_g[i] as f64 - o[i]).abs() < 2e-6);
+            assert!((cal.m[i][i] as Real - m[i][i]).abs() < 2e-6, "{:?}", cal.m);
+            assert!((cal.offset_g[i] as Real - o[i]).abs() < 2e-6);
         }
         assert!(cal.rms_after_g < 1e-6 && cal.rms_before_g > 1e-3);
     }
@@ -452,9 +454,9 @@ mod tests {
         let cal = c.solve9().unwrap();
         for i in 0..3 {
             for j in 0..3 {
-                assert!((cal.m[i][j] as f64 - m[i][j]).abs() < 2e-6, "{:?}", cal.m);
+                assert!((cal.m[i][j] as Real - m[i][j]).abs() < 2e-6, "{:?}", cal.m);
             }
-            assert!((cal.offset_g[i] as f64 - o[i]).abs() < 2e-6);
+            assert!((cal.offset_g[i] as Real - o[i]).abs() < 2e-6);
         }
     }
 
@@ -468,7 +470,7 @@ mod tests {
         // Eight poses on one cone (a servo's): the ellipsoid is not determined.
         let mut c = <AccelCalibrator>::new();
         for k in 0..8 {
-            let th = k as f64 * 0.7;
+            let th = k as Real * 0.7;
             let v = [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8];
             c.add_pose([v[0] as f32, v[1] as f32, v[2] as f32]).unwrap();
         }
@@ -478,27 +480,27 @@ mod tests {
     /// Fraction of the 9-parameter fit's offsets and diagonal gains within 1σ and 2σ over
     /// `runs` sensors, each pose of `poses` given noise of 1σ `sigma(k)` (g) per axis on its
     /// mean, and stated to the fit as `stated(k)`.
-    fn coverage(poses: &[[f64; 3]], sigma: impl Fn(usize) -> f64, stated: impl Fn(usize) -> f64, runs: usize) -> [f64; 2] {
+    fn coverage(poses: &[[Real; 3]], sigma: impl Fn(usize) -> Real, stated: impl Fn(usize) -> Real, runs: usize) -> [Real; 2] {
         let mut noise = crate::math::test_noise::Gaussian::new(0x9e37_79b9_7f4a_7c15);
         let (m, o) = ([[1.01, 0.002, -0.003], [0.0, 0.99, 0.001], [0.0, 0.0, 1.02]], [0.01, -0.02, 0.005]);
         let mut within = [0u32; 2];
-        let stated: heapless::Vec<f64, 32> = (0..poses.len()).map(stated).collect();
+        let stated: heapless::Vec<Real, 32> = (0..poses.len()).map(stated).collect();
         for _ in 0..runs {
             let mut c = <AccelCalibrator>::new();
             for (k, f) in poses.iter().enumerate() {
-                c.add_pose(raw(&m, &o, *f).map(|v| (v as f64 + sigma(k) * noise.next()) as f32)).unwrap();
+                c.add_pose(raw(&m, &o, *f).map(|v| (v as Real + sigma(k) * noise.next()) as f32)).unwrap();
             }
             let cal = c.solve9().unwrap();
             let sig = c.sigma(&cal, &stated).unwrap();
             for i in 0..3 {
-                let errs = [(cal.offset_g[i] as f64 - o[i], sig.offset_g[i]), (cal.m[i][i] as f64 - m[i][i], sig.gain[i])];
+                let errs = [(cal.offset_g[i] as Real - o[i], sig.offset_g[i]), (cal.m[i][i] as Real - m[i][i], sig.gain[i])];
                 for (e, s) in errs {
-                    within[0] += (e.abs() <= s as f64) as u32;
-                    within[1] += (e.abs() <= 2.0 * s as f64) as u32;
+                    within[0] += (e.abs() <= s as Real) as u32;
+                    within[1] += (e.abs() <= 2.0 * s as Real) as u32;
                 }
             }
         }
-        within.map(|n| n as f64 / (6 * runs) as f64)
+        within.map(|n| n as Real / (6 * runs) as Real)
     }
 
     #[test]
@@ -516,7 +518,7 @@ mod tests {
         // variance propagated is not.
         let mut poses = [[0.0; 3]; 32];
         for (k, p) in poses.iter_mut().enumerate() {
-            let th = k as f64 * core::f64::consts::TAU / 20.0;
+            let th = k as Real * crate::math::real::consts::TAU / 20.0;
             *p = if k < 20 { [0.6 * libm::cos(th), 0.6 * libm::sin(th), 0.8] } else { icosahedron()[k - 20] };
         }
         let noise = |k: usize| if k < 20 { 1e-5 } else { 1e-4 };
@@ -561,27 +563,27 @@ mod tests {
 
     /// How often the F-test takes the 9-parameter model over `runs` sensors of gain `m` and the
     /// poses `poses`, each mean given 1σ `sigma` (g) of noise per axis.
-    fn nine_taken(m: &[[f64; 3]; 3], poses: &[[f64; 3]], sigma: f64, runs: usize) -> f64 {
+    fn nine_taken(m: &[[Real; 3]; 3], poses: &[[Real; 3]], sigma: Real, runs: usize) -> Real {
         let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
         let acc = crate::procedure::Config::DEFAULT.acceptance;
         let mut nine = 0;
         for _ in 0..runs {
             let mut c = AccelCalibrator::<32>::new();
             for f in poses {
-                c.add_pose(raw(m, &[0.01, -0.02, 0.005], *f).map(|v| (v as f64 + sigma * noise.next()) as f32)).unwrap();
+                c.add_pose(raw(m, &[0.01, -0.02, 0.005], *f).map(|v| (v as Real + sigma * noise.next()) as f32)).unwrap();
             }
             let (fit, test) = crate::procedure::pipeline::fit_accel_tested(&c, &acc).unwrap();
             assert_eq!(fit.model == AccelModel::NineParam, test.unwrap().nine());
             nine += test.unwrap().nine() as usize;
         }
-        nine as f64 / runs as f64
+        nine as Real / runs as Real
     }
 
     #[test]
     fn the_nine_parameter_model_only_where_its_cross_terms_are_significant() {
         let ico = icosahedron();
         // The icosahedron's 12 and a cube's 8 corners (b = 0b1xx: x negative, ...).
-        let twenty: [[f64; 3]; 20] = core::array::from_fn(|k| match k {
+        let twenty: [[Real; 3]; 20] = core::array::from_fn(|k| match k {
             k if k < 12 => ico[k],
             k => core::array::from_fn(|i| if (k - 12) >> i & 1 == 1 { -1.0 } else { 1.0 } / libm::sqrt(3.0)),
         });

@@ -5,7 +5,8 @@
 //! force `A`, seen in the sensor frame B, by `−θ` about `u`; `A·u` is the same in every pose.
 
 use crate::math::linalg::sym_eigen;
-use crate::math::vec3::to_f64;
+use crate::math::real::{self, Real};
+use crate::math::vec3::to_real;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -52,15 +53,15 @@ impl Default for GeometryLimits {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Geometry {
     /// Unit rotation axis in B, signed so that `A·u ≥ 0`.
-    pub u: Vector3<f64>,
+    pub u: Vector3<Real>,
     /// Angle between the axis and vertical (°).
-    pub tilt_deg: f64,
+    pub tilt_deg: Real,
     /// Shaft-angle span of the poses (°), unwrapped along the pose order.
-    pub span_deg: f64,
+    pub span_deg: Real,
     /// Smallest |u_k|.
-    pub min_component: f64,
+    pub min_component: Real,
     /// RMS distance of the pose tips from their plane (g).
-    pub plane_rms_g: f64,
+    pub plane_rms_g: Real,
 }
 
 /// Mean calibrated accelerometer readings (g, B) of the static rig poses (bounded, no heap):
@@ -101,29 +102,29 @@ impl Poses {
     }
 
     /// Pose `i` as a vector (g). Panics never: out-of-range indices give the last pose, zero when empty.
-    pub fn get(&self, i: usize) -> Vector3<f64> {
-        to_f64(self.a.get(i).or(self.a.last()).copied().unwrap_or_default())
+    pub fn get(&self, i: usize) -> Vector3<Real> {
+        to_real(self.a.get(i).or(self.a.last()).copied().unwrap_or_default())
     }
 
     /// Replaces every pose `a` by `f(a)` (e.g. raw readings by calibrated ones).
-    pub fn map(&mut self, f: impl Fn(Vector3<f64>) -> Vector3<f64>) {
+    pub fn map(&mut self, f: impl Fn(Vector3<Real>) -> Vector3<Real>) {
         for a in &mut self.a {
-            let v = f(to_f64(*a));
+            let v = f(to_real(*a));
             *a = [v[0] as f32, v[1] as f32, v[2] as f32];
         }
     }
 
     /// Iterator over the poses.
-    pub fn iter(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
-        self.a.iter().map(|a| to_f64(*a))
+    pub fn iter(&self) -> impl Iterator<Item = Vector3<Real>> + '_ {
+        self.a.iter().map(|a| to_real(*a))
     }
 
     /// Plane fit of the poses whose bit is set in `mask` (bit `p`: pose `p`).
     pub(crate) fn plane(&self, mask: u64) -> Plane {
         let tips = || self.iter().enumerate().filter(move |&(p, _)| mask >> p & 1 != 0).map(|(_, t)| t);
         let n = tips().count();
-        let nf = n as f64;
-        let mean = tips().sum::<Vector3<f64>>() / nf;
+        let nf = n as Real;
+        let mean = tips().sum::<Vector3<Real>>() / nf;
         let mut scatter = [[0.0; 3]; 3];
         for t in tips() {
             let d = t - mean;
@@ -155,32 +156,32 @@ impl Poses {
         let Plane { mean, vals, u, tilt_deg, .. } = self.plane(u64::MAX);
         // Gravity that barely changes between poses means a vertical axis whatever the fit says
         // (a circle of radius sin(tilt) ≤ tilt in rad; no trigonometry on the target).
-        let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
-        let min_tilt = (limits.min_tilt_deg as f64).to_radians();
-        if spread < 0.3 * min_tilt || tilt_deg < limits.min_tilt_deg as f64 {
+        let spread = real::sqrt((vals[1] + vals[2]).max(0.0));
+        let min_tilt = (limits.min_tilt_deg as Real).to_radians();
+        if spread < 0.3 * min_tilt || tilt_deg < limits.min_tilt_deg as Real {
             let tilt = crate::math::trig::atan2(spread, mean.norm()).to_degrees().min(tilt_deg);
             return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
         }
         // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).
-        let (mut at, mut lo, mut hi) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut at, mut lo, mut hi) = (0.0 as Real, 0.0 as Real, 0.0 as Real);
         for i in 1..self.len() {
             at += turn_deg(&u, &self.get(i - 1), &self.get(i));
             lo = lo.min(at);
             hi = hi.max(at);
         }
         let span_deg = hi - lo;
-        if span_deg < limits.min_span_deg as f64 {
+        if span_deg < limits.min_span_deg as Real {
             return Err(Error::AngleSpanTooSmall { span_deg: span_deg as f32, min_deg: limits.min_span_deg });
         }
-        let plane_rms_g = libm::sqrt(vals[0].max(0.0));
-        if plane_rms_g > limits.max_plane_rms_g as f64 {
+        let plane_rms_g = real::sqrt(vals[0].max(0.0));
+        if plane_rms_g > limits.max_plane_rms_g as Real {
             return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.max_plane_rms_g });
         }
-        let (axis, min_component) = (0..3).map(|k| (k, u[k].abs())).fold((0, f64::INFINITY), |b, c| if c.1 < b.1 { c } else { b });
-        if min_component < limits.min_axis_component as f64 {
+        let (axis, min_component) = (0..3).map(|k| (k, u[k].abs())).fold((0, Real::INFINITY), |b, c| if c.1 < b.1 { c } else { b });
+        if min_component < limits.min_axis_component as Real {
             return Err(Error::WeakSensorAxis { axis: axis as u8, component: min_component as f32, min: limits.min_axis_component });
         }
-        if paper && tilt_deg > limits.max_tilt_deg_paper as f64 {
+        if paper && tilt_deg > limits.max_tilt_deg_paper as Real {
             return Err(Error::AxisNearHorizontal { tilt_deg: tilt_deg as f32, limit_deg: limits.max_tilt_deg_paper });
         }
         Ok(Geometry { u, tilt_deg, span_deg, min_component, plane_rms_g })
@@ -192,21 +193,21 @@ pub(crate) struct Plane {
     /// Number of tips.
     pub n: usize,
     /// Mean tip (g).
-    pub mean: Vector3<f64>,
+    pub mean: Vector3<Real>,
     /// Eigenvalues (ascending, g²) of the tips' scatter `Σ d dᵀ / n` about the mean.
-    pub vals: [f64; 3],
+    pub vals: [Real; 3],
     /// Unit normal (the first eigenvector), signed towards the mean.
-    pub u: Vector3<f64>,
+    pub u: Vector3<Real>,
     /// The other two eigenvectors (in-plane, same order as `vals[1..]`).
-    pub e: [Vector3<f64>; 2],
+    pub e: [Vector3<Real>; 2],
     /// Angle of `u` from the mean tip direction (°): `atan2` of the mean radial and axial distances.
-    pub tilt_deg: f64,
+    pub tilt_deg: Real,
     /// Mean distance of the tips from the line along `u` (g).
-    pub radial: f64,
+    pub radial: Real,
 }
 
 /// Shaft turn (°, in (−180, 180]) about `u` that takes pose `from` to pose `to`.
-pub fn turn_deg(u: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> f64 {
+pub fn turn_deg(u: &Vector3<Real>, from: &Vector3<Real>, to: &Vector3<Real>) -> Real {
     let p = from - u * from.dot(u);
     let q = to - u * to.dot(u);
     -crate::math::trig::atan2(u.dot(&p.cross(&q)), p.dot(&q)).to_degrees()
@@ -214,8 +215,8 @@ pub fn turn_deg(u: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> f64
 
 /// `angle_deg + k·360°` nearest to `reference_deg`: resolves the turn measured modulo a full turn
 /// with the gyro's own (uncalibrated) integral.
-pub fn unwrap_near(angle_deg: f64, reference_deg: f64) -> f64 {
-    angle_deg + 360.0 * libm::round((reference_deg - angle_deg) / 360.0)
+pub fn unwrap_near(angle_deg: Real, reference_deg: Real) -> Real {
+    angle_deg + 360.0 * real::round((reference_deg - angle_deg) / 360.0)
 }
 
 #[cfg(test)]
@@ -223,7 +224,7 @@ mod tests {
     use super::*;
 
     /// Specific force seen in B when the shaft (axis `u`, tilt `tilt` from vertical) is at `th`.
-    pub(crate) fn pose(u: Vector3<f64>, tilt: f64, th: f64) -> Vec3 {
+    pub(crate) fn pose(u: Vector3<Real>, tilt: Real, th: Real) -> Vec3 {
         let e1 = u.cross(&Vector3::new(0.3, -0.5, 0.8)).normalize();
         let e2 = u.cross(&e1);
         // Rotating the shaft by th rotates A by −th about u.
@@ -232,7 +233,7 @@ mod tests {
         [a[0] as f32, a[1] as f32, a[2] as f32]
     }
 
-    fn axis() -> Vector3<f64> {
+    fn axis() -> Vector3<Real> {
         Vector3::new(0.5, -0.6, 0.62).normalize()
     }
 
@@ -241,11 +242,11 @@ mod tests {
         let u = axis();
         let mut p = Poses::new();
         for k in 0..6 {
-            p.push(pose(u, 0.7, (k as f64 * 30.0).to_radians())).unwrap();
+            p.push(pose(u, 0.7, (k as Real * 30.0).to_radians())).unwrap();
         }
         let g = p.geometry(&GeometryLimits::default(), true).unwrap();
         assert!((g.u - u).norm() < 1e-6, "{:?}", g.u);
-        assert!((g.tilt_deg - 0.7f64.to_degrees()).abs() < 1e-4);
+        assert!((g.tilt_deg - (0.7 as Real).to_degrees()).abs() < 1e-4);
         assert!((g.span_deg - 150.0).abs() < 1e-4);
         assert!((turn_deg(&u, &p.get(0), &p.get(2)) - 60.0).abs() < 1e-4);
         assert!((turn_deg(&(-u), &p.get(0), &p.get(2)) + 60.0).abs() < 1e-4);
@@ -261,10 +262,10 @@ mod tests {
     #[test]
     fn degenerate_geometries_are_named() {
         let lim = GeometryLimits::default();
-        let mk = |u: Vector3<f64>, tilt: f64, step: f64, n: usize| {
+        let mk = |u: Vector3<Real>, tilt: Real, step: Real, n: usize| {
             let mut p = Poses::new();
             for k in 0..n {
-                p.push(pose(u, tilt, (k as f64 * step).to_radians())).unwrap();
+                p.push(pose(u, tilt, (k as Real * step).to_radians())).unwrap();
             }
             p
         };

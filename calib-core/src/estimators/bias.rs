@@ -7,6 +7,7 @@
 //! seconds (a warm-up of τ ≥ 1 min) leaves `h² b'' / 8` (h the rest-to-rest time), and the
 //! Earth's rate is removed to first order in the move's turn with no latitude needed.
 
+use crate::math::real::{self, Real};
 use crate::math::stats::Moments3;
 use crate::{Error, Vec3};
 
@@ -76,12 +77,12 @@ impl RestBias {
     /// `∫ b(t) dt` over `[t0_s, t1_s]` (°), `b` the residual bias on the line through `self` and
     /// `to` (constant when both rests are at one time): what a move's integral over that span
     /// must lose.
-    pub fn integral_deg(&self, to: &RestBias, t0_s: f64, t1_s: f64) -> [f64; 3] {
+    pub fn integral_deg(&self, to: &RestBias, t0_s: f64, t1_s: f64) -> [Real; 3] {
         let span = to.t_s - self.t_s;
         let f = if span > 0.0 { (0.5 * (t0_s + t1_s) - self.t_s) / span } else { 0.5 };
         core::array::from_fn(|k| {
-            let (a, b) = (self.residual_dps[k] as f64, to.residual_dps[k] as f64);
-            (t1_s - t0_s) * (a + (b - a) * f)
+            let (a, b) = (self.residual_dps[k] as Real, to.residual_dps[k] as Real);
+            (t1_s - t0_s) as Real * (a + (b - a) * f as Real)
         })
     }
 
@@ -101,7 +102,7 @@ impl RestBias {
             return 0.0;
         }
         let change = (0..3).map(|k| (to.residual_dps[k] - self.residual_dps[k]).abs()).fold(0.0f32, f32::max);
-        (change as f64 * 60.0 / span) as f32
+        (change as Real * 60.0 / span as Real) as f32
     }
 }
 
@@ -142,11 +143,11 @@ pub const PREDICT_MEMORY_S: f64 = 12.0;
 struct Line {
     t0: f64,
     t_last: f64,
-    s: [f64; 3],
-    b: [f64; 3],
-    tb: [f64; 3],
-    bb: [f64; 3],
-    w2: [f64; 3],
+    s: [Real; 3],
+    b: [Real; 3],
+    tb: [Real; 3],
+    bb: [Real; 3],
+    w2: [Real; 3],
 }
 
 impl Line {
@@ -157,7 +158,7 @@ impl Line {
         if first {
             self.t0 = rest.t_s;
         } else {
-            let fade = libm::exp(-(rest.t_s - self.t_last).max(0.0) / memory_s);
+            let fade = real::exp((-(rest.t_s - self.t_last).max(0.0) / memory_s) as Real);
             for v in self.s.iter_mut().chain(self.b.iter_mut()).chain(self.tb.iter_mut()).chain(self.bb.iter_mut()) {
                 *v *= fade;
             }
@@ -165,12 +166,12 @@ impl Line {
                 *v *= fade * fade;
             }
         }
-        let t = rest.t_s - self.t0;
+        let t = (rest.t_s - self.t0) as Real;
         self.t_last = rest.t_s;
         self.s = [self.s[0] + 1.0, self.s[1] + t, self.s[2] + t * t];
         self.w2 = [self.w2[0] + 1.0, self.w2[1] + t, self.w2[2] + t * t];
         for k in 0..3 {
-            let b = rest.residual_dps[k] as f64;
+            let b = rest.residual_dps[k] as Real;
             self.b[k] += b;
             self.tb[k] += t * b;
             self.bb[k] += b * b;
@@ -179,14 +180,14 @@ impl Line {
 
     /// Weighted mean time from `t0` and `Σw (t − t̄)²`; `None` for rests at one time (their mean
     /// then).
-    fn spread(&self) -> (f64, Option<f64>) {
+    fn spread(&self) -> (Real, Option<Real>) {
         let tm = self.s[1] / self.s[0];
         let sxx = (self.s[2] - self.s[1] * tm).max(0.0);
         (tm, (sxx > 1e-6 * self.s[2]).then_some(sxx))
     }
 
     /// Mean and slope of axis `k`.
-    fn fit(&self, k: usize) -> (f64, f64) {
+    fn fit(&self, k: usize) -> (Real, Real) {
         let mean = self.b[k] / self.s[0];
         match self.spread() {
             (_, Some(sxx)) => (mean, (self.tb[k] - self.s[1] * mean) / sxx),
@@ -196,12 +197,12 @@ impl Line {
 
     /// `Σ wᵢ² cᵢ²` for the prediction `Σ wᵢ cᵢ bᵢ` at `t_s` (its variance over a rest's), and the
     /// effective number of rests `(Σw)² / Σw²`.
-    fn lever(&self, t_s: f64) -> (f64, f64) {
+    fn lever(&self, t_s: f64) -> (Real, Real) {
         let (tm, sxx) = self.spread();
         let (s0, w) = (self.s[0], &self.w2);
         let mut l = w[0] / (s0 * s0);
         if let Some(sxx) = sxx {
-            let d = t_s - self.t0 - tm;
+            let d = (t_s - self.t0) as Real - tm;
             l += 2.0 * d / (s0 * sxx) * (w[1] - tm * w[0]) + d * d / (sxx * sxx) * (w[2] - 2.0 * tm * w[1] + tm * tm * w[0]);
         }
         (l.max(0.0), s0 * s0 / w[0])
@@ -212,7 +213,7 @@ impl Line {
         let tm = self.spread().0;
         core::array::from_fn(|k| {
             let (mean, slope) = self.fit(k);
-            (mean + slope * (t_s - self.t0 - tm)) as f32
+            (mean + slope * ((t_s - self.t0) as Real - tm)) as f32
         })
     }
 }
@@ -283,7 +284,7 @@ impl Drift {
         let params = if l.spread().1.is_some() { 2.0 } else { 1.0 };
         let (lever, n_eff) = l.lever(t_s);
         let dof = n_eff - params;
-        let walk = BIAS_WALK_DPS_RTSEC as f64 * BIAS_WALK_DPS_RTSEC as f64 * (t_s - l.t_last).abs();
+        let walk = BIAS_WALK_DPS_RTSEC as Real * BIAS_WALK_DPS_RTSEC as Real * (t_s - l.t_last).abs() as Real;
         let sigma = core::array::from_fn(|k| {
             let (mean, slope) = l.fit(k);
             // Σw (b − mean − slope (t − t̄))².
@@ -292,7 +293,7 @@ impl Drift {
             let scatter = if dof > 0.0 { ss / (l.s[0] * dof / n_eff) } else { 0.0 };
             let s2 = match noise {
                 RestNoise::Own(sigma) => {
-                    let own = sigma[k] as f64 * sigma[k] as f64;
+                    let own = sigma[k] as Real * sigma[k] as Real;
                     if dof < 1.0 {
                         // Too few rests to test the scatter (the χ² point's approximation fails
                         // there too): the larger of it, scaled for its few degrees of freedom,
@@ -304,9 +305,9 @@ impl Drift {
                         own
                     }
                 }
-                RestNoise::Bound(sigma) => scatter.max(sigma[k] as f64 * sigma[k] as f64),
+                RestNoise::Bound(sigma) => scatter.max(sigma[k] as Real * sigma[k] as Real),
             };
-            libm::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
+            real::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
         });
         Some((RestBias { t_s, residual_dps: l.at(t_s) }, sigma))
     }
@@ -338,13 +339,13 @@ pub enum RestNoise {
 
 /// 1σ per axis of the Earth's rate (15.04 °/h) along an axis of unknown direction (`/√3`), °/s:
 /// a rest measures it as bias, in the attitude the board happens to have.
-pub const EARTH_RATE_AXIS_DPS: f64 = crate::estimators::rotation::EARTH_RATE_RAD_S * (180.0 / core::f64::consts::PI) / 1.732_050_8;
+pub const EARTH_RATE_AXIS_DPS: Real = crate::estimators::rotation::EARTH_RATE_RAD_S * (180.0 / crate::math::real::consts::PI) / 1.732_050_8;
 
 /// Least temperature span (°C) over the rests for [`TempFit`] to give a coefficient.
 pub const MIN_TEMP_SPAN_C: f32 = 1.0;
 /// Standard errors of the walk's estimate added to it in [`TempCo`]'s 1σ ([`TempFit`]): with
 /// 0.5, 92–100 % of the coefficients lie within 2σ for walks from none to 4e-3 °/s/√s (tested).
-pub const WALK_UPPER_Z: f64 = 0.5;
+pub const WALK_UPPER_Z: Real = 0.5;
 
 /// Bias rate random walk (°/s/√s) assumed by [`Drift::predict`] from the latest rest to the
 /// record's time (seconds: a small term); [`TempFit`] measures the calibration's own.
@@ -384,24 +385,24 @@ pub struct TempCo {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TempFit {
     n: u32,
-    st: f64,
-    stt: f64,
-    sb: [f64; 3],
-    stb: [f64; 3],
-    sbb: [f64; 3],
+    st: Real,
+    stt: Real,
+    sb: [Real; 3],
+    stb: [Real; 3],
+    sbb: [Real; 3],
     t_range: [f32; 2],
     /// The first rest's temperature (°C): the reference of the walk's sums.
-    first_c: f64,
+    first_c: Real,
     /// The latest rest: time (s), temperature (°C from the first rest's) and bias (°/s).
-    last: (f64, f64, [f64; 3]),
+    last: (f64, Real, [Real; 3]),
     /// `Σ Δt`, `Σ Δt k`, `Σ Δt k²`, `Σ Δt k P`, `Σ Δt P²` (temperatures from the first rest's).
-    walk: [f64; 5],
+    walk: [Real; 5],
     /// `Σ` of the temperatures so far, from the first rest's (°C).
-    prefix_c: f64,
+    prefix_c: Real,
     /// Per axis `Σ Δb²`, `Σ Δb ΔT`; and `Σ ΔT²`, over consecutive rests.
-    dbb: [f64; 3],
-    dbt: [f64; 3],
-    dtt: f64,
+    dbb: [Real; 3],
+    dbt: [Real; 3],
+    dtt: Real,
 }
 
 impl TempFit {
@@ -432,13 +433,13 @@ impl TempFit {
         }
         if self.n == 0 {
             self.t_range = [temp_c; 2];
-            self.first_c = temp_c as f64;
+            self.first_c = temp_c as Real;
         }
-        let b = rest.residual_dps.map(|v| v as f64);
-        let rel = temp_c as f64 - self.first_c;
+        let b = rest.residual_dps.map(|v| v as Real);
+        let rel = temp_c as Real - self.first_c;
         if self.n > 0 {
             let (t_last, rel_last, b_last) = self.last;
-            let (dt, k, p) = ((rest.t_s - t_last).max(0.0), self.n as f64, self.prefix_c);
+            let (dt, k, p) = ((rest.t_s - t_last).max(0.0) as Real, self.n as Real, self.prefix_c);
             for (s, v) in self.walk.iter_mut().zip([1.0, k, k * k, k * p, p * p]) {
                 *s += dt * v;
             }
@@ -453,7 +454,7 @@ impl TempFit {
         self.last = (rest.t_s, rel, b);
         self.prefix_c += rel;
         self.t_range = [self.t_range[0].min(temp_c), self.t_range[1].max(temp_c)];
-        let t = temp_c as f64;
+        let t = temp_c as Real;
         self.n += 1;
         self.st += t;
         self.stt += t * t;
@@ -468,9 +469,9 @@ impl TempFit {
     /// while the coefficient is unknown ([`Self::finish`]).
     pub fn residual_at(&self, temp_c: f32) -> Option<Vec3> {
         let c = self.finish()?.dps_per_c;
-        let n = self.n as f64;
-        let dt = temp_c as f64 - self.st / n;
-        Some(core::array::from_fn(|k| (self.sb[k] / n + c[k] as f64 * dt) as f32))
+        let n = self.n as Real;
+        let dt = temp_c as Real - self.st / n;
+        Some(core::array::from_fn(|k| (self.sb[k] / n + c[k] as Real * dt) as f32))
     }
 
     /// The coefficient, or `None` when fewer than 4 rests or a span below [`MIN_TEMP_SPAN_C`]
@@ -496,7 +497,7 @@ impl TempFit {
         if self.n < 4 || !(span >= MIN_TEMP_SPAN_C) {
             return None;
         }
-        let n = self.n as f64;
+        let n = self.n as Real;
         let sxx = self.stt - self.st * self.st / n;
         if !(sxx > 0.0) {
             return None;
@@ -521,11 +522,11 @@ impl TempFit {
                 q2 if ss < e * q2 => (0.0, ss / e),
                 q2 => ((ss - e * q2) / (n - 2.0), q2),
             };
-            let se = if det != 0.0 { 2.0 * n * libm::sqrt(n) * white / det.abs() } else { 0.0 };
-            let upper = q2 + WALK_UPPER_Z * libm::sqrt(se * se + 0.8 * q2 * q2);
+            let se = if det != 0.0 { 2.0 * n * real::sqrt(n) * white / det.abs() } else { 0.0 };
+            let upper = q2 + WALK_UPPER_Z * real::sqrt(se * se + 0.8 * q2 * q2);
             c[k] = slope as f32;
-            sigma[k] = libm::sqrt(white / sxx + upper * v / (sxx * sxx)) as f32;
-            q_max = q_max.max(libm::sqrt(q2) as f32);
+            sigma[k] = real::sqrt(white / sxx + upper * v / (sxx * sxx)) as f32;
+            q_max = q_max.max(real::sqrt(q2) as f32);
         }
         Some((c, sigma, q_max))
     }
@@ -569,7 +570,7 @@ impl BiasEstimator {
             return Err(Error::TooFewSamples { have: n, need: limits.min_samples.max(2) });
         }
         let (g_std, a_std) = (self.gyro.max_std(), self.accel.max_std());
-        if !(g_std <= limits.max_std_dps as f64 && a_std <= limits.max_accel_std_g as f64) {
+        if !(g_std <= limits.max_std_dps as Real && a_std <= limits.max_accel_std_g as Real) {
             return Err(Error::NotStill { gyro_std_dps: g_std as f32, accel_std_g: a_std as f32 });
         }
         let (m, v) = (self.gyro.mean(), self.gyro.variance());
@@ -578,12 +579,12 @@ impl BiasEstimator {
             if !m[k].is_finite() {
                 return Err(Error::NonFinite);
             }
-            if m[k].abs() > limits.max_bias_dps as f64 {
+            if m[k].abs() > limits.max_bias_dps as Real {
                 return Err(Error::BiasOutOfRange { axis: k as u8, bias_dps: m[k] as f32, limit_dps: limits.max_bias_dps });
             }
             out.bias_dps[k] = m[k] as f32;
-            out.noise_dps[k] = libm::sqrt(v[k]) as f32;
-            out.sigma_dps[k] = libm::sqrt(v[k] / n as f64) as f32;
+            out.noise_dps[k] = real::sqrt(v[k]) as f32;
+            out.sigma_dps[k] = real::sqrt(v[k] / n as Real) as f32;
         }
         Ok(out)
     }
@@ -650,7 +651,7 @@ mod tests {
         let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, 0.0, -b] };
         let mut smooth = Drift::new();
         for i in 0..20 {
-            let t = 4.0 * i as f64;
+            let t = 4.0 * i as Real;
             smooth.add(rest(t, 0.2 * (1.0 - (-t / 60.0).exp()) as f32));
         }
         assert!(smooth.off_trend_dps() < 2e-3, "{}", smooth.off_trend_dps());
@@ -669,10 +670,10 @@ mod tests {
     }
 
     /// A rest every 4 s for 80 s, on x the bias `x(t)` gives (°/s).
-    fn every_4_s(mut x: impl FnMut(f64) -> f64) -> Drift {
+    fn every_4_s(mut x: impl FnMut(Real) -> Real) -> Drift {
         let mut d = Drift::new();
         for i in 0..=20 {
-            let t = 4.0 * i as f64;
+            let t = 4.0 * i as Real;
             d.add(RestBias { t_s: t, residual_dps: [x(t) as f32, 0.0, 0.0] });
         }
         d
@@ -690,13 +691,13 @@ mod tests {
         for _ in 0..runs {
             let d = every_4_s(|t| curve(t) + 0.007 * noise.next());
             let (at, sigma) = d.predict(82.0, RestNoise::Own([0.007; 3])).unwrap();
-            let e = (at.residual_dps[0] as f64 - curve(82.0)).abs();
-            within[0] += (e <= sigma[0] as f64) as u32;
-            within[1] += (e <= 2.0 * sigma[0] as f64) as u32;
+            let e = (at.residual_dps[0] as Real - curve(82.0)).abs();
+            within[0] += (e <= sigma[0] as Real) as u32;
+            within[1] += (e <= 2.0 * sigma[0] as Real) as u32;
             err2 += e * e;
         }
-        let [one, two] = within.map(|n| n as f64 / runs as f64);
-        let rms = libm::sqrt(err2 / runs as f64);
+        let [one, two] = within.map(|n| n as Real / runs as Real);
+        let rms = libm::sqrt(err2 / runs as Real);
         assert!((0.6..=0.85).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
         assert!(rms < 0.01 && rms < 0.1 * curve(82.0), "RMS {rms:.4}");
     }
@@ -711,7 +712,7 @@ mod tests {
     fn still_rests_take_their_own_noise_unless_the_scatter_exceeds_it() {
         let mut noise = crate::math::test_noise::Gaussian::new(0x2545_f491_4f6c_dd1d);
         let runs = 2000;
-        let run = |noise: &mut crate::math::test_noise::Gaussian, walk: f64| {
+        let run = |noise: &mut crate::math::test_noise::Gaussian, walk: Real| {
             let mut b = 0.0;
             let d = every_4_s(|t| {
                 if t > 0.0 {
@@ -720,16 +721,16 @@ mod tests {
                 b + 0.007 * noise.next()
             });
             let (at, sigma) = d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap();
-            ((at.residual_dps[0] as f64 - b).abs(), sigma[0] as f64)
+            ((at.residual_dps[0] as Real - b).abs(), sigma[0] as Real)
         };
-        let own = every_4_s(|_| 0.0).predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as f64;
-        let constant = (0..runs).filter(|_| run(&mut noise, 0.0).1 == own).count() as f64 / runs as f64;
+        let own = every_4_s(|_| 0.0).predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as Real;
+        let constant = (0..runs).filter(|_| run(&mut noise, 0.0).1 == own).count() as Real / runs as Real;
         assert!((0.92..=0.97).contains(&constant), "own noise's sigma in {constant:.3} of the runs");
         let within = (0..runs).fold([0u32; 2], |w, _| {
             let (e, s) = run(&mut noise, 0.01);
             [w[0] + (e <= s) as u32, w[1] + (e <= 2.0 * s) as u32]
         });
-        let [one, two] = within.map(|n| n as f64 / runs as f64);
+        let [one, two] = within.map(|n| n as Real / runs as Real);
         assert!((0.6..=0.8).contains(&one) && two >= 0.92, "walking: within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 
@@ -759,10 +760,10 @@ mod tests {
         let rests = |noise: &mut crate::math::test_noise::Gaussian| every_4_s(|_| 0.02 * noise.next());
         for _ in 0..runs {
             let (at, sigma) = rests(&mut noise).predict(80.0, RestNoise::Bound([0.007; 3])).unwrap();
-            let e = (at.residual_dps[0] as f64).abs();
-            within = [within[0] + (e <= sigma[0] as f64) as u32, within[1] + (e <= 2.0 * sigma[0] as f64) as u32];
+            let e = (at.residual_dps[0] as Real).abs();
+            within = [within[0] + (e <= sigma[0] as Real) as u32, within[1] + (e <= 2.0 * sigma[0] as Real) as u32];
         }
-        let [one, two] = within.map(|n| n as f64 / runs as f64);
+        let [one, two] = within.map(|n| n as Real / runs as Real);
         assert!((0.6..=0.8).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
         let d = rests(&mut noise);
         let (own, floor) = (d.predict(80.0, RestNoise::Own([0.05; 3])).unwrap().1, d.predict(80.0, RestNoise::Bound([0.05; 3])).unwrap().1);
@@ -773,7 +774,7 @@ mod tests {
     fn the_temperature_coefficient_is_fitted_over_the_rests_when_the_span_allows() {
         let mut fit = TempFit::new();
         for i in 0..10 {
-            let (t, temp) = (10.0 * i as f64, 25.0 + 0.3 * i as f32);
+            let (t, temp) = (10.0 * i as Real, 25.0 + 0.3 * i as f32);
             let wiggle = if i % 2 == 0 { 0.002 } else { -0.002 };
             let b = [0.04 * (temp - 25.0) + wiggle, -0.03 * (temp - 25.0), 0.0];
             fit.add(temp, &RestBias { t_s: t, residual_dps: b });
@@ -803,7 +804,7 @@ mod tests {
             for _ in 0..trials {
                 let (mut fit, mut walk) = (TempFit::new(), 0.0);
                 for i in 0..30 {
-                    let t = 3.0 * i as f64;
+                    let t = 3.0 * i as Real;
                     walk += q * libm::sqrt(3.0) * noise.next();
                     let temp = 25.0 + 4.0 * (1.0 - libm::exp(-t / 90.0));
                     let b = 0.04 * (temp - 25.0) + walk + 0.007 * noise.next();
@@ -811,10 +812,10 @@ mod tests {
                 }
                 let c = fit.finish().unwrap();
                 within += usize::from((c.dps_per_c[0] - 0.04).abs() <= 2.0 * c.sigma_dps_per_c[0]);
-                walks.push(fit.walk_dps_rtsec().unwrap() as f64);
+                walks.push(fit.walk_dps_rtsec().unwrap() as Real);
             }
-            walks.sort_by(f64::total_cmp);
-            let (cover, median) = (within as f64 / trials as f64, walks[trials / 2]);
+            walks.sort_by(Real::total_cmp);
+            let (cover, median) = (within as Real / trials as Real, walks[trials / 2]);
             println!("MEASURED walk {q:.1e}: tempco within 2 sigma {:.0} %, median walk measured {median:.1e}", 100.0 * cover);
             assert!(cover >= 0.92, "walk {q:e}: {cover}");
             // Small walks: below the floor 30 such rests leave (≈ 1e-3); large ones: within 30 %.

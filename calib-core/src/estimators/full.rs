@@ -35,6 +35,7 @@
 //! commanded turn is given (all 0) `u` points along the mean specific force (`f·u ≥ 0`). The
 //! equations themselves do not depend on the sign (`Δθ` flips with `u`).
 
+use crate::math::real::{self, Real};
 mod fit;
 mod gauss_newton;
 mod rows;
@@ -45,7 +46,7 @@ use crate::estimators::gyro::SCALE_RANGE;
 use crate::estimators::rotation::{RotationLimits, Rotations};
 use crate::estimators::sweep::MAX_MOVES;
 use crate::math::lsq::{NormalEquations, Solution};
-use crate::math::vec3::to_f64 as v64;
+use crate::math::vec3::to_real as v64;
 use crate::{Error, Mat3, Vec3};
 pub use gauss_newton::{rotation_fit, RotationFit};
 use nalgebra::{Matrix3, Vector3};
@@ -56,9 +57,16 @@ pub const MAX_AXES: usize = 8;
 /// Most Gauss–Newton iterations with rotation constraints (it converges in 3–5 from the rig's
 /// or a diagonal K, in ≤ 6 from `K = I`); they bound the solve's time on the MCU.
 pub const GAUSS_NEWTON_ITERATIONS: u8 = 10;
-/// Gauss–Newton stops once no element of `K` moves by more than this (100× below the 1σ of a
-/// good calibration).
-pub const GAUSS_NEWTON_STEP: f64 = 1e-7;
+/// Gauss–Newton stops once no element of `K` moves by more than this: 1000× below the 1σ of a
+/// good calibration in `f64`; 100× in `f32` (the firmware), whose converged iterates still move
+/// by their rounding (≈ 3e-7: with 1e-7 every solve ran all its iterations, 8 s longer).
+#[cfg(not(feature = "single"))]
+pub const GAUSS_NEWTON_STEP: Real = 1e-7;
+/// Gauss–Newton stops once no element of `K` moves by more than this: 1000× below the 1σ of a
+/// good calibration in `f64`; 100× in `f32` (the firmware), whose converged iterates still move
+/// by their rounding (≈ 3e-7: with 1e-7 every solve ran all its iterations, 8 s longer).
+#[cfg(feature = "single")]
+pub const GAUSS_NEWTON_STEP: Real = 1e-6;
 /// Fewest non-coplanar axes that determine the full `K`.
 pub const NEED_AXES: u8 = 3;
 
@@ -73,7 +81,7 @@ pub const fn vec_index(row: usize, col: usize) -> usize {
 /// The end of a Gauss–Newton iteration cut into calls ([`Axes::iterate_rig`]): the next iterate
 /// from `ne`, the rig's and the rotations' rows linearised at `k` (the Earth's rate
 /// marginalised out), and the largest change of an element.
-pub fn iterate_end(ne: &NormalEquations<9>, k: &[f64; 9]) -> Result<([f64; 9], f64), Error> {
+pub fn iterate_end(ne: &NormalEquations<9>, k: &[Real; 9]) -> Result<([Real; 9], Real), Error> {
     gauss_newton::next(ne, k)
 }
 
@@ -143,7 +151,7 @@ pub struct AxisMove {
     /// Commanded servo turn (°, end minus start; only its sign is used, to sign the axis; 0 if unknown).
     pub commanded_deg: f32,
     /// `Γ = ∫ (g − b) dt` over the move (°, raw gyro axes).
-    pub gamma_deg: [f64; 3],
+    pub gamma_deg: [Real; 3],
 }
 
 /// The static poses and the moves about several axes: the estimator's whole input (bounded, no heap).
@@ -222,8 +230,8 @@ pub struct RigPart {
     skipped: u16,
     per_axis: [u8; MAX_AXES],
     n_axes: u8,
-    non_coplanar_deg: f64,
-    min_pair_rad: f64,
+    non_coplanar_deg: Real,
+    min_pair_rad: Real,
 }
 
 impl Axes {
@@ -247,13 +255,13 @@ impl Axes {
     /// Replaces every pose `a` (raw, g) by the calibrated `f = M (a − o)`: for a plan whose
     /// accelerometer is fitted to these very poses once they are all taken.
     pub fn calibrate_poses(&mut self, accel: &AccelCal) {
-        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as f64);
+        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as Real);
         let o = v64(accel.offset_g);
         self.poses.map(|a| m * (a - o));
     }
 
     /// Records a move about `axis` from pose `from` to pose `to`; both poses join the axis' plane.
-    pub fn push_move(&mut self, axis: u8, from: u8, to: u8, commanded_deg: f32, gamma_deg: [f64; 3]) -> Result<(), Error> {
+    pub fn push_move(&mut self, axis: u8, from: u8, to: u8, commanded_deg: f32, gamma_deg: [Real; 3]) -> Result<(), Error> {
         if !(gamma_deg.iter().all(|v| v.is_finite()) && commanded_deg.is_finite()) {
             return Err(Error::NonFinite);
         }
@@ -319,7 +327,7 @@ impl Axes {
         &self,
         limits: &FullLimits,
         rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
-        start: Option<[f64; 9]>,
+        start: Option<[Real; 9]>,
     ) -> Result<FullCal, Error> {
         self.solve_after(limits, rotations, start, 0, false)
     }
@@ -330,7 +338,7 @@ impl Axes {
     /// starts); then the rotations' rows a batch at a time into `ne`
     /// ([`Rotations::add_rows_batch`]); then [`iterate_end`]. The solve's checks are
     /// [`Self::solve_after`]'s: an error here is only that this step could not be taken.
-    pub fn iterate_rig(&self, limits: &FullLimits, ne: &mut NormalEquations<9>, k: Option<[f64; 9]>) -> Result<[f64; 9], Error> {
+    pub fn iterate_rig(&self, limits: &FullLimits, ne: &mut NormalEquations<9>, k: Option<[Real; 9]>) -> Result<[Real; 9], Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
         *ne = rig.equations()?.ne;
         Ok(gauss_newton::linearisation(ne, k, limits))
@@ -345,7 +353,7 @@ impl Axes {
         &self,
         limits: &FullLimits,
         rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
-        start: Option<[f64; 9]>,
+        start: Option<[Real; 9]>,
         done: u8,
         last: bool,
     ) -> Result<FullCal, Error> {
@@ -390,7 +398,7 @@ impl Axes {
         part: &RigPart,
         ne: &NormalEquations<9>,
         sol: &Solution<9>,
-        condition: f64,
+        condition: Real,
         rotation: Option<RotationFit>,
     ) -> Result<FullCal, Error> {
         let rig = Rig { axes: self, fits: self.fit_axes(limits)?, limits };
@@ -402,7 +410,7 @@ impl Axes {
             non_coplanar_deg: part.non_coplanar_deg as f32,
             min_pair_angle_deg: part.min_pair_rad.to_degrees() as f32,
             residual_rms_deg: residual_rms_deg as f32,
-            noise_ratio: libm::sqrt(sol.rss / sol.dof.max(1) as f64) as f32,
+            noise_ratio: real::sqrt(sol.rss / sol.dof.max(1) as Real) as f32,
             accel_sigma_g: rig.fits.sigma_a as f32,
             moves: part.used,
             moves_skipped: part.skipped,
@@ -420,10 +428,10 @@ impl Axes {
 /// dimensions: ≥ [`NEED_AXES`] axes off one plane by `min_axis_angle_deg`, or rotation axes
 /// spread by `min_axis_spread`. Returns the axes' non-coplanarity (°) and smallest pair angle (rad).
 fn check_axes<const M: usize, const C: usize, const P: usize>(
-    us: &[Vector3<f64>],
+    us: &[Vector3<Real>],
     rotations: Option<(&Rotations<M, C, P>, &RotationLimits)>,
     limits: &FullLimits,
-) -> Result<(f64, f64), Error> {
+) -> Result<(Real, Real), Error> {
     let n_axes = us.len();
     match rotations {
         Some((r, rl)) if n_axes < NEED_AXES as usize => {
@@ -437,7 +445,7 @@ fn check_axes<const M: usize, const C: usize, const P: usize>(
     }
     let (non_coplanar, min_pair) = fit::spread_rad(us);
     let non_coplanar_deg = non_coplanar.to_degrees();
-    if !(non_coplanar_deg >= limits.min_axis_angle_deg as f64) && n_axes >= NEED_AXES as usize {
+    if !(non_coplanar_deg >= limits.min_axis_angle_deg as Real) && n_axes >= NEED_AXES as usize {
         return Err(Error::AxesCoplanar { angle_deg: non_coplanar_deg as f32, limit_deg: limits.min_axis_angle_deg });
     }
     Ok((non_coplanar_deg, min_pair))
@@ -449,16 +457,16 @@ fn check_axes<const M: usize, const C: usize, const P: usize>(
 /// The solution of `ne` (the rig's rows and the rotations' at the solution) and its condition:
 /// a null direction ([`Error::FullKUnobservable`]) or an implausible diagonal
 /// ([`Error::ImplausibleScale`]) refused.
-pub fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, f64), Error> {
+pub fn solve_k(ne: &NormalEquations<9>, limits: &FullLimits) -> Result<(Solution<9>, Real), Error> {
     // The solve's own condition number (one computation): beyond lsq's limit too, it is this.
-    let unobservable = |condition: f64| Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition };
+    let unobservable = |condition: Real| Error::FullKUnobservable { condition: condition as f32, limit: limits.max_condition };
     let sol = ne.solve().map_err(|e| match e {
-        Error::IllConditioned { condition, .. } => unobservable(condition as f64),
-        Error::Singular => unobservable(f64::INFINITY),
+        Error::IllConditioned { condition, .. } => unobservable(condition as Real),
+        Error::Singular => unobservable(Real::INFINITY),
         e => e,
     })?;
     let condition = sol.condition;
-    if !(condition <= limits.max_condition as f64) {
+    if !(condition <= limits.max_condition as Real) {
         return Err(unobservable(condition));
     }
     for i in 0..3 {

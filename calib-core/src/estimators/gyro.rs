@@ -1,5 +1,6 @@
 //! The result shared by the gyro estimators: `ω = K (g − b)` with its quality report.
 
+use crate::math::real::Real;
 use crate::math::stats::Spread;
 use crate::{Mat3, Vec3};
 
@@ -73,4 +74,4 @@ pub struct GyroCal {
 }
 
 /// Plausible range of a gyro scale factor (a raw scale error of ±50 % is a broken setup).
-pub(crate) const SCALE_RANGE: (f64, f64) = (0.5, 1.5);
+pub(crate) const SCALE_RANGE: (Real, Real) = (0.5, 1.5);

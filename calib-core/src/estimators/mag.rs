@@ -12,7 +12,8 @@
 
 use crate::math::linalg::{inverse3, sym_eigen};
 use crate::math::lsq::{NormalEquations, Solution};
-use crate::math::vec3::{mat_to_f64, to_f64};
+use crate::math::real::{self, Real};
+use crate::math::vec3::{mat_to_real, to_real};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -28,12 +29,12 @@ pub const MIN_SPACING_UT: f32 = 5.0;
 /// intense Earth field, times the soft iron's gain); a point farther is no Earth field and is
 /// not kept. A point takes 8 B instead of 16; its rounding (0.002 µT RMS) is 1/20 of the noise
 /// of a still pose's mean (0.3 µT over 40 readings, 0.047 µT).
-const POINT_UT: f64 = 1.0 / 128.0;
+const POINT_UT: Real = 1.0 / 128.0;
 
 /// A point (µT) as kept, relative to `origin` (µT); `None` beyond [`POINT_UT`]'s range.
-fn to_point(mean_ut: [f64; 3], origin: [f32; 3]) -> Option<[i16; 3]> {
-    let q = core::array::from_fn(|k| libm::round((mean_ut[k] - origin[k] as f64) / POINT_UT));
-    q.iter().all(|v: &f64| v.abs() <= i16::MAX as f64).then(|| q.map(|v| v as i16))
+fn to_point(mean_ut: [Real; 3], origin: [f32; 3]) -> Option<[i16; 3]> {
+    let q = core::array::from_fn(|k| real::round((mean_ut[k] - origin[k] as Real) / POINT_UT));
+    q.iter().all(|v: &Real| v.abs() <= i16::MAX as Real).then(|| q.map(|v| v as i16))
 }
 
 /// A kept point in µT (on the FPU: exact but for the sum's rounding, 6e-5 µT at 1000 µT).
@@ -115,21 +116,21 @@ impl MagCal {
     /// Whether a still pose (gravity's direction `f`, raw field `m_raw` in µT) sees the field
     /// the calibration saw, within `limits`: `Err` names the pose's field and dip.
     pub fn check_pose(&self, index: u8, f: Vec3, m_raw: Vec3, limits: &MagLimits) -> Result<(), Error> {
-        let a = mat_to_f64(&self.a);
-        let (b, dip) = field_and_dip(&to_f64(f), &(a * (to_f64(m_raw) - to_f64(self.offset_ut))));
-        check(index, b, dip, self.field_ut as f64, (self.dip_deg as f64).to_radians(), limits)
+        let a = mat_to_real(&self.a);
+        let (b, dip) = field_and_dip(&to_real(f), &(a * (to_real(m_raw) - to_real(self.offset_ut))));
+        check(index, b, dip, self.field_ut as Real, (self.dip_deg as Real).to_radians(), limits)
     }
 }
 
 /// `asin(x)` (rad) with `x` clamped to ±1, through the `atan2` the firmware has already.
-fn asin(x: f64) -> f64 {
+fn asin(x: Real) -> Real {
     let x = x.clamp(-1.0, 1.0);
-    crate::math::trig::atan2(x, libm::sqrt(1.0 - x * x))
+    crate::math::trig::atan2(x, real::sqrt(1.0 - x * x))
 }
 
 /// The rotation by about `θ` (rad, small) without trigonometry: Cayley's
 /// `(I − [θ/2]×)⁻¹ (I + [θ/2]×)`, a rotation by `2 atan(|θ|/2)` about `θ`.
-fn cayley(theta: &Vector3<f64>) -> Matrix3<f64> {
+fn cayley(theta: &Vector3<Real>) -> Matrix3<Real> {
     let h = theta / 2.0;
     let k = h.cross_matrix();
     let i = Matrix3::identity();
@@ -137,21 +138,21 @@ fn cayley(theta: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// The angle (rad) of rotation matrix `r`: `atan2(sin, cos)` from its skew part and trace.
-fn angle_of(r: &Matrix3<f64>) -> f64 {
+fn angle_of(r: &Matrix3<Real>) -> Real {
     let v = Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]);
     crate::math::trig::atan2(v.norm() / 2.0, (r.trace() - 1.0) / 2.0)
 }
 
 /// Strength (µT) and dip (rad, positive below the horizon) of field `m` with gravity along `f`.
-fn field_and_dip(f: &Vector3<f64>, m: &Vector3<f64>) -> (f64, f64) {
+fn field_and_dip(f: &Vector3<Real>, m: &Vector3<Real>) -> (Real, Real) {
     let b = m.norm();
     (b, asin(-f.normalize().dot(m) / b))
 }
 
 /// A pose's field `b` (µT) and dip (rad) against the expected ones, within `limits`.
-fn check(index: u8, b: f64, dip: f64, field: f64, expected_dip: f64, limits: &MagLimits) -> Result<(), Error> {
+fn check(index: u8, b: Real, dip: Real, field: Real, expected_dip: Real, limits: &MagLimits) -> Result<(), Error> {
     let (db, dd) = (b - field, (dip - expected_dip).to_degrees());
-    if db.abs() <= limits.max_field_dev_ut as f64 && dd.abs() <= limits.max_dip_dev_deg as f64 {
+    if db.abs() <= limits.max_field_dev_ut as Real && dd.abs() <= limits.max_dip_dev_deg as Real {
         return Ok(());
     }
     Err(Error::MagDisturbed {
@@ -186,7 +187,7 @@ pub struct MagCalibrator {
     /// Per pose: gravity's direction (calibrated accelerometer, unit) and the raw field mean (µT).
     poses: heapless::Vec<([f32; 3], [f32; 3]), MAX_MAG_POSES>,
     /// The open cluster: its first reading, the sum of its readings and their count.
-    cluster: Option<([f32; 3], [f64; 3], u32)>,
+    cluster: Option<([f32; 3], [Real; 3], u32)>,
 }
 
 impl MagCalibrator {
@@ -204,12 +205,12 @@ impl MagCalibrator {
         }
         match &mut self.cluster {
             Some((first, sum, n)) if dist(first, &m_raw) < MIN_SPACING_UT => {
-                (0..3).for_each(|k| sum[k] += m_raw[k] as f64);
+                (0..3).for_each(|k| sum[k] += m_raw[k] as Real);
                 *n += 1;
             }
             _ => {
                 self.close_cluster();
-                self.cluster = Some((m_raw, m_raw.map(|v| v as f64), 1));
+                self.cluster = Some((m_raw, m_raw.map(|v| v as Real), 1));
             }
         }
         Ok(())
@@ -218,7 +219,7 @@ impl MagCalibrator {
     /// Keeps the open cluster's mean (while there is room).
     fn close_cluster(&mut self) {
         if let Some((_, sum, n)) = self.cluster.take() {
-            let mean = sum.map(|v| v / n as f64);
+            let mean = sum.map(|v| v / n as Real);
             let origin = *self.origin.get_or_insert(mean.map(|v| v as f32));
             if let Some(p) = to_point(mean, origin) {
                 let _ = self.samples.push((p, n.min(u16::MAX as u32) as u16));
@@ -243,9 +244,9 @@ impl MagCalibrator {
     /// The kept points (µT), then the open cluster's mean (rounded as a kept one) while there
     /// is room for it.
     fn points(&self) -> impl Iterator<Item = ([f32; 3], u16)> + '_ {
-        let origin = |mean: [f64; 3]| self.origin.unwrap_or(mean.map(|v| v as f32));
+        let origin = |mean: [Real; 3]| self.origin.unwrap_or(mean.map(|v| v as f32));
         let open = self.cluster.filter(|_| !self.samples.is_full()).and_then(|(_, sum, n)| {
-            let mean = sum.map(|v| v / n as f64);
+            let mean = sum.map(|v| v / n as Real);
             Some((from_point(to_point(mean, origin(mean))?, origin(mean)), n.min(u16::MAX as u32) as u16))
         });
         let o = self.origin.unwrap_or_default();
@@ -287,13 +288,13 @@ impl MagCalibrator {
     /// its own): the kept points' mean (µT, raw), the origin of the fit's rows (for their
     /// conditioning); [`Error::MagTooFew`] with too few points. (`near`: see
     /// [`Self::fit_ellipsoid_without`].)
-    pub fn ellipsoid_centre(&self, near: Option<[f32; 3]>) -> Result<Vector3<f64>, Error> {
+    pub fn ellipsoid_centre(&self, near: Option<[f32; 3]>) -> Result<Vector3<Real>, Error> {
         let kept = self.points().filter(|(m, _)| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT));
-        let (sum, n) = kept.fold((Vector3::zeros(), 0usize), |(s, n), (m, _)| (s + to_f64(m), n + 1));
+        let (sum, n) = kept.fold((Vector3::zeros(), 0usize), |(s, n), (m, _)| (s + to_real(m), n + 1));
         if n < MIN_SAMPLES {
             return Err(self.too_few());
         }
-        Ok(sum / n as f64)
+        Ok(sum / n as Real)
     }
 
     /// The quadric's rows `xᵀQx + bᵀx = 1` (9 unknowns, `x` about `c` in 50 µT) of the kept
@@ -302,16 +303,16 @@ impl MagCalibrator {
     pub fn add_ellipsoid_rows(
         &self,
         ne: &mut NormalEquations<9>,
-        c: &Vector3<f64>,
+        c: &Vector3<Real>,
         near: Option<[f32; 3]>,
         range: core::ops::Range<usize>,
     ) -> Result<bool, Error> {
         let kept = |m: &[f32; 3]| near.is_none_or(|p| dist(&p, m) >= EXCLUDE_UT);
         let mut points = self.points().skip(range.start);
         for (m, k) in points.by_ref().take(range.end - range.start).filter(|(m, _)| kept(m)) {
-            let p = (to_f64(m) - c) / 50.0;
+            let p = (to_real(m) - c) / 50.0;
             let (x, y, z) = (p[0], p[1], p[2]);
-            ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as f64)?;
+            ne.add_row(&[x * x, y * y, z * z, 2.0 * x * y, 2.0 * x * z, 2.0 * y * z, x, y, z], 1.0, k as Real)?;
         }
         Ok(points.next().is_none())
     }
@@ -338,8 +339,8 @@ impl MagCalibrator {
         let a = r * a_s;
         let c = sol.x[3];
         let dip = asin(-c);
-        let sigma_dip = sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6));
-        let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max);
+        let sigma_dip = sol.sigma(3) / real::sqrt((1.0 - c * c).max(1e-6));
+        let sigma_align = (0..3).map(|i| sol.sigma(i)).fold(0.0, Real::max);
         let angle = angle_of(r);
         // Per pose: field strength and dip against the fit's.
         if let Err(e) = self.check_poses(&a, &o, field, dip, None, limits) {
@@ -351,22 +352,22 @@ impl MagCalibrator {
         }
         let (mut sum, mut sum2) = (0.0, 0.0);
         for p in &self.poses {
-            let b = (a * (to_f64(p.1) - o)).norm();
+            let b = (a * (to_real(p.1) - o)).norm();
             sum += b;
             sum2 += b * b;
         }
-        let n = self.poses.len() as f64;
-        let sigma_field = libm::sqrt(((sum2 - sum * sum / n) / (n - 1.0)).max(0.0) / n);
+        let n = self.poses.len() as Real;
+        let sigma_field = real::sqrt(((sum2 - sum * sum / n) / (n - 1.0)).max(0.0) / n);
         let mut bins = 0u32;
         let mut rss = 0.0;
         for (m, _) in self.points() {
-            let v = a * (to_f64(m) - o);
+            let v = a * (to_real(m) - o);
             rss += (v.norm() - field) * (v.norm() - field);
             bins |= 1 << face(&v);
         }
-        let residual = libm::sqrt(rss / self.samples() as f64);
+        let residual = real::sqrt(rss / self.samples() as Real);
         let coverage = bins.count_ones() as f32 / COVERAGE_BINS as f32;
-        if !(residual <= limits.max_residual_ut as f64) {
+        if !(residual <= limits.max_residual_ut as Real) {
             return Err(Error::MagFitPoor { residual_ut: residual as f32, limit_ut: limits.max_residual_ut });
         }
         if !(coverage >= MIN_COVERAGE) {
@@ -401,17 +402,17 @@ impl MagCalibrator {
     /// [`Self::refine`] in parts (for a caller that runs each in a call of its own): `steps`
     /// (≥ 1) of its [`REFINE_STEPS`] from the die's rotation `rot` (the identity at first);
     /// the rotation and the last step's fit. [`Self::refined`] is the result.
-    pub fn refine_steps(&self, cal: &MagCal, moves: &[MagMove], mut rot: Matrix3<f64>, steps: usize) -> Result<Alignment, Error> {
-        let (a0, o) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut));
+    pub fn refine_steps(&self, cal: &MagCal, moves: &[MagMove], mut rot: Matrix3<Real>, steps: usize) -> Result<Alignment, Error> {
+        let (a0, o) = (mat_to_real(&cal.a), to_real(cal.offset_ut));
         let n = self.poses.len();
         let mut sol = None;
         for _ in 0..steps {
             let a = rot * a0;
-            let u = |i: usize| -> Vector3<f64> { (a * (to_f64(self.poses[i].1) - o)).normalize() };
+            let u = |i: usize| -> Vector3<Real> { (a * (to_real(self.poses[i].1) - o)).normalize() };
             let mut ne = NormalEquations::<4>::new();
             self.angle_rows(&mut ne, &a, &o, None)?;
             for m in moves.iter().filter(|m| (m.from as usize) < n && (m.to as usize) < n) {
-                let (ui, uj, r) = (u(m.from as usize), u(m.to as usize), mat_to_f64(&m.r));
+                let (ui, uj, r) = (u(m.from as usize), u(m.to as usize), mat_to_real(&m.r));
                 let res = ui - r * uj;
                 let h = r * uj.cross_matrix() - ui.cross_matrix();
                 for row in 0..3 {
@@ -427,21 +428,21 @@ impl MagCalibrator {
 
     /// [`Self::refine`]'s result: `cal` with the die's rotation `rot` and the fit `sol` of
     /// [`Self::refine_steps`].
-    pub fn refined(&self, cal: &MagCal, rot: &Matrix3<f64>, sol: &Solution<4>) -> MagCal {
-        let a = rot * mat_to_f64(&cal.a);
+    pub fn refined(&self, cal: &MagCal, rot: &Matrix3<Real>, sol: &Solution<4>) -> MagCal {
+        let a = rot * mat_to_real(&cal.a);
         // The die's rotation: A's polar factor, A (AᵀA)^(−1/2).
         let ata = a.transpose() * a;
-        let m: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| ata[(i, j)]));
+        let m: [[Real; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| ata[(i, j)]));
         let (vals, vecs) = sym_eigen(&m);
         let v = Matrix3::from_fn(|r, k| vecs[r][k]);
-        let inv_sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| 1.0 / libm::sqrt(vals[i].max(1e-12)))) * v.transpose();
+        let inv_sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| 1.0 / real::sqrt(vals[i].max(1e-12)))) * v.transpose();
         let c = sol.x[3];
         MagCal {
             a: core::array::from_fn(|i| core::array::from_fn(|j| a[(i, j)] as f32)),
             dip_deg: asin(-c).to_degrees() as f32,
-            sigma_dip_deg: (sol.sigma(3) / libm::sqrt((1.0 - c * c).max(1e-6))).to_degrees() as f32,
+            sigma_dip_deg: (sol.sigma(3) / real::sqrt((1.0 - c * c).max(1e-6))).to_degrees() as f32,
             alignment_deg: angle_of(&(a * inv_sqrt)).to_degrees() as f32,
-            sigma_alignment_deg: (0..3).map(|i| sol.sigma(i)).fold(0.0, f64::max).to_degrees() as f32,
+            sigma_alignment_deg: (0..3).map(|i| sol.sigma(i)).fold(0.0, Real::max).to_degrees() as f32,
             ..*cal
         }
     }
@@ -453,14 +454,14 @@ impl MagCalibrator {
         let (r, sol) = self.align(&a_s, &o, Some(k)).ok()?;
         let dip = asin(-sol.x[3]);
         self.check_poses(&(r * a_s), &o, field, dip, Some(k), limits).ok()?;
-        let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(r * a_s * (to_f64(p.1) - o)));
+        let (b, pose_dip) = field_and_dip(&to_real(p.0), &(r * a_s * (to_real(p.1) - o)));
         check(k as u8, b, pose_dip, field, dip, limits).err()
     }
 
     /// The die's rotation `R` and the fit (`x[3]` = `−sin(dip)`) from the gravity–field angle
     /// of the poses (`skip` left out): `f̂ · (I + [θ]×) û = c`, i.e. `f̂·û + θ·(û × f̂) = c`,
     /// re-linearised about the last `R` (three steps).
-    fn align(&self, a_s: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<Alignment, Error> {
+    fn align(&self, a_s: &Matrix3<Real>, o: &Vector3<Real>, skip: Option<usize>) -> Result<Alignment, Error> {
         let mut r = Matrix3::identity();
         let mut sol = None;
         for _ in 0..3 {
@@ -476,9 +477,9 @@ impl MagCalibrator {
     /// The gravity–field angle's rows of the poses (but `skip`) through `a`, `o`, linearised in
     /// the rotation `θ` of [`Self::align`]: `f̂·û + θ·(û × f̂) = c`.
     #[inline(never)]
-    fn angle_rows(&self, ne: &mut NormalEquations<4>, a: &Matrix3<f64>, o: &Vector3<f64>, skip: Option<usize>) -> Result<(), Error> {
+    fn angle_rows(&self, ne: &mut NormalEquations<4>, a: &Matrix3<Real>, o: &Vector3<Real>, skip: Option<usize>) -> Result<(), Error> {
         for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-            let (f, u) = (to_f64(p.0).normalize(), (a * (to_f64(p.1) - o)).normalize());
+            let (f, u) = (to_real(p.0).normalize(), (a * (to_real(p.1) - o)).normalize());
             let x = u.cross(&f);
             ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
         }
@@ -489,20 +490,20 @@ impl MagCalibrator {
     /// `limits`; else the error of the one furthest from them.
     fn check_poses(
         &self,
-        a: &Matrix3<f64>,
-        o: &Vector3<f64>,
-        field: f64,
-        dip: f64,
+        a: &Matrix3<Real>,
+        o: &Vector3<Real>,
+        field: Real,
+        dip: Real,
         skip: Option<usize>,
         limits: &MagLimits,
     ) -> Result<(), Error> {
-        let mut worst: Option<(f64, Error)> = None;
+        let mut worst: Option<(Real, Error)> = None;
         for (i, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-            let (b, pose_dip) = field_and_dip(&to_f64(p.0), &(a * (to_f64(p.1) - o)));
+            let (b, pose_dip) = field_and_dip(&to_real(p.0), &(a * (to_real(p.1) - o)));
             if let Err(e) = check(i as u8, b, pose_dip, field, dip, limits) {
-                let far = ((b - field) / limits.max_field_dev_ut as f64)
+                let far = ((b - field) / limits.max_field_dev_ut as Real)
                     .abs()
-                    .max(((pose_dip - dip).to_degrees() / limits.max_dip_dev_deg as f64).abs());
+                    .max(((pose_dip - dip).to_degrees() / limits.max_dip_dev_deg as Real).abs());
                 if worst.as_ref().is_none_or(|w| far > w.0) {
                     worst = Some((far, e));
                 }
@@ -514,15 +515,15 @@ impl MagCalibrator {
 
 /// The ellipsoid's map onto the sphere: `A_s` (symmetric, scaled to the field), its centre
 /// (µT, raw: the hard iron) and the field's strength `B` (µT, the radii's geometric mean).
-pub type Ellipsoid = (Matrix3<f64>, Vector3<f64>, f64);
+pub type Ellipsoid = (Matrix3<Real>, Vector3<Real>, Real);
 
 /// The die's rotation `R` onto the accelerometer and the fit of the gravity–field angle
 /// (`x[3]` = `−sin(dip)`).
-pub type Alignment = (Matrix3<f64>, Solution<4>);
+pub type Alignment = (Matrix3<Real>, Solution<4>);
 
 /// [`MagCalibrator::fit_ellipsoid`]'s last part: the ellipsoid from the quadric's rows `ne`
 /// about `c` ([`MagCalibrator::add_ellipsoid_rows`]).
-pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<f64>) -> Result<Ellipsoid, Error> {
+pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<Real>) -> Result<Ellipsoid, Error> {
     // The parameters alone (no condition number: a 9×9 eigen-decomposition costs ~2 M
     // instructions on the MCU); a degenerate spread fails the eigenvalue and coverage checks.
     let q = ne.estimate()?;
@@ -541,8 +542,8 @@ pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<f64>) -> Result<Ellip
     }
     // A_s = √P maps the (scaled) ellipsoid to the unit sphere; B = the radii's geometric mean.
     let v = Matrix3::from_fn(|r, k| vecs[r][k]);
-    let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| libm::sqrt(vals[i]))) * v.transpose();
-    let field = 50.0 / crate::math::linalg::cbrt(libm::sqrt(vals[0] * vals[1] * vals[2]));
+    let sqrt = v * Matrix3::from_diagonal(&Vector3::from_fn(|i, _| real::sqrt(vals[i]))) * v.transpose();
+    let field = 50.0 / crate::math::linalg::cbrt(real::sqrt(vals[0] * vals[1] * vals[2]));
     let a_s = sqrt * (field / 50.0);
     Ok((a_s, c + centre * 50.0, field))
 }
@@ -550,7 +551,7 @@ pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<f64>) -> Result<Ellip
 /// Tilt-compensated heading (°, 0..360, clockwise from magnetic north seen from above) of the
 /// body's x axis, from the specific force `f` (g, up) and the field `m` (µT), both in the body
 /// frame. `None` when the field is parallel to gravity.
-pub fn heading_deg(f: Vector3<f64>, m: Vector3<f64>) -> Option<f64> {
+pub fn heading_deg(f: Vector3<Real>, m: Vector3<Real>) -> Option<Real> {
     let up = f.try_normalize(1e-9)?;
     let north = (m - up * m.dot(&up)).try_normalize(1e-9)?;
     let east = north.cross(&up);
@@ -591,7 +592,7 @@ const FACE_CENTRES: [[f32; 3]; COVERAGE_BINS] = {
 
 /// The icosahedron face (0..20) nearest to direction `v`: the largest dot product with a face
 /// centre (single precision: a coverage bin, on the FPU).
-fn face(v: &Vector3<f64>) -> u32 {
+fn face(v: &Vector3<Real>) -> u32 {
     let v = [v[0] as f32, v[1] as f32, v[2] as f32];
     let dot = |c: &[f32; 3]| c[0] * v[0] + c[1] * v[1] + c[2] * v[2];
     let mut best = (0, f32::NEG_INFINITY);
@@ -612,27 +613,27 @@ mod tests {
 
     /// A magnetometer: `m_raw = S b_B + h`, `S` soft iron times a 1.5° die rotation.
     struct Part {
-        s: Matrix3<f64>,
-        h: Vector3<f64>,
-        field_w: Vector3<f64>,
+        s: Matrix3<Real>,
+        h: Vector3<Real>,
+        field_w: Vector3<Real>,
     }
 
     impl Part {
         fn new() -> Self {
             let soft = Matrix3::new(1.04, 0.02, -0.01, 0.02, 0.97, 0.015, -0.01, 0.015, 1.01);
-            let die = Rotation3::new(Vector3::new(0.8, -1.0, 0.6).normalize() * 1.5f64.to_radians()).into_inner();
-            let dip = 62f64.to_radians();
+            let die = Rotation3::new(Vector3::new(0.8, -1.0, 0.6).normalize() * (1.5 as Real).to_radians()).into_inner();
+            let dip = (62 as Real).to_radians();
             Self { s: soft * die, h: Vector3::new(20.0, -35.0, 12.0), field_w: Vector3::new(libm::cos(dip), 0.0, -libm::sin(dip)) * 48.0 }
         }
 
         /// (specific force in B (g), raw field (µT)) at attitude `q` (body → world, z up).
-        fn read(&self, q: &UnitQuaternion<f64>, noise: &mut Gaussian, sigma_ut: f64) -> (Vector3<f64>, [f32; 3]) {
+        fn read(&self, q: &UnitQuaternion<Real>, noise: &mut Gaussian, sigma_ut: Real) -> (Vector3<Real>, [f32; 3]) {
             let m = self.s * (q.inverse() * self.field_w) + self.h + Vector3::from_fn(|_, _| sigma_ut * noise.next());
             (q.inverse() * Vector3::z(), [m[0] as f32, m[1] as f32, m[2] as f32])
         }
     }
 
-    fn random_attitude(g: &mut Gaussian) -> UnitQuaternion<f64> {
+    fn random_attitude(g: &mut Gaussian) -> UnitQuaternion<Real> {
         UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(g.next(), g.next(), g.next(), g.next()))
     }
 
@@ -640,13 +641,13 @@ mod tests {
     fn session(part: &Part, disturb_pose: Option<usize>) -> MagCalibrator {
         let mut g = Gaussian::new(0x5eed_1234_abcd_0001);
         let mut c = MagCalibrator::new();
-        let poses: [UnitQuaternion<f64>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
+        let poses: [UnitQuaternion<Real>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
         for (i, q) in poses.iter().enumerate() {
             let extra = if disturb_pose == Some(i) { Vector3::new(8.0, 0.0, 0.0) } else { Vector3::zeros() };
             let (mut fsum, mut msum) = (Vector3::zeros(), Vector3::zeros());
             for _ in 0..40 {
                 let (f, m) = part.read(q, &mut g, 0.3);
-                let m = to_f64(m) + extra;
+                let m = to_real(m) + extra;
                 c.add_sample([m[0] as f32, m[1] as f32, m[2] as f32]).unwrap();
                 (fsum, msum) = (fsum + f, msum + m);
             }
@@ -654,7 +655,7 @@ mod tests {
             c.add_pose([f[0] as f32, f[1] as f32, f[2] as f32], [m[0] as f32, m[1] as f32, m[2] as f32]).unwrap();
             if let Some(next) = poses.get(i + 1) {
                 for k in 0..30 {
-                    let (_, m) = part.read(&q.slerp(next, k as f64 / 30.0), &mut g, 0.3);
+                    let (_, m) = part.read(&q.slerp(next, k as Real / 30.0), &mut g, 0.3);
                     c.add_sample(m).unwrap();
                 }
             }
@@ -664,14 +665,14 @@ mod tests {
 
     /// (RMS, largest) tilt-compensated heading error (°) over random attitudes of field `a`,
     /// offset `o` against the truth.
-    fn heading_error(part: &Part, a: &Matrix3<f64>, o: &Vector3<f64>) -> (f64, f64) {
+    fn heading_error(part: &Part, a: &Matrix3<Real>, o: &Vector3<Real>) -> (Real, Real) {
         let mut g = Gaussian::new(0x0dd_ba11);
-        let (mut ss, mut max) = (0.0, 0.0f64);
+        let (mut ss, mut max) = (0.0, 0.0 as Real);
         for _ in 0..500 {
             let q = random_attitude(&mut g);
             let (f, m) = part.read(&q, &mut g, 0.0);
             let truth = heading_deg(f, q.inverse() * part.field_w).unwrap();
-            let est = heading_deg(f, a * (to_f64(m) - o)).unwrap();
+            let est = heading_deg(f, a * (to_real(m) - o)).unwrap();
             let e = (est - truth + 540.0) % 360.0 - 180.0;
             ss += e * e;
             max = max.max(e.abs());
@@ -687,15 +688,15 @@ mod tests {
         // The session's poses (its first draws) and the moves between them as an exact gyro
         // would measure them: body at the next pose to body at this one.
         let mut g = Gaussian::new(0x5eed_1234_abcd_0001);
-        let poses: [UnitQuaternion<f64>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
+        let poses: [UnitQuaternion<Real>; 12] = core::array::from_fn(|_| random_attitude(&mut g));
         let moves: [MagMove; 11] = core::array::from_fn(|i| {
             let r = (poses[i].inverse() * poses[i + 1]).to_rotation_matrix().into_inner();
             MagMove { from: i as u8, to: i as u8 + 1, r: core::array::from_fn(|a| core::array::from_fn(|b| r[(a, b)] as f32)) }
         });
         let refined = c.refine(&cal, &moves).unwrap();
-        let o = to_f64(cal.offset_ut);
-        let (before, _) = heading_error(&part, &mat_to_f64(&cal.a), &o);
-        let (after, max) = heading_error(&part, &mat_to_f64(&refined.a), &o);
+        let o = to_real(cal.offset_ut);
+        let (before, _) = heading_error(&part, &mat_to_real(&cal.a), &o);
+        let (after, max) = heading_error(&part, &mat_to_real(&refined.a), &o);
         assert!(after <= before * 1.05 && after < 0.2 && max < 0.6, "{before:.3} -> {after:.3} deg RMS ({max:.3} max)");
         assert!((refined.alignment_deg - 1.5).abs() < 0.3, "die {} deg", refined.alignment_deg);
         assert!(refined.sigma_alignment_deg < cal.sigma_alignment_deg, "{} vs {}", refined.sigma_alignment_deg, cal.sigma_alignment_deg);
@@ -710,8 +711,8 @@ mod tests {
         let part = Part::new();
         let c = session(&part, None);
         let cal = c.solve(&MagLimits::default()).unwrap();
-        let a = mat_to_f64(&cal.a);
-        let o = to_f64(cal.offset_ut);
+        let a = mat_to_real(&cal.a);
+        let o = to_real(cal.offset_ut);
         assert!((o - part.h).norm() < 0.3, "offset {o} vs {}", part.h);
         assert!((cal.field_ut - 48.0 * 1.0).abs() < 1.5, "{cal:?}");
         assert!((cal.dip_deg - 62.0).abs() < 3.0 * cal.sigma_dip_deg.max(0.05), "{cal:?}");
@@ -737,7 +738,7 @@ mod tests {
         assert!(matches!(c.solve(&MagLimits::default()), Err(Error::MagTooFew { samples: 0, .. })));
         // Turns about one vertical axis only: a ring, not a sphere.
         for k in 0..200 {
-            let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as f64 * 0.05);
+            let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as Real * 0.05);
             let (f, m) = part.read(&q, &mut g, 0.3);
             c.add_sample(m).unwrap();
             if k % 30 == 0 {

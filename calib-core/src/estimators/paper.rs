@@ -7,6 +7,7 @@
 use crate::estimators::axis::{GeometryLimits, Poses};
 use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
 use crate::math::lsq::NormalEquations;
+use crate::math::real::{self, Real};
 use crate::math::stats::Spread;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
@@ -23,9 +24,9 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
         return Err(Error::NonFinite);
     }
     let geo = poses.geometry(limits, true)?;
-    let g = Vector3::new(gbar_dps[0] as f64, gbar_dps[1] as f64, gbar_dps[2] as f64);
-    let omega = (omega_n_dps as f64).abs();
-    if g.norm() < MIN_RATE_DPS as f64 || omega < MIN_RATE_DPS as f64 {
+    let g = Vector3::new(gbar_dps[0] as Real, gbar_dps[1] as Real, gbar_dps[2] as Real);
+    let omega = (omega_n_dps as Real).abs();
+    if g.norm() < MIN_RATE_DPS as Real || omega < MIN_RATE_DPS as Real {
         return Err(Error::NoSpin { rate_dps: g.norm().min(omega) as f32, min_dps: MIN_RATE_DPS });
     }
     // Σ A Aᵀ is accumulated from the poses, then scaled by ḡ: the rows A_i ∘ ḡ.
@@ -44,13 +45,13 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
         }
     }
     let kg = k.component_mul(&g);
-    let rows = poses.len() as f64;
+    let rows = poses.len() as Real;
     let quality = GyroQuality {
         invariant_before: Spread::of(poses.iter().map(|a| a.dot(&g))),
         invariant_after: Spread::of(poses.iter().map(|a| a.dot(&kg))),
         sigma_k: core::array::from_fn(|i| (l.abs() * sol.sigma(i)) as f32),
         condition: sol.condition as f32,
-        residual_rms: libm::sqrt(sol.rss / rows) as f32,
+        residual_rms: real::sqrt(sol.rss / rows) as f32,
         axis: geo.u.map(|v| v as f32).into(),
         tilt_deg: geo.tilt_deg as f32,
         span_deg: geo.span_deg as f32,

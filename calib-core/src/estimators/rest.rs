@@ -3,6 +3,7 @@
 //! Each completed window is returned with its statistics so that callers build pose and bias
 //! means from whole still windows only: a window with motion never leaks into a mean.
 
+use crate::math::real::Real;
 use crate::math::stats::Moments3;
 use crate::Vec3;
 
@@ -80,7 +81,7 @@ pub struct RestDetector {
     window_start_s: Option<f64>,
     accel: Moments3,
     gyro: Moments3,
-    prev_accel_mean: Option<[f64; 3]>,
+    prev_accel_mean: Option<[Real; 3]>,
     still_since_s: Option<f64>,
     state: RestState,
 }
@@ -124,11 +125,11 @@ impl RestDetector {
             return None;
         }
         let mean = self.accel.mean();
-        let drift = self.prev_accel_mean.map_or(0.0, |p| (0..3).fold(0.0f64, |m, k| m.max((mean[k] - p[k]).abs())));
+        let drift = self.prev_accel_mean.map_or(0.0, |p| (0..3).fold(0.0 as Real, |m, k| m.max((mean[k] - p[k]).abs())));
         let still = self.accel.count() >= 2
-            && self.accel.max_std() <= self.cfg.accel_std_max_g as f64
-            && self.gyro.max_std() <= self.cfg.gyro_std_max_dps as f64
-            && drift <= self.cfg.accel_drift_max_g as f64;
+            && self.accel.max_std() <= self.cfg.accel_std_max_g as Real
+            && self.gyro.max_std() <= self.cfg.gyro_std_max_dps as Real
+            && drift <= self.cfg.accel_drift_max_g as Real;
         if still {
             let since = *self.still_since_s.get_or_insert(start);
             self.state = if t_s - since >= self.cfg.hold_s as f64 { RestState::Still } else { RestState::Settling };
@@ -149,7 +150,7 @@ impl RestDetector {
 mod tests {
     use super::*;
 
-    fn feed(d: &mut RestDetector, t0: f64, secs: f64, f: impl Fn(f64) -> (Vec3, Vec3)) -> (RestState, f64) {
+    fn feed(d: &mut RestDetector, t0: f64, secs: Real, f: impl Fn(Real) -> (Vec3, Vec3)) -> (RestState, Real) {
         let mut t = t0;
         while t < t0 + secs {
             let (a, g) = f(t);
@@ -169,7 +170,7 @@ mod tests {
         assert_eq!(s, RestState::Still);
         // A slow turn at 2 °/s: gyro variance is small, accel drifts.
         let (s, _) = feed(&mut d, t, 1.0, |t| {
-            let th = (t * 2.0f64).to_radians();
+            let th = (t * 2.0 as Real).to_radians();
             ([libm::sin(th) as f32, 0.0, libm::cos(th) as f32], [0.0, 2.0, 0.0])
         });
         assert_eq!(s, RestState::Moving);

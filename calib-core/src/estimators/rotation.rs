@@ -41,7 +41,8 @@ use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
-use crate::math::vec3::{sqrtf, tangent_basis, to_f64 as v64};
+use crate::math::real::{self, Real};
+use crate::math::vec3::{sqrtf, tangent_basis, to_real as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -62,14 +63,14 @@ pub const MAX_CHUNKS: usize = 432 + 2 * MAX_ROTATION_MOVES;
 /// without the Earth's term.
 pub const EARTH_POSES: usize = 20;
 /// The Earth's rate (rad/s).
-pub const EARTH_RATE_RAD_S: f64 = 7.292_115e-5;
+pub const EARTH_RATE_RAD_S: Real = 7.292_115e-5;
 
 /// A chunk closes once its raw turn reaches this (°): the neglected third-order term is then
 /// below 1e-5 rad per chunk (`precision.rs`: a 540° move with coning at 952 Hz composes to
 /// within 1.6e-5 rad of its rotation integrated finely). Larger chunks were measured and not
 /// kept: at 7.5° that move is 3.8e-5 rad off but a drifting bias's E grows past its tests'
 /// bounds (6.3e-6, settled predictions 2.5e-5), at 6° the move is 6.8e-5 rad off.
-pub const CHUNK_DEG: f64 = 5.0;
+pub const CHUNK_DEG: Real = 5.0;
 
 /// Requirements of the rotation constraints.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -259,7 +260,7 @@ impl PoseTurn {
     }
 
     /// A sample at MCU time `t_s` (s), `dt_s` after the previous one, bias-free gyro (°/s).
-    pub fn add(&mut self, t_s: f64, dt_s: f64, w_dps: Vec3) {
+    pub fn add(&mut self, t_s: f64, dt_s: Real, w_dps: Vec3) {
         if dt_s > 0.0 && dt_s.is_finite() {
             if self.t0.is_nan() {
                 self.t0 = t_s;
@@ -358,7 +359,7 @@ struct Open {
     t0: f64,
     chunk_t0: f64,
     /// The move's raw turn so far (°): its closed chunks' sums.
-    total: [f64; 3],
+    total: [Real; 3],
     /// The square of its largest step (°²).
     max_step_deg: f32,
     /// The longest time between two of its samples (s).
@@ -397,12 +398,12 @@ pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_C
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowSum {
     /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns).
-    cross: [[f64; 3]; 9],
+    cross: [[Real; 3]; 9],
     /// The normal equations of the Earth's rate `w` alone, with its prior `N(0, I/3)`.
     earth: NormalEquations<3>,
     /// Weighted residual sum; unweighted one of the rotation rows (rad²) and their count.
-    wrss: f64,
-    rss: f64,
+    wrss: Real,
+    rss: Real,
     n: usize,
     /// The next kept move.
     next: usize,
@@ -416,7 +417,7 @@ impl RowSum {
 
     /// Ends the sums of `ne` (every move added): the Earth's rate marginalised out of `ne` if
     /// `earth_rate`. Returns [`Rotations::add_rows`]'s residual sums and rows.
-    fn finish(&self, ne: &mut NormalEquations<9>, earth_rate: bool) -> Result<(f64, f64, usize), Error> {
+    fn finish(&self, ne: &mut NormalEquations<9>, earth_rate: bool) -> Result<(Real, Real, usize), Error> {
         if earth_rate {
             ne.eliminate(&self.cross, &self.earth)?;
         }
@@ -457,14 +458,14 @@ pub const MIRROR_MIN_TURN_DEG: f32 = 20.0;
 pub const MIRROR_MAX_TURN_DEG: f32 = 150.0;
 /// Least sine of gravity's turn about the gyro's axis that counts (0.1: 6°, far above a pose's
 /// noise of hundredths of a degree; a turn about gravity itself turns it by nothing).
-pub const MIRROR_MIN_SINE: f64 = 0.1;
+pub const MIRROR_MIN_SINE: Real = 0.1;
 
 /// The angle between two vectors (°).
 /// Closes the open move `o`'s chunk at its last sample's time `t_end` (s) into `chunks`.
 fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_end: f64) {
     let span_s = [(o.chunk_t0 - o.t0) as f32, (t_end - o.t0) as f32];
     for k in 0..3 {
-        o.total[k] += o.gamma[k] as f64;
+        o.total[k] += o.gamma[k] as Real;
     }
     o.chunk_t0 = t_end;
     if chunks.push(Chunk { gamma: o.gamma, coning: o.coning, span_s }).is_err() {
@@ -474,18 +475,18 @@ fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_e
     o.coning = [0.0; 3];
 }
 
-fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+fn angle_deg(a: &Vector3<Real>, b: &Vector3<Real>) -> Real {
     crate::math::trig::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
 }
 
-fn sq(x: f64) -> f64 {
+fn sq(x: Real) -> Real {
     x * x
 }
 
 /// The whole number of revolutions nearest to a turn (rad), in rad (at least one).
-fn whole_turn_rad(turn_rad: f64) -> f64 {
-    let rev = 2.0 * core::f64::consts::PI;
-    libm::round(turn_rad / rev).max(1.0) * rev
+fn whole_turn_rad(turn_rad: Real) -> Real {
+    let rev = 2.0 * crate::math::real::consts::PI;
+    real::round(turn_rad / rev).max(1.0) * rev
 }
 
 /// `[v]×`.
@@ -686,7 +687,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             return;
         }
         for k in 0..3 {
-            o.total[k] += turn_deg[k] as f64;
+            o.total[k] += turn_deg[k] as Real;
         }
         if self.chunks.push(Chunk { gamma: turn_deg, coning: [0.0; 3], span_s }).is_err() {
             o.why.get_or_insert(Rejected::Full);
@@ -776,16 +777,16 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let bias_change = (a - b).amax();
         let candidates = [
             (o.why, 0.0),
-            ((o.max_gap_s > limits.max_gap_s).then_some(Rejected::Gap), o.max_gap_s as f64),
-            ((o.max_step_deg > limits.max_step_deg * limits.max_step_deg).then_some(Rejected::TooFast), sqrtf(o.max_step_deg) as f64),
+            ((o.max_gap_s > limits.max_gap_s).then_some(Rejected::Gap), o.max_gap_s as Real),
+            ((o.max_step_deg > limits.max_step_deg * limits.max_step_deg).then_some(Rejected::TooFast), sqrtf(o.max_step_deg) as Real),
             // Gravity turned more than any plausible scale lets the gyro's turn explain.
             ((gravity_deg > SCALE_RANGE.1 * turn + 5.0).then_some(Rejected::Unseen), gravity_deg),
-            ((turn < limits.min_move_deg as f64).then_some(Rejected::TooShort), turn),
-            ((bias_change > limits.max_bias_change_dps as f64).then_some(Rejected::BiasDrifted), bias_change),
+            ((turn < limits.min_move_deg as Real).then_some(Rejected::TooShort), turn),
+            ((bias_change > limits.max_bias_change_dps as Real).then_some(Rejected::BiasDrifted), bias_change),
         ];
         let (why, worst) = candidates.into_iter().find_map(|(w, v)| w.map(|w| (w, v))).map_or((None, 0.0), |(w, v)| (Some(w), v));
         let off_gravity = angle_deg(&total, &gi);
-        let vertical = gravity_deg < limits.vertical_deg as f64 && off_gravity.min(180.0 - off_gravity) < limits.vertical_deg as f64;
+        let vertical = gravity_deg < limits.vertical_deg as Real && off_gravity.min(180.0 - off_gravity) < limits.vertical_deg as Real;
         let duration_s = o.last.map_or(0.0, |(t, _)| (t - o.t0) as f32);
         let n = (self.chunks.len() - o.first) as u16;
         let kept = RotationMove {
@@ -803,7 +804,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             None => {
                 for c in &mut self.chunks[o.first..] {
                     let drift = ra.integral_deg(&rb, o.t0 + c.span_s[0] as f64, o.t0 + c.span_s[1] as f64);
-                    c.gamma = core::array::from_fn(|k| (c.gamma[k] as f64 - drift[k]) as f32);
+                    c.gamma = core::array::from_fn(|k| (c.gamma[k] as Real - drift[k]) as f32);
                 }
                 self.moves.push(kept).map_err(|_| Rejected::Full)
             }
@@ -892,10 +893,10 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
 
     /// Replaces every raw pose by the calibrated `f = M (a − o)` (and scales its noise by `M`'s).
     pub fn calibrate_poses(&mut self, accel: &AccelCal) {
-        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as f64);
+        let m = Matrix3::from_fn(|r, c| accel.m[r][c] as Real);
         let o = v64(accel.offset_g);
         self.poses.map(|a| m * (a - o));
-        let gain = (m.norm() / libm::sqrt(3.0)) as f32;
+        let gain = (m.norm() / real::sqrt(3.0)) as f32;
         for s in &mut self.sigma_g[..self.poses.len()] {
             *s *= gain;
         }
@@ -909,7 +910,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
 
     /// `R` and `J` (3×9, rad per unit of `vec K`) of move `m` at `K`, composed in `f32`, and
     /// the Earth's-rate gain `G` of the module doc (s; zero without both poses' attitudes).
-    fn compose(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> (Matrix3<f64>, [[f64; 9]; 3], Matrix3<f64>) {
+    fn compose(&self, m: &RotationMove, k: &Matrix3<Real>, cof: &Matrix3<Real>) -> (Matrix3<Real>, [[Real; 9]; 3], Matrix3<Real>) {
         let (k, cof) = (k.map(|v| v as f32), cof.map(|v| v as f32));
         let (mut r, mut j) = (Matrix3::<f32>::identity(), [[0.0f32; 9]; 3]);
         // Σ R_<c s_c (1 − f_c), Σ R_<c s_c f_c and Σ s_c over the chunks (s_c its signed length,
@@ -944,19 +945,19 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             (Some((ai, mi)), Some((_, mj))) => ai * dt - p * mi - q * mj,
             _ => Matrix3::zeros(),
         };
-        (r.map(|v| v as f64), j.map(|row| row.map(|v| v as f64)), g.map(|v| v as f64))
+        (r.map(|v| v as Real), j.map(|row| row.map(|v| v as Real)), g.map(|v| v as Real))
     }
 
     /// The rotation of move `m` at `K` (row-major): `R` takes a vector in the body frame at its
     /// end pose to the frame at its start pose (`R g_to ≈ g_from`). `None` for a singular `K`.
-    pub fn rotation(&self, m: &RotationMove, k: &Mat3) -> Option<Matrix3<f64>> {
-        let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
+    pub fn rotation(&self, m: &RotationMove, k: &Mat3) -> Option<Matrix3<Real>> {
+        let km = Matrix3::from_fn(|r, c| k[r][c] as Real);
         let cof = cofactor(&km)?;
         Some(self.turn(m, &km, &cof))
     }
 
     /// [`Self::compose`]'s `R` alone, the same bits, at a fraction of its cost (no Jacobian).
-    fn turn(&self, m: &RotationMove, k: &Matrix3<f64>, cof: &Matrix3<f64>) -> Matrix3<f64> {
+    fn turn(&self, m: &RotationMove, k: &Matrix3<Real>, cof: &Matrix3<Real>) -> Matrix3<Real> {
         let (k, cof) = (k.map(|v| v as f32), cof.map(|v| v as f32));
         let mut r = Matrix3::<f32>::identity();
         for c in self.chunks_of(m) {
@@ -964,14 +965,14 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             let coning = Vector3::from(c.coning).map(|v| v.to_radians().to_radians());
             r *= exp(&(k * gamma + cof * coning));
         }
-        r.map(|v| v as f64)
+        r.map(|v| v as Real)
     }
 
     /// Adds the rows of every kept move, linearised at `k` (vec `K`), as rows linear in vec `K`:
     /// `H·k' ≈ H·k − r`, with the Earth's rate `w` of the module doc marginalised out. Returns the
     /// weighted residual sum at `k`, and the unweighted one (rad²) of the rotation rows with their
     /// count (a vertical turn's rows are in the weighted sum only), all at `w = 0`.
-    pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[f64; 9], limits: &RotationLimits) -> Result<(f64, f64, usize), Error> {
+    pub fn add_rows(&self, ne: &mut NormalEquations<9>, k: &[Real; 9], limits: &RotationLimits) -> Result<(Real, Real, usize), Error> {
         self.rows(ne, k, limits, 0, true)
     }
 
@@ -980,11 +981,11 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     fn rows(
         &self,
         ne: &mut NormalEquations<9>,
-        k: &[f64; 9],
+        k: &[Real; 9],
         limits: &RotationLimits,
         first: usize,
         earth_rate: bool,
-    ) -> Result<(f64, f64, usize), Error> {
+    ) -> Result<(Real, Real, usize), Error> {
         let mut sum = RowSum::new();
         sum.next = first;
         self.add_moves(ne, &mut sum, k, limits, usize::MAX)?;
@@ -1000,10 +1001,10 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         &self,
         ne: &mut NormalEquations<9>,
         sum: &mut RowSum,
-        k: &[f64; 9],
+        k: &[Real; 9],
         limits: &RotationLimits,
         max_chunks: usize,
-    ) -> Result<Option<(f64, f64, usize)>, Error> {
+    ) -> Result<Option<(Real, Real, usize)>, Error> {
         match self.add_moves(ne, sum, k, limits, max_chunks)? {
             true => sum.finish(ne, true).map(Some),
             false => Ok(None),
@@ -1016,13 +1017,13 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         &self,
         ne: &mut NormalEquations<9>,
         sum: &mut RowSum,
-        k: &[f64; 9],
+        k: &[Real; 9],
         limits: &RotationLimits,
         max_chunks: usize,
     ) -> Result<bool, Error> {
         let km = Matrix3::from_fn(|r, c| k[crate::estimators::full::vec_index(r, c)]);
         let cof = cofactor(&km).ok_or(Error::Singular)?;
-        let sg = (limits.gamma_sigma_deg as f64).to_radians();
+        let sg = (limits.gamma_sigma_deg as Real).to_radians();
         let mut chunks = 0;
         for m in self.moves().get(sum.next..).unwrap_or_default() {
             if chunks >= max_chunks {
@@ -1032,9 +1033,9 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             sum.next += 1;
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
             let (gi, gj) = (pi.normalize(), pj.normalize());
-            let dir = |p: &Vector3<f64>, i: u8| (self.sigma_g[i as usize] as f64 / p.norm()).max(limits.min_direction_sigma as f64);
+            let dir = |p: &Vector3<Real>, i: u8| (self.sigma_g[i as usize] as Real / p.norm()).max(limits.min_direction_sigma as Real);
             let (di, dj) = (dir(&pi, m.from), dir(&pj, m.to));
-            let s2 = di * di + dj * dj + sg * sg + sq(m.int_sigma_rad as f64);
+            let s2 = di * di + dj * dj + sg * sg + sq(m.int_sigma_rad as Real);
             if m.vertical {
                 // Linear rows in `K Γ̂` (Γ̂ = Γ/|Γ|, so that a residual is an angle): no part
                 // across gravity (1σ the axis' tilt), and with whole turns `N·360°/|Γ|` along it
@@ -1042,11 +1043,11 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 let gamma = self.total_rad(m);
                 let (len, unit) = (gamma.norm(), gamma.normalize());
                 let up = if unit.dot(&gi) >= 0.0 { gi } else { -gi };
-                let tilt = (limits.vertical_axis_sigma_deg as f64).to_radians();
-                let noise = (sg * sg + sq(m.int_sigma_rad as f64)) / (len * len);
-                let mut row = |e: Vector3<f64>, target: f64, s2: f64| -> Result<(), Error> {
-                    let h: [f64; 9] = core::array::from_fn(|c| unit[c / 3] * e[c % 3]);
-                    let res = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - target;
+                let tilt = (limits.vertical_axis_sigma_deg as Real).to_radians();
+                let noise = (sg * sg + sq(m.int_sigma_rad as Real)) / (len * len);
+                let mut row = |e: Vector3<Real>, target: Real, s2: Real| -> Result<(), Error> {
+                    let h: [Real; 9] = core::array::from_fn(|c| unit[c / 3] * e[c % 3]);
+                    let res = (0..9).map(|c| h[c] * k[c]).sum::<Real>() - target;
                     ne.add_row(&h, target, 1.0 / s2)?;
                     sum.wrss += res * res / s2;
                     Ok(())
@@ -1067,11 +1068,11 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             for e in tangent_basis(&gi) {
                 let res = e.dot(&rg);
                 let ea = e.transpose() * a;
-                let h: [f64; 9] = core::array::from_fn(|c| (0..3).map(|i| ea[i] * j[i][c]).sum());
-                let y = (0..9).map(|c| h[c] * k[c]).sum::<f64>() - res;
+                let h: [Real; 9] = core::array::from_fn(|c| (0..3).map(|i| ea[i] * j[i][c]).sum());
+                let y = (0..9).map(|c| h[c] * k[c]).sum::<Real>() - res;
                 ne.add_row(&h, y, w)?;
                 // The residual's part `ε·(R g_j × e)` from `ε = Ω G w`.
-                let x: [f64; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
+                let x: [Real; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
                 for (c, row) in sum.cross.iter_mut().enumerate() {
                     for b in 0..3 {
                         row[b] += w * h[c] * x[b];
@@ -1089,7 +1090,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     /// for a vertical turn, between `K Γ` and gravity (with whole turns, or the turn's distance
     /// from its whole revolutions if larger).
     pub fn residuals_deg(&self, k: &Mat3, limits: &RotationLimits) -> [f32; M] {
-        let km = Matrix3::from_fn(|r, c| k[r][c] as f64);
+        let km = Matrix3::from_fn(|r, c| k[r][c] as Real);
         let mut out = [0.0; M];
         let Some(cof) = cofactor(&km) else { return out };
         for (o, m) in out.iter_mut().zip(self.moves()) {
@@ -1132,8 +1133,8 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     }
 
     /// The bias-free gyro integral of kept move `m` (rad): `Σ Γ_c`.
-    fn total_rad(&self, m: &RotationMove) -> Vector3<f64> {
-        self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<f64>>().map(f64::to_radians)
+    fn total_rad(&self, m: &RotationMove) -> Vector3<Real> {
+        self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum::<Vector3<Real>>().map(Real::to_radians)
     }
 
     /// Adds the rows of the latest kept move at `K = I`, without the Earth's rate: called as
@@ -1148,9 +1149,9 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     /// 1/3 for axes spread evenly in three dimensions, 0 for coplanar ones.
     pub fn axis_spread(&self) -> f32 {
         let mut s = [[0.0; 3]; 3];
-        let n = self.moves.len().max(1) as f64;
+        let n = self.moves.len().max(1) as Real;
         for m in self.moves() {
-            let total: Vector3<f64> = self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum();
+            let total: Vector3<Real> = self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum();
             let u = total.normalize();
             for i in 0..3 {
                 for j in 0..3 {
@@ -1173,12 +1174,12 @@ mod tests {
         let lim = RotationLimits::DEFAULT;
         let mut r = <Rotations>::new();
         for i in 0..4u8 {
-            let t0 = 10.0 * f64::from(i);
+            let t0 = 10.0 * Real::from(i);
             r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
             if i > 0 {
                 r.begin(i - 1);
                 for k in 0..100 {
-                    r.add(t0 - 5.0 + 0.01 * f64::from(k), [30.0, 0.0, 0.0], false);
+                    r.add(t0 - 5.0 + 0.01 * Real::from(k), [30.0, 0.0, 0.0], false);
                 }
                 assert_eq!(r.end(i, &lim), Err(Rejected::BiasDrifted));
             }
@@ -1208,7 +1209,7 @@ mod tests {
             r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t_to, residual_dps: [0.0; 3] }).unwrap();
             r.begin(0);
             for k in 0..=20 * 952 {
-                r.add(t_from + 500.0 + f64::from(k) / 952.0, [9.0, -4.0, 2.0], false);
+                r.add(t_from + 500.0 + Real::from(k) / 952.0, [9.0, -4.0, 2.0], false);
             }
             assert_eq!(r.end(1, &lim), Ok(()));
             let before = r.chunks.clone();
@@ -1216,12 +1217,12 @@ mod tests {
             r.shift_bias(p, delta);
             let m = r.moves[0];
             let only = |q: usize| RestBias { t_s: r.rest[q].bias.t_s, residual_dps: if q == p { delta } else { [0.0; 3] } };
-            let mut worst = 0.0f64;
+            let mut worst = 0.0 as Real;
             for (c0, c1) in before[m.first as usize..(m.first + m.n) as usize].iter().zip(&r.chunks[m.first as usize..]) {
-                let lost = only(0).integral_deg(&only(1), m.t0_s + c0.span_s[0] as f64, m.t0_s + c0.span_s[1] as f64);
+                let lost = only(0).integral_deg(&only(1), m.t0_s + c0.span_s[0] as Real, m.t0_s + c0.span_s[1] as Real);
                 for k in 0..3 {
-                    let want = (c0.gamma[k] as f64 - lost[k]) as f32;
-                    worst = worst.max((c1.gamma[k] - want).abs() as f64);
+                    let want = (c0.gamma[k] as Real - lost[k]) as f32;
+                    worst = worst.max((c1.gamma[k] - want).abs() as Real);
                 }
             }
             assert!(m.n > 30 && worst <= 1e-6, "pose {p}: {} chunks, worst {worst:e} deg", m.n);
@@ -1239,10 +1240,10 @@ mod tests {
         let rhs = e * exp_jr(&(jr * d)).0;
         assert!((lhs - rhs).amax() < 2e-6, "{}", (lhs - rhs).amax());
         // The series against the closed form (f64) up to 0.25 rad.
-        for t in [1e-7f64, 0.01, 0.1, 0.25] {
+        for t in [1e-7 as Real, 0.01, 0.1, 0.25] {
             let phi = Vector3::new(0.6, -0.48, 0.64) * t;
             let exact = nalgebra::Rotation3::from_scaled_axis(phi).into_inner();
-            assert!((exp_jr(&phi.map(|v| v as f32)).0.map(|v| v as f64) - exact).amax() < 3e-7, "t {t}");
+            assert!((exp_jr(&phi.map(|v| v as f32)).0.map(|v| v as Real) - exact).amax() < 3e-7, "t {t}");
         }
     }
 
@@ -1253,14 +1254,14 @@ mod tests {
         r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
         r.begin(0);
         for i in 0..=900 {
-            r.add(i as f64 * 0.001, [90.0, 0.0, 0.0], false);
+            r.add(i as Real * 0.001, [90.0, 0.0, 0.0], false);
         }
         assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
         assert_eq!(r.moves()[0].n, 17);
         let k = Matrix3::from_diagonal(&Vector3::new(1.1, 1.0, 1.0));
         let cof = cofactor(&k).unwrap();
         let (rot, _, _) = r.compose(&r.moves()[0], &k, &cof);
-        let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new((81.0f64 * 1.1).to_radians(), 0.0, 0.0)).into_inner();
+        let expect = nalgebra::Rotation3::from_scaled_axis(Vector3::new(((81.0 as Real) * 1.1).to_radians(), 0.0, 0.0)).into_inner();
         // Stored and composed in f32: 17 chunks round to ≈ 3e-7 rad (a K error of 2e-7).
         assert!((rot - expect).amax() < 1e-6, "{rot} vs {expect}");
     }

@@ -7,6 +7,7 @@ use crate::estimators::axis::{turn_deg, unwrap_near, GeometryLimits, Poses};
 use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
 use crate::math::lsq::NormalEquations;
+use crate::math::real::{self, Real};
 use crate::math::stats::Spread;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
@@ -14,7 +15,7 @@ use nalgebra::Vector3;
 /// Largest number of moves kept.
 pub const MAX_MOVES: usize = 64;
 /// Moves that turn the shaft less than this (°) are not used.
-pub const MIN_MOVE_DEG: f64 = 10.0;
+pub const MIN_MOVE_DEG: Real = 10.0;
 
 /// Trapezoidal integral of the bias-free gyro over one move (°, sensor frame), in `f64`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -59,13 +60,13 @@ impl Integrator {
     }
 
     /// `Γ` so far (°).
-    pub fn gamma(&self) -> [f64; 3] {
-        core::array::from_fn(|k| self.gamma[k] as f64 - self.lost[k] as f64)
+    pub fn gamma(&self) -> [Real; 3] {
+        core::array::from_fn(|k| self.gamma[k] as Real - self.lost[k] as Real)
     }
 
     /// `Γ` so far less the residual bias tracked between the rests `from` and `to` that bound
     /// the move (°).
-    pub fn gamma_tracked(&self, from: &RestBias, to: &RestBias) -> [f64; 3] {
+    pub fn gamma_tracked(&self, from: &RestBias, to: &RestBias) -> [Real; 3] {
         let t_last = self.last.map_or(self.t_first, |(t, _)| t);
         let (gamma, drift) = (self.gamma(), from.integral_deg(to, self.t_first, t_last));
         core::array::from_fn(|k| gamma[k] - drift[k])
@@ -85,7 +86,7 @@ pub struct Move {
     /// Index of the end pose.
     pub to: u8,
     /// `Γ = ∫ (g − b) dt` over the move (°).
-    pub gamma_deg: [f64; 3],
+    pub gamma_deg: [Real; 3],
 }
 
 /// The moves of a sweep session (bounded, no heap).
@@ -120,7 +121,7 @@ impl Moves {
     // `memmove` (LLVM cannot prove the two stores apart), which links compiler_builtins'
     // 1.5 KiB memmove into that build.
     #[inline(never)]
-    pub fn push(&mut self, from: u8, to: u8, gamma_deg: [f64; 3]) -> Result<(), Error> {
+    pub fn push(&mut self, from: u8, to: u8, gamma_deg: [Real; 3]) -> Result<(), Error> {
         if !gamma_deg.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
@@ -140,7 +141,7 @@ pub fn solve(poses: &Poses, moves: &Moves, limits: &GeometryLimits) -> Result<Gy
     let mut ne = NormalEquations::<3>::new();
     let mut used = 0u16;
     // (start-pose acceleration, Γ, Δθ) of each used move, recomputed below for the invariant.
-    let usable = |m: &Move| -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+    let usable = |m: &Move| -> Option<(Vector3<Real>, Vector3<Real>, Real)> {
         let n = poses.len();
         if m.from as usize >= n || m.to as usize >= n {
             return None;
@@ -169,13 +170,13 @@ pub fn solve(poses: &Poses, moves: &Moves, limits: &GeometryLimits) -> Result<Gy
         }
     }
     let invariant =
-        |kk: Vector3<f64>| Spread::of(moves.as_slice().iter().filter_map(usable).map(|(a, g, dth)| a.dot(&kk.component_mul(&g)) / dth));
+        |kk: Vector3<Real>| Spread::of(moves.as_slice().iter().filter_map(usable).map(|(a, g, dth)| a.dot(&kk.component_mul(&g)) / dth));
     let quality = GyroQuality {
         invariant_before: invariant(Vector3::repeat(1.0)),
         invariant_after: invariant(k),
         sigma_k: core::array::from_fn(|i| sol.sigma(i) as f32),
         condition: sol.condition as f32,
-        residual_rms: libm::sqrt(sol.rss / ne.rows() as f64) as f32,
+        residual_rms: real::sqrt(sol.rss / ne.rows() as Real) as f32,
         axis: u.map(|v| v as f32).into(),
         tilt_deg: geo.tilt_deg as f32,
         span_deg: geo.span_deg as f32,

@@ -1,13 +1,14 @@
-//! Small dense linear algebra on `[[f64; N]; N]`: Cholesky factorisation and the symmetric
-//! Jacobi eigen-decomposition. No allocation, bounded iteration counts. Each routine is one
-//! non-generic core on a row-major slice (`n × n`, `n ≤ MAX_N`) behind a thin generic wrapper,
-//! so the firmware links one copy whatever the sizes used.
+//! Small dense linear algebra: Cholesky factorisation (in [`Real`] or `f64`: [`Scalar`]) and the
+//! symmetric Jacobi eigen-decomposition. No allocation, bounded iteration counts. Each routine is
+//! one core on a row-major slice (`n × n`, `n ≤ MAX_N`, generic over its scalar alone) behind a
+//! thin wrapper generic over the size, so the firmware links one copy a scalar whatever the sizes.
 
+use crate::math::real::{self, Real};
 use nalgebra::Matrix3;
 
 /// `det(K) K⁻ᵀ`, the cofactor matrix (columns `k₁ × k₂`, `k₂ × k₀`, `k₀ × k₁` of the columns
 /// `k_c` of `K`); `None` for a singular `K`.
-pub(crate) fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+pub(crate) fn cofactor(k: &Matrix3<Real>) -> Option<Matrix3<Real>> {
     let at = |r: usize, c: usize| k[(r % 3, c % 3)];
     let cof = Matrix3::from_fn(|r, c| at(r + 1, c + 1) * at(r + 2, c + 2) - at(r + 2, c + 1) * at(r + 1, c + 2));
     (k.column(0).dot(&cof.column(0)) != 0.0).then_some(cof)
@@ -15,7 +16,7 @@ pub(crate) fn cofactor(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 
 /// `K⁻¹` of a 3 × 3 matrix from its [`cofactor`] matrix (one small routine for every 3 × 3
 /// inverse: nalgebra's general one costs the firmware 768 B of flash); `None` when singular.
-pub(crate) fn inverse3(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+pub(crate) fn inverse3(k: &Matrix3<Real>) -> Option<Matrix3<Real>> {
     let cof = cofactor(k)?;
     Some(cof.transpose() / k.column(0).dot(&cof.column(0)))
 }
@@ -23,20 +24,78 @@ pub(crate) fn inverse3(k: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// Largest dimension of the dense routines.
 pub(crate) const MAX_N: usize = 9;
 
+/// The scalars the Cholesky routines run in: [`Real`], and `f64` for the sums of
+/// [`crate::math::lsq`] that need it whatever `Real` is (each instance is linked only where used).
+pub(crate) trait Scalar:
+    Copy
+    + PartialOrd
+    + core::ops::Add<Output = Self>
+    + core::ops::Sub<Output = Self>
+    + core::ops::Mul<Output = Self>
+    + core::ops::Div<Output = Self>
+    + core::ops::SubAssign
+{
+    /// 0 and 1.
+    const ZERO: Self;
+    const ONE: Self;
+    /// `√self`.
+    fn sqrt(self) -> Self;
+    /// `|self|`.
+    fn abs(self) -> Self;
+    /// The larger of the two (the other for a NaN).
+    fn max(self, other: Self) -> Self;
+    /// Neither infinite nor NaN.
+    fn is_finite(self) -> bool;
+}
+
+impl Scalar for f32 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    fn sqrt(self) -> Self {
+        super::vec3::sqrtf(self)
+    }
+    fn abs(self) -> Self {
+        f32::abs(self)
+    }
+    fn max(self, other: Self) -> Self {
+        f32::max(self, other)
+    }
+    fn is_finite(self) -> bool {
+        f32::is_finite(self)
+    }
+}
+
+impl Scalar for f64 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    fn sqrt(self) -> Self {
+        libm::sqrt(self)
+    }
+    fn abs(self) -> Self {
+        f64::abs(self)
+    }
+    fn max(self, other: Self) -> Self {
+        f64::max(self, other)
+    }
+    fn is_finite(self) -> bool {
+        f64::is_finite(self)
+    }
+}
+
 /// Lower-triangular Cholesky factor `L` of a symmetric positive-definite `a = L Lᵀ`.
 ///
 /// Returns `None` when a pivot is not positive relative to `rel_tol × max diagonal`
 /// (singular or indefinite within the precision of the data).
-pub(crate) fn cholesky<const N: usize>(a: &[[f64; N]; N], rel_tol: f64) -> Option<[[f64; N]; N]> {
-    let mut l = [[0.0; N]; N];
+pub(crate) fn cholesky<T: Scalar, const N: usize>(a: &[[T; N]; N], rel_tol: T) -> Option<[[T; N]; N]> {
+    let mut l = [[T::ZERO; N]; N];
     cholesky_in(a.as_flattened(), l.as_flattened_mut(), N, rel_tol).then_some(l)
 }
 
 /// [`cholesky`] of the `n × n` row-major `a` (only its lower triangle is read) into `l` (zeroed
 /// by the caller); `false` for a non-positive pivot.
-pub(crate) fn cholesky_in(a: &[f64], l: &mut [f64], n: usize, rel_tol: f64) -> bool {
-    let scale = (0..n).fold(0.0_f64, |m, i| m.max(a[i * n + i].abs()));
-    if !(scale > 0.0 && scale.is_finite()) {
+pub(crate) fn cholesky_in<T: Scalar>(a: &[T], l: &mut [T], n: usize, rel_tol: T) -> bool {
+    let scale = (0..n).fold(T::ZERO, |m, i| m.max(a[i * n + i].abs()));
+    if !(scale > T::ZERO && scale.is_finite()) {
         return false;
     }
     for j in 0..n {
@@ -47,7 +106,7 @@ pub(crate) fn cholesky_in(a: &[f64], l: &mut [f64], n: usize, rel_tol: f64) -> b
         if !(d > rel_tol * scale) {
             return false;
         }
-        let d = libm::sqrt(d);
+        let d = d.sqrt();
         l[j * n + j] = d;
         for i in j + 1..n {
             let mut s = a[i * n + j];
@@ -61,17 +120,17 @@ pub(crate) fn cholesky_in(a: &[f64], l: &mut [f64], n: usize, rel_tol: f64) -> b
 }
 
 /// Solves `L Lᵀ x = b` for a Cholesky factor `L`.
-pub(crate) fn cholesky_solve<const N: usize>(l: &[[f64; N]; N], b: &[f64; N]) -> [f64; N] {
+pub(crate) fn cholesky_solve<T: Scalar, const N: usize>(l: &[[T; N]; N], b: &[T; N]) -> [T; N] {
     const { assert!(N <= MAX_N) };
-    let mut x = [0.0; N];
+    let mut x = [T::ZERO; N];
     cholesky_solve_in(l.as_flattened(), b, &mut x);
     x
 }
 
 /// [`cholesky_solve`] with `n = b.len()` and `L` row-major `n × n`.
-pub(crate) fn cholesky_solve_in(l: &[f64], b: &[f64], x: &mut [f64]) {
+pub(crate) fn cholesky_solve_in<T: Scalar>(l: &[T], b: &[T], x: &mut [T]) {
     let n = b.len();
-    let mut y = [0.0; MAX_N];
+    let mut y = [T::ZERO; MAX_N];
     for i in 0..n {
         let mut s = b[i];
         for k in 0..i {
@@ -89,19 +148,19 @@ pub(crate) fn cholesky_solve_in(l: &[f64], b: &[f64], x: &mut [f64]) {
 }
 
 /// Inverse of `L Lᵀ` from its Cholesky factor.
-pub(crate) fn cholesky_inverse<const N: usize>(l: &[[f64; N]; N]) -> [[f64; N]; N] {
+pub(crate) fn cholesky_inverse<T: Scalar, const N: usize>(l: &[[T; N]; N]) -> [[T; N]; N] {
     const { assert!(N <= MAX_N) };
-    let mut inv = [[0.0; N]; N];
+    let mut inv = [[T::ZERO; N]; N];
     cholesky_inverse_in(l.as_flattened(), inv.as_flattened_mut(), N);
     inv
 }
 
 /// [`cholesky_inverse`] of the `n × n` row-major `l` into `inv`.
-pub(crate) fn cholesky_inverse_in(l: &[f64], inv: &mut [f64], n: usize) {
+pub(crate) fn cholesky_inverse_in<T: Scalar>(l: &[T], inv: &mut [T], n: usize) {
     for j in 0..n {
-        let mut e = [0.0; MAX_N];
-        e[j] = 1.0;
-        let mut col = [0.0; MAX_N];
+        let mut e = [T::ZERO; MAX_N];
+        e[j] = T::ONE;
+        let mut col = [T::ZERO; MAX_N];
         cholesky_solve_in(l, &e[..n], &mut col[..n]);
         for i in 0..n {
             inv[i * n + j] = col[i];
@@ -111,7 +170,7 @@ pub(crate) fn cholesky_inverse_in(l: &[f64], inv: &mut [f64], n: usize) {
 
 /// Eigenvalues (ascending) and unit eigenvectors (columns, same order) of a symmetric matrix,
 /// by cyclic Jacobi rotations (at most 50 sweeps; converges quadratically).
-pub(crate) fn sym_eigen<const N: usize>(a: &[[f64; N]; N]) -> ([f64; N], [[f64; N]; N]) {
+pub(crate) fn sym_eigen<const N: usize>(a: &[[Real; N]; N]) -> ([Real; N], [[Real; N]; N]) {
     let mut m = *a;
     let (mut vals, mut v) = ([0.0; N], [[0.0; N]; N]);
     sym_eigen_in(m.as_flattened_mut(), &mut vals, v.as_flattened_mut());
@@ -120,7 +179,7 @@ pub(crate) fn sym_eigen<const N: usize>(a: &[[f64; N]; N]) -> ([f64; N], [[f64; 
 
 /// [`sym_eigen`] with `n = vals.len()`: diagonalises the row-major `m` in place, `v` zeroed by
 /// the caller.
-pub(crate) fn sym_eigen_in(m: &mut [f64], vals: &mut [f64], v: &mut [f64]) {
+pub(crate) fn sym_eigen_in(m: &mut [Real], vals: &mut [Real], v: &mut [Real]) {
     let n = vals.len();
     for i in 0..n {
         v[i * n + i] = 1.0;
@@ -144,9 +203,9 @@ pub(crate) fn sym_eigen_in(m: &mut [f64], vals: &mut [f64], v: &mut [f64]) {
                     continue;
                 }
                 let theta = (m[q * n + q] - m[p * n + p]) / (2.0 * mpq);
-                let t = theta.signum() / (theta.abs() + libm::sqrt(theta * theta + 1.0));
+                let t = theta.signum() / (theta.abs() + real::sqrt(theta * theta + 1.0));
                 let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / libm::sqrt(t * t + 1.0);
+                let c = 1.0 / real::sqrt(t * t + 1.0);
                 let s = t * c;
                 // Columns p, q of m, then its rows p, q, then the columns of v.
                 for pass in 0..3 {
@@ -192,10 +251,10 @@ pub(crate) fn sym_eigen_in(m: &mut [f64], vals: &mut [f64], v: &mut [f64]) {
 /// Sylvester's law of inertia: `m − x I` is positive definite, its Cholesky factorisation
 /// succeeds, exactly when `x` is below every eigenvalue (`x I − m`: above). ≈ 28 factorisations:
 /// 1/6 of the work of [`sym_eigen_in`] at `n = 9`, and no code beyond [`cholesky_in`]'s.
-pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
+pub(crate) fn sym_extremes_in(m: &[Real], n: usize) -> (Real, Real) {
     let (mut a, mut l) = ([0.0; MAX_N * MAX_N], [0.0; MAX_N * MAX_N]);
     // Whether `sign (m − x I)` is positive definite.
-    let mut definite = |x: f64, sign: f64| {
+    let mut definite = |x: Real, sign: Real| {
         for i in 0..n {
             for j in 0..=i {
                 a[i * n + j] = sign * (m[i * n + j] - if i == j { x } else { 0.0 });
@@ -205,8 +264,8 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
     };
     // The largest lies between the largest diagonal element and the trace (the eigenvalues'
     // sum, all of them positive).
-    let diag = (0..n).fold(0.0_f64, |d, i| d.max(m[i * n + i]));
-    let trace = (0..n).map(|i| m[i * n + i]).sum::<f64>();
+    let diag = (0..n).fold(0.0 as Real, |d, i| d.max(m[i * n + i]));
+    let trace = (0..n).map(|i| m[i * n + i]).sum::<Real>();
     let (mut lo, mut hi) = (diag, trace);
     let floor = 1e-16 * hi;
     if !(diag > 0.0 && hi.is_finite() && definite(floor, 1.0)) {
@@ -218,9 +277,9 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
     }
     let largest = hi;
     // The smallest lies in [floor, trace / n], bisected geometrically.
-    let (mut lo, mut hi) = (floor, trace / n as f64);
+    let (mut lo, mut hi) = (floor, trace / n as Real);
     while hi > lo * (1.0 + EXTREMES_REL) {
-        let mid = libm::sqrt(lo * hi);
+        let mid = real::sqrt(lo * hi);
         *(if definite(mid, 1.0) { &mut lo } else { &mut hi }) = mid;
     }
     (lo, largest)
@@ -228,17 +287,20 @@ pub(crate) fn sym_extremes_in(m: &[f64], n: usize) -> (f64, f64) {
 
 /// The relative precision of [`sym_extremes_in`]: a condition number is compared with a limit
 /// and reported to 3 digits (each 1e-5 cost 14 more factorisations, ≈ 1/3 of a fit's time).
-const EXTREMES_REL: f64 = 1e-3;
+const EXTREMES_REL: Real = 1e-3;
 
 /// The cube root of `x > 0` (`x` itself for 0, ∞ or NaN; NaN below 0): Newton's iteration from
 /// a third of the exponent. `libm::cbrt` would link a 1 KiB soft `f64` `fma` into the firmware.
-pub(crate) fn cbrt(x: f64) -> f64 {
+pub(crate) fn cbrt(x: Real) -> Real {
     if !(x > 0.0 && x.is_finite()) {
-        return if x < 0.0 { f64::NAN } else { x };
+        return if x < 0.0 { Real::NAN } else { x };
     }
     // Within ≈ 10 % of the root (the exponent's bits divided by 3, in 32 bits: no 64-bit
-    // division linked); each step squares the error.
-    let mut y = f64::from_bits((((x.to_bits() >> 32) as u32 / 3 + 0x2A9F_7893) as u64) << 32);
+    // division linked; fdlibm's offsets); each step squares the error.
+    #[cfg(feature = "single")]
+    let mut y = Real::from_bits(x.to_bits() / 3 + 0x2A51_19F2);
+    #[cfg(not(feature = "single"))]
+    let mut y = Real::from_bits((((x.to_bits() >> 32) as u32 / 3 + 0x2A9F_7893) as u64) << 32);
     for _ in 0..6 {
         y -= (y - x / (y * y)) / 3.0;
     }
@@ -263,13 +325,13 @@ mod tests {
     fn cbrt_matches_libm_over_the_range_of_f64() {
         for e in -300..300 {
             for m in [1.0, 1.7, 2.9, 5.3, 7.9] {
-                let x = m * 10f64.powi(e);
+                let x = m * (10 as Real).powi(e);
                 let (ours, libm) = (cbrt(x), libm::cbrt(x));
-                assert!((ours - libm).abs() <= 4.0 * f64::EPSILON * libm, "{x:e}: {ours:e} vs {libm:e}");
+                assert!((ours - libm).abs() <= 4.0 * Real::EPSILON * libm, "{x:e}: {ours:e} vs {libm:e}");
             }
         }
         assert_eq!(cbrt(0.0), 0.0);
-        assert!(cbrt(-1.0).is_nan() && cbrt(f64::NAN).is_nan() && cbrt(f64::INFINITY) == f64::INFINITY);
+        assert!(cbrt(-1.0).is_nan() && cbrt(Real::NAN).is_nan() && cbrt(Real::INFINITY) == Real::INFINITY);
     }
 
     #[test]
@@ -278,13 +340,13 @@ mod tests {
         let l = cholesky(&a, 1e-12).unwrap();
         let x = cholesky_solve(&l, &[1.0, 2.0, 3.0]);
         for i in 0..3 {
-            let r: f64 = (0..3).map(|j| a[i][j] * x[j]).sum();
+            let r: Real = (0..3).map(|j| a[i][j] * x[j]).sum();
             assert!((r - [1.0, 2.0, 3.0][i]).abs() < 1e-12);
         }
         let inv = cholesky_inverse(&l);
         for i in 0..3 {
             for j in 0..3 {
-                let p: f64 = (0..3).map(|k| a[i][k] * inv[k][j]).sum();
+                let p: Real = (0..3).map(|k| a[i][k] * inv[k][j]).sum();
                 assert!((p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
             }
         }
@@ -306,11 +368,11 @@ mod tests {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            (seed >> 11) as Real / (1u64 << 53) as Real - 0.5
         };
         for case in 0..60 {
             let n = 2 + case % 8;
-            let cond = libm::pow(10.0, (case % 11) as f64);
+            let cond = libm::pow(10.0, (case % 11) as Real);
             let mut a = [0.0; MAX_N * MAX_N];
             for i in 0..n {
                 for j in 0..n {
@@ -319,18 +381,18 @@ mod tests {
             }
             // Product of random reflections: an orthogonal Q; A = Q Λ Qᵀ.
             for _ in 0..n {
-                let v: [f64; MAX_N] = core::array::from_fn(|_| rnd());
-                let vv: f64 = v[..n].iter().map(|x| x * x).sum();
+                let v: [Real; MAX_N] = core::array::from_fn(|_| rnd());
+                let vv: Real = v[..n].iter().map(|x| x * x).sum();
                 let mut q = [0.0; MAX_N * MAX_N];
                 for i in 0..n {
                     for j in 0..n {
-                        let h: f64 = (0..n).map(|k| (if i == k { 1.0 } else { 0.0 } - 2.0 * v[i] * v[k] / vv) * a[k * n + j]).sum();
+                        let h: Real = (0..n).map(|k| (if i == k { 1.0 } else { 0.0 } - 2.0 * v[i] * v[k] / vv) * a[k * n + j]).sum();
                         q[i * n + j] = h;
                     }
                 }
                 a = q;
             }
-            let lam: [f64; MAX_N] = core::array::from_fn(|i| if i < n { libm::pow(cond, -(i as f64) / (n - 1) as f64) } else { 0.0 });
+            let lam: [Real; MAX_N] = core::array::from_fn(|i| if i < n { libm::pow(cond, -(i as Real) / (n - 1) as Real) } else { 0.0 });
             let mut m = [0.0; MAX_N * MAX_N];
             for i in 0..n {
                 for j in 0..n {
@@ -366,7 +428,7 @@ mod tests {
         assert!((vals[2] - 5.0).abs() < 1e-12);
         for k in 0..3 {
             for i in 0..3 {
-                let av: f64 = (0..3).map(|j| a[i][j] * vecs[j][k]).sum();
+                let av: Real = (0..3).map(|j| a[i][j] * vecs[j][k]).sum();
                 assert!((av - vals[k] * vecs[i][k]).abs() < 1e-12);
             }
         }

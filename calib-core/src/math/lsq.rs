@@ -1,16 +1,29 @@
 //! Weighted linear least squares through normal equations, accumulated one row at a time.
 //!
-//! `NormalEquations<N>` keeps `Σ w x xᵀ`, `Σ w x y`, `Σ w y²` in `f64`: O(N²) state whatever the
-//! number of rows. Every linear solve of the crate goes through it (3 unknowns for the gyro,
-//! 6 and 9 for the accelerometer).
+//! `NormalEquations<N>` keeps `Σ w x xᵀ`, `Σ w x y`, `Σ w y²` in `f64` whatever [`Real`] is:
+//! O(N²) state whatever the number of rows. It solves in [`Real`], but takes the residual sum
+//! from the `f64` sums at the solution, `Σ w y² − 2 βᵀ Σ w x y + βᵀ (Σ w x xᵀ) β`: a small
+//! difference of large sums, which sums in `f32` lose (the firmware's 1σ of K came out 0.6 times
+//! the PC's on one log; vboard's precision test), and which the solve's rounding of `β` changes
+//! only to second order. Every linear solve of the crate goes through it (3 unknowns for the
+//! gyro, 6 and 9 for the accelerometer).
 
 use crate::math::linalg::{
     cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_extremes_in, MAX_N,
 };
+use crate::math::real::{self, Real};
 use crate::Error;
 
-/// Largest accepted condition number of the equilibrated normal matrix (unit diagonal).
-pub const MAX_CONDITION: f64 = 1e8;
+/// Largest accepted condition number of the equilibrated normal matrix (unit diagonal): 1e8 in
+/// `f64`; 1e6 in `f32` (the firmware), whose solves and condition estimates (its smallest
+/// eigenvalue to ± the rounding of the largest, 1e-7 of it) resolve no more.
+#[cfg(not(feature = "single"))]
+pub const MAX_CONDITION: Real = 1e8;
+/// Largest accepted condition number of the equilibrated normal matrix (unit diagonal): 1e8 in
+/// `f64`; 1e6 in `f32` (the firmware), whose solves and condition estimates (its smallest
+/// eigenvalue to ± the rounding of the largest, 1e-7 of it) resolve no more.
+#[cfg(feature = "single")]
+pub const MAX_CONDITION: Real = 1e6;
 
 /// Accumulated normal equations `(Σ w x xᵀ) β = Σ w x y` of an `N`-unknown problem `x·β ≈ y`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,22 +39,22 @@ pub struct NormalEquations<const N: usize> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Solution<const N: usize> {
     /// The parameters `β`.
-    pub x: [f64; N],
+    pub x: [Real; N],
     /// Weighted residual sum of squares `Σ w (y − x·β)²`.
-    pub rss: f64,
+    pub rss: Real,
     /// Rows minus unknowns.
     pub dof: u32,
     /// Parameter covariance `s² (Σ w x xᵀ)⁻¹` with `s² = (rss / dof) ·`
     /// [`few_dof_factor`]`(dof)` (zero when `dof == 0`).
-    pub covariance: [[f64; N]; N],
+    pub covariance: [[Real; N]; N],
     /// 2-norm condition number of the equilibrated normal matrix.
-    pub condition: f64,
+    pub condition: Real,
 }
 
 impl<const N: usize> Solution<N> {
     /// 1σ of parameter `i` (square root of the covariance diagonal).
-    pub fn sigma(&self, i: usize) -> f64 {
-        libm::sqrt(self.covariance[i][i].max(0.0))
+    pub fn sigma(&self, i: usize) -> Real {
+        real::sqrt(self.covariance[i][i].max(0.0))
     }
 }
 
@@ -60,11 +73,11 @@ impl<const N: usize> NormalEquations<N> {
 
     /// The prior `β ~ N(0, I/w)`: the `N` unit rows `eᵢ·β ≈ 0` of weight `w` (the same sums as
     /// adding them).
-    pub const fn prior(w: f64) -> Self {
+    pub const fn prior(w: Real) -> Self {
         let mut out = Self::new();
         let mut i = 0;
         while i < N {
-            out.xtx[i][i] = w;
+            out.xtx[i][i] = w as f64;
             i += 1;
         }
         out.rows = N as u32;
@@ -77,7 +90,7 @@ impl<const N: usize> NormalEquations<N> {
     }
 
     /// Adds the row `x·β ≈ y` with weight `w` (inverse variance). Non-finite rows are refused.
-    pub fn add_row(&mut self, x: &[f64; N], y: f64, w: f64) -> Result<(), Error> {
+    pub fn add_row(&mut self, x: &[Real; N], y: Real, w: Real) -> Result<(), Error> {
         add_row(self.xtx.as_flattened_mut(), &mut self.xty, &mut self.yty, x, y, w)?;
         self.rows += 1;
         Ok(())
@@ -85,48 +98,57 @@ impl<const N: usize> NormalEquations<N> {
 
     /// The same equations for the rows `d ∘ x` (element-wise scaled regressors): lets rows be
     /// accumulated before a per-column factor is known.
-    pub fn scaled(&self, d: &[f64; N]) -> Self {
+    pub fn scaled(&self, d: &[Real; N]) -> Self {
         let mut out = *self;
         for i in 0..N {
             for j in 0..=i {
-                out.xtx[i][j] *= d[i] * d[j];
+                out.xtx[i][j] *= d[i] as f64 * d[j] as f64;
             }
-            out.xty[i] *= d[i];
+            out.xty[i] *= d[i] as f64;
         }
         out
     }
 
     /// `(Σ w x xᵀ)⁻¹` by Cholesky: the parameter covariance before its scaling by the residual.
-    pub fn inverse(&self) -> Result<[[f64; N]; N], Error> {
-        let l = cholesky(&self.xtx, 1e-13).ok_or(Error::Singular)?;
+    pub fn inverse(&self) -> Result<[[Real; N]; N], Error> {
+        let l = cholesky(&self.xtx.map(|r| r.map(|v| v as Real)), 1e-13).ok_or(Error::Singular)?;
         Ok(cholesky_inverse(&l))
     }
 
     /// Condition number of the normal matrix after scaling it to a unit diagonal, so that it
     /// measures geometry, not units. Infinite when a column is all zero.
-    pub fn condition(&self) -> f64 {
-        condition(self.xtx.as_flattened(), N)
+    pub fn condition(&self) -> Real {
+        condition(&self.real()[..N * N], N)
     }
 
     /// The parameters alone, by Cholesky (no condition number, no covariance): for the
     /// iterates of an iterative solve, whose last step is checked by [`Self::solve`].
-    pub fn estimate(&self) -> Result<[f64; N], Error> {
+    pub fn estimate(&self) -> Result<[Real; N], Error> {
         let (mut l, mut x) = ([0.0; MAX_N * MAX_N], [0.0; N]);
-        if !cholesky_in(self.xtx.as_flattened(), &mut l[..N * N], N, 1e-13) {
+        if !cholesky_in(&self.real()[..N * N], &mut l[..N * N], N, 1e-13) {
             return Err(Error::Singular);
         }
-        cholesky_solve_in(&l[..N * N], &self.xty, &mut x);
+        cholesky_solve_in(&l[..N * N], &self.xty.map(|v| v as Real), &mut x);
         Ok(x)
+    }
+
+    /// `Σ w x xᵀ` in [`Real`], row-major `N × N` (its lower triangle), for the solves.
+    fn real(&self) -> [Real; MAX_N * MAX_N] {
+        let mut a = [0.0; MAX_N * MAX_N];
+        for (a, v) in a.iter_mut().zip(self.xtx.as_flattened()) {
+            *a = *v as Real;
+        }
+        a
     }
 
     /// Marginalises `M` more unknowns `z` out of equations whose rows were `x·β + c·z ≈ y`, given
     /// `Σ w x cᵀ` (`cross`) and the rows `c·z ≈ y` alone (`nuisance`, positive definite: a prior
     /// added): what is left are the normal equations of `β` alone (the Schur complement), whose
-    /// solution and covariance are those of the joint solve.
-    pub fn eliminate<const M: usize>(&mut self, cross: &[[f64; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
+    /// solution and covariance are those of the joint solve. In `f64`, as the sums are.
+    pub fn eliminate<const M: usize>(&mut self, cross: &[[Real; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
         let l = cholesky(&nuisance.xtx, 1e-13).ok_or(Error::Singular)?;
         let dot = |a: &[f64; M], b: &[f64; M]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
-        let cy = &nuisance.xty;
+        let (cy, cross) = (&nuisance.xty, cross.map(|r| r.map(|v| v as f64)));
         for i in 0..N {
             let s = cholesky_solve(&l, &cross[i]);
             for j in 0..=i {
@@ -141,49 +163,83 @@ impl<const N: usize> NormalEquations<N> {
     /// Solves by Cholesky. Errors: fewer rows than unknowns, a singular or ill-conditioned matrix.
     pub fn solve(&self) -> Result<Solution<N>, Error> {
         let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
-        let (rss, dof, condition) =
-            solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, None, &mut x, covariance.as_flattened_mut())?;
+        let (rss, dof, condition) = self.solve_into(None, &mut x, covariance.as_flattened_mut())?;
         Ok(Solution { x, rss, dof, covariance, condition })
     }
 
     /// [`Self::solve`]'s checks alone, its errors or the condition number: for a caller that
     /// needs neither the solution nor its covariance (the last equations of an iteration).
-    pub fn check(&self) -> Result<f64, Error> {
+    pub fn check(&self) -> Result<Real, Error> {
         self.solve().map(|s| s.condition)
     }
 
     /// [`Self::check`] with its condition number already computed ([`Self::condition`], most of
     /// the work): the same result, for a caller that runs the two in calls of their own.
-    pub fn check_given(&self, condition: f64) -> Result<f64, Error> {
+    pub fn check_given(&self, condition: Real) -> Result<Real, Error> {
         let (mut x, mut covariance) = ([0.0; N], [[0.0; N]; N]);
-        solve(self.xtx.as_flattened(), &self.xty, self.yty, self.rows, Some(condition), &mut x, covariance.as_flattened_mut())
-            .map(|(_, _, c)| c)
+        self.solve_into(Some(condition), &mut x, covariance.as_flattened_mut()).map(|(_, _, c)| c)
     }
 
     /// The [`Solution`] [`Self::solve`] gave, from its parts but the covariance, which is
     /// computed again, bit for bit the same: for a caller that keeps a solution across calls
     /// without its `N × N` covariance.
-    pub fn solution(&self, x: [f64; N], rss: f64, dof: u32, condition: f64) -> Result<Solution<N>, Error> {
+    pub fn solution(&self, x: [Real; N], rss: Real, dof: u32, condition: Real) -> Result<Solution<N>, Error> {
         let mut l = [0.0; MAX_N * MAX_N];
-        if !cholesky_in(self.xtx.as_flattened(), &mut l[..N * N], N, 1e-13) {
+        if !cholesky_in(&self.real()[..N * N], &mut l[..N * N], N, 1e-13) {
             return Err(Error::Singular);
         }
         let mut covariance = [[0.0; N]; N];
         scaled_inverse(&l[..N * N], N, rss, dof, covariance.as_flattened_mut());
         Ok(Solution { x, rss, dof, covariance, condition })
     }
+
+    /// [`Self::solve`] into `x` and the covariance: `(rss, dof, condition)` (`known`: the
+    /// condition number, computed before).
+    fn solve_into(&self, known: Option<Real>, x: &mut [Real; N], covariance: &mut [Real]) -> Result<(Real, u32, Real), Error> {
+        if (self.rows as usize) < N {
+            return Err(Error::TooFewRows { have: self.rows, need: N as u32 });
+        }
+        let a = self.real();
+        let mut l = [0.0; MAX_N * MAX_N];
+        let l = &mut l[..N * N];
+        if !cholesky_in(&a[..N * N], l, N, 1e-13) {
+            return Err(Error::Singular);
+        }
+        let condition = known.unwrap_or_else(|| condition(&a[..N * N], N));
+        if !(condition <= MAX_CONDITION) {
+            return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
+        }
+        cholesky_solve_in(l, &self.xty.map(|v| v as Real), x);
+        let rss = self.rss_at(x).max(0.0) as Real;
+        let dof = self.rows - N as u32;
+        scaled_inverse(l, N, rss, dof, covariance);
+        Ok((rss, dof, condition))
+    }
+
+    /// `Σ w (y − x·β)²` at `β`, from the `f64` sums.
+    fn rss_at(&self, beta: &[Real; N]) -> f64 {
+        let mut q = self.yty;
+        for i in 0..N {
+            let bi = beta[i] as f64;
+            q += bi * (bi * self.xtx[i][i] - 2.0 * self.xty[i]);
+            for j in 0..i {
+                q += 2.0 * bi * beta[j] as f64 * self.xtx[i][j];
+            }
+        }
+        q
+    }
 }
 
 /// [`NormalEquations::add_row`] into the row-major lower triangle `xtx` (`n = x.len()`), `xty`, `yty`.
-fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[f64], y: f64, w: f64) -> Result<(), Error> {
+fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[Real], y: Real, w: Real) -> Result<(), Error> {
     if !(x.iter().all(|v| v.is_finite()) && y.is_finite() && w.is_finite() && w >= 0.0) {
         return Err(Error::NonFinite);
     }
-    let n = x.len();
+    let (n, y, w) = (x.len(), y as f64, w as f64);
     for i in 0..n {
-        let wxi = w * x[i];
+        let wxi = w * x[i] as f64;
         for j in 0..=i {
-            xtx[i * n + j] += wxi * x[j];
+            xtx[i * n + j] += wxi * x[j] as f64;
         }
         xty[i] += wxi * y;
     }
@@ -192,14 +248,14 @@ fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[f64], y: f64, w
 }
 
 /// [`NormalEquations::condition`] of the `n × n` row-major lower triangle `xtx`.
-fn condition(xtx: &[f64], n: usize) -> f64 {
+fn condition(xtx: &[Real], n: usize) -> Real {
     let mut s = [0.0; MAX_N];
     for i in 0..n {
         let d = xtx[i * n + i];
         if !(d > 0.0) {
-            return f64::INFINITY;
+            return Real::INFINITY;
         }
-        s[i] = 1.0 / libm::sqrt(d);
+        s[i] = 1.0 / real::sqrt(d);
     }
     let mut e = [0.0; MAX_N * MAX_N];
     for i in 0..n {
@@ -211,7 +267,7 @@ fn condition(xtx: &[f64], n: usize) -> f64 {
     if smallest > 0.0 {
         largest / smallest
     } else {
-        f64::INFINITY
+        Real::INFINITY
     }
 }
 
@@ -222,9 +278,9 @@ fn condition(xtx: &[f64], n: usize) -> f64 {
 /// 68–72 % within 1σ and ≥ 92 % within 2σ for every `ν ≥ 3`; 4 for `ν = 2` (82 % / 94 %), 36 for
 /// `ν = 1` (90 % / 95 %); → 1 for many rows.
 /// A weighted (fractional) `dof` below 3 takes the factor of the whole number below it.
-pub fn few_dof_factor(dof: f64) -> f64 {
+pub fn few_dof_factor(dof: Real) -> Real {
     if dof >= 3.0 {
-        libm::sqrt(dof / (dof - 2.0))
+        real::sqrt(dof / (dof - 2.0))
     } else if dof >= 2.0 {
         4.0
     } else {
@@ -236,48 +292,15 @@ pub fn few_dof_factor(dof: f64) -> f64 {
 /// 1.645 √(2/(9ν)))³`, within 1 % for `ν ≥ 2`, 2.4 % low at `ν = 1`; fractional `ν` as is;
 /// not for `ν < 1`): a residual sum beyond it says the residuals exceed the noise they were
 /// weighted by.
-pub fn chi2_95(nu: f64) -> f64 {
-    let c = 1.0 - 2.0 / (9.0 * nu) + 1.645 * libm::sqrt(2.0 / (9.0 * nu));
+pub fn chi2_95(nu: Real) -> Real {
+    let c = 1.0 - 2.0 / (9.0 * nu) + 1.645 * real::sqrt(2.0 / (9.0 * nu));
     nu * c * c * c
-}
-
-/// [`NormalEquations::solve`] with `n = xty.len()` unknowns (`xtx` its row-major lower triangle):
-/// writes `x` and the covariance, returns `(rss, dof, condition)` (`known`: the condition number,
-/// computed before).
-fn solve(
-    xtx: &[f64],
-    xty: &[f64],
-    yty: f64,
-    rows: u32,
-    known: Option<f64>,
-    x: &mut [f64],
-    covariance: &mut [f64],
-) -> Result<(f64, u32, f64), Error> {
-    let n = xty.len();
-    if (rows as usize) < n {
-        return Err(Error::TooFewRows { have: rows, need: n as u32 });
-    }
-    let mut l = [0.0; MAX_N * MAX_N];
-    let l = &mut l[..n * n];
-    if !cholesky_in(xtx, l, n, 1e-13) {
-        return Err(Error::Singular);
-    }
-    let condition = known.unwrap_or_else(|| condition(xtx, n));
-    if !(condition <= MAX_CONDITION) {
-        return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
-    }
-    cholesky_solve_in(l, xty, x);
-    let fit: f64 = (0..n).map(|i| x[i] * xty[i]).sum();
-    let rss = (yty - fit).max(0.0);
-    let dof = rows - n as u32;
-    scaled_inverse(l, n, rss, dof, covariance);
-    Ok((rss, dof, condition))
 }
 
 /// The covariance from the Cholesky factor `l` (`n × n`) of the normal matrix: its inverse scaled by the
 /// residual variance `rss / dof` (and the few-dof factor).
-fn scaled_inverse(l: &[f64], n: usize, rss: f64, dof: u32, covariance: &mut [f64]) {
-    let s2 = if dof > 0 { rss / dof as f64 * few_dof_factor(dof as f64) } else { 0.0 };
+fn scaled_inverse(l: &[Real], n: usize, rss: Real, dof: u32, covariance: &mut [Real]) {
+    let s2 = if dof > 0 { rss / dof as Real * few_dof_factor(dof as Real) } else { 0.0 };
     cholesky_inverse_in(l, covariance, n);
     for c in covariance.iter_mut() {
         *c *= s2;
@@ -302,17 +325,20 @@ mod tests {
     #[test]
     fn exact_recovery_and_zero_residual() {
         let beta = [1.5, -2.0, 0.25];
-        let mut ne = NormalEquations::<3>::new();
+        let (mut ne, mut yty) = (NormalEquations::<3>::new(), 0.0);
         for k in 0..10 {
-            let x = [1.0 + k as f64, (k * k) as f64 * 0.1, libm::sin(k as f64)];
-            let y: f64 = (0..3).map(|i| x[i] * beta[i]).sum();
+            let x = [1.0 + k as Real, (k * k) as Real * 0.1, libm::sin(k as Real)];
+            let y: Real = (0..3).map(|i| x[i] * beta[i]).sum();
             ne.add_row(&x, y, 1.0).unwrap();
+            yty += y * y;
         }
         let s = ne.solve().unwrap();
         for i in 0..3 {
             assert!((s.x[i] - beta[i]).abs() < 1e-10, "{:?}", s.x);
         }
-        assert!(s.rss < 1e-16 * 10.0 && s.dof == 7);
+        // Zero within the rounding of the sums it is the difference of (`Σ y²` and the
+        // fit's quadratic form, each ≈ `yty`).
+        assert!(s.rss < 1e-14 * yty && s.dof == 7, "rss {:e} of {yty:e}", s.rss);
     }
 
     #[test]
@@ -321,15 +347,15 @@ mod tests {
         let mut ne = NormalEquations::<2>::new();
         let n = 20;
         for k in 0..n {
-            let t = k as f64;
+            let t = k as Real;
             let e = if k % 2 == 0 { 1.0 } else { -1.0 };
             ne.add_row(&[1.0, t], 3.0 + 0.5 * t + e, 1.0).unwrap();
         }
         let s = ne.solve().unwrap();
-        assert!((s.rss - n as f64).abs() < 1e-6 * n as f64 + 0.2, "rss {}", s.rss);
+        assert!((s.rss - n as Real).abs() < 1e-6 * n as Real + 0.2, "rss {}", s.rss);
         // σ_b² = s² / Σ(t−t̄)², s² = rss / (n − 2) times the few-dof factor √(18/16).
-        let sxx: f64 = (0..n).map(|k| (k as f64 - 9.5).powi(2)).sum();
-        let expect = libm::sqrt(s.rss / (n as f64 - 2.0) * (18.0f64 / 16.0).sqrt() / sxx);
+        let sxx: Real = (0..n).map(|k| (k as Real - 9.5).powi(2)).sum();
+        let expect = libm::sqrt(s.rss / (n as Real - 2.0) * ((18.0 as Real) / 16.0).sqrt() / sxx);
         assert!((s.sigma(1) - expect).abs() < 1e-9);
     }
 
@@ -353,7 +379,7 @@ mod tests {
         let mut a = NormalEquations::<3>::new();
         let mut b = NormalEquations::<3>::new();
         for k in 0..6 {
-            let x = [1.0, k as f64, (k as f64).powi(2) - 3.0];
+            let x = [1.0, k as Real, (k as Real).powi(2) - 3.0];
             a.add_row(&x, 1.0, 1.0).unwrap();
             b.add_row(&[x[0] * d[0], x[1] * d[1], x[2] * d[2]], 1.0, 1.0).unwrap();
         }
@@ -367,10 +393,10 @@ mod tests {
     fn inverse_is_the_unscaled_covariance() {
         let mut ne = NormalEquations::<2>::new();
         for k in 0..5 {
-            ne.add_row(&[1.0, k as f64], (k * k) as f64, 1.0).unwrap();
+            ne.add_row(&[1.0, k as Real], (k * k) as Real, 1.0).unwrap();
         }
         let (s, inv) = (ne.solve().unwrap(), ne.inverse().unwrap());
-        let s2 = s.rss / s.dof as f64 * few_dof_factor(s.dof as f64);
+        let s2 = s.rss / s.dof as Real * few_dof_factor(s.dof as Real);
         for i in 0..2 {
             for j in 0..2 {
                 assert_eq!(s.covariance[i][j], inv[i][j] * s2);
@@ -388,21 +414,21 @@ mod tests {
         for _ in 0..runs {
             let mut ne = NormalEquations::<2>::new();
             for k in 0..5 {
-                ne.add_row(&[1.0, k as f64], 2.0 + 0.5 * k as f64 + noise.next(), 1.0).unwrap();
+                ne.add_row(&[1.0, k as Real], 2.0 + 0.5 * k as Real + noise.next(), 1.0).unwrap();
             }
             let s = ne.solve().unwrap();
             let (e, sigma) = ((s.x[1] - 0.5).abs(), s.sigma(1));
             within[0] += (e <= sigma) as u32;
             within[1] += (e <= 2.0 * sigma) as u32;
         }
-        let [one, two] = within.map(|n| n as f64 / runs as f64);
+        let [one, two] = within.map(|n| n as Real / runs as Real);
         assert!((0.65..=0.76).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
     }
 
     #[test]
     fn non_finite_rows_are_refused() {
         let mut ne = NormalEquations::<2>::new();
-        assert_eq!(ne.add_row(&[f64::NAN, 1.0], 1.0, 1.0), Err(Error::NonFinite));
+        assert_eq!(ne.add_row(&[Real::NAN, 1.0], 1.0, 1.0), Err(Error::NonFinite));
         assert_eq!(ne.rows(), 0);
     }
 }

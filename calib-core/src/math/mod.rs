@@ -3,6 +3,7 @@
 
 pub(crate) mod linalg;
 pub mod lsq;
+pub mod real;
 pub mod stats;
 #[cfg(test)]
 pub(crate) mod test_noise;

@@ -1,6 +1,7 @@
 //! Streaming statistics: the mean and covariance of 3-vectors from exact integer sums, and the
 //! spread of a scalar.
 
+use crate::math::real::{self, Real};
 use crate::Vec3;
 
 /// Fraction bits of the fixed point the sums keep: a reading is rounded to 2⁻¹⁸ of its unit
@@ -86,58 +87,58 @@ impl Moments3 {
     }
 
     /// Mean (f64; NaN if a non-finite vector was added, 0 when empty).
-    pub fn mean(&self) -> [f64; 3] {
+    pub fn mean(&self) -> [Real; 3] {
         if self.poisoned {
-            return [f64::NAN; 3];
+            return [Real::NAN; 3];
         }
-        let n = self.n.max(1) as f64 * SCALE as f64;
-        self.s1.map(|s| s as f64 / n)
+        let n = self.n.max(1) as Real * SCALE as Real;
+        self.s1.map(|s| s as Real / n)
     }
 
     /// `Σ (xᵢ − x̄ᵢ)(xⱼ − x̄ⱼ)` from the exact sums, in the readings' unit².
-    fn comoment(&self, i: usize, j: usize) -> f64 {
+    fn comoment(&self, i: usize, j: usize) -> Real {
         if self.poisoned {
-            return f64::NAN;
+            return Real::NAN;
         }
         let sij = if i == j { self.s2[i] } else { self.sc[i + j - 1] };
         // n Σqᵢqⱼ − Σqᵢ Σqⱼ: at most 2³² · 2⁹⁴ and 2⁶³ · 2⁶³, within i128; to f64 by halves.
         let num = self.n as i128 * sij - self.s1[i] as i128 * self.s1[j] as i128;
-        let num = (num >> 64) as i64 as f64 * 18_446_744_073_709_551_616.0 + num as u64 as f64;
-        num / (self.n.max(1) as f64 * SCALE as f64 * SCALE as f64)
+        let num = (num >> 64) as i64 as Real * 18_446_744_073_709_551_616.0 + num as u64 as Real;
+        num / (self.n.max(1) as Real * SCALE as Real * SCALE as Real)
     }
 
     /// Unbiased per-axis variance (0 with fewer than two samples).
-    pub fn variance(&self) -> [f64; 3] {
+    pub fn variance(&self) -> [Real; 3] {
         if self.n < 2 {
             return [0.0; 3];
         }
-        let d = (self.n - 1) as f64;
+        let d = (self.n - 1) as Real;
         core::array::from_fn(|k| self.comoment(k, k) / d)
     }
 
     /// Largest per-axis standard deviation.
-    pub fn max_std(&self) -> f64 {
+    pub fn max_std(&self) -> Real {
         let v = self.variance();
-        libm::sqrt(v[0].max(v[1]).max(v[2]))
+        real::sqrt(v[0].max(v[1]).max(v[2]))
     }
 
     /// Largest per-axis standard deviation of the mean, `max_std / √n`.
-    pub fn max_std_of_mean(&self) -> f64 {
-        self.max_std() / libm::sqrt(self.n.max(1) as f64)
+    pub fn max_std_of_mean(&self) -> Real {
+        self.max_std() / real::sqrt(self.n.max(1) as Real)
     }
 
     /// Standard deviation of the mean along the mean's own direction, `√(uᵀ Σ u / n)` with
     /// `u = mean / |mean|`: an accelerometer pose's noise in `|a|`, without the sway that only
     /// turns gravity about. 0 for a zero mean or fewer than two vectors.
-    pub fn radial_std_of_mean(&self) -> f64 {
+    pub fn radial_std_of_mean(&self) -> Real {
         let mean = self.mean();
-        let norm = libm::sqrt(mean.iter().map(|m| m * m).sum::<f64>());
+        let norm = real::sqrt(mean.iter().map(|m| m * m).sum::<Real>());
         if self.n < 2 || !(norm > 0.0) {
             return 0.0;
         }
         let u = mean.map(|m| m / norm);
-        let var: f64 = (0..9).map(|k| u[k / 3] * u[k % 3] * self.comoment(k / 3, k % 3)).sum();
-        libm::sqrt((var / (self.n - 1) as f64).max(0.0) / self.n as f64)
+        let var: Real = (0..9).map(|k| u[k / 3] * u[k % 3] * self.comoment(k / 3, k % 3)).sum();
+        real::sqrt((var / (self.n - 1) as Real).max(0.0) / self.n as Real)
     }
 }
 
@@ -181,7 +182,7 @@ impl Mean {
         if self.poisoned {
             return f32::NAN;
         }
-        (self.s1 as f64 / (self.n.max(1) as f64 * SCALE as f64)) as f32
+        (self.s1 as Real / (self.n.max(1) as Real * SCALE as Real)) as f32
     }
 }
 
@@ -203,13 +204,13 @@ pub struct Spread {
 
 impl Spread {
     /// Spread of `values` (computed in f64).
-    pub fn of(values: impl Iterator<Item = f64>) -> Self {
-        let (mut n, mut mean, mut m2) = (0u32, 0.0f64, 0.0f64);
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    pub fn of(values: impl Iterator<Item = Real>) -> Self {
+        let (mut n, mut mean, mut m2) = (0u32, 0.0 as Real, 0.0 as Real);
+        let (mut lo, mut hi) = (Real::INFINITY, Real::NEG_INFINITY);
         for x in values {
             n += 1;
             let d = x - mean;
-            mean += d / n as f64;
+            mean += d / n as Real;
             m2 += d * (x - mean);
             lo = lo.min(x);
             hi = hi.max(x);
@@ -217,7 +218,7 @@ impl Spread {
         if n == 0 {
             return Self::default();
         }
-        let std = if n > 1 { libm::sqrt(m2 / (n - 1) as f64) } else { 0.0 };
+        let std = if n > 1 { real::sqrt(m2 / (n - 1) as Real) } else { 0.0 };
         Self { n, mean: mean as f32, std: std as f32, range: (hi - lo) as f32 }
     }
 
@@ -261,8 +262,8 @@ mod tests {
         let mut w = Moments3::new();
         xs.iter().for_each(|&x| w.add(x));
         for k in 0..3 {
-            let m: f64 = xs.iter().map(|x| x[k] as f64).sum::<f64>() / 5.0;
-            let v: f64 = xs.iter().map(|x| (x[k] as f64 - m).powi(2)).sum::<f64>() / 4.0;
+            let m: Real = xs.iter().map(|x| x[k] as Real).sum::<Real>() / 5.0;
+            let v: Real = xs.iter().map(|x| (x[k] as Real - m).powi(2)).sum::<Real>() / 4.0;
             assert!((w.mean()[k] - m).abs() < 1e-12 && (w.variance()[k] - v).abs() < 1e-12);
         }
     }
@@ -302,23 +303,23 @@ mod tests {
     fn radial_std_is_the_spread_along_the_mean() {
         // Unit vectors swayed by ±3° about a diagonal, with a little noise in length: the
         // per-axis spread sees the sway, the radial one only the length.
-        let (mut w, mut v) = (Moments3::new(), [0.0f64; 40]);
+        let (mut w, mut v) = (Moments3::new(), [0.0 as Real; 40]);
         let c = 1.0 / libm::sqrt(3.0);
         let mut xs = [[0.0f32; 3]; 40];
         for (k, x) in xs.iter_mut().enumerate() {
-            let (a, len) = (0.05 * libm::sin(k as f64 * 0.9), 1.0 + 1e-3 * libm::cos(k as f64 * 2.3));
+            let (a, len) = (0.05 * libm::sin(k as Real * 0.9), 1.0 + 1e-3 * libm::cos(k as Real * 2.3));
             let dir = [c * libm::cos(a) + c * libm::sin(a), c * libm::cos(a) - c * libm::sin(a), c];
-            let n = libm::sqrt(dir.iter().map(|d| d * d).sum::<f64>());
+            let n = libm::sqrt(dir.iter().map(|d| d * d).sum::<Real>());
             *x = dir.map(|d| (d / n * len) as f32);
             w.add(*x);
         }
         let m = w.mean();
-        let mn = libm::sqrt(m.iter().map(|x| x * x).sum::<f64>());
+        let mn = libm::sqrt(m.iter().map(|x| x * x).sum::<Real>());
         for (vi, x) in v.iter_mut().zip(xs.iter()) {
-            *vi = (0..3).map(|k| x[k] as f64 * m[k] / mn).sum();
+            *vi = (0..3).map(|k| x[k] as Real * m[k] / mn).sum();
         }
         let s = Spread::of(v.iter().copied());
-        let expect = s.std as f64 / libm::sqrt(40.0);
+        let expect = s.std as Real / libm::sqrt(40.0);
         assert!((w.radial_std_of_mean() - expect).abs() < 1e-3 * expect, "{} vs {expect}", w.radial_std_of_mean());
         assert!(w.max_std_of_mean() > 10.0 * w.radial_std_of_mean());
     }

@@ -1,21 +1,22 @@
-//! `atan2` in `f64` from `sqrt` and a short series: the firmware's only inverse trigonometric
+//! `atan2` in [`Real`] from `sqrt` and a short series: the firmware's only inverse trigonometric
 //! function (libm's `atan2` and the `atan` under it took 1.3 KiB of flash; this takes 0.7),
 //! to ~1e-14 rad.
 
-use core::f64::consts::PI;
+use crate::math::real::consts::PI;
+use crate::math::real::{self, Real};
 
 /// The angle (rad, in `[−π, π]`) of the point `(x, y)`, as `libm::atan2(y, x)`: `0` for the
 /// origin, NaN for a NaN or an infinite input. By half angles: `tan(θ/2) = y / (r + x)` (or,
 /// for `x < 0`, `θ = ±π − 2 atan(y / (r − x))`, both without cancellation), a value in
 /// `[−1, 1]`; two more halvings bring it below `tan(π/16) ≈ 0.2`, where the series
 /// `t − t³/3 + …` to `t¹⁷` is exact to 2e-15.
-pub fn atan2(y: f64, x: f64) -> f64 {
+pub fn atan2(y: Real, x: Real) -> Real {
     if y == 0.0 && x >= 0.0 || x.is_nan() || y.is_nan() {
-        return if x.is_nan() || y.is_nan() { f64::NAN } else { 0.0 };
+        return if x.is_nan() || y.is_nan() { Real::NAN } else { 0.0 };
     }
     // |(x, y)| scaled by the larger component: no underflow or overflow of the squares.
     let m = x.abs().max(y.abs());
-    let r = m * libm::sqrt((x / m) * (x / m) + (y / m) * (y / m));
+    let r = m * real::sqrt((x / m) * (x / m) + (y / m) * (y / m));
     if x >= 0.0 {
         2.0 * atan_unit(y / (r + x))
     } else {
@@ -25,16 +26,16 @@ pub fn atan2(y: f64, x: f64) -> f64 {
 }
 
 /// `atan(t)` for `|t| ≤ 1` (rad).
-fn atan_unit(t: f64) -> f64 {
+fn atan_unit(t: Real) -> Real {
     // Two halvings: atan(t) = 2 atan(t / (1 + √(1 + t²))).
-    let half = |t: f64| t / (1.0 + libm::sqrt(1.0 + t * t));
+    let half = |t: Real| t / (1.0 + real::sqrt(1.0 + t * t));
     let u = half(half(t));
     let u2 = u * u;
     // Σ (−1)ᵏ u^(2k+1) / (2k+1), k = 0..8, by Horner from the highest term.
     let mut s = 0.0;
     let mut k = 8;
     loop {
-        let c = 1.0 / (2 * k + 1) as f64;
+        let c = 1.0 / (2 * k + 1) as Real;
         s = if k % 2 == 0 { c } else { -c } + u2 * s;
         if k == 0 {
             break;
@@ -46,13 +47,13 @@ fn atan_unit(t: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::atan2;
+    use super::{atan2, Real};
 
     #[test]
     fn matches_libm_everywhere() {
-        let mut worst = 0.0f64;
+        let mut worst = 0.0 as Real;
         for i in 0..2000 {
-            let a = -3.2 + 6.4 * i as f64 / 1999.0;
+            let a = -3.2 + 6.4 * i as Real / 1999.0;
             for r in [1e-300, 1e-9, 0.3, 1.0, 7.0e5] {
                 let (y, x) = (r * libm::sin(a), r * libm::cos(a));
                 worst = worst.max((atan2(y, x) - libm::atan2(y, x)).abs());
@@ -69,6 +70,6 @@ mod tests {
                 libm::atan2(y, x)
             );
         }
-        assert!(atan2(f64::NAN, 1.0).is_nan() && atan2(1.0, f64::NAN).is_nan() && atan2(5.0, f64::INFINITY).is_nan());
+        assert!(atan2(Real::NAN, 1.0).is_nan() && atan2(1.0, Real::NAN).is_nan() && atan2(5.0, Real::INFINITY).is_nan());
     }
 }

@@ -1,5 +1,6 @@
 //! The 3-vector helpers around the `[f32; 3]` API.
 
+use crate::math::real::Real;
 use crate::{Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
@@ -44,18 +45,18 @@ pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
 }
 
 /// An orthonormal basis `(e₁, e₂)` of the plane ⟂ the unit vector `u`.
-pub fn tangent_basis(u: &Vector3<f64>) -> [Vector3<f64>; 2] {
+pub fn tangent_basis(u: &Vector3<Real>) -> [Vector3<Real>; 2] {
     let helper = if u[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
     let e1 = u.cross(&helper).normalize();
     [e1, u.cross(&e1)]
 }
 
-/// The same vector in `f64` for the math.
-pub fn to_f64(a: Vec3) -> Vector3<f64> {
-    Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64)
+/// The same vector in [`Real`] for the math.
+pub fn to_real(a: Vec3) -> Vector3<Real> {
+    Vector3::new(a[0] as Real, a[1] as Real, a[2] as Real)
 }
 
-/// A row-major `[[f32; 3]; 3]` as an `f64` matrix.
-pub fn mat_to_f64(m: &Mat3) -> Matrix3<f64> {
-    Matrix3::from_fn(|r, c| m[r][c] as f64)
+/// A row-major `[[f32; 3]; 3]` as a [`Real`] matrix.
+pub fn mat_to_real(m: &Mat3) -> Matrix3<Real> {
+    Matrix3::from_fn(|r, c| m[r][c] as Real)
 }

@@ -1,6 +1,7 @@
 //! The gyro bias and the hand-held accelerometer poses.
 
 use super::*;
+use crate::math::real::{self, Real};
 
 impl Procedure {
     pub(super) fn finish_bias(&mut self, capture: &Capture, t_s: f64) {
@@ -37,7 +38,7 @@ impl Procedure {
             return;
         }
         let a = capture.accel_mean();
-        let min_sep = self.cfg.accel_min_separation_deg as f64;
+        let min_sep = self.cfg.accel_min_separation_deg as Real;
         let new = v64(a);
         let need = self.cfg.accel_poses.max(6) as usize;
         // The accelerometer's poses lie apart from each other; a pose after them (a move only)
@@ -116,7 +117,7 @@ impl Procedure {
         let (goal, room, need) = (self.cfg.hand_k_sigma, rejected != Some(rotation::Rejected::Full), self.cfg.accel_poses.max(6) as usize);
         let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
         let k_sigma = if self.accel_poses.len() >= need {
-            self.rows.inverse().map_or(f32::NAN, |inv| libm::sqrt((0..9).fold(0.0f64, |m, i| m.max(inv[i][i]))) as f32)
+            self.rows.inverse().map_or(f32::NAN, |inv| real::sqrt((0..9).fold(0.0 as Real, |m, i| m.max(inv[i][i]))) as f32)
         } else {
             f32::NAN
         };

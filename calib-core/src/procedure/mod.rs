@@ -26,6 +26,7 @@
 //! [`Procedure::handle_stored`]; only then are the result reported, applied and shown as done.
 //! [`Procedure::drive`] does both for a [`Shell`].
 
+use crate::math::real::Real;
 mod command;
 mod config;
 mod handheld;
@@ -49,7 +50,7 @@ use crate::estimators::sweep::{Integrator, Moves};
 use crate::formats::record::{self, Record, SensorSetup, StoreError};
 use crate::math::lsq::NormalEquations;
 use crate::math::stats::{Mean, Moments3};
-use crate::math::vec3::{sub, to_f64 as v64};
+use crate::math::vec3::{sub, to_real as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
 use crate::{Error, Vec3};
 use core::mem::MaybeUninit;
@@ -232,7 +233,7 @@ enum AccelFit {
     /// Its equations' condition number ([`NormalEquations::condition`]: the most of the check).
     NineEnd(Params),
     /// Its calibration from them with it ([`AccelCalibrator::calibration9_given`]).
-    NineCal(Params, f64),
+    NineCal(Params, Real),
     /// The 6-parameter fit and the choice between the two, with the 9-parameter fit if there
     /// is one.
     Choice(Option<AccelCal>),
@@ -259,7 +260,7 @@ enum MagStage {
     Start,
     /// The ellipsoid's rows from point `next` on (the procedure's `rows` hold them).
     Rows {
-        centre: Vector3<f64>,
+        centre: Vector3<Real>,
         next: u16,
     },
     Align(Ellipsoid),
@@ -306,7 +307,7 @@ enum Step {
     /// Gauss–Newton at `k` after `iterations`; the next due at `next_s` (s) or later.
     Solving {
         stage: SolveStage,
-        k: Option<[f64; 9]>,
+        k: Option<[Real; 9]>,
         iterations: u8,
         next_s: f64,
     },
@@ -362,10 +363,10 @@ enum SolveStage {
     SolveEnd {
         part: RigPart,
         rotation: Option<RotationFit>,
-        x: [f64; 9],
-        rss: f64,
+        x: [Real; 9],
+        rss: Real,
         dof: u32,
-        condition: f64,
+        condition: Real,
     },
     /// Solved (in `full`): the magnetometer's alignment refined with it, its first steps; with
     /// the pan/tilt plan the sweep estimator beside it and the store.
@@ -373,7 +374,7 @@ enum SolveStage {
     /// The refinement's next step (one a call, `left` of them) from the die's rotation `rot`
     /// the steps before reached.
     RefineMag {
-        rot: Matrix3<f64>,
+        rot: Matrix3<Real>,
         left: u8,
     },
     /// Each move's misfit reported, the record stored.
@@ -737,7 +738,7 @@ impl Procedure {
         if hand || self.attitude.is_some() {
             let dt = last.map_or(0.0, |last| s.t_s - last);
             if hand {
-                self.window_turn.add(s.t_s, dt, g);
+                self.window_turn.add(s.t_s, dt as Real, g);
             }
             if let Some(a) = self.attitude.filter(|_| self.one_servo()) {
                 // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the
@@ -1064,7 +1065,7 @@ mod tests {
         drain(&mut p);
         p.store(sample(), 1.0);
         p.settle();
-        p.handle_tick(1.0 + STORE_TIMEOUT_S as f64 + 0.1);
+        p.handle_tick(1.0 + STORE_TIMEOUT_S as Real + 0.1);
         let cmds = drain(&mut p);
         assert!(!cmds.iter().any(|c| matches!(c, Command::Store(_) | Command::Apply(_))), "{cmds:?}");
         let timeout = Error::PhaseTimeout { phase: Phase::Store, limit_s: STORE_TIMEOUT_S };

@@ -10,7 +10,8 @@ use crate::estimators::rotation::{RotationLimits, Rotations};
 use crate::estimators::sweep::Moves;
 use crate::estimators::{paper, sweep};
 use crate::math::lsq::NormalEquations;
-use crate::math::vec3::to_f64 as v64;
+use crate::math::real::Real;
+use crate::math::vec3::to_real as v64;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -198,7 +199,7 @@ impl OneAxis {
     /// constraints; returns where its Gauss–Newton starts (vec `K` of the sweep's, else the
     /// paper's estimate, if either succeeded).
     #[inline(never)]
-    pub fn load_axes(&self, poses: &Poses, moves: &Moves, axes: &mut Axes) -> Result<Option<[f64; 9]>, Error> {
+    pub fn load_axes(&self, poses: &Poses, moves: &Moves, axes: &mut Axes) -> Result<Option<[Real; 9]>, Error> {
         let start = self.sweep.as_ref().ok().or(self.paper.as_ref().and_then(|p| p.as_ref().ok()));
         axes.clear();
         for p in poses.iter() {
@@ -207,7 +208,7 @@ impl OneAxis {
         for m in moves.as_slice() {
             axes.push_move(0, m.from, m.to, 0.0, m.gamma_deg)?;
         }
-        Ok(start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as f64)))
+        Ok(start.map(|c| core::array::from_fn(|i| c.k[i % 3][i / 3] as Real)))
     }
 
     /// The diagonal result to store when there is no full `K`: [`choose`]n and [`validate`]d.
@@ -317,16 +318,16 @@ impl RateSource {
 /// time it took: the shaft's rate without knowing the servo's speed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GravityTurn {
-    axis: Option<Vector3<f64>>,
+    axis: Option<Vector3<Real>>,
     prev: Option<Vec3>,
-    turn_deg: f64,
+    turn_deg: Real,
     t_first: Option<f64>,
     t_last: f64,
 }
 
 impl GravityTurn {
     /// About `axis` (unit, calibrated accelerometer frame); `None`: no axis, no rate.
-    pub fn new(axis: Option<Vector3<f64>>) -> Self {
+    pub fn new(axis: Option<Vector3<Real>>) -> Self {
         Self { axis, prev: None, turn_deg: 0.0, t_first: None, t_last: 0.0 }
     }
 
@@ -343,7 +344,7 @@ impl GravityTurn {
     /// Mean rate of the turn (°/s, ≥ 0; 0 before two samples).
     pub fn rate_dps(&self) -> f32 {
         match self.t_first {
-            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0)) as f32,
+            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0) as Real) as f32,
             _ => 0.0,
         }
     }
@@ -394,7 +395,7 @@ mod tests {
         // A fast but smooth warm-up (0.3 °/s per minute): the rig, not the bias.
         let mut smooth = Drift::new();
         for i in 0..10 {
-            smooth.add(rest(4.0 * i as f64, 0.02 * i as f32));
+            smooth.add(rest(4.0 * i as Real, 0.02 * i as f32));
         }
         assert_eq!(blame(inconsistent, &smooth, rotation::NONE), inconsistent);
         // One rest 0.08 °/s off the line of its neighbours: the bias.
@@ -418,9 +419,9 @@ mod tests {
         let poses = |n: usize| {
             let mut c = <AccelCalibrator>::new();
             for k in 0..n {
-                let (th, ph) = (k as f64 * 2.4, libm::acos(1.0 - 2.0 * (k as f64 + 0.5) / n as f64));
+                let (th, ph) = (k as Real * 2.4, libm::acos(1.0 - 2.0 * (k as Real + 0.5) / n as Real));
                 let f = [libm::sin(ph) * libm::cos(th), libm::sin(ph) * libm::sin(th), libm::cos(ph)];
-                let noise = 1e-4 * libm::sin(7.3 * k as f64);
+                let noise = 1e-4 * libm::sin(7.3 * k as Real);
                 let a = [f[0] * 1.01 + 0.010 + noise, f[1] * 0.99 - 0.020 - noise, f[2] * 1.02 + 0.005 + noise];
                 c.add_pose(a.map(|v| v as f32)).unwrap();
             }

@@ -2,6 +2,7 @@
 //! constant-rate spin.
 
 use super::*;
+use crate::math::real::{self, Real};
 
 impl Procedure {
     pub(super) fn park_servo(&mut self) {
@@ -85,7 +86,7 @@ impl Procedure {
         self.push(Command::Report(Report::RigPose { index: idx, servo_deg, accel_g: a }));
         if k > 0 {
             let gamma = self.integ.gamma_tracked(&before, &rest);
-            let turned = libm::sqrt(gamma.iter().map(|v| v * v).sum::<f64>()) as f32;
+            let turned = real::sqrt(gamma.iter().map(|v| v * v).sum::<Real>()) as f32;
             // Step 0 of a later tilt setting (and every return step) is reached by a tilt move
             // (about the hinge, axis id `TILT_SETTINGS`); every other step by a pan move about
             // the setting's own axis.

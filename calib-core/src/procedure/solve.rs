@@ -4,6 +4,7 @@ use super::*;
 use crate::estimators::bias::RestNoise;
 use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
 use crate::estimators::mag::{MagMove, REFINE_STEPS};
+use crate::math::real::Real;
 
 impl Procedure {
     /// The end of the pan/tilt plan: its steps follow on the ticks ([`Self::solve_step`]), the
@@ -284,7 +285,7 @@ impl Procedure {
     /// it and every hand-held pose from its first has its field (so that the moves' poses are
     /// its poses): the fit refined and where the steps reached; `None` (the fit at the re-clamp
     /// stays) otherwise or when a step fails.
-    fn refine_mag(&self, k: &crate::Mat3, rot: Matrix3<f64>, steps: usize) -> Option<(MagCal, Alignment)> {
+    fn refine_mag(&self, k: &crate::Mat3, rot: Matrix3<Real>, steps: usize) -> Option<(MagCal, Alignment)> {
         let cal = self.mag_cal.filter(|_| self.mag.poses() > 0)?;
         let first = self.mag_first_pose;
         if self.mag.poses() + first as usize != self.accel_poses.len() {

@@ -14,7 +14,7 @@ use crate::allan::{Allan, Noise};
 use crate::csvlog::Row;
 use crate::offline::{Calibration, Segment};
 use calib_core::formats::record::Record;
-use calib_core::math::vec3::{mat_to_f64, sub, to_f64};
+use calib_core::math::vec3::{mat_to_real, sub, to_real};
 use nalgebra::{Matrix3, Vector3};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
@@ -247,8 +247,8 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
     let Some((outcome, cal, (ea, eo))) = c.mag.as_ref().and_then(|m| Some((m, m.cal.as_ref().ok()?, m.ellipsoid?))) else {
         return Ok((None, None, None));
     };
-    let (a, o, ea, eo) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut), mat_to_f64(&ea), to_f64(eo));
-    let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(to_f64).collect();
+    let (a, o, ea, eo) = (mat_to_real(&cal.a), to_real(cal.offset_ut), mat_to_real(&ea), to_real(eo));
+    let readings: Vec<Vector3<f64>> = outcome.readings(rows).map(to_real).collect();
     let raw: Vec<(f64, f64)> = readings.iter().map(|r| (r.x, r.y)).collect();
     let calibrated: Vec<(f64, f64)> = readings.iter().map(|r| a * (r - o)).map(|r| (r.x, r.y)).collect();
     let b = cal.field_ut as f64;
@@ -270,7 +270,7 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
             .iter()
             .filter(|s| !s.is_rig_pose() && first <= s.first && s.last <= last)
             .filter_map(|s| {
-                let readings: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_f64).collect();
+                let readings: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_real).collect();
                 let mean = readings.iter().sum::<Vector3<f64>>() / readings.len().max(1) as f64;
                 let f = direction(c, s);
                 let mm = a * (mean - o);
@@ -292,10 +292,10 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
     // as a rotation), the field at the start carried to the end, both headings at the end.
     let poses: Vec<&Segment> = c.phases.segments.iter().filter(|s| !s.is_rig_pose() && first <= s.first && s.last <= last).collect();
     let mean_field = |s: &Segment| {
-        let r: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_f64).collect();
+        let r: Vec<Vector3<f64>> = rows[s.first..=s.last].iter().filter_map(|r| r.mag_ut).map(to_real).collect();
         (!r.is_empty()).then(|| r.iter().sum::<Vector3<f64>>() / r.len() as f64)
     };
-    let bias = to_f64(c.bias.bias_dps);
+    let bias = to_real(c.bias.bias_dps);
     // Per move, once: both poses' mean fields, the gyro's rotation from the start pose's middle
     // to the end's (body at the end to body at the start), the direction at the end.
     let moves: Vec<_> = poses
@@ -305,7 +305,7 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
             let (from, to) = ((w[0].first + w[0].last) / 2, (w[1].first + w[1].last) / 2);
             let mut q = nalgebra::UnitQuaternion::identity();
             for p in rows[from..=to].windows(2) {
-                let w_rad = (k * (to_f64(p[1].gyro_dps) - bias)).map(f64::to_radians);
+                let w_rad = (k * (to_real(p[1].gyro_dps) - bias)).map(f64::to_radians);
                 q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t_s - p[0].t_s));
             }
             Some((mi, mj, q, direction(c, w[1])))

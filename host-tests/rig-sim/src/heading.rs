@@ -4,7 +4,7 @@
 
 use crate::sim::Rig;
 use calib_core::estimators::mag::heading_deg;
-use calib_core::math::vec3::{mat_to_f64, to_f64};
+use calib_core::math::vec3::{mat_to_real, to_real};
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -27,7 +27,7 @@ pub struct Applied {
 /// `Q = polar(M̂ C_a)`: the calibrated accelerometer's frame (that of `K`, `M` and `A`) from
 /// the body frame B, for a calibrated `M̂` (row-major).
 pub fn calibrated_frame(accel_m: [[f32; 3]; 3], rig: &Rig) -> Option<Matrix3<f64>> {
-    let svd = (mat_to_f64(&accel_m) * rig.truth().accel_c).svd(true, true);
+    let svd = (mat_to_real(&accel_m) * rig.truth().accel_c).svd(true, true);
     Some(svd.u? * svd.v_t?)
 }
 
@@ -53,8 +53,10 @@ pub fn heading_error(cal: &Applied, rig: &Rig, n: usize, seed: u64) -> Option<(f
         let (f_b, b_b) = (q.inverse() * Vector3::z(), q.inverse() * mag.field_w);
         let raw_a = truth.accel_c * f_b + truth.accel_offset_g;
         let raw_m = mag.s * b_b + mag.h;
-        let est =
-            heading_deg(mat_to_f64(&cal.accel_m) * (raw_a - to_f64(cal.accel_o)), mat_to_f64(&cal.mag_a) * (raw_m - to_f64(cal.mag_o)))?;
+        let est = heading_deg(
+            mat_to_real(&cal.accel_m) * (raw_a - to_real(cal.accel_o)),
+            mat_to_real(&cal.mag_a) * (raw_m - to_real(cal.mag_o)),
+        )?;
         let want = heading_deg(q_frame * f_b, q_frame * b_b)?;
         let e = (est - want + 540.0) % 360.0 - 180.0;
         ss += e * e;

@@ -369,3 +369,37 @@ fn a_program_uploaded_after_the_calibration_finds_its_record_and_measures_turns_
     assert!(fresh.mcu.log.iter().any(|l| l.contains("no valid calibration record at 0xF8000")), "{:#?}", fresh.mcu.log);
     assert!(fresh.mcu.log.iter().any(|l| l.contains("dps (raw, 1 s mean)")));
 }
+
+/// Issue 50's precision test: the firmware computes its fits and solves in `f32` on the FPU
+/// (calib-core's `single`; the normal equations' sums in `f64`), the PC in `f64`. On the
+/// firmware's own raw log, every element of the K it stored lies within a tenth of the 1σ of
+/// the K `calib` computes in `f64` from that log, and its 1σ within 5 % of `calib`'s: rounding
+/// adds at most 1 % to the variance, and the record states the variance the PC would.
+#[test]
+fn the_firmwares_single_precision_k_is_the_pcs_double_precision_one_on_its_own_log() {
+    let elf = build_firmware(&[]).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
+    b.mcu.rtt_attach();
+    b.run_for(2.0);
+    let from = b.mcu.log.len();
+    b.press(2.3);
+    b.run_for(1.0);
+    let outcome = b.calibrate(600.0);
+    // The messages (the raw log's rows apart).
+    let said = || b.mcu.log.iter().filter(|l| l.matches(',').count() < 6).rev().take(5).collect::<Vec<_>>();
+    assert_eq!(outcome, Outcome::Done, "{:?}", said());
+    let rec = b.stored().expect("a record in flash");
+    let text: String = b.mcu.log[from..].iter().map(|l| format!("{}\n", vboard::testbed::message(l))).collect();
+    let log = calib::csvlog::parse(&text).expect("the raw log parses");
+    let pc = calib::offline::calibrate(&log.rows, None).expect("calib calibrates the log");
+    let k = pc.full.expect("a full K").expect("a full K");
+    let (mut worst_k, mut worst_sigma) = (0.0f64, 0.0f64);
+    for (r, c) in (0..9).map(|i| (i / 3, i % 3)) {
+        let sigma = k.sigma_k[r][c] as f64;
+        worst_k = worst_k.max((k.k[r][c] as f64 - rec.gyro_k[r][c] as f64).abs() / sigma);
+        worst_sigma = worst_sigma.max((rec.sigma_k[r][c] as f64 / sigma - 1.0).abs());
+    }
+    println!("MEASURED single_vs_double_k_max_over_sigma={worst_k:.4} sigma_max_rel_diff={worst_sigma:.4} rows={}", log.rows.len());
+    assert!(worst_k <= 0.1, "the f32 K is {worst_k:.3} of its 1 sigma from the f64 one");
+    assert!(worst_sigma <= 0.05, "the f32 1 sigma is {:.1} % off the f64 one", worst_sigma * 100.0);
+}

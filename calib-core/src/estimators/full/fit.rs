@@ -3,6 +3,7 @@
 
 use super::{Axes, FullAxis, FullLimits, MAX_AXES, MIN_NOISE_DOF};
 use crate::estimators::axis::Plane;
+use crate::math::real::{self, Real};
 use crate::math::vec3::tangent_basis;
 use crate::Error;
 use nalgebra::Vector3;
@@ -11,21 +12,21 @@ use nalgebra::Vector3;
 #[derive(Clone, Copy)]
 pub(super) struct Fit {
     /// Unit axis (signed as in the module doc of [`super`]).
-    pub u: Vector3<f64>,
+    pub u: Vector3<Real>,
     /// Orthonormal in-plane basis: the two tilt directions of `u`.
-    pub e: [Vector3<f64>; 2],
+    pub e: [Vector3<Real>; 2],
     /// `1 / √(n λ_k)` (1/g): axis tilt towards `e_k` per unit pose noise.
-    pub tilt_per_g: [f64; 2],
+    pub tilt_per_g: [Real; 2],
     /// Least 1σ of the direction (rad): the axis' own tilt when it is taken along gravity.
-    pub floor_rad: f64,
+    pub floor_rad: Real,
     /// Near vertical: only the direction of `K Γ` is used.
     pub direction_only: bool,
     /// Angle of the axis from vertical (°).
-    pub tilt_deg: f64,
+    pub tilt_deg: Real,
     /// RMS distance of the tips from the plane (g).
-    pub plane_rms_g: f64,
+    pub plane_rms_g: Real,
     /// Sum of squared distances from the plane (g²) and its degrees of freedom.
-    pub ss: f64,
+    pub ss: Real,
     pub dof: u32,
     /// Poses on the plane.
     pub poses: u8,
@@ -33,12 +34,12 @@ pub(super) struct Fit {
 
 impl Fit {
     /// 1σ (rad) of the axis direction towards `e_k` for a pose noise `sigma_a` (g).
-    pub fn dir_sigma(&self, k: usize, sigma_a: f64) -> f64 {
+    pub fn dir_sigma(&self, k: usize, sigma_a: Real) -> Real {
         (sigma_a * self.tilt_per_g[k]).max(self.floor_rad)
     }
 
     /// 1σ (°) of the axis direction, the worse of the two tilt directions.
-    pub fn sigma_deg(&self, sigma_a: f64) -> f64 {
+    pub fn sigma_deg(&self, sigma_a: Real) -> Real {
         self.dir_sigma(0, sigma_a).max(self.dir_sigma(1, sigma_a)).to_degrees()
     }
 }
@@ -47,12 +48,12 @@ impl Fit {
 pub(super) struct Fits {
     pub axis: [Option<Fit>; MAX_AXES],
     /// Pose-mean noise per component (g): `σ_a` of the module doc of [`super`].
-    pub sigma_a: f64,
+    pub sigma_a: Real,
 }
 
 impl Fits {
     /// The axes with moves used (`per_axis`, moves per axis id), in axis-id order, and their count.
-    pub fn used(&self, per_axis: &[u8; MAX_AXES]) -> ([Vector3<f64>; MAX_AXES], usize) {
+    pub fn used(&self, per_axis: &[u8; MAX_AXES]) -> ([Vector3<Real>; MAX_AXES], usize) {
         let mut us = [Vector3::zeros(); MAX_AXES];
         let mut n_axes = 0;
         for a in 0..MAX_AXES {
@@ -101,7 +102,7 @@ impl Axes {
         let sigma_a = pose_noise(&fits, limits);
         // A plane much noisier than the others: the board slipped (or the shaft wobbles) on that axis.
         for f in fits.iter().flatten().filter(|f| f.dof >= MIN_NOISE_DOF) {
-            let (noise_g, limit_g) = (libm::sqrt(f.ss / f.dof as f64), limits.max_plane_noise_ratio as f64 * sigma_a);
+            let (noise_g, limit_g) = (real::sqrt(f.ss / f.dof as Real), limits.max_plane_noise_ratio as Real * sigma_a);
             if noise_g > limit_g {
                 // The value compared is reported (the plane's RMS over its poses is smaller).
                 return Err(Error::AxisNotFixed { plane_rms_g: noise_g as f32, limit_g: limit_g as f32 });
@@ -109,7 +110,7 @@ impl Axes {
         }
         for a in 0..MAX_AXES {
             let Some(f) = fits[a] else { continue };
-            if !(f.sigma_deg(sigma_a) <= limits.max_axis_sigma_deg as f64) {
+            if !(f.sigma_deg(sigma_a) <= limits.max_axis_sigma_deg as Real) {
                 match fallbacks[a] {
                     Some(g) => fits[a] = Some(g), // no circle to fit: the axis is along gravity
                     None => {
@@ -129,18 +130,18 @@ impl Axes {
     /// gravity. `σ_a` is not known yet: the caller chooses and checks the axis' direction 1σ.
     fn fit(&self, a: usize, limits: &FullLimits) -> Result<(Fit, Option<Fit>), Error> {
         let Plane { n, mean, vals, u, e, tilt_deg, radial } = self.poses.plane(self.members[a]);
-        let nf = n as f64;
-        let spread = libm::sqrt((vals[1] + vals[2]).max(0.0));
-        let min_tilt = (limits.geometry.min_tilt_deg as f64).to_radians();
+        let nf = n as Real;
+        let spread = real::sqrt((vals[1] + vals[2]).max(0.0));
+        let min_tilt = (limits.geometry.min_tilt_deg as Real).to_radians();
         // Every tip nearly at one place: a (near) vertical axis. Its circle, when the noise lets it
         // be fitted, gives the axis; else the mean gravity direction does (as in `Poses::geometry`).
         let vertical = spread < 0.3 * min_tilt;
         let sign = |mut f: Fit| {
-            let s: f64 = self
+            let s: Real = self
                 .moves()
                 .iter()
                 .filter(|m| m.axis as usize == a)
-                .map(|m| m.commanded_deg as f64 * Vector3::from(m.gamma_deg).dot(&f.u))
+                .map(|m| m.commanded_deg as Real * Vector3::from(m.gamma_deg).dot(&f.u))
                 .sum();
             if s < 0.0 {
                 f.u = -f.u;
@@ -149,7 +150,7 @@ impl Axes {
         };
         let along_gravity = || {
             let u = mean.normalize();
-            let r = 1.0 / libm::sqrt(nf);
+            let r = 1.0 / real::sqrt(nf);
             let e = tangent_basis(&u);
             // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
             let floor_rad = crate::math::trig::atan2(spread, mean.norm());
@@ -174,17 +175,17 @@ impl Axes {
             }
             return Err(Error::AxisUndetermined { axis: a as u8, sigma_deg: f32::INFINITY, limit_deg: limits.max_axis_sigma_deg });
         }
-        let plane_rms_g = libm::sqrt(vals[0].max(0.0));
-        if !(plane_rms_g <= limits.geometry.max_plane_rms_g as f64) {
+        let plane_rms_g = real::sqrt(vals[0].max(0.0));
+        if !(plane_rms_g <= limits.geometry.max_plane_rms_g as Real) {
             return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.geometry.max_plane_rms_g });
         }
-        let per = |l: f64| if l > 0.0 { 1.0 / libm::sqrt(nf * l) } else { f64::INFINITY };
+        let per = |l: Real| if l > 0.0 { 1.0 / real::sqrt(nf * l) } else { Real::INFINITY };
         let plane = sign(Fit {
             u,
             e,
             tilt_per_g: [per(vals[1]), per(vals[2])],
-            floor_rad: limits.accel_systematic_g as f64 / radial.max(1e-3),
-            direction_only: vertical || tilt_deg < limits.geometry.min_tilt_deg as f64,
+            floor_rad: limits.accel_systematic_g as Real / radial.max(1e-3),
+            direction_only: vertical || tilt_deg < limits.geometry.min_tilt_deg as Real,
             tilt_deg,
             plane_rms_g,
             // A near-vertical axis' plane residual is not counted in the pose noise.
@@ -198,10 +199,10 @@ impl Axes {
 
 /// Pose-mean noise per component (g): the median over the planes of their residual noise
 /// `√(ss / (n − 3))`, floored by `min_accel_sigma_g`.
-fn pose_noise(fits: &[Option<Fit>; MAX_AXES], limits: &FullLimits) -> f64 {
-    let (mut noise, mut n_noise) = ([0.0f64; MAX_AXES], 0);
+fn pose_noise(fits: &[Option<Fit>; MAX_AXES], limits: &FullLimits) -> Real {
+    let (mut noise, mut n_noise) = ([0.0 as Real; MAX_AXES], 0);
     for f in fits.iter().flatten().filter(|f| f.dof > 0) {
-        noise[n_noise] = libm::sqrt(f.ss / f.dof as f64);
+        noise[n_noise] = real::sqrt(f.ss / f.dof as Real);
         n_noise += 1;
     }
     let noise = &mut noise[..n_noise];
@@ -213,7 +214,7 @@ fn pose_noise(fits: &[Option<Fit>; MAX_AXES], limits: &FullLimits) -> f64 {
             j -= 1;
         }
     }
-    let floor = limits.min_accel_sigma_g as f64;
+    let floor = limits.min_accel_sigma_g as Real;
     if n_noise > 0 {
         noise[(n_noise - 1) / 2].max(floor)
     } else {
@@ -223,8 +224,8 @@ fn pose_noise(fits: &[Option<Fit>; MAX_AXES], limits: &FullLimits) -> f64 {
 
 /// How far from coplanar unit axes are (rad): the largest angle of an axis from the plane of two
 /// others (0 for fewer than 3 axes), and the smallest angle between two (∞ for fewer than 2).
-pub(super) fn spread_rad(us: &[Vector3<f64>]) -> (f64, f64) {
-    let (mut non_coplanar, mut min_pair) = (0.0f64, f64::INFINITY);
+pub(super) fn spread_rad(us: &[Vector3<Real>]) -> (Real, Real) {
+    let (mut non_coplanar, mut min_pair) = (0.0 as Real, Real::INFINITY);
     for i in 0..us.len() {
         for j in i + 1..us.len() {
             let c = us[i].cross(&us[j]);

@@ -4,6 +4,7 @@
 use super::{FullLimits, GAUSS_NEWTON_STEP};
 use crate::estimators::rotation::{RotationLimits, Rotations};
 use crate::math::lsq::NormalEquations;
+use crate::math::real::{self, Real};
 use crate::Error;
 
 /// What the rotation constraints gave.
@@ -23,12 +24,12 @@ pub struct RotationFit {
 pub fn rotation_fit<const M: usize, const C: usize, const P: usize>(
     r: &Rotations<M, C, P>,
     rl: &RotationLimits,
-    rss: f64,
+    rss: Real,
     n: usize,
     iterations: u8,
 ) -> Result<RotationFit, Error> {
-    let rms_deg = libm::sqrt(rss / n.max(1) as f64).to_degrees();
-    if !(rms_deg <= rl.max_residual_rms_deg as f64) {
+    let rms_deg = real::sqrt(rss / n.max(1) as Real).to_degrees();
+    if !(rms_deg <= rl.max_residual_rms_deg as Real) {
         return Err(Error::MovesInconsistent { residual_rms_deg: rms_deg as f32, limit_deg: rl.max_residual_rms_deg });
     }
     Ok(RotationFit { moves: r.moves().len() as u16, residual_rms_deg: rms_deg as f32, iterations })
@@ -41,9 +42,9 @@ pub(super) fn step<const M: usize, const C: usize, const P: usize>(
     rig: &NormalEquations<9>,
     r: &Rotations<M, C, P>,
     rl: &RotationLimits,
-    k: Option<[f64; 9]>,
+    k: Option<[Real; 9]>,
     limits: &FullLimits,
-) -> Result<([f64; 9], f64), Error> {
+) -> Result<([Real; 9], Real), Error> {
     let k = linearisation(rig, k, limits);
     let mut total = *rig;
     r.add_rows(&mut total, &k, rl)?;
@@ -52,20 +53,20 @@ pub(super) fn step<const M: usize, const C: usize, const P: usize>(
 
 /// Where an iteration linearises: at `k`, or without one at the rig's own `K` when it
 /// determines one (`rig`, its rows), else at `K = I`.
-pub(super) fn linearisation(rig: &NormalEquations<9>, k: Option<[f64; 9]>, limits: &FullLimits) -> [f64; 9] {
+pub(super) fn linearisation(rig: &NormalEquations<9>, k: Option<[Real; 9]>, limits: &FullLimits) -> [Real; 9] {
     let identity = core::array::from_fn(|i| if i % 4 == 0 { 1.0 } else { 0.0 });
     match k {
         Some(k) => k,
-        None if rig.condition() <= limits.max_condition as f64 => rig.solve().map_or(identity, |s| s.x),
+        None if rig.condition() <= limits.max_condition as Real => rig.solve().map_or(identity, |s| s.x),
         None => identity,
     }
 }
 
 /// The next iterate from the rows linearised at `k` (`total`: the rig's and the rotations'),
 /// and the largest change of an element.
-pub(super) fn next(total: &NormalEquations<9>, k: &[f64; 9]) -> Result<([f64; 9], f64), Error> {
+pub(super) fn next(total: &NormalEquations<9>, k: &[Real; 9]) -> Result<([Real; 9], Real), Error> {
     let x = total.estimate()?;
-    Ok((x, (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, f64::max)))
+    Ok((x, (0..9).map(|i| (x[i] - k[i]).abs()).fold(0.0, Real::max)))
 }
 
 /// The rig rows `rig` plus the rotation rows of `r` linearised at the solution, iterated from
@@ -76,7 +77,7 @@ pub(super) fn with_rotations<const M: usize, const C: usize, const P: usize>(
     rig: &NormalEquations<9>,
     r: &Rotations<M, C, P>,
     rl: &RotationLimits,
-    start: Option<[f64; 9]>,
+    start: Option<[Real; 9]>,
     max_iterations: u8,
     limits: &FullLimits,
 ) -> Result<(NormalEquations<9>, RotationFit), Error> {

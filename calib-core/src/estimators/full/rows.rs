@@ -5,19 +5,20 @@ use super::fit::Fits;
 use super::{vec_index, Axes, AxisMove, FullLimits, MAX_AXES};
 use crate::estimators::axis::{turn_deg, unwrap_near};
 use crate::math::lsq::{NormalEquations, Solution};
+use crate::math::real::{self, Real};
 use crate::{Error, Mat3};
 use nalgebra::Vector3;
 
-fn sq(x: f64) -> f64 {
+fn sq(x: Real) -> Real {
     x * x
 }
 
 /// One row `vᵀ K Γ = y` (°) and its variance (°²).
 #[derive(Clone, Copy)]
 struct Row {
-    v: Vector3<f64>,
-    y: f64,
-    var: f64,
+    v: Vector3<Real>,
+    y: Real,
+    var: Real,
 }
 
 /// The rows of one usable move: the two `e_k` rows first, then the `u` row of a full axis.
@@ -25,9 +26,9 @@ struct MoveRows {
     rows: [Row; 3],
     n: usize,
     /// `Γ` (°, raw gyro axes).
-    gamma: Vector3<f64>,
+    gamma: Vector3<Real>,
     /// Signed turn (°): the accelerometer's, or `Γ·u` for a direction-only axis.
-    turn: f64,
+    turn: Real,
 }
 
 impl MoveRows {
@@ -37,7 +38,7 @@ impl MoveRows {
 }
 
 /// `x` with `x·vec K = vᵀ K Γ` (column-major vec `K`): `x[3c + r] = Γ_c v_r`.
-fn regressor(v: &Vector3<f64>, gamma: &Vector3<f64>) -> [f64; 9] {
+fn regressor(v: &Vector3<Real>, gamma: &Vector3<Real>) -> [Real; 9] {
     core::array::from_fn(|i| gamma[i / 3] * v[i % 3])
 }
 
@@ -64,19 +65,19 @@ impl Rig<'_> {
     fn rows(&self, m: &AxisMove) -> Option<MoveRows> {
         let (limits, sigma_a) = (self.limits, self.fits.sigma_a);
         let f = self.fits.axis[m.axis as usize]?;
-        let sg2 = sq(limits.gamma_sigma_deg as f64);
+        let sg2 = sq(limits.gamma_sigma_deg as Real);
         let gamma = Vector3::from(m.gamma_deg);
         let (pa, pb) = (self.axes.poses.get(m.from as usize), self.axes.poses.get(m.to as usize));
-        let e_row = |k: usize, turn: f64| Row { v: f.e[k], y: 0.0, var: sg2 + sq(turn.abs() * f.dir_sigma(k, sigma_a)) };
+        let e_row = |k: usize, turn: Real| Row { v: f.e[k], y: 0.0, var: sg2 + sq(turn.abs() * f.dir_sigma(k, sigma_a)) };
         if f.direction_only {
             let turn = gamma.norm();
             let rows = [e_row(0, turn), e_row(1, turn), Row { v: f.u, y: 0.0, var: 1.0 }];
-            (turn >= limits.min_move_deg as f64).then(|| MoveRows { rows, n: 2, gamma, turn: gamma.dot(&f.u) })
+            (turn >= limits.min_move_deg as Real).then(|| MoveRows { rows, n: 2, gamma, turn: gamma.dot(&f.u) })
         } else {
             let dtheta = unwrap_near(turn_deg(&f.u, &pa, &pb), gamma.dot(&f.u));
-            let r2 = |p: Vector3<f64>| (p - f.u * p.dot(&f.u)).norm_squared();
+            let r2 = |p: Vector3<Real>| (p - f.u * p.dot(&f.u)).norm_squared();
             let var = sg2 + sq(sigma_a.to_degrees()) * (1.0 / r2(pa) + 1.0 / r2(pb));
-            (dtheta.abs() >= limits.min_move_deg as f64).then(|| MoveRows {
+            (dtheta.abs() >= limits.min_move_deg as Real).then(|| MoveRows {
                 rows: [e_row(0, dtheta), e_row(1, dtheta), Row { v: f.u, y: dtheta, var }],
                 n: 3,
                 gamma,
@@ -105,19 +106,19 @@ impl Rig<'_> {
 
     /// RMS of the unweighted residuals (°) of every rig row at `k` (vec `K`), checked against
     /// `max_residual_rms_deg`.
-    pub fn residual_rms_deg(&self, k: &[f64; 9]) -> Result<f64, Error> {
+    pub fn residual_rms_deg(&self, k: &[Real; 9]) -> Result<Real, Error> {
         let (mut rss_deg, mut nrows) = (0.0, 0u32);
         for mr in self.axes.moves().iter().filter_map(|m| self.rows(m)) {
             for row in mr.used() {
                 let x = regressor(&row.v, &mr.gamma);
-                let r = (0..9).map(|i| x[i] * k[i]).sum::<f64>() - row.y;
+                let r = (0..9).map(|i| x[i] * k[i]).sum::<Real>() - row.y;
                 rss_deg += r * r;
                 nrows += 1;
             }
         }
-        let rms = libm::sqrt(rss_deg / nrows.max(1) as f64);
+        let rms = real::sqrt(rss_deg / nrows.max(1) as Real);
         let limit_deg = self.limits.max_residual_rms_deg;
-        if nrows > 0 && !(rms <= limit_deg as f64) {
+        if nrows > 0 && !(rms <= limit_deg as Real) {
             return Err(Error::MovesInconsistent { residual_rms_deg: rms as f32, limit_deg });
         }
         Ok(rms)
@@ -141,7 +142,7 @@ impl Rig<'_> {
                         v[i] += mr.turn * x[i] / row.var;
                     }
                 }
-                let c: [f64; 9] = core::array::from_fn(|i| (0..9).map(|j| ninv[i][j] * v[j]).sum());
+                let c: [Real; 9] = core::array::from_fn(|i| (0..9).map(|j| ninv[i][j] * v[j]).sum());
                 let s2u = sq(f.dir_sigma(k, self.fits.sigma_a));
                 for i in 0..9 {
                     for j in 0..9 {
@@ -150,6 +151,6 @@ impl Rig<'_> {
                 }
             }
         }
-        Ok(core::array::from_fn(|r| core::array::from_fn(|c| libm::sqrt(cov[vec_index(r, c)][vec_index(r, c)].max(0.0)) as f32)))
+        Ok(core::array::from_fn(|r| core::array::from_fn(|c| real::sqrt(cov[vec_index(r, c)][vec_index(r, c)].max(0.0)) as f32)))
     }
 }

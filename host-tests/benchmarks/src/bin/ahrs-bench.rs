@@ -13,7 +13,7 @@
 use ahrs::{Ahrs, Madgwick};
 use benchmarks::setup::Setup;
 use calib::offline;
-use calib_core::math::vec3::{mat_to_f64, to_f64};
+use calib_core::math::vec3::{mat_to_real, to_real};
 use clap::Parser;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -69,10 +69,10 @@ fn feeds(c: &offline::Calibration, rig: &Rig) -> Option<Vec<Feed>> {
     let m = c.mag.as_ref()?;
     let cal = m.cal.as_ref().ok()?;
     let (ea, eo) = m.ellipsoid?;
-    let (k, b) = (mat_to_f64(&k), to_f64(c.bias.bias_dps));
-    let (am, ao) = (mat_to_f64(&c.accel.m), to_f64(c.accel.offset_g));
-    let (ma, mo) = (mat_to_f64(&cal.a), to_f64(cal.offset_ut));
-    let (ea, eo) = (mat_to_f64(&ea), to_f64(eo));
+    let (k, b) = (mat_to_real(&k), to_real(c.bias.bias_dps));
+    let (am, ao) = (mat_to_real(&c.accel.m), to_real(c.accel.offset_g));
+    let (ma, mo) = (mat_to_real(&cal.a), to_real(cal.offset_ut));
+    let (ea, eo) = (mat_to_real(&ea), to_real(eo));
     let q = calibrated_frame(c.accel.m, rig)?;
     let rad = |v: Vector3<f64>| v.map(f64::to_radians);
     Some(vec![
@@ -133,21 +133,21 @@ fn main() {
                 next_turn = t + turn + rng.random_range(0.5..1.5);
             }
             let s = rig.next_sample();
-            last_mag = s.mag_ut.map(to_f64).or(last_mag);
+            last_mag = s.mag_ut.map(to_real).or(last_mag);
             let Some(m) = last_mag else { continue };
             let truth = rig.truth();
             let field_w = truth.mag.map(|m| m.field_w).unwrap_or_default();
             for (k, (feed, f)) in feeds.iter().zip(filters.iter_mut()).enumerate() {
                 if !started[k] {
                     // Started where its own first readings put it (TRIAD, as AHRS users do).
-                    let (a, m) = ((feed.accel)(to_f64(s.accel_g)), (feed.mag)(m));
+                    let (a, m) = ((feed.accel)(to_real(s.accel_g)), (feed.mag)(m));
                     let up = a.normalize();
                     let north = (m - up * m.dot(&up)).normalize();
                     let r = Matrix3::from_rows(&[north.transpose(), up.cross(&north).transpose(), up.transpose()]);
                     f.quat = UnitQuaternion::from_matrix(&r);
                     started[k] = true;
                 }
-                let _ = f.update(&(feed.gyro)(to_f64(s.gyro_dps)), &(feed.accel)(to_f64(s.accel_g)), &(feed.mag)(m));
+                let _ = f.update(&(feed.gyro)(to_real(s.gyro_dps)), &(feed.accel)(to_real(s.accel_g)), &(feed.mag)(m));
                 if truth.t_s - t0 < SETTLE_S {
                     continue;
                 }

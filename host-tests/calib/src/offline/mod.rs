@@ -18,7 +18,7 @@ use calib_core::estimators::sweep::{Integrator, Moves, MAX_MOVES};
 use calib_core::estimators::{full, paper, sweep};
 use calib_core::formats::record::{self, Record, SensorSetup};
 use calib_core::math::stats::Moments3;
-use calib_core::math::vec3::{sub, to_f64 as v64};
+use calib_core::math::vec3::{sub, to_real as v64};
 use calib_core::procedure::pipeline;
 use calib_core::procedure::pipeline::{GravityTurn, SteadyRate};
 use calib_core::procedure::Config;
