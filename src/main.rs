@@ -458,7 +458,7 @@ fn feed(sample: Sample, mag_ut: Option<[f32; 3]>, setup: SensorSetup, raw: bool,
     if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
         live.rate.add(rec.apply_gyro(gyro_dps));
         if let (Some(cal), Some(m)) = (rec.mag, mag_ut) {
-            live.heading_deg = heading_deg(to_real(rec.accel().apply(accel_g)), to_real(cal.apply(m))).map(|h| h as f32);
+            live.heading_deg = heading_deg(to_real(rec.accel().apply(accel_g)), to_real(cal.apply(m)));
         }
     }
     procedure.handle_sample(&sample);
@@ -547,7 +547,7 @@ struct Status {
 impl Status {
     fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, live: &mut Live) {
         if show_rate && now - self.last_rate_line_s >= 1.0 && live.rate.count() > 0 {
-            let m = V3(live.rate.mean().map(|v| v as f32), 3);
+            let m = V3(live.rate.mean(), 3);
             match live.heading_deg.take() {
                 Some(h) => console.say(
                     Log::Info,

@@ -178,7 +178,7 @@ fn main() -> ! {
             );
             rate = Moments3::new();
             if let (Some(c), Some(m), true) = (mag_cal, field, gravity.count() > 0) {
-                let f = gravity.mean().map(|v| v as f32);
+                let f = gravity.mean();
                 if let Some(h) = heading_deg(to_real(f), to_real(c.apply(m))) {
                     defmt::info!("heading {} deg (tilt-compensated, clockwise from magnetic north)", h);
                 }
