@@ -60,13 +60,7 @@ pub const GAUSS_NEWTON_ITERATIONS: u8 = 10;
 /// Gauss–Newton stops once no element of `K` moves by more than this: 1000× below the 1σ of a
 /// good calibration in `f64`; 100× in `f32` (the firmware), whose converged iterates still move
 /// by their rounding (≈ 3e-7: with 1e-7 every solve ran all its iterations, 8 s longer).
-#[cfg(not(feature = "single"))]
-pub const GAUSS_NEWTON_STEP: Real = 1e-7;
-/// Gauss–Newton stops once no element of `K` moves by more than this: 1000× below the 1σ of a
-/// good calibration in `f64`; 100× in `f32` (the firmware), whose converged iterates still move
-/// by their rounding (≈ 3e-7: with 1e-7 every solve ran all its iterations, 8 s longer).
-#[cfg(feature = "single")]
-pub const GAUSS_NEWTON_STEP: Real = 1e-6;
+pub const GAUSS_NEWTON_STEP: Real = if cfg!(feature = "single") { 1e-6 } else { 1e-7 };
 /// Fewest non-coplanar axes that determine the full `K`.
 pub const NEED_AXES: u8 = 3;
 

@@ -17,13 +17,7 @@ use crate::Error;
 /// Largest accepted condition number of the equilibrated normal matrix (unit diagonal): 1e8 in
 /// `f64`; 1e6 in `f32` (the firmware), whose solves and condition estimates (its smallest
 /// eigenvalue to ± the rounding of the largest, 1e-7 of it) resolve no more.
-#[cfg(not(feature = "single"))]
-pub const MAX_CONDITION: Real = 1e8;
-/// Largest accepted condition number of the equilibrated normal matrix (unit diagonal): 1e8 in
-/// `f64`; 1e6 in `f32` (the firmware), whose solves and condition estimates (its smallest
-/// eigenvalue to ± the rounding of the largest, 1e-7 of it) resolve no more.
-#[cfg(feature = "single")]
-pub const MAX_CONDITION: Real = 1e6;
+pub const MAX_CONDITION: Real = if cfg!(feature = "single") { 1e6 } else { 1e8 };
 
 /// Accumulated normal equations `(Σ w x xᵀ) β = Σ w x y` of an `N`-unknown problem `x·β ≈ y`.
 #[derive(Debug, Clone, Copy, PartialEq)]
