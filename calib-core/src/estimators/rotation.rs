@@ -397,8 +397,9 @@ pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_C
 /// the next: the Earth's rate's parts and the residual sums at the linearisation point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowSum {
-    /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns).
-    cross: [[Real; 3]; 9],
+    /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns), in `f64` as the
+    /// normal equations' sums are: the elimination takes large sums apart.
+    cross: [[f64; 3]; 9],
     /// The normal equations of the Earth's rate `w` alone, with its prior `N(0, I/3)`.
     earth: NormalEquations<3>,
     /// Weighted residual sum; unweighted one of the rotation rows (rad²) and their count.
@@ -1075,7 +1076,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 let x: [Real; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
                 for (c, row) in sum.cross.iter_mut().enumerate() {
                     for b in 0..3 {
-                        row[b] += w * h[c] * x[b];
+                        row[b] += w as f64 * h[c] as f64 * x[b] as f64;
                     }
                 }
                 sum.earth.add_row(&x, y, w)?;

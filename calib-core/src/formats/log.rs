@@ -71,34 +71,45 @@ const MAG_DECIMALS: u32 = 3;
 const TEMP_DECIMALS: u32 = 2;
 
 /// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
-/// written as `nan`, which the parser rejects. Digits by hand: no `core::fmt` number code.
+/// written as `nan`, which the parser rejects. Digits by hand (32-bit divisions while they fit):
+/// no `core::fmt` number code.
 #[inline(never)] // one copy for the log, the text lines and the exports (flash)
 pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
-    let scaled = v * 10u64.pow(decimals) as f64;
+    const POW10: [f64; 10] = [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+    let decimals = decimals.min(9);
+    let scaled = v * POW10[decimals as usize];
     if !(scaled.abs() < 9.2e18) {
         return w.write_str("nan");
     }
     // Round half away from zero without libm.
     let r = if scaled >= 0.0 { (scaled + 0.5) as i64 } else { (scaled - 0.5) as i64 };
     let mut m = r.unsigned_abs();
-    // Digits, least significant first, with the decimal point after `decimals` of them.
+    // Digits from the least significant, right to left, with the decimal point after
+    // `decimals` of them and at least one before it.
     let mut buf = [0u8; 24];
-    let mut n = 0;
-    while n < decimals as usize || m > 0 || n <= decimals as usize {
-        if n == decimals as usize && decimals > 0 {
+    let (mut n, mut k) = (buf.len(), 0);
+    loop {
+        if k == decimals && decimals > 0 {
+            n -= 1;
             buf[n] = b'.';
-            n += 1;
         }
-        let (q, digit) = div10(m);
+        let digit;
+        (m, digit) = match u32::try_from(m) {
+            Ok(m) => ((m / 10) as u64, m % 10),
+            Err(_) => div10(m),
+        };
+        n -= 1;
         buf[n] = b'0' + digit as u8;
-        m = q;
-        n += 1;
+        k += 1;
+        if k > decimals && m == 0 {
+            break;
+        }
     }
     if r < 0 {
+        n -= 1;
         buf[n] = b'-';
-        n += 1;
     }
-    buf[..n].iter().rev().try_for_each(|&b| w.write_char(b as char))
+    buf[n..].iter().try_for_each(|&b| w.write_char(b as char))
 }
 
 /// `m / 10` and `m % 10` by long division in 16-bit steps: 32-bit arithmetic, no 64-bit

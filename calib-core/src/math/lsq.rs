@@ -4,7 +4,7 @@
 //! O(N²) state whatever the number of rows. It solves in [`Real`], but takes the residual sum
 //! from the `f64` sums at the solution, `Σ w y² − 2 βᵀ Σ w x y + βᵀ (Σ w x xᵀ) β`: a small
 //! difference of large sums, which sums in `f32` lose (the firmware's 1σ of K came out 0.6 times
-//! the PC's on one log; vboard's precision test), and which the solve's rounding of `β` changes
+//! the PC's on a 952 Hz log; vboard's precision test), and which the solve's rounding of `β` changes
 //! only to second order. Every linear solve of the crate goes through it (3 unknowns for the
 //! gyro, 6 and 9 for the accelerometer).
 
@@ -139,10 +139,10 @@ impl<const N: usize> NormalEquations<N> {
     /// `Σ w x cᵀ` (`cross`) and the rows `c·z ≈ y` alone (`nuisance`, positive definite: a prior
     /// added): what is left are the normal equations of `β` alone (the Schur complement), whose
     /// solution and covariance are those of the joint solve. In `f64`, as the sums are.
-    pub fn eliminate<const M: usize>(&mut self, cross: &[[Real; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
+    pub fn eliminate<const M: usize>(&mut self, cross: &[[f64; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
         let l = cholesky(&nuisance.xtx, 1e-13).ok_or(Error::Singular)?;
         let dot = |a: &[f64; M], b: &[f64; M]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
-        let (cy, cross) = (&nuisance.xty, cross.map(|r| r.map(|v| v as f64)));
+        let cy = &nuisance.xty;
         for i in 0..N {
             let s = cholesky_solve(&l, &cross[i]);
             for j in 0..=i {
