@@ -4,7 +4,7 @@
 //! O(N²) state whatever the number of rows. It solves in [`Real`], but takes the residual sum
 //! from the `f64` sums at the solution, `Σ w y² − 2 βᵀ Σ w x y + βᵀ (Σ w x xᵀ) β`: a small
 //! difference of large sums, which sums in `f32` lose (the firmware's 1σ of K came out 0.6 times
-//! the PC's on a 952 Hz log; vboard's precision test), and which the solve's rounding of `β` changes
+//! the PC's on a 952 Hz log), and which the solve's rounding of `β` changes
 //! only to second order. Every linear solve of the crate goes through it (3 unknowns for the
 //! gyro, 6 and 9 for the accelerometer).
 

@@ -373,9 +373,11 @@ fn a_program_uploaded_after_the_calibration_finds_its_record_and_measures_turns_
 /// Issue 50's precision test: the firmware computes its fits and solves in `f32` on the FPU
 /// (calib-core's `single`; the normal equations' sums in `f64`), the PC in `f64`. On the
 /// firmware's own raw log at its worst case (952 Hz: the most samples in a move and a rest),
-/// every element of the K it stored lies within a tenth of the 1σ of the K `calib` computes in
-/// `f64` from that log, and its 1σ within 5 % of `calib`'s: rounding adds at most 1 % to the
-/// variance, and the record states the variance the PC would.
+/// every element of the K it stored lies within 0.02σ of the K `calib` computes in `f64` from
+/// that log, and its 1σ within 1 % of `calib`'s: rounding adds at most 0.04 % to the variance, and
+/// the record states the variance the PC would. (The same firmware in `f64`: 0.0016σ and 0.00 %;
+/// each `f32` loss found so far failed it: the normal equations' sums, the Earth's rate's cross
+/// sums, the tempco's absolute temperatures, a plane's residual from its smallest eigenvalue.)
 #[test]
 fn the_firmwares_single_precision_k_is_the_pcs_double_precision_one_on_its_own_log() {
     let elf = build_firmware(&["odr952"]).unwrap();
@@ -401,6 +403,6 @@ fn the_firmwares_single_precision_k_is_the_pcs_double_precision_one_on_its_own_l
         worst_sigma = worst_sigma.max((rec.sigma_k[r][c] as f64 / sigma - 1.0).abs());
     }
     println!("MEASURED single_vs_double_k_max_over_sigma={worst_k:.4} sigma_max_rel_diff={worst_sigma:.4} rows={}", log.rows.len());
-    assert!(worst_k <= 0.1, "the f32 K is {worst_k:.3} of its 1 sigma from the f64 one");
-    assert!(worst_sigma <= 0.05, "the f32 1 sigma is {:.1} % off the f64 one", worst_sigma * 100.0);
+    assert!(worst_k <= 0.02, "the f32 K is {worst_k:.3} of its 1 sigma from the f64 one");
+    assert!(worst_sigma <= 0.01, "the f32 1 sigma is {:.1} % off the f64 one", worst_sigma * 100.0);
 }

@@ -129,7 +129,7 @@ impl Axes {
     /// Plane fit of axis `a`, signed by its moves, and for a near-vertical axis the fallback along
     /// gravity. `σ_a` is not known yet: the caller chooses and checks the axis' direction 1σ.
     fn fit(&self, a: usize, limits: &FullLimits) -> Result<(Fit, Option<Fit>), Error> {
-        let Plane { n, mean, vals, u, e, tilt_deg, radial } = self.poses.plane(self.members[a]);
+        let Plane { n, mean, vals, u, e, tilt_deg, radial, off_plane_ms } = self.poses.plane(self.members[a]);
         let nf = n as Real;
         let spread = real::sqrt((vals[1] + vals[2]).max(0.0));
         let min_tilt = (limits.geometry.min_tilt_deg as Real).to_radians();
@@ -175,7 +175,7 @@ impl Axes {
             }
             return Err(Error::AxisUndetermined { axis: a as u8, sigma_deg: f32::INFINITY, limit_deg: limits.max_axis_sigma_deg });
         }
-        let plane_rms_g = real::sqrt(vals[0].max(0.0));
+        let plane_rms_g = real::sqrt(off_plane_ms);
         if !(plane_rms_g <= limits.geometry.max_plane_rms_g as Real) {
             return Err(Error::AxisNotFixed { plane_rms_g: plane_rms_g as f32, limit_g: limits.geometry.max_plane_rms_g });
         }
@@ -189,7 +189,7 @@ impl Axes {
             tilt_deg,
             plane_rms_g,
             // A near-vertical axis' plane residual is not counted in the pose noise.
-            ss: if vertical { 0.0 } else { nf * vals[0].max(0.0) },
+            ss: if vertical { 0.0 } else { nf * off_plane_ms },
             dof: if vertical { 0 } else { n as u32 - 3 },
             poses: n as u8,
         });
