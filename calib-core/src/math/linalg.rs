@@ -3,7 +3,7 @@
 //! one core on a row-major slice (`n × n`, `n ≤ MAX_N`, generic over its scalar alone) behind a
 //! thin wrapper generic over the size, so the firmware links one copy a scalar whatever the sizes.
 
-use crate::math::real::{self, Real};
+use crate::math::real::{self, Real, Scalar};
 use nalgebra::Matrix3;
 
 /// `det(K) K⁻ᵀ`, the cofactor matrix (columns `k₁ × k₂`, `k₂ × k₀`, `k₀ × k₁` of the columns
@@ -23,64 +23,6 @@ pub(crate) fn inverse3(k: &Matrix3<Real>) -> Option<Matrix3<Real>> {
 
 /// Largest dimension of the dense routines.
 pub(crate) const MAX_N: usize = 9;
-
-/// The scalars the Cholesky routines run in: [`Real`], and `f64` for the sums of
-/// [`crate::math::lsq`] that need it whatever `Real` is (each instance is linked only where used).
-pub(crate) trait Scalar:
-    Copy
-    + PartialOrd
-    + core::ops::Add<Output = Self>
-    + core::ops::Sub<Output = Self>
-    + core::ops::Mul<Output = Self>
-    + core::ops::Div<Output = Self>
-    + core::ops::SubAssign
-{
-    /// 0 and 1.
-    const ZERO: Self;
-    const ONE: Self;
-    /// `√self`.
-    fn sqrt(self) -> Self;
-    /// `|self|`.
-    fn abs(self) -> Self;
-    /// The larger of the two (the other for a NaN).
-    fn max(self, other: Self) -> Self;
-    /// Neither infinite nor NaN.
-    fn is_finite(self) -> bool;
-}
-
-impl Scalar for f32 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
-    fn sqrt(self) -> Self {
-        super::vec3::sqrtf(self)
-    }
-    fn abs(self) -> Self {
-        f32::abs(self)
-    }
-    fn max(self, other: Self) -> Self {
-        f32::max(self, other)
-    }
-    fn is_finite(self) -> bool {
-        f32::is_finite(self)
-    }
-}
-
-impl Scalar for f64 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
-    fn sqrt(self) -> Self {
-        libm::sqrt(self)
-    }
-    fn abs(self) -> Self {
-        f64::abs(self)
-    }
-    fn max(self, other: Self) -> Self {
-        f64::max(self, other)
-    }
-    fn is_finite(self) -> bool {
-        f64::is_finite(self)
-    }
-}
 
 /// Lower-triangular Cholesky factor `L` of a symmetric positive-definite `a = L Lᵀ`.
 ///

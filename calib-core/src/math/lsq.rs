@@ -230,10 +230,14 @@ fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[Real], y: Real,
         return Err(Error::NonFinite);
     }
     let (n, y, w) = (x.len(), y as f64, w as f64);
+    let mut xd = [0.0f64; MAX_N];
+    for (d, v) in xd.iter_mut().zip(x) {
+        *d = *v as f64;
+    }
     for i in 0..n {
-        let wxi = w * x[i] as f64;
+        let wxi = w * xd[i];
         for j in 0..=i {
-            xtx[i * n + j] += wxi * x[j] as f64;
+            xtx[i * n + j] += wxi * xd[j];
         }
         xty[i] += wxi * y;
     }

@@ -21,15 +21,57 @@ pub use core::f64::consts;
 /// `√x` (the FPU's `vsqrt.f32` on the firmware).
 #[inline]
 pub fn sqrt(x: Real) -> Real {
-    #[cfg(feature = "single")]
-    {
-        super::vec3::sqrtf(x)
-    }
-    #[cfg(not(feature = "single"))]
-    {
-        libm::sqrt(x)
-    }
+    Scalar::sqrt(x)
 }
+
+/// The floating-point types the code is generic over where it runs in both: [`Real`], and `f64`
+/// for the normal equations' sums that need it whatever `Real` is (the Cholesky routines of
+/// `linalg`; each instance is linked only where used).
+pub(crate) trait Scalar:
+    Copy
+    + PartialOrd
+    + core::ops::Add<Output = Self>
+    + core::ops::Sub<Output = Self>
+    + core::ops::Mul<Output = Self>
+    + core::ops::Div<Output = Self>
+    + core::ops::SubAssign
+{
+    /// 0 and 1.
+    const ZERO: Self;
+    const ONE: Self;
+    /// `√self`.
+    fn sqrt(self) -> Self;
+    /// `|self|`.
+    fn abs(self) -> Self;
+    /// The larger of the two (the other for a NaN).
+    fn max(self, other: Self) -> Self;
+    /// Neither infinite nor NaN.
+    fn is_finite(self) -> bool;
+}
+
+macro_rules! scalar {
+    ($t:ident, $sqrt:path) => {
+        impl Scalar for $t {
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            fn sqrt(self) -> Self {
+                $sqrt(self)
+            }
+            fn abs(self) -> Self {
+                $t::abs(self)
+            }
+            fn max(self, other: Self) -> Self {
+                $t::max(self, other)
+            }
+            fn is_finite(self) -> bool {
+                $t::is_finite(self)
+            }
+        }
+    };
+}
+
+scalar!(f32, super::vec3::sqrtf);
+scalar!(f64, libm::sqrt);
 
 /// `eˣ`.
 #[inline]

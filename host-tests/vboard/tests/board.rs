@@ -380,12 +380,7 @@ fn a_program_uploaded_after_the_calibration_finds_its_record_and_measures_turns_
 /// sums, the tempco's absolute temperatures, a plane's residual from its smallest eigenvalue.)
 #[test]
 fn the_firmwares_single_precision_k_is_the_pcs_double_precision_one_on_its_own_log() {
-    let elf = build_firmware(&["odr952"]).unwrap();
-    let mut b = Testbed::new(elf, Variant::Hobby.config(5, 0), 5, Board::Rev1, NorSim::new(8, 5), false).unwrap();
-    b.mcu.rtt_attach();
-    b.run_for(2.0);
-    let from = b.mcu.log.len();
-    b.press(2.3);
+    let (mut b, from) = crate::boot::raw_log_at_952_hz(5, 2.0);
     b.run_for(1.0);
     let outcome = b.calibrate(600.0);
     // The messages (the raw log's rows apart).

@@ -114,13 +114,8 @@ fn an_rtt_host_that_detaches_does_not_stall_the_firmware() {
 
 #[test]
 fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
-    let elf = build_firmware(&["odr952"]).unwrap();
-    let mut b = Testbed::new(elf, Variant::Hobby.config(14, 0), 14, Board::Rev1, NorSim::new(8, 14), false).unwrap();
     // probe-rs run, reading all along (the vboard drains the buffer every millisecond).
-    b.mcu.rtt_attach();
-    b.run_for(1.0);
-    let before = b.mcu.log.len();
-    b.press(2.3);
+    let (mut b, before) = raw_log_at_952_hz(14, 1.0);
     let (w0, t0) = (b.mcu.rtt_written(), b.mcu.now());
     b.run_for(5.0);
     let bytes_per_s = (b.mcu.rtt_written() - w0) as f64 / (b.mcu.now() - t0);
@@ -135,6 +130,18 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     assert_eq!(b.mcu.rtt_dropped(), Some(0), "bytes dropped with a host reading");
     // The buffer holds at least 0.1 s of raw log: several of probe-rs' polls.
     assert!(buffer_s >= 0.1, "{buffer_s} s");
+}
+
+/// The `odr952` firmware on a one-servo rig (`seed`), a probe reading RTT all along, booted for
+/// `boot_s` and put into raw-log mode (the button held 2.3 s); and where its log then starts.
+pub(crate) fn raw_log_at_952_hz(seed: u64, boot_s: f64) -> (Testbed, usize) {
+    let elf = build_firmware(&["odr952"]).unwrap();
+    let mut b = Testbed::new(elf, Variant::Hobby.config(seed, 0), seed, Board::Rev1, NorSim::new(8, seed), false).unwrap();
+    b.mcu.rtt_attach();
+    b.run_for(boot_s);
+    let from = b.mcu.log.len();
+    b.press(2.3);
+    (b, from)
 }
 
 #[test]
