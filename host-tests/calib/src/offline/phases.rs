@@ -27,31 +27,44 @@ impl Segment {
         self.servo_deg.is_some()
     }
 
-    /// The 1σ (g) of the pose's mean along gravity: the larger of the part's noise `noise_g`
-    /// ([`Phases::accel_noise_g`]) over its `n` samples, `noise / √n`, and the motion its own
-    /// accelerometer shows. A held board's mean reading over a pose of length `T` is off by
-    /// `Δv / T`, its velocity's change across the pose. Within it, that velocity is
-    /// `v(0) + B(t) + (t/T) Δv` with `B(t) = ∫ (a·u − ā) dt` (`u` the mean's direction). A
-    /// motion faster than the pose, of velocity variance `σ_v²`, gives `Δv` the variance `2σ_v²`
-    /// and `B` the mean square `5σ_v²/3`; a sway slower than the pose changes `v` across it by
-    /// more than `B` shows. The 1σ is `√(2⟨B²⟩) / T`: with `6⟨B²⟩/5`, the fast motion's,
-    /// rotation-bench's free hand had its gains within 2σ in 85 % and the arm's offsets within
-    /// 1σ in 55 %. The samples' spread over `√n` would take a tremor that averages away for
-    /// noise and miss a sway too slow to show in it. `rows`: the log the segment indexes.
+    /// The 1σ (g) of the pose's mean along gravity: the part's noise and the hand's motion
+    /// that the mean keeps, each from the pose's own readings along `u` (the mean's
+    /// direction), their variances added.
+    /// - Noise: `σ²/n` over its `n` samples, `σ²` from second differences,
+    ///   `Σ (a_{k+1} − 2a_k + a_{k−1})² / 6(n − 2)`. A sway (0.1–2 Hz) does not show in them and
+    ///   a 10 Hz tremor leaks 1.2 % of its variance at 119 Hz (first differences: 14 %), where
+    ///   the samples' spread would take them whole (free-hand logs with no still rig pose: 1.4×
+    ///   the error's variance). `noise_g` ([`Phases::accel_noise_g`]) where the readings never
+    ///   change.
+    /// - Motion: a held board's mean over a pose of length `T` is off by `Δv / T`, its
+    ///   velocity's change across the pose. Within it the velocity is `v(0) + B(t) + (t/T) Δv`
+    ///   with `B(t) = ∫ (a·u − ā) dt`. A motion faster than the pose, of velocity variance
+    ///   `σ_v²`, gives `Δv` the variance `2σ_v²` and `B` the mean square `5σ_v²/3`; averaged
+    ///   over a flat velocity spectrum at 0.3–1.5 Hz (a sway) or 8–12 Hz (a tremor) with
+    ///   `T` ≈ 2.4 s, `E[Δv²] / E[⟨B²⟩]` is 1.2–1.35. So `(Δv/T)² ≈ 6⟨B²⟩/5T²`, less the noise's
+    ///   own share of `⟨B²⟩` (`σ² T²/6n`): in all `0.8 σ²/n + 1.2 ⟨B²⟩/T²`, never below
+    ///   `σ²/n`. Against the simulator's truth over its hand family (40 rigs, 12 poses each),
+    ///   the error's mean square over this variance's mean is 0.87–1.07 (it sets the
+    ///   propagated 1σ); with the larger of `σ/√n` and `√(2⟨B²⟩)/T` it was 0.54–1.0.
+    ///
+    /// `rows`: the log the segment indexes.
     pub fn accel_sigma_of_mean(&self, rows: &[Row], noise_g: f64) -> f64 {
         let rows = &rows[self.first..=self.last];
         let mean = Vector3::from(self.accel.mean());
         let norm = mean.norm().max(1e-9);
         let u = mean / norm;
+        let along: Vec<f64> = rows.iter().map(|r| Vector3::from(r.accel_g.map(f64::from)).dot(&u) - norm).collect();
         let (mut b, mut b2) = (0.0, 0.0);
-        for w in rows.windows(2) {
-            b += (Vector3::from(w[1].accel_g.map(f64::from)).dot(&u) - norm) * (w[1].t_s - w[0].t_s);
+        for (w, a) in rows.windows(2).zip(&along[1..]) {
+            b += a * (w[1].t_s - w[0].t_s);
             b2 += b * b;
         }
+        let d2: f64 = along.windows(3).map(|w| (w[2] - 2.0 * w[1] + w[0]).powi(2)).sum();
         let n = rows.len() as f64;
         let t = rows[rows.len() - 1].t_s - rows[0].t_s;
-        let motion = if t > 0.0 { (2.0 * b2 / n).sqrt() / t } else { 0.0 };
-        (noise_g / n.sqrt()).max(motion)
+        let noise = if d2 > 0.0 { d2 / (6.0 * (n - 2.0)) } else { noise_g * noise_g } / n;
+        let motion = if t > 0.0 { 1.2 * b2 / n / (t * t) } else { 0.0 };
+        (0.8 * noise + motion).max(noise).sqrt()
     }
 
     /// The tilt setting of a rig pose (°, 0 without a tilt column), to 0.5°.
@@ -299,9 +312,10 @@ mod tests {
 
     #[test]
     fn a_still_pose_has_its_noise_over_root_n() {
-        // Measured: 66 % / 96 % over 400 poses.
+        // Its noise from the pose's own second differences: within 5 % of the truth (their
+        // variance's spread over 238 samples is ±10 %). Measured: 68 % / 96 % over 400 poses.
         let (one, two, s) = coverage(400, |_| Box::new(|_| 0.0));
-        assert!((s - 1e-3 / 238f64.sqrt()).abs() < 1e-12, "{s}");
+        assert!((s / (1e-3 / 238f64.sqrt()) - 1.0).abs() < 0.05, "{s}");
         assert!((0.62..=0.74).contains(&one) && two >= 0.92, "{one} {two}");
     }
 
@@ -309,7 +323,7 @@ mod tests {
     fn a_swaying_hand_is_covered_and_a_tremor_is_not_taken_for_noise() {
         // The linear acceleration of a sway (0.4-1.5 Hz, 2 mg) that a 2 s pose does not average
         // away: its spread over √n alone (about 0.13 mg) would be far too small. Measured:
-        // 73 % / 99 %.
+        // 67 % / 96 %.
         let sway = |rng: &mut ChaCha8Rng| -> Box<dyn Fn(f64) -> f64> {
             let (f, ph) = (rng.random_range(0.4..1.5), rng.random_range(0.0..core::f64::consts::TAU));
             Box::new(move |t| 2e-3 * (core::f64::consts::TAU * f * t + ph).sin())
@@ -317,7 +331,7 @@ mod tests {
         let (one, two, _) = coverage(400, sway);
         assert!(one >= 0.6 && two >= 0.92, "sway: {one} {two}");
         // A 10 Hz tremor of 20 mg: its spread over √n is 0.9 mg, its mean error below 0.32 mg.
-        // Measured: 71 % / 100 %, median 1σ 0.21 mg.
+        // Measured: 68 % / 99 %, median 1σ 0.20 mg.
         let tremor = |rng: &mut ChaCha8Rng| -> Box<dyn Fn(f64) -> f64> {
             let (f, ph) = (rng.random_range(8.0..12.0), rng.random_range(0.0..core::f64::consts::TAU));
             Box::new(move |t| 20e-3 * (core::f64::consts::TAU * f * t + ph).sin())
