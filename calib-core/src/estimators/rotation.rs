@@ -41,7 +41,7 @@ use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
-use crate::math::real::{self, Real};
+use crate::math::real::{self, sq, Real};
 use crate::math::vec3::{sqrtf, tangent_basis, to_real as v64};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
@@ -478,10 +478,6 @@ fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_e
 
 fn angle_deg(a: &Vector3<Real>, b: &Vector3<Real>) -> Real {
     crate::math::trig::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
-}
-
-fn sq(x: Real) -> Real {
-    x * x
 }
 
 /// The whole number of revolutions nearest to a turn (rad), in rad (at least one).

@@ -18,6 +18,11 @@ pub use core::f32::consts;
 #[cfg(not(feature = "single"))]
 pub use core::f64::consts;
 
+/// `x²`.
+pub fn sq(x: Real) -> Real {
+    x * x
+}
+
 /// `√x` (the FPU's `vsqrt.f32` on the firmware).
 #[inline]
 pub fn sqrt(x: Real) -> Real {

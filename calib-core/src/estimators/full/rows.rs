@@ -5,13 +5,9 @@ use super::fit::Fits;
 use super::{vec_index, Axes, AxisMove, FullLimits, MAX_AXES};
 use crate::estimators::axis::{turn_deg, unwrap_near};
 use crate::math::lsq::{NormalEquations, Solution};
-use crate::math::real::{self, Real};
+use crate::math::real::{self, sq, Real};
 use crate::{Error, Mat3};
 use nalgebra::Vector3;
-
-fn sq(x: Real) -> Real {
-    x * x
-}
 
 /// One row `vᵀ K Γ = y` (°) and its variance (°²).
 #[derive(Clone, Copy)]
