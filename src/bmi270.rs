@@ -181,8 +181,9 @@ pub const fn defined_bits(r: u8) -> u8 {
         _ => 0xFF,
     }
 }
-/// Sensortime resolution (s): 39.0625 µs per count (Bosch's `BMI2_SENSORTIME_RESOLUTION`).
-pub const SENSORTIME_S: f64 = 39.0625e-6;
+/// Sensortime resolution: 39.0625 µs per count (Bosch's `BMI2_SENSORTIME_RESOLUTION`), as
+/// µs per [`SENSORTIME_PER`] counts.
+pub const SENSORTIME_US: (u32, u32) = (625, 16);
 
 /// Output data rate of both sensors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -573,7 +574,7 @@ impl<I: I2c> Bmi270<I> {
         let mut r = parse_fifo(&buf[..n], self.cfg.per_lsb(), each);
         let tps = self.cfg.odr.ticks_per_sample();
         let age = self.index.update(r.samples + r.lost + r.partial, r.sensortime, tps);
-        r.newest_age_s = age.filter(|&a| a < 4 * tps).map(|a| a as f64 * SENSORTIME_S);
+        r.newest_age_us = age.filter(|&a| a < 4 * tps).map(|a| (a * SENSORTIME_US.0 + SENSORTIME_US.1 / 2) / SENSORTIME_US.1);
         // The gyro's start-up: one sensor's frames before its first sample are no loss.
         if let Some(before) = self.starting {
             let (frames, started) = (before + r.partial, r.samples > 0);
@@ -624,7 +625,7 @@ pub struct FifoRead {
     /// Frames of one sensor alone (0x84 accelerometer, 0x88 gyro: the other not producing, as
     /// while the gyro starts after PWR_CTRL): no sample pair, a hole in the series.
     pub partial: usize,
-    /// The sensortime frame's count (24 bit, [`SENSORTIME_S`] each): the part's time when the
+    /// The sensortime frame's count (24 bit, [`SENSORTIME_US`] each): the part's time when the
     /// burst had read the FIFO empty; `None` without one.
     pub sensortime: Option<u32>,
     /// How long before the sensortime frame the newest frame read was produced (s, at the
@@ -632,7 +633,7 @@ pub struct FifoRead {
     /// the sample grid ([`Bmi270::read_fifo`]); `None` without a sensortime frame, in the first
     /// reads after the bring-up (the grid not yet known) or from [`parse_fifo`] alone: the
     /// read's time minus this is the newest sample's.
-    pub newest_age_s: Option<f64>,
+    pub newest_age_us: Option<u32>,
 }
 
 /// Parses header-mode FIFO bytes (Bosch's frame layout) with the sensitivities `(°/s, g)` per

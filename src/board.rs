@@ -5,6 +5,7 @@
 
 use crate::bootloader::FlashMap;
 use crate::led::Lights;
+use calib_core::Time;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::OutputPin;
 use embedded_hal::i2c::{ErrorType, I2c, Operation};
@@ -93,9 +94,9 @@ impl Clock {
         h.wrapping_mul(4_294_967).wrapping_add(l / 1000).wrapping_add(h.wrapping_mul(296).wrapping_add(l % 1000) / 1000)
     }
 
-    /// Seconds since [`Clock::start`].
-    pub fn now_s(&mut self) -> f64 {
-        self.now_us() as f64 * 1e-6
+    /// The time since [`Clock::start`].
+    pub fn now(&mut self) -> Time {
+        Time::from_us(self.now_us() as i64)
     }
 }
 

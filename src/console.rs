@@ -7,6 +7,7 @@ use calib_core::formats::protocol::{self, Ignored, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::text::Level as Log;
 use calib_core::procedure::{Report, Sample};
+use calib_core::Time;
 use core::fmt::{self, Write};
 use gyrocal_fw::lsm9ds1::SensorError;
 use gyrocal_fw::serial::Command;
@@ -32,12 +33,12 @@ pub(crate) struct Console {
     /// The USB serial number (from FICR).
     serial: &'static str,
     usb_dropped_reported: u32,
-    /// When the dropped bytes were last reported (s).
-    usb_dropped_at: f64,
-    /// Commands not carried out since boot, the counts last logged, and when (s).
+    /// When the dropped bytes were last reported.
+    usb_dropped_at: Time,
+    /// Commands not carried out since boot, the counts last logged, and when.
     ignored: Ignored,
     ignored_reported: Ignored,
-    ignored_at: f64,
+    ignored_at: Time,
 }
 
 // The methods are `#[inline(never)]`: inlined at each call site they cost 1.5 KiB of flash.
@@ -51,10 +52,10 @@ impl Console {
             link: Link::new(),
             serial,
             usb_dropped_reported: 0,
-            usb_dropped_at: f64::NEG_INFINITY,
+            usb_dropped_at: Time::MIN,
             ignored: Ignored::default(),
             ignored_reported: Ignored::default(),
-            ignored_at: f64::NEG_INFINITY,
+            ignored_at: Time::MIN,
         }
     }
 
@@ -139,8 +140,8 @@ impl Console {
     /// Logs the commands ignored since boot when they changed, at most once a second, until a
     /// line of them reached the RTT buffer whole (a frame the full buffer dropped is said again).
     #[inline(never)]
-    pub(crate) fn report_ignored(&mut self, now: f64) {
-        if self.ignored == self.ignored_reported || now - self.ignored_at < 1.0 {
+    pub(crate) fn report_ignored(&mut self, now: Time) {
+        if self.ignored == self.ignored_reported || now.since(self.ignored_at) < 1.0 {
             return;
         }
         let mut line = heapless::String::<LINE>::new();
@@ -170,7 +171,7 @@ impl Console {
     /// on the 1200-baud touch, and says (at most once a second) how many bytes a terminal that
     /// stopped reading missed.
     #[inline(never)]
-    pub(crate) fn poll_usb(&mut self, power: &pac::POWER, now: f64, commands: &mut heapless::Vec<Command, COMMANDS_PER_TICK>) {
+    pub(crate) fn poll_usb(&mut self, power: &pac::POWER, now: Time, commands: &mut heapless::Vec<Command, COMMANDS_PER_TICK>) {
         match self.link.handle_tick(now, power) {
             Step::Ready => {
                 match (self.usb.as_mut(), self.usbd.take()) {
@@ -203,7 +204,7 @@ impl Console {
         self.ignored.beyond_tick += refused;
         let Some(u) = self.port() else { return };
         let (dropped, idle) = (u.out.dropped(), u.out.is_empty() && u.listening());
-        if dropped != self.usb_dropped_reported && idle && now - self.usb_dropped_at >= 1.0 {
+        if dropped != self.usb_dropped_reported && idle && now.since(self.usb_dropped_at) >= 1.0 {
             self.usb_dropped_reported = dropped;
             self.usb_dropped_at = now;
             let mut line = heapless::String::<LINE>::new();
@@ -250,7 +251,7 @@ impl Console {
     #[inline(never)]
     pub(crate) fn raw_row(&mut self, s: &Sample, mag_ut: Option<[f32; 3]>, servo_deg: Option<f32>, tilt_deg: Option<f32>) {
         use calib_core::formats::log::{write_mag, write_row, write_temp, Row, MAX_ROW};
-        let row = Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut, temp_c: s.temp_c };
+        let row = Row { t: s.t, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut, temp_c: s.temp_c };
         let mut line = heapless::String::<MAX_ROW>::new();
         if write_row(&mut line, &row).and_then(|_| write_mag(&mut line, mag_ut)).and_then(|_| write_temp(&mut line, s.temp_c)).is_ok() {
             self.raw(&line);

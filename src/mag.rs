@@ -6,6 +6,7 @@
 
 use crate::console::Console;
 use calib_core::formats::text::Level as Log;
+use calib_core::Time;
 use core::fmt;
 use embedded_hal::i2c::I2c;
 use gyrocal_fw::bmm150::{self, Bmm150};
@@ -13,7 +14,7 @@ use gyrocal_fw::board::{Clock, Wait};
 use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
 
 /// How long after a failure the part is brought up again (s).
-const RETRY_S: f64 = 2.0;
+const RETRY_S: f32 = 2.0;
 
 /// A configured part.
 enum Part {
@@ -40,28 +41,35 @@ impl fmt::Display for Error {
 /// The magnetometer and its bring-up state.
 pub(crate) struct Magnetometer {
     part: Option<Part>,
-    next_try_s: f64,
+    next_try: Time,
     last_error: Option<Error>,
 }
 
 impl Magnetometer {
     pub(crate) const fn new() -> Self {
-        Self { part: None, next_try_s: 0.0, last_error: None }
+        Self { part: None, next_try: Time::ZERO, last_error: None }
     }
 
     /// Forgets the part (the IMU is being brought up again; so is the magnetometer, at once).
     pub(crate) fn reset(&mut self) {
-        (self.part, self.next_try_s) = (None, 0.0);
+        (self.part, self.next_try) = (None, Time::ZERO);
     }
 
-    /// One poll at `now` (s) on the IMU's bus: brings the part up (a Rev2's BMM150, else the
+    /// One poll at `now` on the IMU's bus: brings the part up (a Rev2's BMM150, else the
     /// LSM9DS1's) or reads it; a new reading (µT, the accelerometer's axes).
-    pub(crate) fn poll<I: I2c>(&mut self, bus: &mut I, rev2: bool, now: f64, clock: &mut Clock, console: &mut Console) -> Option<[f32; 3]> {
+    pub(crate) fn poll<I: I2c>(
+        &mut self,
+        bus: &mut I,
+        rev2: bool,
+        now: Time,
+        clock: &mut Clock,
+        console: &mut Console,
+    ) -> Option<[f32; 3]> {
         let t_us = clock.now_us();
         let result = match self.part.as_mut() {
             Some(Part::Lsm(m)) => m.read(bus, t_us).map_err(Error::Lsm),
             Some(Part::Bmm(m)) => m.read(bus, t_us).map_err(Error::Bmm),
-            None if now >= self.next_try_s => {
+            None if now >= self.next_try => {
                 let up = if rev2 {
                     Bmm150::init(bus, bmm150::Config::HIGH_ACCURACY, &mut Wait(clock), t_us).map(Part::Bmm).map_err(Error::Bmm)
                 } else {
@@ -86,7 +94,7 @@ impl Magnetometer {
             if self.last_error != Some(e) {
                 console.say(Log::Warn, format_args!("{e}; calibrating without it, retrying every 2 s"));
             }
-            (self.last_error, self.part, self.next_try_s) = (Some(e), None, now + RETRY_S);
+            (self.last_error, self.part, self.next_try) = (Some(e), None, now.plus_s(RETRY_S));
             None
         })
     }

@@ -25,6 +25,7 @@ use calib_core::formats::text::{Fixed, Level as Log, V3};
 use calib_core::math::stats::Moments3;
 use calib_core::math::vec3::to_real;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
+use calib_core::Time;
 use core::mem::MaybeUninit;
 use embedded_hal::digital::InputPin;
 use gyrocal_fw::bmi270::{self, Bmi270};
@@ -47,7 +48,7 @@ const TICK_US: u32 = 2_000;
 /// silently.
 const COMMANDS_PER_TICK: usize = 8;
 /// FIFO read period (s).
-const FIFO_POLL_S: f64 = 0.010;
+const FIFO_POLL_S: f32 = 0.010;
 /// Watchdog timeout (s).
 const WATCHDOG_S: u32 = 2;
 /// Servo PWM: 1 µs ticks, 20 ms period.
@@ -187,8 +188,8 @@ struct Sensing {
     /// The settings a Rev2's BMI270 runs (or is to run) at.
     bmi: bmi270::Config,
     stamper: Stamper,
-    next_try_s: f64,
-    last_poll_s: f64,
+    next_try: Time,
+    last_poll: Time,
     /// The board's magnetometer.
     mag: Magnetometer,
     /// Raw-log mode.
@@ -206,18 +207,18 @@ impl Sensing {
             config: SENSOR,
             bmi: bmi270::Config::DEFAULT,
             stamper: Stamper::new(SENSOR.odr.hz()),
-            next_try_s: 0.0,
-            last_poll_s: 0.0,
+            next_try: Time::ZERO,
+            last_poll: Time::ZERO,
             mag: Magnetometer::new(),
             raw: false,
             live: Live::default(),
         }
     }
 
-    /// One loop tick at `now` (s): (re)initialise, or drain the FIFO. A lost sample or a failed
+    /// One loop tick at `now`: (re)initialise, or drain the FIFO. A lost sample or a failed
     /// read enters the procedure.
-    fn service(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
-        if self.sensor.is_none() && self.rev2.is_none() && now >= self.next_try_s {
+    fn service(&mut self, now: Time, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
+        if self.sensor.is_none() && self.rev2.is_none() && now >= self.next_try {
             if let Some(i2c) = self.bus.take() {
                 match Lsm9ds1::init(i2c, self.config, &mut Wait(clock)) {
                     Ok(s) => {
@@ -261,22 +262,22 @@ impl Sensing {
                             io.console.say(Log::Error, format_args!("Nano 33 BLE Rev2: {e}; retrying"));
                             io.led = Led::Error(ErrorClass::Sensor);
                             self.bus = Some(i2c);
-                            self.next_try_s = now + 2.0;
+                            self.next_try = now.plus_s(2.0);
                         }
                     },
                     Err((e, i2c)) => {
                         io.console.sensor_error(&e);
                         io.led = Led::Error(ErrorClass::Sensor);
                         self.bus = Some(i2c);
-                        self.next_try_s = now + 2.0;
+                        self.next_try = now.plus_s(2.0);
                     }
                 }
             }
         }
-        if now - self.last_poll_s < FIFO_POLL_S {
+        if now.since(self.last_poll) < FIFO_POLL_S {
             return;
         }
-        self.last_poll_s = now;
+        self.last_poll = now;
         if self.rev2.is_some() {
             return self.service_rev2(now, clock, procedure, io);
         }
@@ -293,7 +294,7 @@ impl Sensing {
         for round in 0..4 {
             let mag_ut = mag_ut.filter(|_| round == 0);
             result = s.fifo_status().and_then(|st| {
-                let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now_s());
+                let (n, t_read) = (st.level.min(FIFO_DEPTH) as usize, clock.now());
                 let batch = stamper.batch(t_read, n);
                 // An overrun, flagged or seen by the samples' count (`Batch::late`: a slot read
                 // after it clears the flag).
@@ -316,7 +317,7 @@ impl Sensing {
                 }
                 for (i, raw_slot) in slots[..n].iter().enumerate() {
                     let (accel_g, gyro_dps) = s.convert(raw_slot);
-                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                    let sample = Sample { t: batch.stamp(i), accel_g, gyro_dps, temp_c };
                     // A new field reading goes with the batch's newest sample (read just before).
                     feed(sample, mag_ut.filter(|_| i + 1 == n), setup, raw, live, procedure, io);
                 }
@@ -335,10 +336,10 @@ impl Sensing {
     }
 
     /// The LSM9DS1 released and brought up again from 0.5 s on (its magnetometer with it).
-    fn reinitialise(&mut self, now: f64) {
+    fn reinitialise(&mut self, now: Time) {
         self.bus = self.sensor.take().map(|s| s.release());
         self.mag.reset();
-        self.next_try_s = now + 0.5;
+        self.next_try = now.plus_s(0.5);
     }
 }
 
@@ -351,7 +352,7 @@ impl Sensing {
 
     /// The FIFO on again after [`Self::pause_fifo`], its timestamps started anew; a failed write
     /// reinitialises the sensor (named).
-    fn resume_fifo(&mut self, now: f64, io: &mut Io) {
+    fn resume_fifo(&mut self, now: Time, io: &mut Io) {
         let Some(s) = self.sensor.as_mut() else { return };
         self.stamper.restart();
         if let Err(e) = s.resume_fifo() {
@@ -376,7 +377,7 @@ impl Sensing {
     /// A Rev2 board's FIFO drained into the procedure (as the LSM9DS1's: timestamps by the MCU
     /// clock, each batch's newest sample dated by the sensortime frame after it, the die
     /// temperature read once a batch; lost samples and failed reads enter the procedure).
-    fn service_rev2(&mut self, now: f64, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
+    fn service_rev2(&mut self, now: Time, clock: &mut Clock, procedure: &mut Procedure, io: &mut Io) {
         let Some(b) = self.rev2.as_mut() else { return };
         let mag_ut = self.mag.poll(b.bus_mut(), true, now, clock, &mut io.console);
         let mut got = heapless::Vec::<([f32; 3], [f32; 3]), { bmi270::FIFO_BYTES / 13 + 1 }>::new();
@@ -401,14 +402,14 @@ impl Sensing {
                 }
                 // The newest sample's time: the read's, less its age by the part's sensortime;
                 // without a date, its samples are counted but do not move the time line.
-                let batch = match r.newest_age_s {
-                    Some(age) => self.stamper.batch(clock.now_s() - age, got.len()),
-                    None => self.stamper.undated(clock.now_s(), got.len()),
+                let batch = match r.newest_age_us {
+                    Some(age) => self.stamper.batch(Time::from_us(clock.now().us() - i64::from(age)), got.len()),
+                    None => self.stamper.undated(clock.now(), got.len()),
                 };
                 // One reading per batch; a failed or invalid one leaves the samples without it.
                 let temp_c = if got.is_empty() { None } else { b.temperature_c().ok().flatten() };
                 for (i, &(accel_g, gyro_dps)) in got.iter().enumerate() {
-                    let sample = Sample { t_s: batch.stamp(i), accel_g, gyro_dps, temp_c };
+                    let sample = Sample { t: batch.stamp(i), accel_g, gyro_dps, temp_c };
                     // A new field reading goes with the batch's newest sample (read just before).
                     feed(sample, mag_ut.filter(|_| i + 1 == got.len()), b.setup(), self.raw, &mut self.live, procedure, io);
                 }
@@ -419,7 +420,7 @@ impl Sensing {
                 procedure.drive(now, io);
                 self.bus = self.rev2.take().map(|s| s.release());
                 self.mag.reset();
-                self.next_try_s = now + 0.5;
+                self.next_try = now.plus_s(0.5);
             }
         }
     }
@@ -427,7 +428,7 @@ impl Sensing {
     /// Runs the sensor at `config` (a Rev2's BMI270 at `bmi`) from the next tick on:
     /// re-initialised (its ready line and, in raw-log mode, the log's setup comment say the new
     /// settings).
-    fn reconfigure(&mut self, config: SensorConfig, bmi: bmi270::Config, now: f64) {
+    fn reconfigure(&mut self, config: SensorConfig, bmi: bmi270::Config, now: Time) {
         (self.config, self.bmi) = (config, bmi);
         self.stamper = Stamper::new(config.odr.hz());
         if let Some(s) = self.sensor.take() {
@@ -437,7 +438,7 @@ impl Sensing {
             self.bus = Some(s.release());
         }
         self.mag.reset();
-        self.next_try_s = now;
+        self.next_try = now;
     }
 }
 
@@ -452,8 +453,8 @@ fn feed(sample: Sample, mag_ut: Option<[f32; 3]>, setup: SensorSetup, raw: bool,
         io.console.raw_row(&sample, mag_ut, procedure.servo_deg(), procedure.tilt_deg());
     }
     if let Some(m) = mag_ut {
-        procedure.handle_mag(sample.t_s, m);
-        procedure.drive(sample.t_s, io);
+        procedure.handle_mag(m);
+        procedure.drive(sample.t, io);
     }
     if let Some(rec) = io.applied.filter(|r| r.setup == setup) {
         live.rate.add(rec.apply_gyro(gyro_dps));
@@ -462,12 +463,12 @@ fn feed(sample: Sample, mag_ut: Option<[f32; 3]>, setup: SensorSetup, raw: bool,
         }
     }
     procedure.handle_sample(&sample);
-    procedure.drive(sample.t_s, io);
+    procedure.drive(sample.t, io);
 }
 
 /// This tick's commands, the button's first (a full tick of USB commands never hides a press),
 /// into the procedure and the console.
-fn take_commands(now: f64, pressed: Option<Press>, power: &pac::POWER, procedure: &mut Procedure, io: &mut Io, sensing: &mut Sensing) {
+fn take_commands(now: Time, pressed: Option<Press>, power: &pac::POWER, procedure: &mut Procedure, io: &mut Io, sensing: &mut Sensing) {
     let mut commands = heapless::Vec::<Command, COMMANDS_PER_TICK>::new();
     io.console.poll_usb(power, now, &mut commands);
     let pressed = match pressed {
@@ -539,27 +540,25 @@ struct Live {
 /// dropped while no host read (said once one reads again).
 #[derive(Default)]
 struct Status {
-    last_rate_line_s: f64,
-    last_drop_check_s: f64,
+    last_rate_line: Time,
+    last_drop_check: Time,
     dropped_reported: u32,
 }
 
 impl Status {
-    fn lines(&mut self, now: f64, console: &mut Console, show_rate: bool, live: &mut Live) {
-        if show_rate && now - self.last_rate_line_s >= 1.0 && live.rate.count() > 0 {
+    fn lines(&mut self, now: Time, console: &mut Console, show_rate: bool, live: &mut Live) {
+        if show_rate && now.since(self.last_rate_line) >= 1.0 && live.rate.count() > 0 {
             let m = V3(live.rate.mean(), 3);
             match live.heading_deg.take() {
-                Some(h) => console.say(
-                    Log::Info,
-                    format_args!("rate {m} dps (calibrated, 1 s mean); x heads {} deg from magnetic north", Fixed(h as f64, 0)),
-                ),
+                Some(h) => console
+                    .say(Log::Info, format_args!("rate {m} dps (calibrated, 1 s mean); x heads {} deg from magnetic north", Fixed(h, 0))),
                 None => console.say(Log::Info, format_args!("rate {m} dps (calibrated, 1 s mean)")),
             }
             live.rate = Moments3::new();
-            self.last_rate_line_s = now;
+            self.last_rate_line = now;
         }
-        if now - self.last_drop_check_s >= 1.0 {
-            self.last_drop_check_s = now;
+        if now.since(self.last_drop_check) >= 1.0 {
+            self.last_drop_check = now;
             let dropped = gyrocal_fw::rtt::dropped_bytes();
             if dropped != self.dropped_reported {
                 console.say(Log::Warn, format_args!("RTT: {dropped} log bytes dropped since boot (no host was reading)"));
@@ -668,7 +667,7 @@ fn main() -> ! {
 
     loop {
         wd.pet();
-        let now = clock.now_s();
+        let now = clock.now();
 
         sensing.service(now, &mut clock, procedure, &mut io);
         let pressed = button.update(now, button_pin.is_low().unwrap_or(false));
@@ -681,7 +680,7 @@ fn main() -> ! {
         let paused = procedure.storing() && sensing.pause_fifo();
         procedure.drive(now, &mut io);
         if paused {
-            sensing.resume_fifo(clock.now_s(), &mut io);
+            sensing.resume_fifo(clock.now(), &mut io);
         }
         io.flush_servos(clock.now_us());
 

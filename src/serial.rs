@@ -100,12 +100,14 @@ impl<const N: usize> Default for Outbox<N> {
 /// The commands a terminal or `calib --port` sends, one byte each, and the help: the board↔PC
 /// protocol's, defined once in `calib_core::formats::protocol`.
 pub use calib_core::formats::protocol::{Command, HELP};
+use calib_core::math::real::Real;
+use calib_core::Time;
 
 /// Line coding rate (Bd) that asks for the bootloader (Arduino's "1200-baud touch").
 pub const TOUCH_BAUD: u32 = 1200;
 /// How long DTR must stay low at 1200 Bd before the reset (s): ArduinoCore-mbed waits 200 ms so
 /// that the host's control transfer completes first.
-pub const TOUCH_DELAY_S: f64 = 0.2;
+pub const TOUCH_DELAY_S: Real = 0.2;
 /// GPREGRET value that keeps the Arduino bootloader in its serial (bossac) mode after the reset
 /// (`DFU_MAGIC_SERIAL_ONLY_RESET`).
 pub const GPREGRET_SERIAL_BOOTLOADER: u32 = 0xB0;
@@ -114,17 +116,17 @@ pub const GPREGRET_SERIAL_BOOTLOADER: u32 = 0xB0;
 /// [`TOUCH_DELAY_S`].
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Touch {
-    since: Option<f64>,
+    since: Option<Time>,
 }
 
 impl Touch {
-    /// Feeds the line state at time `now_s` (s); true once the touch is complete.
-    pub fn update(&mut self, now_s: f64, baud: u32, dtr: bool) -> bool {
+    /// Feeds the line state at time `now`; true once the touch is complete.
+    pub fn update(&mut self, now: Time, baud: u32, dtr: bool) -> bool {
         if baud != TOUCH_BAUD || dtr {
             self.since = None;
             return false;
         }
-        let since = *self.since.get_or_insert(now_s);
-        now_s - since >= TOUCH_DELAY_S
+        let since = *self.since.get_or_insert(now);
+        now.since(since) >= TOUCH_DELAY_S
     }
 }

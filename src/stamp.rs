@@ -7,6 +7,8 @@
 //! constant that no integral sees). So samples get evenly spaced times at the measured period,
 //! never the nominal ODR, and not the batch-to-batch jitter of the read times.
 
+use calib_core::Time;
+
 /// Assigns MCU timestamps to FIFO samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stamper {
@@ -37,17 +39,17 @@ impl Stamper {
         self.line.map_or(self.nominal_period_s, |(_, p)| p)
     }
 
-    /// Registers a batch of `n` samples read at `t_read_s`; `stamp(i)` of the returned batch gives
+    /// Registers a batch of `n` samples read at `t_read`; `stamp(i)` of the returned batch gives
     /// the time of sample `i` (0 = oldest).
-    pub fn batch(&mut self, t_read_s: f64, n: usize) -> Batch {
-        self.add(t_read_s, n, true)
+    pub fn batch(&mut self, t_read: Time, n: usize) -> Batch {
+        self.add(t_read.s(), n, true)
     }
 
     /// [`Self::batch`] for a batch whose newest sample's time is not known to better than a
     /// period (a BMI270 read without a trusted sensortime date): its samples are counted, its
     /// time does not enter the line.
-    pub fn undated(&mut self, t_read_s: f64, n: usize) -> Batch {
-        self.add(t_read_s, n, false)
+    pub fn undated(&mut self, t_read: Time, n: usize) -> Batch {
+        self.add(t_read.s(), n, false)
     }
 
     fn add(&mut self, t_read_s: f64, n: usize, dated: bool) -> Batch {
@@ -119,16 +121,20 @@ pub struct Batch {
 }
 
 impl Batch {
-    /// Time (s) of sample `i` of the batch (0 = oldest).
-    pub fn stamp(&self, i: usize) -> f64 {
+    /// Time of sample `i` of the batch (0 = oldest), to the nearest µs.
+    pub fn stamp(&self, i: usize) -> Time {
+        Time::from_s(self.stamp_s(i)).unwrap_or(Time::ZERO)
+    }
+
+    fn stamp_s(&self, i: usize) -> f64 {
         self.origin_s + i as f64 * self.period_s
     }
 
-    /// Whether its newest (`n − 1`th) sample, read at `t_read_s`, is older than a read can see
+    /// Whether its newest (`n − 1`th) sample, read at `t_read`, is older than a read can see
     /// (at most a period and the read's latency): samples were lost uncounted, an overrun whose
     /// flag a later slot read cleared (e.g. past a long call inside the batch before). The
     /// stamper must then [`Stamper::restart`]: its count is wrong for good.
-    pub fn late(&self, t_read_s: f64, n: usize) -> bool {
-        n > 0 && t_read_s - self.stamp(n - 1) > LATE_PERIODS * self.period_s + LATE_S
+    pub fn late(&self, t_read: Time, n: usize) -> bool {
+        n > 0 && t_read.s() - self.stamp_s(n - 1) > LATE_PERIODS * self.period_s + LATE_S
     }
 }

@@ -25,6 +25,7 @@
 //!   enters the bootloader with [`enter_bootloader`].
 
 use crate::serial::{Command, Outbox, Touch, GPREGRET_SERIAL_BOOTLOADER};
+use calib_core::Time;
 use core::sync::atomic::{compiler_fence, Ordering};
 use nrf52840_hal::pac;
 use usb_device::bus::UsbBusAllocator;
@@ -47,9 +48,9 @@ pub const PACKET: usize = 64;
 pub const OUTBOX: usize = 4096;
 /// Longest wait for READY and OUTPUTRDY after ENABLE (s): nrfx waits for READY without a
 /// bound; the regulator needs ~1 ms (nRF5340 PS t_USBPWRRDY; the nRF52840 PS gives no figure).
-pub const START_TIMEOUT_S: f64 = 0.05;
+pub const START_TIMEOUT_S: f32 = 0.05;
 /// Wait before the next start after one timed out (s).
-pub const RETRY_S: f64 = 1.0;
+pub const RETRY_S: f32 = 1.0;
 /// Packets handed to the bulk IN endpoint per [`Usb::poll`] at most (the endpoint takes one at
 /// a time: the rest wait for the next poll).
 const PACKETS_PER_POLL: usize = 4;
@@ -160,13 +161,13 @@ mod errata {
 pub enum Link {
     /// Disabled.
     Off {
-        /// The next start not before this time (s).
-        next_try_s: f64,
+        /// The next start not before this time.
+        next_try: Time,
     },
     /// Waiting for READY and OUTPUTRDY.
     Enabling {
-        /// When ENABLE was written (s).
-        since_s: f64,
+        /// When ENABLE was written.
+        since: Time,
     },
     /// Enabled, pull-up connected.
     Up,
@@ -188,35 +189,35 @@ pub enum Step {
 impl Link {
     /// Disabled, to start at once.
     pub const fn new() -> Self {
-        Link::Off { next_try_s: 0.0 }
+        Link::Off { next_try: Time::ZERO }
     }
 
-    /// Advances at `now_s` (s): starts on VBUS, waits (bounded) for READY and OUTPUTRDY, stops
+    /// Advances at `now`: starts on VBUS, waits (bounded) for READY and OUTPUTRDY, stops
     /// without VBUS.
-    pub fn handle_tick(&mut self, now_s: f64, power: &pac::POWER) -> Step {
+    pub fn handle_tick(&mut self, now: Time, power: &pac::POWER) -> Step {
         let vbus = vbus(power);
         match *self {
-            Link::Off { next_try_s } if vbus && now_s >= next_try_s => {
+            Link::Off { next_try } if vbus && now >= next_try => {
                 errata::poke(errata::E187_211, 3);
                 errata::poke(errata::E171, 0xC0);
                 usbd().enable.write(|w| w.enable().enabled());
-                *self = Link::Enabling { since_s: now_s };
+                *self = Link::Enabling { since: now };
                 Step::Idle
             }
             Link::Enabling { .. } | Link::Up if !vbus => {
                 disable();
-                *self = Link::Off { next_try_s: now_s };
+                *self = Link::Off { next_try: now };
                 Step::Stopped
             }
-            Link::Enabling { since_s } => {
+            Link::Enabling { since } => {
                 let ready = usbd().eventcause.read().ready().is_ready();
                 let regulator = power.usbregstatus.read().outputrdy().bit_is_set();
                 if ready && regulator {
                     *self = Link::Up;
                     Step::Ready
-                } else if now_s - since_s > START_TIMEOUT_S {
+                } else if now.since(since) > START_TIMEOUT_S {
                     disable();
-                    *self = Link::Off { next_try_s: now_s + RETRY_S };
+                    *self = Link::Off { next_try: now.plus_s(RETRY_S) };
                     Step::Failed(Error { ready, regulator })
                 } else {
                     Step::Idle
@@ -326,11 +327,11 @@ impl Usb {
         }
     }
 
-    /// Serves the bus while the link is up (call every loop tick, at `now_s` s): control
+    /// Serves the bus while the link is up (call every loop tick, at `now`): control
     /// requests, received commands (each handed to `command`), queued lines out. True once the
     /// 1200-baud touch is complete (the caller enters the bootloader).
     #[inline(never)]
-    pub fn poll(&mut self, now_s: f64, mut command: impl FnMut(Command)) -> bool {
+    pub fn poll(&mut self, now: Time, mut command: impl FnMut(Command)) -> bool {
         errata::dma(true);
         self.dev.poll(&mut [&mut self.acm]);
         if self.dev.state() != UsbDeviceState::Configured {
@@ -355,7 +356,7 @@ impl Usb {
             }
         }
         errata::dma(false);
-        self.touch.update(now_s, self.acm.line_coding().data_rate(), self.acm.dtr())
+        self.touch.update(now, self.acm.line_coding().data_rate(), self.acm.dtr())
     }
 
     /// The link went down: nothing queued survives (counted as dropped).

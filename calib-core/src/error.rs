@@ -128,53 +128,53 @@ impl fmt::Display for Error {
             Error::TooFewRows { have, need } => write!(f, "least squares needs {need} rows, has {have}"),
             Error::Singular => f.write_str("normal matrix singular: the data do not determine every parameter"),
             Error::IllConditioned { condition, limit } => {
-                write!(f, "normal matrix ill-conditioned: condition {condition} > limit {limit}", condition = Fixed(condition as f64, 0), limit = Fixed(limit as f64, 0))
+                write!(f, "normal matrix ill-conditioned: condition {condition} > limit {limit}", condition = Fixed(condition, 0), limit = Fixed(limit, 0))
             }
             Error::NonFinite => f.write_str("non-finite value (NaN or infinity) in the input"),
             Error::TooFewPoses { have, need } => write!(f, "too few static poses: {have}, need {need}"),
             Error::CapacityExceeded { max } => write!(f, "capacity exceeded: at most {max} entries"),
             Error::AxisNearVertical { tilt_deg, limit_deg } => write!(
                 f,
-                "rotation axis {tilt_deg} deg from vertical, need at least {limit_deg} deg: tilt the servo", tilt_deg = Fixed(tilt_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
+                "rotation axis {tilt_deg} deg from vertical, need at least {limit_deg} deg: tilt the servo", tilt_deg = Fixed(tilt_deg, 1), limit_deg = Fixed(limit_deg, 1)),
             Error::AxisNearHorizontal { tilt_deg, limit_deg } => write!(
                 f,
-                "rotation axis {tilt_deg} deg from vertical, need at most {limit_deg} deg for the paper method", tilt_deg = Fixed(tilt_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
+                "rotation axis {tilt_deg} deg from vertical, need at most {limit_deg} deg for the paper method", tilt_deg = Fixed(tilt_deg, 1), limit_deg = Fixed(limit_deg, 1)),
             Error::WeakSensorAxis { axis, component, min } => write!(
                 f,
                 "sensor axis {} has rotation-axis component {component} < {min}: remount the board askew",
-                ["x", "y", "z"][axis as usize % 3], component = Fixed(component as f64, 3), min = Fixed(min as f64, 3)),
+                ["x", "y", "z"][axis as usize % 3], component = Fixed(component, 3), min = Fixed(min, 3)),
             Error::AngleSpanTooSmall { span_deg, min_deg } => {
-                write!(f, "poses span {span_deg} deg of shaft angle, need {min_deg} deg", span_deg = Fixed(span_deg as f64, 1), min_deg = Fixed(min_deg as f64, 1))
+                write!(f, "poses span {span_deg} deg of shaft angle, need {min_deg} deg", span_deg = Fixed(span_deg, 1), min_deg = Fixed(min_deg, 1))
             }
             Error::AxisNotFixed { plane_rms_g, limit_g } => write!(
                 f,
-                "pose accelerations off their plane by {plane_rms_g} g rms > {limit_g} g: the axis moved", plane_rms_g = Fixed(plane_rms_g as f64, 4), limit_g = Fixed(limit_g as f64, 4)),
+                "pose accelerations off their plane by {plane_rms_g} g rms > {limit_g} g: the axis moved", plane_rms_g = Fixed(plane_rms_g, 4), limit_g = Fixed(limit_g, 4)),
             Error::NoSpin { rate_dps, min_dps } => {
-                write!(f, "spin rate {rate_dps} deg/s below {min_dps} deg/s", rate_dps = Fixed(rate_dps as f64, 2), min_dps = Fixed(min_dps as f64, 2))
+                write!(f, "spin rate {rate_dps} deg/s below {min_dps} deg/s", rate_dps = Fixed(rate_dps, 2), min_dps = Fixed(min_dps, 2))
             }
             Error::ImplausibleScale { axis, value } => write!(
                 f,
                 "implausible scale factor {value} on axis {}{}",
                 ["x", "y", "z"][axis as usize % 3],
                 if value < 0.0 { ": negative: mirrored axes" } else { "" },
-                value = Fixed(value as f64, 4)
+                value = Fixed(value, 4)
             ),
             Error::NoUsableMove => f.write_str("no move between poses turned the shaft by a usable angle"),
             Error::TooFewSamples { have, need } => write!(f, "too few samples: {have}, need {need}"),
             Error::NotStill { gyro_std_dps, accel_std_g } => write!(
                 f,
-                "motion during a still period: gyro std {gyro_std_dps} deg/s, accel std {accel_std_g} g", gyro_std_dps = Fixed(gyro_std_dps as f64, 3), accel_std_g = Fixed(accel_std_g as f64, 4)),
+                "motion during a still period: gyro std {gyro_std_dps} deg/s, accel std {accel_std_g} g", gyro_std_dps = Fixed(gyro_std_dps, 3), accel_std_g = Fixed(accel_std_g, 4)),
             Error::BiasOutOfRange { axis, bias_dps, limit_dps } => write!(
                 f,
                 "gyro bias {bias_dps} deg/s on axis {} exceeds {limit_dps} deg/s",
-                ["x", "y", "z"][axis as usize % 3], bias_dps = Fixed(bias_dps as f64, 2), limit_dps = Fixed(limit_dps as f64, 1)),
+                ["x", "y", "z"][axis as usize % 3], bias_dps = Fixed(bias_dps, 2), limit_dps = Fixed(limit_dps, 1)),
             Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
-            Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s} s: sensor or I2C bus stopped", gap_s = Fixed(gap_s as f64, 2)),
-            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s} s", phase.name(), limit_s = Fixed(limit_s as f64, 0)),
+            Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s} s: sensor or I2C bus stopped", gap_s = Fixed(gap_s, 2)),
+            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s} s", phase.name(), limit_s = Fixed(limit_s, 0)),
             Error::ServoNotTurning { channel, commanded_deg, measured_deg } => write!(
                 f,
                 "{} servo commanded {commanded_deg} deg but the gyro saw {measured_deg} deg: servo unplugged or stalled",
-                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }, commanded_deg = Fixed(commanded_deg as f64, 1), measured_deg = Fixed(measured_deg as f64, 1)),
+                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }, commanded_deg = Fixed(commanded_deg, 1), measured_deg = Fixed(measured_deg, 1)),
             Error::PoseDisturbed { index, retries } => {
                 write!(f, "static pose {index} disturbed {retries} times: keep the rig still")
             }
@@ -182,23 +182,23 @@ impl fmt::Display for Error {
             Error::ResultRejected { axis, k, sigma } => write!(
                 f,
                 "result rejected: axis {} scale {k} (1 sigma {sigma}) outside the accepted range",
-                ["x", "y", "z"][axis as usize % 3], k = Fixed(k as f64, 4), sigma = Fixed(sigma as f64, 4)),
+                ["x", "y", "z"][axis as usize % 3], k = Fixed(k, 4), sigma = Fixed(sigma, 4)),
             Error::TooUncertain { axis, k, sigma, limit, noise_ratio } => {
                 let name = ["x", "y", "z"][axis as usize % 3];
                 write!(
                     f,
                     "result rejected: axis {name} scale {k} is known only to 1 sigma {sigma} (limit {limit}): ",
-                    k = Fixed(k as f64, 4),
-                    sigma = Fixed(sigma as f64, 4),
-                    limit = Fixed(limit as f64, 4)
+                    k = Fixed(k, 4),
+                    sigma = Fixed(sigma, 4),
+                    limit = Fixed(limit, 4)
                 )?;
                 if noise_ratio > DISAGREE_RATIO {
-                    write!(f, "the moves disagree by {} times their noise", Fixed(noise_ratio as f64, 1))
+                    write!(f, "the moves disagree by {} times their noise", Fixed(noise_ratio, 1))
                 } else if noise_ratio >= 0.0 {
                     write!(
                         f,
                         "the moves agree within their noise ({} times it) but turn too little about {name}: make more moves about axes near {name}",
-                        Fixed(noise_ratio as f64, 1)
+                        Fixed(noise_ratio, 1)
                     )
                 } else {
                     f.write_str("make more moves, about varied axes")
@@ -212,22 +212,22 @@ impl fmt::Display for Error {
             Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => write!(
                 f,
                 "magnetometer: the field at pose {pose} is {field} uT at dip {dip} deg, the others' {expected} uT at {expected_dip} deg: a magnet, a laptop or the servo near the board; calibrate it away from them",
-                field = Fixed(field_ut as f64, 1),
-                dip = Fixed(dip_deg as f64, 1),
-                expected = Fixed(expected_ut as f64, 1),
-                expected_dip = Fixed(expected_dip_deg as f64, 1)
+                field = Fixed(field_ut, 1),
+                dip = Fixed(dip_deg, 1),
+                expected = Fixed(expected_ut, 1),
+                expected_dip = Fixed(expected_dip_deg, 1)
             ),
             Error::MagFitPoor { residual_ut, limit_ut } => write!(
                 f,
                 "magnetometer: the calibrated field's strength scatters by {} uT RMS (limit {}): the field changed during the step (a magnet or metal moving near it)",
-                Fixed(residual_ut as f64, 2),
-                Fixed(limit_ut as f64, 2)
+                Fixed(residual_ut, 2),
+                Fixed(limit_ut, 2)
             ),
             Error::MagCoverageThin { coverage, need } => write!(
                 f,
                 "magnetometer: the samples reach {} % of the sphere's directions (need {} %): turn the board through more orientations",
-                Fixed(coverage as f64 * 100.0, 0),
-                Fixed(need as f64 * 100.0, 0)
+                Fixed(coverage * 100.0, 0),
+                Fixed(need * 100.0, 0)
             ),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
@@ -243,31 +243,31 @@ impl fmt::Display for Error {
             ),
             Error::AxesCoplanar { angle_deg, limit_deg } => write!(
                 f,
-                "rotation axes nearly coplanar: best axis {angle_deg} deg from the plane of two others, need {limit_deg} deg: add tilt moves (the hinge axis) or spread the tilt settings", angle_deg = Fixed(angle_deg as f64, 1), limit_deg = Fixed(limit_deg as f64, 1)),
+                "rotation axes nearly coplanar: best axis {angle_deg} deg from the plane of two others, need {limit_deg} deg: add tilt moves (the hinge axis) or spread the tilt settings", angle_deg = Fixed(angle_deg, 1), limit_deg = Fixed(limit_deg, 1)),
             Error::AxisUndetermined { axis, sigma_deg, limit_deg } => write!(
                 f,
-                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg} deg > {limit_deg} deg): give it at least 3 poses at distinct angles", sigma_deg = Fixed(sigma_deg as f64, 2), limit_deg = Fixed(limit_deg as f64, 2)),
+                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg} deg > {limit_deg} deg): give it at least 3 poses at distinct angles", sigma_deg = Fixed(sigma_deg, 2), limit_deg = Fixed(limit_deg, 2)),
             Error::FullKUnobservable { condition, limit } => write!(
                 f,
-                "full K unobservable: normal-matrix condition {condition} > {limit} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical", condition = Fixed(condition as f64, 0), limit = Fixed(limit as f64, 0)),
+                "full K unobservable: normal-matrix condition {condition} > {limit} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical", condition = Fixed(condition, 0), limit = Fixed(limit, 0)),
             Error::RotationAxesCoplanar { spread, limit } => write!(
                 f,
-                "the moves between poses turn about too few directions (axis spread {spread} < {limit}): turn the board about varied axes, not only about one", spread = Fixed(spread as f64, 3), limit = Fixed(limit as f64, 3)),
+                "the moves between poses turn about too few directions (axis spread {spread} < {limit}): turn the board about varied axes, not only about one", spread = Fixed(spread, 3), limit = Fixed(limit, 3)),
             Error::AxesMirrored { right_hand, left_hand } => write!(
                 f,
                 "gyro axes mirrored: {left_hand} moves left-handed, {right_hand} right-handed: wrong axis map, not a slip"),
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,
-                "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg as f64, 3), limit_deg = Fixed(limit_deg as f64, 3)),
+                "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg, 3), limit_deg = Fixed(limit_deg, 3)),
             Error::BiasDrifting { off_trend_dps, limit_dps, dps_per_min } => write!(
                 f,
-                "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps as f64, 3), limit_dps = Fixed(limit_dps as f64, 3), dps_per_min = Fixed(dps_per_min as f64, 3)),
+                "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps, 3), limit_dps = Fixed(limit_dps, 3), dps_per_min = Fixed(dps_per_min, 3)),
             Error::MovesDropped { dropped, total, reason, value, limit } => {
                 use crate::estimators::rotation::Rejected;
                 let (value, limit) = if reason == Rejected::Gap {
-                    (Fixed(value as f64, 3), Fixed(limit as f64, 3))
+                    (Fixed(value, 3), Fixed(limit, 3))
                 } else {
-                    (Fixed(value as f64, 1), Fixed(limit as f64, 1))
+                    (Fixed(value, 1), Fixed(limit, 1))
                 };
                 write!(f, "{dropped} of {total} moves between poses were dropped: ")?;
                 match reason {

@@ -62,8 +62,10 @@ pub mod estimators;
 pub mod formats;
 pub mod math;
 pub mod procedure;
+pub mod time;
 
 pub use error::{Error, DISAGREE_RATIO};
+pub use time::Time;
 
 /// A 3-vector in the sensor frame (unit stated where used).
 pub type Vec3 = [f32; 3];

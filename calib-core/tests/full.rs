@@ -9,7 +9,7 @@
 use calib_core::estimators::full::{Axes, FullCal, FullLimits, MAX_AXES};
 use calib_core::estimators::sweep::Integrator;
 use calib_core::math::vec3;
-use calib_core::Error;
+use calib_core::{Error, Time};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 type V3 = Vector3<f64>;
@@ -324,7 +324,7 @@ fn f32_inputs_with_f64_accumulators_match_an_f64_reference() {
         for (t, v) in samples(m.gamma_exact, bias, t0) {
             let raw = [v[0] as f32, v[1] as f32, v[2] as f32];
             let w = vec3::sub(raw, bias32);
-            integ.add(t, w);
+            integ.add(Time::from_s(t).unwrap(), w);
             let t32 = t as f32;
             if let Some((tl, wl)) = last {
                 for k in 0..3 {

@@ -12,7 +12,7 @@ use calib_core::estimators::rotation::{
     PoseRest, Rejected, RotationLimits, Rotations, RowSum, EARTH_RATE_RAD_S, MAX_ROTATION_MOVES, MAX_ROTATION_POSES,
 };
 use calib_core::math::lsq::NormalEquations;
-use calib_core::Error;
+use calib_core::{Error, Time};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 type V3 = Vector3<f64>;
@@ -73,7 +73,7 @@ fn record_drifting<const M: usize, const C: usize, const P: usize>(
         // A predicted pose (a hand's shaky one) gets the bias of t = 0 until it is settled; its
         // temperature is the bias's curve's (°C = °/s here: a tempco of 1 °/s/°C).
         let b = if predicted { bias(0.0) as f32 } else { bias(t) as f32 };
-        let rest = RestBias::new(t, t, [off + b, b, b], [0.0; 3]);
+        let rest = RestBias::new(Time::from_s(t).unwrap(), Time::from_s(t).unwrap(), [off + b, b, b], [0.0; 3]);
         let warm_c = if predicted { bias(t) as f32 } else { f32::NAN };
         r.push_pose([a[0] as f32, a[1] as f32, a[2] as f32], 1e-5, PoseRest { bias: rest, predicted, warm_c, ..PoseRest::default() })
             .unwrap()
@@ -91,7 +91,7 @@ fn record_drifting<const M: usize, const C: usize, const P: usize>(
             let (x0, x) = ((s.max(1) - 1).min(n) as f64 / n as f64, s.min(n) as f64 / n as f64);
             let omega = (att(x0).inverse() * att(x)).scaled_axis() * hz;
             let g = kinv * omega.map(f64::to_degrees) + V3::repeat(bias(t));
-            r.add(t, [g[0] as f32, g[1] as f32, g[2] as f32], false);
+            r.add(Time::from_s(t).unwrap(), [g[0] as f32, g[1] as f32, g[2] as f32], false);
             t += 1.0 / hz;
         }
         let next = pose(r, &qb, i + 1, t - 1.0 / hz);
@@ -226,8 +226,8 @@ fn brisk_moves_are_integrated_and_only_steps_beyond_the_limit_are_rejected() {
     r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias::default()).unwrap();
     r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
     r.begin(0);
-    r.add(0.0, [90.0, 0.0, 0.0], false);
-    r.add(0.01, [90.0, 0.0, 0.0], true);
+    r.add(Time::from_s(0.0).unwrap(), [90.0, 0.0, 0.0], false);
+    r.add(Time::from_s(0.01).unwrap(), [90.0, 0.0, 0.0], true);
     assert_eq!(r.end(1, &RotationLimits::DEFAULT), Err(Rejected::Saturated));
 }
 
@@ -250,15 +250,15 @@ fn predicted_pose_biases_settled_between_two_rests_give_the_drifting_bias_back()
     assert!(record_drifting(&mut r, &attitudes(false, 10), 238.0, 1.0, None, &|t| drift * t, true).iter().all(|m| m.is_ok()));
     let stale = largest_error(&r);
     let (before, after) = (
-        RestBias { t_s: -1.0, residual_dps: [-0.02; 3] },
-        RestBias { t_s: NINE_MOVES_END_S + 1.0, residual_dps: [(drift * (NINE_MOVES_END_S + 1.0)) as f32; 3] },
+        RestBias { t: Time::from_s(-1.0).unwrap(), residual_dps: [-0.02; 3] },
+        RestBias { t: Time::from_s(NINE_MOVES_END_S + 1.0).unwrap(), residual_dps: [(drift * (NINE_MOVES_END_S + 1.0)) as f32; 3] },
     );
     r.settle_bias(&before, &after, None, [f32::NAN; 2]);
     let settled = largest_error(&r);
     println!("MEASURED stale predictions E {stale:.2e}, settled {settled:.2e}");
     assert!(stale > 1e-3 && settled < 2e-5, "stale {stale:.2e}, settled {settled:.2e}");
     // Settled once: a second pair of rests changes nothing.
-    r.settle_bias(&RestBias { t_s: -1.0, residual_dps: [5.0; 3] }, &after, None, [f32::NAN; 2]);
+    r.settle_bias(&RestBias { t: Time::from_s(-1.0).unwrap(), residual_dps: [5.0; 3] }, &after, None, [f32::NAN; 2]);
     assert_eq!(largest_error(&r), settled);
 }
 
@@ -270,7 +270,7 @@ fn settled_biases_follow_a_warm_up_by_the_temperature() {
     let curve = |t: f64| 0.3 * (1.0 - (-t / 5.0).exp());
     let mut r = <Rotations>::new();
     assert!(record_drifting(&mut r, &attitudes(false, 10), 238.0, 1.0, None, &curve, true).iter().all(|m| m.is_ok()));
-    let rest = |t: f64| RestBias { t_s: t, residual_dps: [curve(t) as f32; 3] };
+    let rest = |t: f64| RestBias { t: Time::from_s(t).unwrap(), residual_dps: [curve(t) as f32; 3] };
     let temps = [curve(-1.0) as f32, curve(NINE_MOVES_END_S + 1.0) as f32];
     r.settle_bias(&rest(-1.0), &rest(NINE_MOVES_END_S + 1.0), None, temps);
     let on_line = largest_error(&r);
@@ -306,7 +306,7 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
         let mut t = 0.0;
         let push = |r: &mut Rotations, q: &UnitQuaternion<f64>, t: f64| {
             let a = q.inverse() * V3::z();
-            let rest = RestBias::new(t, t, f32s(first), [0.0; 3]);
+            let rest = RestBias::new(Time::from_s(t).unwrap(), Time::from_s(t).unwrap(), f32s(first), [0.0; 3]);
             let i = r.push_pose(f32s(a), 1e-5, PoseRest { bias: rest, predicted: true, ..PoseRest::default() }).unwrap();
             if attitudes {
                 r.push_attitude(i, frame(q));
@@ -323,7 +323,7 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
                 let (x0, x) = ((s.max(1) - 1).min(n) as f64 / n as f64, s.min(n) as f64 / n as f64);
                 let omega = (att(x0).inverse() * att(x)).scaled_axis() * hz;
                 let g = kinv * (omega.map(f64::to_degrees) + in_body(&att(x)));
-                r.add(t, f32s(g), false);
+                r.add(Time::from_s(t).unwrap(), f32s(g), false);
                 t += 1.0 / hz;
             }
             let next = push(&mut r, &qb, t - 1.0 / hz);
@@ -331,8 +331,10 @@ fn the_earths_rate_a_shaky_pose_cannot_measure_is_estimated_with_k() {
             prev = next;
         }
         let last = atts.last().unwrap();
-        let (before, after) =
-            (RestBias::new(-1.0, -1.0, f32s(first), [0.0; 3]), RestBias::new(t + 1.0, t + 1.0, f32s(in_body(last)), [0.0; 3]));
+        let (before, after) = (
+            RestBias::new(Time::from_s(-1.0).unwrap(), Time::from_s(-1.0).unwrap(), f32s(first), [0.0; 3]),
+            RestBias::new(Time::from_s(t + 1.0).unwrap(), Time::from_s(t + 1.0).unwrap(), f32s(in_body(last)), [0.0; 3]),
+        );
         r.settle_bias(&before, &after, attitudes.then(|| frame(last)), [f32::NAN; 2]);
         let cal = Axes::new().solve_with(&FullLimits::DEFAULT, Some((&r, &limits))).expect("the full K");
         let k = Matrix3::from_fn(|i, j| cal.k[i][j] as f64);

@@ -16,6 +16,7 @@ use calib_core::formats::record::{Record, SensorSetup};
 use calib_core::formats::region::{self, ADDRESS, PAGE, SLOTS};
 use calib_core::math::stats::Moments3;
 use calib_core::math::vec3::to_real;
+use calib_core::Time;
 use gyrocal_fw::board::{self, quiesce, start_hfxo, Clock, Wait};
 use gyrocal_fw::lsm9ds1::{Lsm9ds1, SensorConfig, FIFO_DEPTH};
 use gyrocal_fw::lsm9ds1_mag::{self, LsmMag};
@@ -100,7 +101,7 @@ fn main() -> ! {
     };
     let setup: SensorSetup = config.setup();
     let mut stamper = Stamper::new(setup.odr_hz);
-    let (mut rate, mut turned_deg, mut last_t) = (Moments3::new(), [0.0f64; 3], None::<f64>);
+    let (mut rate, mut turned_deg, mut last_t) = (Moments3::new(), [0.0f64; 3], None::<Time>);
     // The heading needs the record's magnetometer calibration and the part.
     let mag_cal = rec.and_then(|r| r.mag);
     let t_us = clock.now_us();
@@ -139,7 +140,7 @@ fn main() -> ! {
             }
         }
         let n = status.level.min(FIFO_DEPTH) as usize;
-        let batch = stamper.batch(clock.now_s(), n);
+        let batch = stamper.batch(clock.now(), n);
         for i in 0..n {
             let Ok(slot) = sensor.read_slot() else {
                 // The samples left in the FIFO would be stamped as the next batch's: start over.
@@ -156,7 +157,7 @@ fn main() -> ! {
             let t = batch.stamp(i);
             if let Some(t0) = last_t {
                 for k in 0..3 {
-                    turned_deg[k] += w[k] as f64 * (t - t0);
+                    turned_deg[k] += w[k] as f64 * t.since(t0) as f64;
                 }
             }
             last_t = Some(t);

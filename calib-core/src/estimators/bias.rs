@@ -9,7 +9,7 @@
 
 use crate::math::real::{self, Real};
 use crate::math::stats::Moments3;
-use crate::{Error, Vec3};
+use crate::{Error, Time, Vec3};
 
 /// Limits applied to a bias estimate.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,63 +52,61 @@ pub struct Bias {
 }
 
 /// A rest's gyro mean relative to the bias the integrals subtract (°/s, sensor frame) and the
-/// mean time of its samples (s, MCU clock).
+/// mean time of its samples (MCU clock).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RestBias {
-    /// Mean time of the rest's samples (s).
-    pub t_s: f64,
+    /// Mean time of the rest's samples.
+    #[cfg_attr(feature = "serde", serde(rename = "t_s"))]
+    pub t: Time,
     /// Its mean gyro reading minus the reference bias (°/s).
     pub residual_dps: Vec3,
 }
 
 impl RestBias {
-    /// A rest from its first and last sample times (s), its mean gyro reading (°/s) and the
+    /// A rest from its first and last sample times, its mean gyro reading (°/s) and the
     /// reference bias the integrals subtract (°/s).
-    pub fn new(t_first_s: f64, t_last_s: f64, gyro_mean_dps: Vec3, reference_dps: Vec3) -> Self {
+    pub fn new(t_first: Time, t_last: Time, gyro_mean_dps: Vec3, reference_dps: Vec3) -> Self {
         let residual_dps = core::array::from_fn(|k| gyro_mean_dps[k] - reference_dps[k]);
-        Self {
-            t_s: 0.5 * (t_first_s + t_last_s),
-            residual_dps: if residual_dps.iter().all(|v| v.is_finite()) { residual_dps } else { [0.0; 3] },
-        }
+        Self { t: t_first.midpoint(t_last), residual_dps: if residual_dps.iter().all(|v| v.is_finite()) { residual_dps } else { [0.0; 3] } }
     }
 
-    /// `∫ b(t) dt` over `[t0_s, t1_s]` (°), `b` the residual bias on the line through `self` and
-    /// `to` (constant when both rests are at one time): what a move's integral over that span
-    /// must lose.
-    pub fn integral_deg(&self, to: &RestBias, t0_s: f64, t1_s: f64) -> [Real; 3] {
-        let span = to.t_s - self.t_s;
-        let f = if span > 0.0 { (0.5 * (t0_s + t1_s) - self.t_s) / span } else { 0.5 };
+    /// `∫ b(t) dt` over `[t0, t1]` (°), `b` the residual bias on the line through `self` and `to`
+    /// (constant when both rests are at one time): what a move's integral over that span must
+    /// lose.
+    pub fn integral_deg(&self, to: &RestBias, t0: Time, t1: Time) -> [Real; 3] {
+        let span = to.t.since(self.t);
+        let f = if span > 0.0 { 0.5 * (t0.since(self.t) + t1.since(self.t)) / span } else { 0.5 };
         core::array::from_fn(|k| {
             let (a, b) = (self.residual_dps[k] as Real, to.residual_dps[k] as Real);
-            (t1_s - t0_s) as Real * (a + (b - a) * f as Real)
+            t1.since(t0) * (a + (b - a) * f)
         })
     }
 
-    /// The bias at time `t_s` on the line from `self` to `to` (`self`'s when both are at one
+    /// The bias at time `t` on the line from `self` to `to` (`self`'s when both are at one
     /// time).
-    pub fn between(&self, to: &RestBias, t_s: f64) -> RestBias {
-        let span = to.t_s - self.t_s;
-        let f = if span > 0.0 { ((t_s - self.t_s) / span) as f32 } else { 0.0 };
-        RestBias { t_s, residual_dps: core::array::from_fn(|k| self.residual_dps[k] + (to.residual_dps[k] - self.residual_dps[k]) * f) }
+    pub fn between(&self, to: &RestBias, t: Time) -> RestBias {
+        let span = to.t.since(self.t);
+        let f = if span > 0.0 { (t.since(self.t) / span) as f32 } else { 0.0 };
+        RestBias { t, residual_dps: core::array::from_fn(|k| self.residual_dps[k] + (to.residual_dps[k] - self.residual_dps[k]) * f) }
     }
 
     /// The bias's largest rate of change from `self` to a later rest `to` (°/s per minute, ≥ 0;
     /// 0 for rests at one time).
     pub fn drift_dps_per_min(&self, to: &RestBias) -> f32 {
-        let span = to.t_s - self.t_s;
+        let span = to.t.since(self.t);
         if !(span > 0.0) {
             return 0.0;
         }
         let change = (0..3).map(|k| (to.residual_dps[k] - self.residual_dps[k]).abs()).fold(0.0f32, f32::max);
-        (change as Real * 60.0 / span as Real) as f32
+        (change as Real * 60.0 / span) as f32
     }
 }
 
 /// Longest gap (s) between consecutive rests for [`Drift::off_trend_dps`]: over a longer gap
 /// (the board re-attached) even a smooth warm-up curves away from a line.
-pub const MAX_TREND_GAP_S: f64 = 10.0;
+pub const MAX_TREND_GAP_S: Real = 10.0;
 
 /// The rests of a calibration in time order: the bias's drift over it, and how far a rest's
 /// bias left the line through its two neighbours (what tracking cannot follow: a smooth drift
@@ -129,20 +127,20 @@ pub const HAND_STILL_NOISE: f32 = 1.2;
 
 /// Memory of [`Drift::at`]'s line (s): older rests fade by `e^(−Δt/τ)`, so a warm-up's curve
 /// (τ ≥ 1 min) is followed and rest noise is still averaged over several rests.
-pub const TREND_MEMORY_S: f64 = 30.0;
+pub const TREND_MEMORY_S: Real = 30.0;
 
 /// Memory of [`Drift::predict`]'s line (s). A fading line lags a curve by `b'' τ²` where it
 /// ends: 0.013 °/s for τ = 30 s at the end of a 0.2 °/s warm-up of 60 s, 2e-3 for 12 s, while
 /// its noise at the end grows only as `√(2/Σw)` of a rest's.
-pub const PREDICT_MEMORY_S: f64 = 12.0;
+pub const PREDICT_MEMORY_S: Real = 12.0;
 
 /// A line through the rests' biases, least squares with fading weights (sums of `w`, `w t`,
 /// `w t²`, `w b`, `w t b`, `w b²` and, for its noise, `w²`, `w² t`, `w² t²`; `t` from the first
 /// rest).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Line {
-    t0: f64,
-    t_last: f64,
+    t0: Time,
+    t_last: Time,
     s: [Real; 3],
     b: [Real; 3],
     tb: [Real; 3],
@@ -151,14 +149,14 @@ struct Line {
 }
 
 impl Line {
-    const EMPTY: Line = Line { t0: 0.0, t_last: 0.0, s: [0.0; 3], b: [0.0; 3], tb: [0.0; 3], bb: [0.0; 3], w2: [0.0; 3] };
+    const EMPTY: Line = Line { t0: Time::ZERO, t_last: Time::ZERO, s: [0.0; 3], b: [0.0; 3], tb: [0.0; 3], bb: [0.0; 3], w2: [0.0; 3] };
 
     /// A rest, older ones faded by `e^(−Δt/memory_s)`; the first sets `t0`.
-    fn add(&mut self, rest: &RestBias, first: bool, memory_s: f64) {
+    fn add(&mut self, rest: &RestBias, first: bool, memory_s: Real) {
         if first {
-            self.t0 = rest.t_s;
+            self.t0 = rest.t;
         } else {
-            let fade = real::exp((-(rest.t_s - self.t_last).max(0.0) / memory_s) as Real);
+            let fade = real::exp(-rest.t.since(self.t_last).max(0.0) / memory_s);
             for v in self.s.iter_mut().chain(self.b.iter_mut()).chain(self.tb.iter_mut()).chain(self.bb.iter_mut()) {
                 *v *= fade;
             }
@@ -166,8 +164,8 @@ impl Line {
                 *v *= fade * fade;
             }
         }
-        let t = (rest.t_s - self.t0) as Real;
-        self.t_last = rest.t_s;
+        let t = rest.t.since(self.t0);
+        self.t_last = rest.t;
         self.s = [self.s[0] + 1.0, self.s[1] + t, self.s[2] + t * t];
         self.w2 = [self.w2[0] + 1.0, self.w2[1] + t, self.w2[2] + t * t];
         for k in 0..3 {
@@ -195,25 +193,25 @@ impl Line {
         }
     }
 
-    /// `Σ wᵢ² cᵢ²` for the prediction `Σ wᵢ cᵢ bᵢ` at `t_s` (its variance over a rest's), and the
+    /// `Σ wᵢ² cᵢ²` for the prediction `Σ wᵢ cᵢ bᵢ` at `t` (its variance over a rest's), and the
     /// effective number of rests `(Σw)² / Σw²`.
-    fn lever(&self, t_s: f64) -> (Real, Real) {
+    fn lever(&self, t: Time) -> (Real, Real) {
         let (tm, sxx) = self.spread();
         let (s0, w) = (self.s[0], &self.w2);
         let mut l = w[0] / (s0 * s0);
         if let Some(sxx) = sxx {
-            let d = (t_s - self.t0) as Real - tm;
+            let d = t.since(self.t0) - tm;
             l += 2.0 * d / (s0 * sxx) * (w[1] - tm * w[0]) + d * d / (sxx * sxx) * (w[2] - 2.0 * tm * w[1] + tm * tm * w[0]);
         }
         (l.max(0.0), s0 * s0 / w[0])
     }
 
-    /// The line's bias at `t_s`.
-    fn at(&self, t_s: f64) -> Vec3 {
+    /// The line's bias at `t`.
+    fn at(&self, t: Time) -> Vec3 {
         let tm = self.spread().0;
         core::array::from_fn(|k| {
             let (mean, slope) = self.fit(k);
-            (mean + slope * ((t_s - self.t0) as Real - tm)) as f32
+            (mean + slope * (t.since(self.t0) - tm)) as f32
         })
     }
 }
@@ -231,8 +229,8 @@ impl Drift {
         self.recent.add(&rest, first, PREDICT_MEMORY_S);
         self.first.get_or_insert(rest);
         if let (Some(a), Some(m)) = (self.before, self.last) {
-            if m.t_s - a.t_s <= MAX_TREND_GAP_S && rest.t_s - m.t_s <= MAX_TREND_GAP_S && rest.t_s > a.t_s {
-                let f = (m.t_s - a.t_s) as f32 / (rest.t_s - a.t_s) as f32;
+            if m.t.since(a.t) <= MAX_TREND_GAP_S && rest.t.since(m.t) <= MAX_TREND_GAP_S && rest.t > a.t {
+                let f = m.t.since(a.t) as f32 / rest.t.since(a.t) as f32;
                 for k in 0..3 {
                     let line = a.residual_dps[k] + (rest.residual_dps[k] - a.residual_dps[k]) * f;
                     self.off_trend_dps = self.off_trend_dps.max((m.residual_dps[k] - line).abs());
@@ -256,7 +254,7 @@ impl Drift {
     /// rest (`Rotations::settle_bias`): a hand's sway turns the board by tenths of a degree
     /// within a pose, so its gyro mean is not the bias.
     pub fn shaky(&self, measured: RestBias, gyro_std_dps: f32, noise_dps: f32) -> Option<RestBias> {
-        (gyro_std_dps > HAND_STILL_NOISE * noise_dps).then(|| self.at(measured.t_s).unwrap_or(measured))
+        (gyro_std_dps > HAND_STILL_NOISE * noise_dps).then(|| self.at(measured.t).unwrap_or(measured))
     }
 
     /// The latest rest.
@@ -264,27 +262,27 @@ impl Drift {
         self.last
     }
 
-    /// The bias at MCU time `t_s` as the rests so far give it (their line, recent rests weighted
+    /// The bias at MCU time `t` as the rests so far give it (their line, recent rests weighted
     /// most: [`TREND_MEMORY_S`]; one rest or rests at one time: their mean): what a pose too
     /// shaky to measure it (a hand's sway) uses. `None` before the first rest.
-    pub fn at(&self, t_s: f64) -> Option<RestBias> {
+    pub fn at(&self, t: Time) -> Option<RestBias> {
         self.last?;
-        Some(RestBias { t_s, residual_dps: self.line.at(t_s) })
+        Some(RestBias { t, residual_dps: self.line.at(t) })
     }
 
-    /// The bias at `t_s` on the line of the latest rests ([`PREDICT_MEMORY_S`]: the bias a
+    /// The bias at `t` on the line of the latest rests ([`PREDICT_MEMORY_S`]: the bias a
     /// calibration hands over) with its 1σ per axis (°/s): the line's prediction error `s² Σ wᵢ²
     /// cᵢ²` (the prediction is `Σ wᵢ cᵢ bᵢ`), `s²` a rest's variance ([`RestNoise`]: its own
     /// noise, or the rests' scatter about the line where that exceeds it), a bias walk of
-    /// [`BIAS_WALK_DPS_RTSEC`] from the latest rest to `t_s`, and the Earth's rate every rest
+    /// [`BIAS_WALK_DPS_RTSEC`] from the latest rest to `t`, and the Earth's rate every rest
     /// measures as bias in its own pose ([`EARTH_RATE_AXIS_DPS`]).
-    pub fn predict(&self, t_s: f64, noise: RestNoise) -> Option<(RestBias, Vec3)> {
+    pub fn predict(&self, t: Time, noise: RestNoise) -> Option<(RestBias, Vec3)> {
         self.last?;
         let l = &self.recent;
         let params = if l.spread().1.is_some() { 2.0 } else { 1.0 };
-        let (lever, n_eff) = l.lever(t_s);
+        let (lever, n_eff) = l.lever(t);
         let dof = n_eff - params;
-        let walk = BIAS_WALK_DPS_RTSEC as Real * BIAS_WALK_DPS_RTSEC as Real * (t_s - l.t_last).abs() as Real;
+        let walk = BIAS_WALK_DPS_RTSEC as Real * BIAS_WALK_DPS_RTSEC as Real * t.since(l.t_last).abs();
         let sigma = core::array::from_fn(|k| {
             let (mean, slope) = l.fit(k);
             // Σw (b − mean − slope (t − t̄))².
@@ -309,7 +307,7 @@ impl Drift {
             };
             real::sqrt(s2 * lever + walk + EARTH_RATE_AXIS_DPS * EARTH_RATE_AXIS_DPS) as f32
         });
-        Some((RestBias { t_s, residual_dps: l.at(t_s) }, sigma))
+        Some((RestBias { t, residual_dps: l.at(t) }, sigma))
     }
 
     /// The bias's largest rate of change from the first rest to the latest (°/s per minute).
@@ -393,8 +391,8 @@ pub struct TempFit {
     t_range: [f32; 2],
     /// The first rest's temperature (°C): the reference of the walk's sums.
     first_c: Real,
-    /// The latest rest: time (s), temperature (°C from the first rest's) and bias (°/s).
-    last: (f64, Real, [Real; 3]),
+    /// The latest rest: time, temperature (°C from the first rest's) and bias (°/s).
+    last: (Time, Real, [Real; 3]),
     /// `Σ Δt`, `Σ Δt k`, `Σ Δt k²`, `Σ Δt k P`, `Σ Δt P²` (temperatures from the first rest's).
     walk: [Real; 5],
     /// `Σ` of the temperatures so far, from the first rest's (°C).
@@ -417,7 +415,7 @@ impl TempFit {
             sbb: [0.0; 3],
             t_range: [0.0; 2],
             first_c: 0.0,
-            last: (0.0, 0.0, [0.0; 3]),
+            last: (Time::ZERO, 0.0, [0.0; 3]),
             walk: [0.0; 5],
             prefix_c: 0.0,
             dbb: [0.0; 3],
@@ -439,7 +437,7 @@ impl TempFit {
         let rel = temp_c as Real - self.first_c;
         if self.n > 0 {
             let (t_last, rel_last, b_last) = self.last;
-            let (dt, k, p) = ((rest.t_s - t_last).max(0.0) as Real, self.n as Real, self.prefix_c);
+            let (dt, k, p) = (rest.t.since(t_last).max(0.0), self.n as Real, self.prefix_c);
             for (s, v) in self.walk.iter_mut().zip([1.0, k, k * k, k * p, p * p]) {
                 *s += dt * v;
             }
@@ -451,7 +449,7 @@ impl TempFit {
                 self.dbt[k] += d_b * d_t;
             }
         }
-        self.last = (rest.t_s, rel, b);
+        self.last = (rest.t, rel, b);
         self.prefix_c += rel;
         self.t_range = [self.t_range[0].min(temp_c), self.t_range[1].max(temp_c)];
         // From the first rest's temperature: `Σ t² − (Σ t)²/n` of temperatures near 24 °C over
@@ -596,24 +594,25 @@ impl BiasEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::time::secs;
 
     #[test]
     fn a_shaky_pose_takes_the_bias_from_the_rests_line_and_a_still_one_measures_it() {
         let mut d = Drift::new();
-        let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, -b, 0.0] };
-        assert_eq!(d.at(5.0), None);
+        let rest = |t: f64, b: f32| RestBias { t: secs(t), residual_dps: [b, -b, 0.0] };
+        assert_eq!(d.at(secs(5.0)), None);
         // Rests on the line 0.01 t (°/s): the line is followed, recent rests weighted most.
         for t in [0.0, 4.0, 8.0, 12.0] {
             d.add(rest(t, 0.01 * t as f32));
         }
-        let p = d.at(20.0).unwrap();
+        let p = d.at(secs(20.0)).unwrap();
         assert!((p.residual_dps[0] - 0.2).abs() < 1e-5 && (p.residual_dps[1] + 0.2).abs() < 1e-5, "{p:?}");
         // Shaky (gyro scatter 0.5 °/s against a rest noise of 0.2): the prediction; still: none.
         let measured = rest(20.0, 0.9);
         assert_eq!(d.shaky(measured, 0.5, 0.2), Some(p));
         assert_eq!(d.shaky(measured, 0.2, 0.2), None);
         // Settled later between two rests: the line between them.
-        let between = rest(12.0, 0.12).between(&rest(32.0, 0.52), 20.0);
+        let between = rest(12.0, 0.12).between(&rest(32.0, 0.52), secs(20.0));
         assert!((between.residual_dps[0] - 0.28).abs() < 1e-6);
     }
 
@@ -635,23 +634,25 @@ mod tests {
 
     #[test]
     fn a_move_loses_the_integral_of_the_bias_line_between_its_rests() {
-        let (a, b) =
-            (RestBias::new(9.0, 11.0, [1.1, 2.0, 0.0], [1.0, 2.0, 0.0]), RestBias::new(19.0, 21.0, [1.3, 1.9, 0.0], [1.0, 2.0, 0.0]));
-        assert_eq!((a.t_s, b.t_s), (10.0, 20.0));
+        let (a, b) = (
+            RestBias::new(secs(9.0), secs(11.0), [1.1, 2.0, 0.0], [1.0, 2.0, 0.0]),
+            RestBias::new(secs(19.0), secs(21.0), [1.3, 1.9, 0.0], [1.0, 2.0, 0.0]),
+        );
+        assert_eq!((a.t.s(), b.t.s()), (10.0, 20.0));
         // Over [12, 16]: the line is 0.1 + 0.02 (t - 10) on x, its mean at t = 14 is 0.18.
-        let i = a.integral_deg(&b, 12.0, 16.0);
+        let i = a.integral_deg(&b, secs(12.0), secs(16.0));
         assert!((i[0] - 4.0 * 0.18).abs() < 1e-6 && (i[1] + 4.0 * 0.04).abs() < 1e-6 && i[2] == 0.0, "{i:?}");
         // Drift: 0.2 °/s on x over 10 s.
         assert!((a.drift_dps_per_min(&b) - 1.2).abs() < 1e-5);
         assert_eq!(b.drift_dps_per_min(&a), 0.0);
         // Two rests at one time: a constant.
-        assert!((a.integral_deg(&a, 0.0, 2.0)[0] - 0.2).abs() < 1e-6);
-        assert_eq!(RestBias::new(0.0, 1.0, [f32::NAN, 0.0, 0.0], [0.0; 3]).residual_dps, [0.0; 3]);
+        assert!((a.integral_deg(&a, secs(0.0), secs(2.0))[0] - 0.2).abs() < 1e-6);
+        assert_eq!(RestBias::new(secs(0.0), secs(1.0), [f32::NAN, 0.0, 0.0], [0.0; 3]).residual_dps, [0.0; 3]);
     }
 
     #[test]
     fn a_bias_off_the_line_of_its_neighbours_is_measured_a_smooth_drift_is_not() {
-        let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, 0.0, -b] };
+        let rest = |t: f64, b: f32| RestBias { t: secs(t), residual_dps: [b, 0.0, -b] };
         let mut smooth = Drift::new();
         for i in 0..20 {
             let t = 4.0 * i as Real;
@@ -677,7 +678,7 @@ mod tests {
         let mut d = Drift::new();
         for i in 0..=20 {
             let t = 4.0 * i as Real;
-            d.add(RestBias { t_s: t, residual_dps: [x(t) as f32, 0.0, 0.0] });
+            d.add(RestBias { t: secs(t), residual_dps: [x(t) as f32, 0.0, 0.0] });
         }
         d
     }
@@ -693,7 +694,7 @@ mod tests {
         let (mut within, mut err2, runs) = ([0u32; 2], 0.0, 2000);
         for _ in 0..runs {
             let d = every_4_s(|t| curve(t) + 0.007 * noise.next());
-            let (at, sigma) = d.predict(82.0, RestNoise::Own([0.007; 3])).unwrap();
+            let (at, sigma) = d.predict(secs(82.0), RestNoise::Own([0.007; 3])).unwrap();
             let e = (at.residual_dps[0] as Real - curve(82.0)).abs();
             within[0] += (e <= sigma[0] as Real) as u32;
             within[1] += (e <= 2.0 * sigma[0] as Real) as u32;
@@ -723,10 +724,10 @@ mod tests {
                 }
                 b + 0.007 * noise.next()
             });
-            let (at, sigma) = d.predict(80.0, RestNoise::Own([0.007; 3])).unwrap();
+            let (at, sigma) = d.predict(secs(80.0), RestNoise::Own([0.007; 3])).unwrap();
             ((at.residual_dps[0] as Real - b).abs(), sigma[0] as Real)
         };
-        let own = every_4_s(|_| 0.0).predict(80.0, RestNoise::Own([0.007; 3])).unwrap().1[0] as Real;
+        let own = every_4_s(|_| 0.0).predict(secs(80.0), RestNoise::Own([0.007; 3])).unwrap().1[0] as Real;
         let constant = (0..runs).filter(|_| run(&mut noise, 0.0).1 == own).count() as Real / runs as Real;
         assert!((0.92..=0.97).contains(&constant), "own noise's sigma in {constant:.3} of the runs");
         let within = (0..runs).fold([0u32; 2], |w, _| {
@@ -744,9 +745,9 @@ mod tests {
         let three = |b: f32| {
             let mut d = Drift::new();
             for (t, b) in [(0.0, 0.0), (4.0, b), (8.0, 0.0)] {
-                d.add(RestBias { t_s: t, residual_dps: [b; 3] });
+                d.add(RestBias { t: secs(t), residual_dps: [b; 3] });
             }
-            d.predict(8.0, RestNoise::Own([0.001; 3])).unwrap().1[0]
+            d.predict(secs(8.0), RestNoise::Own([0.001; 3])).unwrap().1[0]
         };
         let (quiet, scattered) = (three(0.0), three(0.05));
         assert!(scattered > 10.0 * quiet, "{scattered} against {quiet}");
@@ -762,14 +763,15 @@ mod tests {
         let (mut within, runs) = ([0u32; 2], 2000);
         let rests = |noise: &mut crate::math::test_noise::Gaussian| every_4_s(|_| 0.02 * noise.next());
         for _ in 0..runs {
-            let (at, sigma) = rests(&mut noise).predict(80.0, RestNoise::Bound([0.007; 3])).unwrap();
+            let (at, sigma) = rests(&mut noise).predict(secs(80.0), RestNoise::Bound([0.007; 3])).unwrap();
             let e = (at.residual_dps[0] as Real).abs();
             within = [within[0] + (e <= sigma[0] as Real) as u32, within[1] + (e <= 2.0 * sigma[0] as Real) as u32];
         }
         let [one, two] = within.map(|n| n as Real / runs as Real);
         assert!((0.6..=0.8).contains(&one) && two >= 0.92, "within 1 sigma {one:.3}, 2 sigma {two:.3}");
         let d = rests(&mut noise);
-        let (own, floor) = (d.predict(80.0, RestNoise::Own([0.05; 3])).unwrap().1, d.predict(80.0, RestNoise::Bound([0.05; 3])).unwrap().1);
+        let (own, floor) =
+            (d.predict(secs(80.0), RestNoise::Own([0.05; 3])).unwrap().1, d.predict(secs(80.0), RestNoise::Bound([0.05; 3])).unwrap().1);
         assert_eq!(own[0], floor[0], "a floor above the scatter is the variance");
     }
 
@@ -780,7 +782,7 @@ mod tests {
             let (t, temp) = (10.0 * i as Real, 25.0 + 0.3 * i as f32);
             let wiggle = if i % 2 == 0 { 0.002 } else { -0.002 };
             let b = [0.04 * (temp - 25.0) + wiggle, -0.03 * (temp - 25.0), 0.0];
-            fit.add(temp, &RestBias { t_s: t, residual_dps: b });
+            fit.add(temp, &RestBias { t: secs(t), residual_dps: b });
             if i == 2 {
                 assert_eq!(fit.finish(), None, "3 rests over 0.6 C");
             }
@@ -812,7 +814,7 @@ mod tests {
                     walk += q * libm::sqrt(3.0) * noise.next();
                     let temp = 25.0 + 4.0 * (1.0 - libm::exp(-t / 90.0));
                     let b = 0.04 * (temp - 25.0) + walk + 0.007 * noise.next();
-                    fit.add(temp as f32, &RestBias { t_s: t, residual_dps: [b as f32, 0.0, 0.0] });
+                    fit.add(temp as f32, &RestBias { t: secs(t), residual_dps: [b as f32, 0.0, 0.0] });
                 }
                 let c = fit.finish().unwrap();
                 within += usize::from((c.dps_per_c[0] - 0.04).abs() <= 2.0 * c.sigma_dps_per_c[0]);

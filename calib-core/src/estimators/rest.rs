@@ -5,7 +5,7 @@
 
 use crate::math::real::Real;
 use crate::math::stats::Moments3;
-use crate::Vec3;
+use crate::{Time, Vec3};
 
 /// Thresholds of the rest detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,10 +60,10 @@ pub enum RestState {
 /// One completed analysis window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Window {
-    /// Time of its first sample (s).
-    pub t_start_s: f64,
-    /// Time of its last sample (s).
-    pub t_end_s: f64,
+    /// Time of its first sample.
+    pub t_start: Time,
+    /// Time of its last sample.
+    pub t_end: Time,
     /// Accelerometer statistics (g).
     pub accel: Moments3,
     /// Gyro statistics (°/s).
@@ -78,11 +78,11 @@ pub struct Window {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RestDetector {
     cfg: RestConfig,
-    window_start_s: Option<f64>,
+    window_start: Option<Time>,
     accel: Moments3,
     gyro: Moments3,
     prev_accel_mean: Option<[Real; 3]>,
-    still_since_s: Option<f64>,
+    still_since: Option<Time>,
     state: RestState,
 }
 
@@ -91,11 +91,11 @@ impl RestDetector {
     pub const fn new(cfg: RestConfig) -> Self {
         Self {
             cfg,
-            window_start_s: None,
+            window_start: None,
             accel: Moments3::new(),
             gyro: Moments3::new(),
             prev_accel_mean: None,
-            still_since_s: None,
+            still_since: None,
             state: RestState::Moving,
         }
     }
@@ -115,13 +115,13 @@ impl RestDetector {
         self.state
     }
 
-    /// Feeds one sample: time (s, MCU clock), raw accel (g), raw gyro (°/s). Returns the window
-    /// it completed, if any.
-    pub fn update(&mut self, t_s: f64, accel_g: Vec3, gyro_dps: Vec3) -> Option<Window> {
-        let start = *self.window_start_s.get_or_insert(t_s);
+    /// Feeds one sample: time (MCU clock), raw accel (g), raw gyro (°/s). Returns the window it
+    /// completed, if any.
+    pub fn update(&mut self, t: Time, accel_g: Vec3, gyro_dps: Vec3) -> Option<Window> {
+        let start = *self.window_start.get_or_insert(t);
         self.accel.add(accel_g);
         self.gyro.add(gyro_dps);
-        if t_s - start < self.cfg.window_s as f64 {
+        if t.since(start) < self.cfg.window_s as Real {
             return None;
         }
         let mean = self.accel.mean();
@@ -131,15 +131,15 @@ impl RestDetector {
             && self.gyro.max_std() <= self.cfg.gyro_std_max_dps as Real
             && drift <= self.cfg.accel_drift_max_g as Real;
         if still {
-            let since = *self.still_since_s.get_or_insert(start);
-            self.state = if t_s - since >= self.cfg.hold_s as f64 { RestState::Still } else { RestState::Settling };
+            let since = *self.still_since.get_or_insert(start);
+            self.state = if t.since(since) >= self.cfg.hold_s as Real { RestState::Still } else { RestState::Settling };
         } else {
-            self.still_since_s = None;
+            self.still_since = None;
             self.state = RestState::Moving;
         }
         self.prev_accel_mean = Some(mean);
-        let window = Window { t_start_s: start, t_end_s: t_s, accel: self.accel, gyro: self.gyro, still, state: self.state };
-        self.window_start_s = None;
+        let window = Window { t_start: start, t_end: t, accel: self.accel, gyro: self.gyro, still, state: self.state };
+        self.window_start = None;
         self.accel = Moments3::new();
         self.gyro = Moments3::new();
         Some(window)
@@ -149,12 +149,13 @@ impl RestDetector {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::time::secs;
 
-    fn feed(d: &mut RestDetector, t0: f64, secs: Real, f: impl Fn(Real) -> (Vec3, Vec3)) -> (RestState, Real) {
+    fn feed(d: &mut RestDetector, t0: f64, span_s: Real, f: impl Fn(Real) -> (Vec3, Vec3)) -> (RestState, Real) {
         let mut t = t0;
-        while t < t0 + secs {
+        while t < t0 + span_s {
             let (a, g) = f(t);
-            d.update(t, a, g);
+            d.update(secs(t), a, g);
             t += 0.01;
         }
         (d.state(), t)
@@ -182,9 +183,9 @@ mod tests {
         let mut n = 0;
         let mut t = 0.0;
         for _ in 0..200 {
-            if let Some(w) = d.update(t, [0.0, 0.0, 1.0], [5.0 * libm::sin(t * 60.0) as f32, 0.0, 0.0]) {
+            if let Some(w) = d.update(secs(t), [0.0, 0.0, 1.0], [5.0 * libm::sin(t * 60.0) as f32, 0.0, 0.0]) {
                 assert!(!w.still && w.state == RestState::Moving);
-                assert!(w.t_end_s - w.t_start_s >= 0.25 - 1e-9);
+                assert!(w.t_end.since(w.t_start) >= 0.25 - 1e-6);
                 n += w.gyro.count();
             }
             t += 0.01;

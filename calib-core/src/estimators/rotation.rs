@@ -43,7 +43,7 @@ use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
 use crate::math::real::{self, sq, Real};
 use crate::math::vec3::{sqrtf, tangent_basis, to_real as v64};
-use crate::{Error, Mat3, Vec3};
+use crate::{Error, Mat3, Time, Vec3};
 use nalgebra::{Matrix3, Vector3};
 
 /// Rotation moves kept.
@@ -227,8 +227,8 @@ pub struct RotationMove {
     /// Estimated integration error of the move (rad): the third-order terms of the two-sample
     /// scheme, `Σ |d_{k−1} × d_k| |d_k| / 12` over its sample increments `d` (0 about a fixed axis).
     pub int_sigma_rad: f32,
-    /// MCU time of its first sample (s): its chunks' spans count from it.
-    t0_s: f64,
+    /// MCU time of its first sample: its chunks' spans count from it.
+    t0: Time,
 }
 
 impl RotationMove {
@@ -245,8 +245,8 @@ impl RotationMove {
 /// the pose (bounded sums, no buffer).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseTurn {
-    /// MCU time of its first sample (s): `c` is kept from it, so that f32 holds it.
-    t0: f64,
+    /// MCU time of its first sample (none yet): `c` is kept from it, so that f32 holds it.
+    t0: Option<Time>,
     /// `A` (°) and `Σ (t − t0) ω Δt` (°·s): f32 on the FPU (a pose's turn is its sway, tenths
     /// of a degree, over seconds: rounding ~1e-8°).
     a: [f32; 3],
@@ -256,16 +256,14 @@ pub struct PoseTurn {
 impl PoseTurn {
     /// Nothing turned.
     pub const fn new() -> Self {
-        Self { t0: f64::NAN, a: [0.0; 3], c: [0.0; 3] }
+        Self { t0: None, a: [0.0; 3], c: [0.0; 3] }
     }
 
-    /// A sample at MCU time `t_s` (s), `dt_s` after the previous one, bias-free gyro (°/s).
-    pub fn add(&mut self, t_s: f64, dt_s: Real, w_dps: Vec3) {
+    /// A sample at MCU time `t`, `dt_s` (s) after the previous one, bias-free gyro (°/s).
+    pub fn add(&mut self, t: Time, dt_s: Real, w_dps: Vec3) {
         if dt_s > 0.0 && dt_s.is_finite() {
-            if self.t0.is_nan() {
-                self.t0 = t_s;
-            }
-            let (t, dt) = ((t_s - self.t0) as f32, dt_s as f32);
+            let t0 = *self.t0.get_or_insert(t);
+            let (t, dt) = (t.since(t0) as f32, dt_s as f32);
             for k in 0..3 {
                 let d = w_dps[k] * dt;
                 self.a[k] += d;
@@ -276,28 +274,27 @@ impl PoseTurn {
 
     /// The turn of a later stretch added.
     pub fn merge(&mut self, o: &PoseTurn) {
-        if o.t0.is_nan() {
+        let (Some(t0), Some(o_t0)) = (self.t0, o.t0) else {
+            if self.t0.is_none() {
+                *self = *o;
+            }
             return;
-        }
-        if self.t0.is_nan() {
-            *self = *o;
-            return;
-        }
-        let shift = (o.t0 - self.t0) as f32;
+        };
+        let shift = o_t0.since(t0) as f32;
         for k in 0..3 {
             self.a[k] += o.a[k];
             self.c[k] += o.c[k] + shift * o.a[k];
         }
     }
 
-    /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first_s` to `t_last_s`: the turn from
-    /// the pose's mean instant to its end. 0 for a pose of no length or no turn.
-    pub fn rise_deg(&self, t_first_s: f64, t_last_s: f64) -> Vec3 {
-        let span = (t_last_s - t_first_s) as f32;
-        if !(span > 0.0) || self.t0.is_nan() {
+    /// `Σ ((t − t_first) / T) ω Δt` (°) over a pose from `t_first` to `t_last`: the turn from the
+    /// pose's mean instant to its end. 0 for a pose of no length or no turn.
+    pub fn rise_deg(&self, t_first: Time, t_last: Time) -> Vec3 {
+        let span = t_last.since(t_first) as f32;
+        let Some(t0) = self.t0.filter(|_| span > 0.0) else {
             return [0.0; 3];
-        }
-        let from = (t_first_s - self.t0) as f32;
+        };
+        let from = t_first.since(t0) as f32;
         core::array::from_fn(|k| (self.c[k] - from * self.a[k]) / span)
     }
 }
@@ -330,8 +327,13 @@ pub struct PoseRest {
 
 impl PoseRest {
     /// A measured bias of no time, no turn, no temperature.
-    const NONE: Self =
-        Self { bias: RestBias { t_s: 0.0, residual_dps: [0.0; 3] }, predicted: false, rise_deg: [0.0; 3], span_s: 0.0, warm_c: f32::NAN };
+    const NONE: Self = Self {
+        bias: RestBias { t: Time::ZERO, residual_dps: [0.0; 3] },
+        predicted: false,
+        rise_deg: [0.0; 3],
+        span_s: 0.0,
+        warm_c: f32::NAN,
+    };
 }
 
 impl Default for PoseRest {
@@ -355,9 +357,9 @@ struct Open {
     /// most [`CHUNK_DEG`], so its sums round at ~1e-6°; `precision.rs` bounds it).
     gamma: [f32; 3],
     coning: [f32; 3],
-    last: Option<(f64, [f32; 3])>,
-    t0: f64,
-    chunk_t0: f64,
+    last: Option<(Time, [f32; 3])>,
+    t0: Time,
+    chunk_t0: Time,
     /// The move's raw turn so far (°): its closed chunks' sums.
     total: [Real; 3],
     /// The square of its largest step (°²).
@@ -462,9 +464,9 @@ pub const MIRROR_MAX_TURN_DEG: f32 = 150.0;
 pub const MIRROR_MIN_SINE: Real = 0.1;
 
 /// The angle between two vectors (°).
-/// Closes the open move `o`'s chunk at its last sample's time `t_end` (s) into `chunks`.
-fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_end: f64) {
-    let span_s = [(o.chunk_t0 - o.t0) as f32, (t_end - o.t0) as f32];
+/// Closes the open move `o`'s chunk at its last sample's time `t_end` into `chunks`.
+fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_end: Time) {
+    let span_s = [o.chunk_t0.since(o.t0) as f32, t_end.since(o.t0) as f32];
     for k in 0..3 {
         o.total[k] += o.gamma[k] as Real;
     }
@@ -623,12 +625,12 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let after_earth = after_attitude.map(|a| a.transpose());
         for p in 0..self.poses.len().min(P) {
             let old = self.rest[p];
-            if !old.predicted || old.bias.t_s < before.t_s || old.bias.t_s > after.t_s {
+            if !old.predicted || old.bias.t < before.t || old.bias.t > after.t {
                 continue;
             }
-            let new = before.between(after, old.bias.t_s);
-            let span = after.t_s - before.t_s;
-            let f = if span > 0.0 { ((old.bias.t_s - before.t_s) / span) as f32 } else { 0.0 };
+            let new = before.between(after, old.bias.t);
+            let span = after.t.since(before.t);
+            let f = if span > 0.0 { (old.bias.t.since(before.t) / span) as f32 } else { 0.0 };
             if let Some(e) = self.earth.get_mut(p) {
                 *e = match (*e, self.rest_earth, after_earth) {
                     (Some((at, _)), Some(mb), Some(ma)) => Some((at, mb * (1.0 - f) + ma * f)),
@@ -665,7 +667,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     /// 0 at the other). In f32 from the move's start (times within a move: ≤ 1e-6 s of error).
     fn shift_bias(&mut self, p: usize, delta: Vec3) {
         for m in self.moves.iter().filter(|m| m.from as usize == p || m.to as usize == p) {
-            let at = |q: u8| (self.rest[q as usize].bias.t_s - m.t0_s) as f32;
+            let at = |q: u8| self.rest[q as usize].bias.t.since(m.t0) as f32;
             let (ta, span) = (at(m.from), at(m.to) - at(m.from));
             let (wa, wb) = (f32::from(u8::from(m.from as usize == p)), f32::from(u8::from(m.to as usize == p)));
             for c in &mut self.chunks[m.first as usize..(m.first + m.n) as usize] {
@@ -701,8 +703,8 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             gamma: [0.0; 3],
             coning: [0.0; 3],
             last: None,
-            t0: 0.0,
-            chunk_t0: 0.0,
+            t0: Time::ZERO,
+            chunk_t0: Time::ZERO,
             total: [0.0; 3],
             max_step_deg: 0.0,
             max_gap_s: 0.0,
@@ -715,24 +717,23 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         self.open = Some(o);
     }
 
-    /// Adds a sample of the open move: MCU time (s) and bias-free gyro (°/s); `saturated` if it
+    /// Adds a sample of the open move: MCU time and bias-free gyro (°/s); `saturated` if it
     /// reached full scale. Without an open move, nothing.
-    pub fn add(&mut self, t_s: f64, w_dps: Vec3, saturated: bool) {
+    pub fn add(&mut self, t: Time, w_dps: Vec3, saturated: bool) {
         let Self { open: Some(o), chunks, .. } = self else { return };
         if saturated {
             o.why.get_or_insert(Rejected::Saturated);
         }
         match o.last {
             None => {
-                o.t0 = t_s;
-                o.chunk_t0 = t_s;
+                o.t0 = t;
+                o.chunk_t0 = t;
             }
             Some((t_prev, w_prev)) => {
-                let dt = t_s - t_prev;
-                if !(dt > 0.0) {
+                if t <= t_prev {
                     return;
                 }
-                let dt = dt as f32;
+                let dt = t.since(t_prev) as f32;
                 o.max_gap_s = o.max_gap_s.max(dt);
                 let d = Vector3::from_fn(|i, _| 0.5 * (w_prev[i] + w_dps[i]) * dt);
                 let c = Vector3::from(o.gamma).cross(&d) * 0.5;
@@ -747,11 +748,11 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 // The largest step's square until the move ends.
                 o.max_step_deg = o.max_step_deg.max(d2);
                 if Vector3::from(o.gamma).norm_squared() >= (CHUNK_DEG * CHUNK_DEG) as f32 {
-                    flush(chunks, o, t_s);
+                    flush(chunks, o, t);
                 }
             }
         }
-        o.last = Some((t_s, w_dps));
+        o.last = Some((t, w_dps));
     }
 
     /// Ends the open move at pose `to` and keeps it (its chunks less the bias tracked between
@@ -763,7 +764,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             flush(&mut self.chunks, &mut o, t_end);
         }
         // Back from the end of pose `to` to its mean instant: its turn undone.
-        let (end_s, rest) = ((t_end - o.t0) as f32, self.rest[to as usize % P]);
+        let (end_s, rest) = (t_end.since(o.t0) as f32, self.rest[to as usize % P]);
         self.push_turn(&mut o, rest.rise_deg.map(|v| -v), [end_s + rest.span_s / 2.0, end_s]);
         let total = Vector3::from(o.total);
         let turn = total.norm();
@@ -784,7 +785,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let (why, worst) = candidates.into_iter().find_map(|(w, v)| w.map(|w| (w, v))).map_or((None, 0.0), |(w, v)| (Some(w), v));
         let off_gravity = angle_deg(&total, &gi);
         let vertical = gravity_deg < limits.vertical_deg as Real && off_gravity.min(180.0 - off_gravity) < limits.vertical_deg as Real;
-        let duration_s = o.last.map_or(0.0, |(t, _)| (t - o.t0) as f32);
+        let duration_s = o.last.map_or(0.0, |(t, _)| t.since(o.t0) as f32);
         let n = (self.chunks.len() - o.first) as u16;
         let kept = RotationMove {
             from: o.from,
@@ -795,12 +796,12 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             turn_deg: turn as f32,
             vertical,
             int_sigma_rad: o.int_err,
-            t0_s: o.t0,
+            t0: o.t0,
         };
         let result = match why {
             None => {
                 for c in &mut self.chunks[o.first..] {
-                    let drift = ra.integral_deg(&rb, o.t0 + c.span_s[0] as f64, o.t0 + c.span_s[1] as f64);
+                    let drift = ra.integral_deg(&rb, o.t0.plus_s(c.span_s[0] as Real), o.t0.plus_s(c.span_s[1] as Real));
                     c.gamma = core::array::from_fn(|k| (c.gamma[k] as Real - drift[k]) as f32);
                 }
                 self.moves.push(kept).map_err(|_| Rejected::Full)
@@ -810,7 +811,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         if let Err(why) = result {
             if why == Rejected::BiasDrifted {
                 let dps = bias_change as f32;
-                let dt_s = (rb.t_s - ra.t_s).abs().max(1e-3) as f32;
+                let dt_s = rb.t.since(ra.t).abs().max(1e-3) as f32;
                 if self.bias_jump.is_none_or(|j| dps > j.dps) {
                     self.bias_jump = Some(BiasJump { dps, dps_per_min: 60.0 * dps / dt_s, limit_dps: limits.max_bias_change_dps });
                 }
@@ -913,11 +914,12 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         // Σ R_<c s_c (1 − f_c), Σ R_<c s_c f_c and Σ s_c over the chunks (s_c its signed length,
         // f_c where its middle lies between the two rests, as `RestBias::integral_deg` weighs it).
         let (mut p, mut q, mut dt) = (Matrix3::<f32>::zeros(), Matrix3::<f32>::zeros(), 0.0f32);
-        let (ta, tb) = (self.rest[m.from as usize % P].bias.t_s, self.rest[m.to as usize % P].bias.t_s);
+        let (ta, tb) = (self.rest[m.from as usize % P].bias.t, self.rest[m.to as usize % P].bias.t);
+        // The chunks' middles from `ta` (s) count from the move's start.
+        let (from_ta, span) = (m.t0.since(ta) as f32, tb.since(ta) as f32);
         for c in self.chunks_of(m) {
             let s = c.span_s[1] - c.span_s[0];
-            let mid = m.t0_s + 0.5 * (c.span_s[0] + c.span_s[1]) as f64;
-            let f = if tb > ta { ((mid - ta) / (tb - ta)) as f32 } else { 0.5 };
+            let f = if tb > ta { (from_ta + 0.5 * (c.span_s[0] + c.span_s[1])) / span } else { 0.5 };
             p += r * (s * (1.0 - f));
             q += r * (s * f);
             dt += s;
@@ -1163,6 +1165,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::time::secs;
 
     /// Three 30° moves whose rests disagree on the bias by 0.3 °/s (> 0.2): all dropped, and the
     /// shortage is named as the drift, with the largest change and its rate.
@@ -1172,11 +1175,11 @@ mod tests {
         let mut r = <Rotations>::new();
         for i in 0..4u8 {
             let t0 = 10.0 * Real::from(i);
-            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t0, residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t: secs(t0), residual_dps: [0.3 * f32::from(i), 0.0, 0.0] }).unwrap();
             if i > 0 {
                 r.begin(i - 1);
                 for k in 0..100 {
-                    r.add(t0 - 5.0 + 0.01 * Real::from(k), [30.0, 0.0, 0.0], false);
+                    r.add(secs(t0 - 5.0 + 0.01 * Real::from(k)), [30.0, 0.0, 0.0], false);
                 }
                 assert_eq!(r.end(i, &lim), Err(Rejected::BiasDrifted));
             }
@@ -1202,21 +1205,21 @@ mod tests {
         for p in [0usize, 1] {
             let mut r = <Rotations>::new();
             let (t_from, t_to) = (3600.0, 4600.0);
-            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t_from, residual_dps: [0.0; 3] }).unwrap();
-            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t_s: t_to, residual_dps: [0.0; 3] }).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t: secs(t_from), residual_dps: [0.0; 3] }).unwrap();
+            r.push_pose([0.0, 0.0, 1.0], 1e-4, RestBias { t: secs(t_to), residual_dps: [0.0; 3] }).unwrap();
             r.begin(0);
             for k in 0..=20 * 952 {
-                r.add(t_from + 500.0 + Real::from(k) / 952.0, [9.0, -4.0, 2.0], false);
+                r.add(secs(t_from + 500.0 + Real::from(k) / 952.0), [9.0, -4.0, 2.0], false);
             }
             assert_eq!(r.end(1, &lim), Ok(()));
             let before = r.chunks.clone();
             let delta = [0.3, -0.2, 0.1];
             r.shift_bias(p, delta);
             let m = r.moves[0];
-            let only = |q: usize| RestBias { t_s: r.rest[q].bias.t_s, residual_dps: if q == p { delta } else { [0.0; 3] } };
+            let only = |q: usize| RestBias { t: r.rest[q].bias.t, residual_dps: if q == p { delta } else { [0.0; 3] } };
             let mut worst = 0.0 as Real;
             for (c0, c1) in before[m.first as usize..(m.first + m.n) as usize].iter().zip(&r.chunks[m.first as usize..]) {
-                let lost = only(0).integral_deg(&only(1), m.t0_s + c0.span_s[0] as Real, m.t0_s + c0.span_s[1] as Real);
+                let lost = only(0).integral_deg(&only(1), m.t0.plus_s(c0.span_s[0] as Real), m.t0.plus_s(c0.span_s[1] as Real));
                 for k in 0..3 {
                     let want = (c0.gamma[k] as Real - lost[k]) as f32;
                     worst = worst.max((c1.gamma[k] - want).abs() as Real);
@@ -1251,7 +1254,7 @@ mod tests {
         r.push_pose([0.0, 1.0, 0.0], 1e-4, RestBias::default()).unwrap();
         r.begin(0);
         for i in 0..=900 {
-            r.add(i as Real * 0.001, [90.0, 0.0, 0.0], false);
+            r.add(secs(i as Real * 0.001), [90.0, 0.0, 0.0], false);
         }
         assert_eq!(r.end(1, &RotationLimits::DEFAULT), Ok(()));
         assert_eq!(r.moves()[0].n, 17);

@@ -9,7 +9,7 @@ use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
 use crate::math::lsq::NormalEquations;
 use crate::math::real::{self, Real};
 use crate::math::stats::Spread;
-use crate::{Error, Vec3};
+use crate::{Error, Time, Vec3};
 use nalgebra::Vector3;
 
 /// Largest number of moves kept.
@@ -17,7 +17,7 @@ pub const MAX_MOVES: usize = 64;
 /// Moves that turn the shaft less than this (°) are not used.
 pub const MIN_MOVE_DEG: Real = 10.0;
 
-/// Trapezoidal integral of the bias-free gyro over one move (°, sensor frame), in `f64`.
+/// Trapezoidal integral of the bias-free gyro over one move (°, sensor frame).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Integrator {
     /// `Σ ½ (ω_{k−1} + ω_k) Δt` (°) in f32 on the FPU, Kahan-compensated (`lost`: what the last
@@ -26,25 +26,24 @@ pub struct Integrator {
     /// is spent per sample.
     gamma: [f32; 3],
     lost: [f32; 3],
-    t_first: f64,
-    last: Option<(f64, [f32; 3])>,
+    t_first: Time,
+    last: Option<(Time, [f32; 3])>,
     samples: u32,
 }
 
 impl Integrator {
     /// Empty: the next sample starts the move.
     pub const fn new() -> Self {
-        Self { gamma: [0.0; 3], lost: [0.0; 3], t_first: 0.0, last: None, samples: 0 }
+        Self { gamma: [0.0; 3], lost: [0.0; 3], t_first: Time::ZERO, last: None, samples: 0 }
     }
 
-    /// Adds a sample: MCU time (s) and bias-free gyro `g − b` (°/s). Out-of-order samples are ignored.
-    pub fn add(&mut self, t_s: f64, g: Vec3) {
+    /// Adds a sample: MCU time and bias-free gyro `g − b` (°/s). Out-of-order samples are ignored.
+    pub fn add(&mut self, t: Time, g: Vec3) {
         if let Some((t0, g0)) = self.last {
-            let dt = t_s - t0;
-            if !(dt > 0.0) {
+            if t <= t0 {
                 return;
             }
-            let dt = dt as f32;
+            let dt = t.since(t0) as f32;
             for k in 0..3 {
                 // Kahan: the term less what the sum lost last time; what this addition loses.
                 let term = 0.5 * (g0[k] + g[k]) * dt - self.lost[k];
@@ -53,9 +52,9 @@ impl Integrator {
                 self.gamma[k] = next;
             }
         } else {
-            self.t_first = t_s;
+            self.t_first = t;
         }
-        self.last = Some((t_s, g));
+        self.last = Some((t, g));
         self.samples += 1;
     }
 

@@ -128,7 +128,7 @@ pub fn write_in(w: &mut impl Write, rec: &Record, format: Format, frame: DataFra
 fn digits(v: f32, decimals: u32) -> Option<heapless::String<24>> {
     let mut s = heapless::String::new();
     // 19 digits, a point and a sign at most: the buffer cannot overflow.
-    fixed(&mut s, v as f64, decimals).ok()?;
+    fixed(&mut s, v, decimals).ok()?;
     (s != "nan").then_some(s)
 }
 
@@ -758,7 +758,7 @@ mod tests {
         let k = bmi.in_frame(DataFrame::ArduinoBmi270).unwrap().gyro_k;
         assert!(ard.contains("/* Part: BMI270, GYR_CAS -7, user gain off */\n/* Data: Arduino_BMI270_BMM150 >= 1.1.0's readings"), "{ard}");
         let mut row = String::new();
-        fixed(&mut row, k[0][0] as f64, D_MATRIX).unwrap();
+        fixed(&mut row, k[0][0], D_MATRIX).unwrap();
         assert!(ard.contains(&std::format!("static const float GYRO_K[3][3] = {{\n    {{{row}f, ")), "{row} {ard}");
         assert_eq!(write_in(&mut String::new(), &rec, Format::C, DataFrame::BoschApi), Err(fmt::Error), "an LSM9DS1's record");
         assert_eq!(write_in(&mut String::new(), &bmi, Format::Json, DataFrame::BoschApi), Err(fmt::Error), "JSON is the board frame's");

@@ -22,6 +22,7 @@
 //! the firmware needs no float-formatting code.
 
 use crate::formats::record::{Sensor, SensorSetup};
+use crate::Time;
 use core::fmt::{self, Write};
 
 /// The header line.
@@ -47,8 +48,8 @@ pub const MAX_ROW: usize = 160;
 /// One IMU sample of a log.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Row {
-    /// MCU timestamp (s).
-    pub t_s: f64,
+    /// MCU timestamp.
+    pub t: Time,
     /// Raw accelerometer (g).
     pub accel_g: [f32; 3],
     /// Raw gyro (°/s).
@@ -63,29 +64,50 @@ pub struct Row {
     pub temp_c: Option<f32>,
 }
 
-/// Decimals written per column group: time, accelerometer, gyro, servo angles.
-const DECIMALS: (u32, u32, u32, u32) = (6, 6, 5, 2);
+/// Decimals written per column group: accelerometer, gyro, servo angles (the time: its µs, 6).
+const DECIMALS: (u32, u32, u32) = (6, 5, 2);
 /// Decimals of the magnetometer (1 nT).
 const MAG_DECIMALS: u32 = 3;
 /// Decimals of the temperature (0.01 °C).
 const TEMP_DECIMALS: u32 = 2;
 
-/// Writes `v` with `decimals` (≤ 9) fixed decimals; NaN or |v| ≥ 9.2e18 / 10^decimals is
-/// written as `nan`, which the parser rejects. Digits by hand (32-bit divisions while they fit):
-/// no `core::fmt` number code.
+/// Writes `v` with `decimals` (≤ 9) fixed decimals, rounded half away from zero from its exact
+/// value; NaN, an infinity or |v| ≥ 2⁶³ / 10^decimals is written as `nan`, which the parser
+/// rejects. In integers: no `core::fmt` number code, no software `f64`.
 #[inline(never)] // one copy for the log, the text lines and the exports (flash)
-pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
-    const POW10: [f64; 10] = [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+pub(crate) fn fixed(w: &mut dyn Write, v: f32, decimals: u32) -> fmt::Result {
     let decimals = decimals.min(9);
-    let scaled = v * POW10[decimals as usize];
-    if !(scaled.abs() < 9.2e18) {
-        return w.write_str("nan");
+    match scaled(v, decimals) {
+        Some(m) => decimal(w, v.is_sign_negative() && m > 0, m, decimals),
+        None => w.write_str("nan"),
     }
-    // Round half away from zero without libm.
-    let r = if scaled >= 0.0 { (scaled + 0.5) as i64 } else { (scaled - 0.5) as i64 };
-    let mut m = r.unsigned_abs();
-    // Digits from the least significant, right to left, with the decimal point after
-    // `decimals` of them and at least one before it.
+}
+
+/// `|v| · 10^decimals` (`decimals` ≤ 9) rounded half away from zero, computed exactly from the
+/// `f32`'s mantissa and exponent; `None` for a NaN, an infinity or a result ≥ 2⁶³.
+fn scaled(v: f32, decimals: u32) -> Option<u64> {
+    if !v.is_finite() {
+        return None;
+    }
+    let bits = v.to_bits();
+    let (exp, frac) = ((bits >> 23) & 0xFF, u64::from(bits & 0x7F_FFFF));
+    // |v| = mantissa · 2^shift.
+    let (mantissa, shift) = if exp == 0 { (frac, -149) } else { (frac | 0x80_0000, exp as i32 - 150) };
+    // < 2²⁴ · 10⁹ < 2⁵⁴.
+    let x = mantissa * 10u64.pow(decimals);
+    if shift >= 0 {
+        (x.leading_zeros() as i32 > shift).then(|| x << shift)
+    } else if shift > -55 {
+        let s = -shift;
+        Some((x + (1 << (s - 1))) >> s)
+    } else {
+        Some(0)
+    }
+}
+
+/// Writes `m · 10^−decimals` (a sign first when `negative`): digits from the least significant,
+/// 32-bit divisions while they fit, the point after `decimals` of them, at least one before it.
+pub(crate) fn decimal(w: &mut dyn Write, negative: bool, mut m: u64, decimals: u32) -> fmt::Result {
     let mut buf = [0u8; 24];
     let (mut n, mut k) = (buf.len(), 0);
     loop {
@@ -105,7 +127,7 @@ pub(crate) fn fixed(w: &mut dyn Write, v: f64, decimals: u32) -> fmt::Result {
             break;
         }
     }
-    if r < 0 {
+    if negative {
         n -= 1;
         buf[n] = b'-';
     }
@@ -124,15 +146,22 @@ fn div10(m: u64) -> (u64, u32) {
     (q, r)
 }
 
-/// `v` rounded to `decimals` as [`fixed`] writes it (half away from zero), as the nearest `f32`.
+/// `v` rounded to `decimals` as [`fixed`] writes it (half away from zero), as the nearest `f32`:
+/// the rounded integer (below 2²⁴, exact in `f32`) over 10^decimals (exact), one correctly
+/// rounded division. Beyond 2²⁴ on the grid an `f32`'s own spacing is coarser than the grid, and
+/// `v` as written parses back to itself.
 fn on_grid(v: f32, decimals: u32) -> f32 {
-    let scale = 10u64.pow(decimals) as f64;
-    let scaled = v as f64 * scale;
-    if !(scaled.abs() < 9.2e18) {
-        return v;
+    match scaled(v, decimals) {
+        Some(m) if m < 1 << 24 => {
+            let r = m as f32 / 10u32.pow(decimals) as f32;
+            if v.is_sign_negative() {
+                -r
+            } else {
+                r
+            }
+        }
+        _ => v,
     }
-    let r = if scaled >= 0.0 { (scaled + 0.5) as i64 } else { (scaled - 0.5) as i64 };
-    (r as f64 / scale) as f32
 }
 
 /// A sample's readings as a row holds them (accelerometer to 1 µg, gyro to 10 µ°/s; the text
@@ -140,7 +169,7 @@ fn on_grid(v: f32, decimals: u32) -> f32 {
 /// of its log sees exactly what it saw, whatever the sensor's sensitivity (a BMI270's counts are
 /// not on the log's grid).
 pub fn as_logged(accel_g: [f32; 3], gyro_dps: [f32; 3]) -> ([f32; 3], [f32; 3]) {
-    let (_, da, dg, _) = DECIMALS;
+    let (da, dg, _) = DECIMALS;
     (accel_g.map(|v| on_grid(v, da)), gyro_dps.map(|v| on_grid(v, dg)))
 }
 
@@ -157,20 +186,20 @@ pub fn temp_as_logged(temp_c: Option<f32>) -> Option<f32> {
 
 /// Writes one row (no newline).
 pub fn write_row(w: &mut impl Write, r: &Row) -> fmt::Result {
-    let (dt, da, dg, ds) = DECIMALS;
-    fixed(w, r.t_s, dt)?;
+    let (da, dg, ds) = DECIMALS;
+    decimal(w, r.t < Time::ZERO, r.t.us().unsigned_abs(), 6)?;
     for a in r.accel_g {
         w.write_char(',')?;
-        fixed(w, a as f64, da)?;
+        fixed(w, a, da)?;
     }
     for g in r.gyro_dps {
         w.write_char(',')?;
-        fixed(w, g as f64, dg)?;
+        fixed(w, g, dg)?;
     }
     for s in [r.servo_deg, r.tilt_deg] {
         w.write_char(',')?;
         if let Some(s) = s {
-            fixed(w, s as f64, ds)?;
+            fixed(w, s, ds)?;
         }
     }
     Ok(())
@@ -182,7 +211,7 @@ pub fn write_mag(w: &mut impl Write, mag_ut: Option<[f32; 3]>) -> fmt::Result {
     for k in 0..3 {
         w.write_char(',')?;
         if let Some(m) = mag_ut {
-            fixed(w, m[k] as f64, MAG_DECIMALS)?;
+            fixed(w, m[k], MAG_DECIMALS)?;
         }
     }
     Ok(())
@@ -193,7 +222,7 @@ pub fn write_mag(w: &mut impl Write, mag_ut: Option<[f32; 3]>) -> fmt::Result {
 pub fn write_temp(w: &mut impl Write, temp_c: Option<f32>) -> fmt::Result {
     w.write_char(',')?;
     match temp_c {
-        Some(t) => fixed(w, t as f64, TEMP_DECIMALS),
+        Some(t) => fixed(w, t, TEMP_DECIMALS),
         None => Ok(()),
     }
 }
@@ -205,7 +234,7 @@ pub fn write_setup(w: &mut impl Write, s: &SensorSetup) -> fmt::Result {
     w.write_str(SETUP)?;
     for (name, v) in [(" odr_hz=", s.odr_hz), (" gyro_range_dps=", s.gyro_range_dps), (" accel_range_g=", s.accel_range_g)] {
         w.write_str(name)?;
-        fixed(w, v as f64, 1)?;
+        fixed(w, v, 1)?;
     }
     match s.sensor {
         Sensor::Lsm9ds1 => w.write_str(" sensor=lsm9ds1"),
@@ -333,8 +362,8 @@ pub enum LogError {
         line: u32,
         /// The time between the rows on either side (s).
         gap_s: f32,
-        /// The time of the row before the hole (s).
-        t_s: f64,
+        /// The time of the row before the hole.
+        t: Time,
     },
     /// After the last pose, the time jumps by more than the whole log before it: a bad time (the
     /// gyro bias handed over, predicted to the log's end, would be predicted across it).
@@ -343,8 +372,8 @@ pub enum LogError {
         line: u32,
         /// The jump (s).
         gap_s: f32,
-        /// The time of the row before it (s).
-        t_s: f64,
+        /// The time of the row before it.
+        t: Time,
     },
 }
 
@@ -507,17 +536,19 @@ impl fmt::Display for LogError {
                     }
                 }
             }
-            LogError::HoleInRig { line, gap_s, t_s } => write!(
+            LogError::HoleInRig { line, gap_s, t } => write!(
                 f,
-                "line {line}: no samples for {gap_s:.2} s after t = {t_s:.3} s, between two rig poses: the rig's move across \
+                "line {line}: no samples for {gap_s:.2} s after t = {} s, between two rig poses: the rig's move across \
                  the hole cannot be measured; record again, or calibrate the log up to line {} and from line {line} apart",
+                t.display(3),
                 line.saturating_sub(1)
             ),
-            LogError::TimeJump { line, gap_s, t_s } => write!(
+            LogError::TimeJump { line, gap_s, t } => write!(
                 f,
-                "line {line}: the time jumps by {gap_s:.2} s after t = {t_s:.3} s, more than the whole log before it, with \
+                "line {line}: the time jumps by {gap_s:.2} s after t = {} s, more than the whole log before it, with \
                  no pose after it: a bad time? (the gyro bias handed over would be predicted across it); cut the log at \
                  line {}",
+                t.display(3),
                 line.saturating_sub(1)
             ),
         }
@@ -639,7 +670,7 @@ pub fn parse_row(text: &str, cols: &Columns, line: u32) -> Result<Row, LogError>
         _ => None,
     };
     Ok(Row {
-        t_s: num(0)?,
+        t: Time::from_s(num(0)?).ok_or(LogError::BadNumber { line, column: COLUMNS[0] })?,
         accel_g: [num(1)? as f32, num(2)? as f32, num(3)? as f32],
         gyro_dps: [num(4)? as f32, num(5)? as f32, num(6)? as f32],
         servo_deg: opt(7)?,
@@ -717,6 +748,70 @@ pub fn is_message(t: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    extern crate std;
+    use std::string::String;
+
+    /// `f32`s of every magnitude a log holds, both signs (xorshift, fixed seed).
+    fn values() -> impl Iterator<Item = f32> {
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        (0..20_000).map(move |i| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let v = f32::from_bits(x as u32 & 0x7FFF_FFFF) % 4096.0 / [1.0, 1e3, 1e6][i % 3];
+            if x >> 63 == 1 {
+                -v
+            } else {
+                v
+            }
+        })
+    }
+
+    fn written(v: f32, decimals: u32) -> String {
+        let mut s = String::new();
+        fixed(&mut s, v, decimals).unwrap();
+        s
+    }
+
+    /// [`fixed`] against `core::fmt`'s exact decimal expansion of the value (ties, where the two
+    /// round differently, left out).
+    #[test]
+    fn fixed_writes_the_exact_value_correctly_rounded() {
+        for v in values().filter(|v| v.is_finite()) {
+            for d in [0, 2, 3, 5, 6, 9] {
+                let exact = v as f64 * 10f64.powi(d as i32);
+                if exact.abs() >= 1e15 || (exact.abs().fract() - 0.5).abs() < 1e-6 {
+                    continue;
+                }
+                let want = std::format!("{:.*}", d as usize, v as f64);
+                let want = if want.trim_start_matches(['-', '0', '.']).is_empty() { want.trim_start_matches('-').into() } else { want };
+                assert_eq!(written(v, d), want, "{v:e} to {d} decimals");
+            }
+        }
+        assert_eq!(
+            (written(0.5, 0), written(-0.5, 0), written(2.5, 0), written(0.125, 2)),
+            ("1".into(), "-1".into(), "3".into(), "0.13".into())
+        );
+        assert_eq!(
+            (written(f32::NAN, 3), written(f32::INFINITY, 0), written(1e19, 0), written(-1e10, 9)),
+            ("nan".into(), "nan".into(), "nan".into(), "nan".into())
+        );
+        assert_eq!((written(4.611_686e18, 0), written(f32::from_bits(1), 9)), ("4611686018427387904".into(), "0.000000000".into()));
+    }
+
+    /// A value on the grid, written, parses back to the very same `f32`, and is the nearest
+    /// grid point to the value (within half a step and an `f32` rounding).
+    #[test]
+    fn on_grid_values_parse_back_to_themselves() {
+        for v in values().filter(|v| v.is_finite()) {
+            for d in [2, 3, 5, 6] {
+                let g = on_grid(v, d);
+                assert_eq!(written(g, d).parse::<f32>().unwrap(), g, "{v:e} to {d} decimals");
+                let step = 10f64.powi(-(d as i32));
+                assert!((g as f64 - v as f64).abs() <= 0.5 * step + (g.abs() as f64) * 6e-8, "{v:e} to {d} decimals: {g:e}");
+            }
+        }
+    }
 
     #[test]
     fn long_division_by_ten_matches_u64_division() {

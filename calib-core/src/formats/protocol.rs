@@ -291,7 +291,7 @@ pub fn hand_held_pose(w: &mut impl Write, index: u8, accel_g: &Vec3) -> fmt::Res
 
 /// Writes `rig pose <index> at <servo> deg: A = [x y z] g`.
 pub fn rig_pose(w: &mut impl Write, index: u8, servo_deg: f32, accel_g: &Vec3) -> fmt::Result {
-    write!(w, "rig pose {index} at {} deg: A = {} g", Fixed(servo_deg as f64, 1), V3(*accel_g, 4))
+    write!(w, "rig pose {index} at {} deg: A = {} g", Fixed(servo_deg, 1), V3(*accel_g, 4))
 }
 
 fn parse_pose(l: &str) -> Option<Event<'_>> {
@@ -382,6 +382,7 @@ mod tests {
     use super::*;
     use crate::formats::export::{self, Format};
     use crate::formats::record::tests::sample;
+    use crate::time::secs;
     extern crate std;
     use std::string::String;
 
@@ -474,7 +475,7 @@ mod tests {
     #[test]
     fn rows_round_trip() {
         let row = Row {
-            t_s: 12.5,
+            t: secs(12.5),
             accel_g: [0.25, -0.5, 1.0],
             gyro_dps: [0.125, 0.0, -2.5],
             servo_deg: Some(30.0),

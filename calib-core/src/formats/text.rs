@@ -19,7 +19,7 @@ pub const DIP_SIGN: &str = "positive: the field points down (northern hemisphere
 
 /// `v` with this many decimals (≤ 9), e.g. `Fixed(1.23456, 3)` → `1.235`; NaN → `nan`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Fixed(pub f64, pub u32);
+pub struct Fixed(pub f32, pub u32);
 
 impl Display for Fixed {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -32,7 +32,7 @@ pub struct V3(pub Vec3, pub u32);
 
 impl Display for V3 {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let [x, y, z] = self.0.map(|v| Fixed(v as f64, self.1));
+        let [x, y, z] = self.0.map(|v| Fixed(v, self.1));
         write!(f, "[{x} {y} {z}]")
     }
 }
@@ -44,7 +44,7 @@ impl Display for M3 {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         for (i, r) in self.0.iter().enumerate() {
             f.write_str(if i == 0 { "[" } else { "; " })?;
-            let [x, y, z] = r.map(|v| Fixed(v as f64, self.1));
+            let [x, y, z] = r.map(|v| Fixed(v, self.1));
             write!(f, "{x} {y} {z}")?;
         }
         f.write_str("]")
@@ -74,7 +74,7 @@ pub fn level(r: &Report) -> Level {
 /// `; K to <σ> 1 sigma by the moves (goal <σ>)` once the hand-held moves give `K` a 1σ.
 fn k_sigma_goal(w: &mut impl Write, k_sigma: f32, goal: f32) -> fmt::Result {
     match k_sigma.is_finite() {
-        true => write!(w, "; K to {} 1 sigma by the moves (goal {})", Fixed(k_sigma as f64, 6), Fixed(goal as f64, 6)),
+        true => write!(w, "; K to {} 1 sigma by the moves (goal {})", Fixed(k_sigma, 6), Fixed(goal, 6)),
         false => Ok(()),
     }
 }
@@ -91,23 +91,23 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             w,
             "accelerometer {}: | |a| - 1 | rms {} g -> {} g over {} poses; offset {} g",
             c.model.name(),
-            Fixed(c.rms_before_g as f64, 5),
-            Fixed(c.rms_after_g as f64, 5),
+            Fixed(c.rms_before_g, 5),
+            Fixed(c.rms_after_g, 5),
             c.poses,
             V3(c.offset_g, 4)
         ),
         Report::Mag(c) => write!(
             w,
             "magnetometer: field {} +- {} uT at dip {} +- {} deg ({}); die turned {} +- {} deg; residual {} uT rms, {} % of the sphere, {} samples, {} poses; offset {} uT",
-            Fixed(c.field_ut as f64, 2),
-            Fixed(c.sigma_field_ut as f64, 2),
-            Fixed(c.dip_deg as f64, 2),
-            Fixed(c.sigma_dip_deg as f64, 2),
+            Fixed(c.field_ut, 2),
+            Fixed(c.sigma_field_ut, 2),
+            Fixed(c.dip_deg, 2),
+            Fixed(c.sigma_dip_deg, 2),
             DIP_SIGN,
-            Fixed(c.alignment_deg as f64, 2),
-            Fixed(c.sigma_alignment_deg as f64, 2),
-            Fixed(c.residual_ut as f64, 3),
-            Fixed(c.coverage as f64 * 100.0, 0),
+            Fixed(c.alignment_deg, 2),
+            Fixed(c.sigma_alignment_deg, 2),
+            Fixed(c.residual_ut, 3),
+            Fixed(c.coverage * 100.0, 0),
             c.samples,
             c.poses,
             V3(c.offset_ut, 2)
@@ -115,7 +115,7 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
         Report::RigPose { index, servo_deg, accel_g } => protocol::rig_pose(w, *index, *servo_deg, accel_g),
         Report::Retake { index, retries } => write!(w, "pose {index} disturbed: retake {retries}"),
         Report::Move { from, to, gyro_turn_deg } => {
-            write!(w, "move {from} -> {to}: gyro turned {} deg", Fixed(*gyro_turn_deg as f64, 2))
+            write!(w, "move {from} -> {to}: gyro turned {} deg", Fixed(*gyro_turn_deg, 2))
         }
         Report::Gyro(c) => {
             let q = &c.quality;
@@ -125,11 +125,11 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
                 c.method.name(),
                 V3([c.k[0][0], c.k[1][1], c.k[2][2]], 6),
                 V3(q.sigma_k, 6),
-                Fixed(q.invariant_before.relative_std() as f64, 6),
-                Fixed(q.invariant_after.relative_std() as f64, 6),
-                Fixed(q.condition as f64, 0),
-                Fixed(q.tilt_deg as f64, 1),
-                Fixed(q.span_deg as f64, 1)
+                Fixed(q.invariant_before.relative_std(), 6),
+                Fixed(q.invariant_after.relative_std(), 6),
+                Fixed(q.condition, 0),
+                Fixed(q.tilt_deg, 1),
+                Fixed(q.span_deg, 1)
             )
         }
         Report::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => write!(
@@ -137,17 +137,17 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             "full K = {} +- {} 1 sigma; {axes} axes {} deg from coplanar, {moves} moves, residual {} deg rms, cond {}",
             M3(*k, 6),
             M3(*sigma_k, 6),
-            Fixed(*non_coplanar_deg as f64, 1),
-            Fixed(*residual_rms_deg as f64, 4),
-            Fixed(*condition as f64, 0)
+            Fixed(*non_coplanar_deg, 1),
+            Fixed(*residual_rms_deg, 4),
+            Fixed(*condition, 0)
         ),
         Report::HandMove { from, to, rejected: None, turn_deg, spread, need, k_sigma, goal } => {
             write!(
                 w,
                 "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
-                Fixed(*turn_deg as f64, 1),
-                Fixed(*spread as f64, 3),
-                Fixed(*need as f64, 3)
+                Fixed(*turn_deg, 1),
+                Fixed(*spread, 3),
+                Fixed(*need, 3)
             )?;
             k_sigma_goal(w, *k_sigma, *goal)
         }
@@ -158,7 +158,7 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
         Report::Rotations { moves, rejected: r, residual_deg } => {
             write!(w, "rotation constraints: {moves} moves, misfit [")?;
             for (i, m) in residual_deg[..(*moves as usize).min(residual_deg.len())].iter().enumerate() {
-                write!(w, "{}{}", if i == 0 { "" } else { " " }, Fixed(*m as f64, 3))?;
+                write!(w, "{}{}", if i == 0 { "" } else { " " }, Fixed(*m, 3))?;
             }
             write!(w, "] deg; rejected:")?;
             for (why, n) in Rejected::ALL.iter().zip(r) {
@@ -171,13 +171,13 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             "gyro bias tempco {} dps/C, 1 sigma {}, over {}..{} C",
             V3(c.dps_per_c, 4),
             V3(c.sigma_dps_per_c, 4),
-            Fixed(c.range_c[0] as f64, 2),
-            Fixed(c.range_c[1] as f64, 2)
+            Fixed(c.range_c[0], 2),
+            Fixed(c.range_c[1], 2)
         ),
         Report::TempCo(None) => write!(
             w,
             "gyro bias tempco unknown: the rests' temperatures spanned < {} C (or were not read)",
-            Fixed(crate::estimators::bias::MIN_TEMP_SPAN_C as f64, 1)
+            Fixed(crate::estimators::bias::MIN_TEMP_SPAN_C, 1)
         ),
         Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
         Report::Done(rec) => protocol::record(w, RecordLine::CalibrationDone, rec),

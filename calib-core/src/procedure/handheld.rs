@@ -2,9 +2,10 @@
 
 use super::*;
 use crate::math::real::{self, Real};
+use crate::Time;
 
 impl Procedure {
-    pub(super) fn finish_bias(&mut self, capture: &Capture, t_s: f64) {
+    pub(super) fn finish_bias(&mut self, capture: &Capture, t: Time) {
         let mut est = BiasEstimator::new();
         est.add_window(&capture.gyro, &capture.accel);
         match est.finish(&self.cfg.bias) {
@@ -14,25 +15,25 @@ impl Procedure {
                 self.push(Command::Report(Report::Bias(b)));
                 // The pan/tilt plan fits the accelerometer to its own rig poses.
                 if self.cfg.is_pan_tilt() {
-                    self.begin_rig(t_s);
+                    self.begin_rig(t);
                 } else if self.accel_cal.model == AccelModel::None {
                     self.servo_deg = None;
                     self.last_pulse = None;
                     self.push(Command::ServoOff { channel: 0 });
                     self.attitude = Some(Matrix3::identity());
-                    self.enter(Step::HandHeld { capture: Capture::default(), due: HandDue::None }, t_s);
+                    self.enter(Step::HandHeld { capture: Capture::default(), due: HandDue::None }, t);
                 } else {
-                    self.begin_rig(t_s);
+                    self.begin_rig(t);
                 }
             }
             Err(e) => self.fail(e),
         }
     }
 
-    pub(super) fn finish_accel_pose(&mut self, capture: &Capture, t_s: f64) {
+    pub(super) fn finish_accel_pose(&mut self, capture: &Capture, t: Time) {
         // The previous pose's end first, if its ticks have not finished it (it may end the step).
         for _ in 0..2 {
-            self.hand_due(t_s);
+            self.hand_due(t);
         }
         if !matches!(self.step, Step::HandHeld { .. }) {
             return;
@@ -72,7 +73,7 @@ impl Procedure {
         let (bias, predicted) = self.hand_rest(capture);
         let rise_deg = capture.turn.rise_deg(capture.t_first, capture.t_last);
         let warm_c = if predicted { capture.temp_c() } else { f32::NAN };
-        let rest = PoseRest { bias, predicted, rise_deg, span_s: (capture.t_last - capture.t_first) as f32, warm_c };
+        let rest = PoseRest { bias, predicted, rise_deg, span_s: capture.t_last.since(capture.t_first) as f32, warm_c };
         let to = match self.rotations.push_pose(a, sigma, rest) {
             Ok(to) => to,
             Err(e) => return self.fail(e),
@@ -89,7 +90,7 @@ impl Procedure {
     }
 
     /// One part of a hand-held pose's end ([`HandDue`]), the next on the next tick.
-    fn hand_due(&mut self, t_s: f64) {
+    fn hand_due(&mut self, t: Time) {
         let Step::HandHeld { due, .. } = self.step else { return };
         let next = match due {
             HandDue::None => return,
@@ -106,14 +107,14 @@ impl Procedure {
             *due = next;
         }
         if let HandDue::Report { to, rejected } = due {
-            self.hand_move_end(to, rejected, t_s);
+            self.hand_move_end(to, rejected, t);
         }
     }
 
     /// The move into hand-held pose `to` reported with `K`'s 1σ by the moves so far; the step
     /// ends once the moves give `K` to its goal (or no pose has room), or fails when their axes
     /// are coplanar.
-    fn hand_move_end(&mut self, to: u8, rejected: Option<rotation::Rejected>, t_s: f64) {
+    fn hand_move_end(&mut self, to: u8, rejected: Option<rotation::Rejected>, t: Time) {
         let (goal, room, need) = (self.cfg.hand_k_sigma, rejected != Some(rotation::Rejected::Full), self.cfg.accel_poses.max(6) as usize);
         let turn_deg = self.rotations.moves().last().filter(|_| rejected.is_none()).map_or(0.0, |m| m.turn_deg);
         let k_sigma = if self.accel_poses.len() >= need {
@@ -137,15 +138,15 @@ impl Procedure {
             return;
         }
         // The accelerometer's fits and the magnetometer's follow on the ticks (`fit_due`).
-        self.enter(Step::Reattach { accel: AccelFit::Nine, mag: MagFit::Due(MagStage::Start), pressed: false }, t_s)
+        self.enter(Step::Reattach { accel: AccelFit::Nine, mag: MagFit::Due(MagStage::Start), pressed: false }, t)
     }
 
     /// The hand-held step's fits in parts, one a tick, each within the sensor's FIFO time (the
     /// shell reads it between ticks): the accelerometer's ([`AccelFit`]), then the
     /// magnetometer's ([`MagFit`]); then, once the button was pressed ([`Self::handle_button`]),
     /// the rig.
-    pub(super) fn fit_due(&mut self, t_s: f64) {
-        let Step::Reattach { accel, mag, pressed } = self.step else { return self.hand_due(t_s) };
+    pub(super) fn fit_due(&mut self, t: Time) {
+        let Step::Reattach { accel, mag, pressed } = self.step else { return self.hand_due(t) };
         if !self.one_servo() {
             return;
         }
@@ -167,7 +168,7 @@ impl Procedure {
             AccelFit::Done => {
                 return match mag {
                     MagFit::Due(stage) => self.fit_mag_step(stage),
-                    MagFit::Done if pressed => self.begin_rig(t_s),
+                    MagFit::Done if pressed => self.begin_rig(t),
                     _ => {}
                 }
             }

@@ -52,7 +52,7 @@ use crate::math::lsq::NormalEquations;
 use crate::math::stats::{Mean, Moments3};
 use crate::math::vec3::{sub, to_real as v64};
 use crate::procedure::pipeline::{GravityTurn, OneAxis};
-use crate::{Error, Vec3};
+use crate::{Error, Time, Vec3};
 use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use heapless::Deque;
@@ -62,8 +62,8 @@ use nalgebra::{Matrix3, Vector3};
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Sample {
-    /// MCU timestamp (s), from the crystal clock, never from the nominal ODR.
-    pub t_s: f64,
+    /// MCU timestamp, from the crystal clock, never from the nominal ODR.
+    pub t: Time,
     /// Raw accelerometer (g).
     pub accel_g: Vec3,
     /// Raw gyro (°/s).
@@ -132,8 +132,8 @@ struct Capture {
     mag: Moments3,
     /// The bias-free gyro turn over its windows (hand-held poses: the sway inside the pose).
     turn: PoseTurn,
-    t_first: f64,
-    t_last: f64,
+    t_first: Time,
+    t_last: Time,
     retries: u8,
 }
 
@@ -158,15 +158,15 @@ impl Capture {
     fn feed(&mut self, w: &Window, read: &WindowReadings, turn: &PoseTurn, tainted: bool, need_s: f32) -> CaptureStep {
         if w.still && w.state == RestState::Still && !tainted {
             if self.accel.count() == 0 {
-                self.t_first = w.t_start_s;
+                self.t_first = w.t_start;
             }
             self.accel.merge(&w.accel);
             self.gyro.merge(&w.gyro);
             self.temp.merge(&read.temp);
             self.mag.merge(&read.mag);
             self.turn.merge(turn);
-            self.t_last = w.t_end_s;
-            return if self.t_last - self.t_first >= need_s as f64 { CaptureStep::Done } else { CaptureStep::Pending };
+            self.t_last = w.t_end;
+            return if self.t_last.since(self.t_first) >= need_s as Real { CaptureStep::Done } else { CaptureStep::Pending };
         }
         if self.accel.count() > 0 {
             *self = Capture { retries: self.retries.saturating_add(1), ..Capture::default() };
@@ -200,13 +200,13 @@ struct Ramp {
     channel: u8,
     from_deg: f32,
     to_deg: f32,
-    t0: f64,
+    t0: Time,
     duration_s: f32,
 }
 
 impl Ramp {
-    fn at(&self, t: f64) -> (f32, bool) {
-        let x = if self.duration_s > 0.0 { ((t - self.t0) as f32 / self.duration_s).clamp(0.0, 1.0) } else { 1.0 };
+    fn at(&self, t: Time) -> (f32, bool) {
+        let x = if self.duration_s > 0.0 { (t.since(self.t0) as f32 / self.duration_s).clamp(0.0, 1.0) } else { 1.0 };
         (self.from_deg + (self.to_deg - self.from_deg) * x, x >= 1.0)
     }
 }
@@ -297,19 +297,19 @@ enum Step {
     Pose {
         k: u16,
         capture: Capture,
-        since: f64,
+        since: Time,
     },
     /// The paper's constant-rate spin.
     Spin {
         spin: Spin,
     },
     /// The full `K` in calls of bounded length ([`Procedure::solve_step`]): at `stage`, its
-    /// Gauss–Newton at `k` after `iterations`; the next due at `next_s` (s) or later.
+    /// Gauss–Newton at `k` after `iterations`; the next due at `next` (s) or later.
     Solving {
         stage: SolveStage,
         k: Option<[Real; 9]>,
         iterations: u8,
-        next_s: f64,
+        next: Time,
     },
     /// `record` was handed to the shell to store; waiting for [`Procedure::handle_stored`].
     Storing {
@@ -393,7 +393,7 @@ struct Spin {
 /// Least time between two steps of the solve (s): the shell reads the sensor's FIFO between
 /// them and drains what a step held back (≈ 0.14 s of samples' log rows; a USB port that is
 /// polled only between steps drops lines); ≈ 2 s for the whole solve.
-pub const SOLVE_STEP_S: f64 = 0.25;
+pub const SOLVE_STEP_S: Real = 0.25;
 
 /// Longest a shell may take to answer a store (s): a page erase and a write take ≈ 0.1 s.
 const STORE_TIMEOUT_S: f32 = 5.0;
@@ -416,8 +416,8 @@ pub struct Procedure {
     cfg: Config,
     stored: Option<Record>,
     step: Step,
-    phase_t0: f64,
-    last_sample_t: Option<f64>,
+    phase_t0: Time,
+    last_sample_t: Option<Time>,
     /// The commands for the shell, their records left out ([`Command::with_record`]).
     queue: Deque<Command<()>, QUEUE>,
     rest: RestDetector,
@@ -488,7 +488,7 @@ impl Procedure {
             addr_of_mut!((*p).cfg).write(cfg);
             addr_of_mut!((*p).stored).write(stored);
             addr_of_mut!((*p).step).write(Step::Idle);
-            addr_of_mut!((*p).phase_t0).write(0.0);
+            addr_of_mut!((*p).phase_t0).write(Time::ZERO);
             addr_of_mut!((*p).last_sample_t).write(None);
             addr_of_mut!((*p).queue).write(Deque::new());
             addr_of_mut!((*p).rest).write(RestDetector::new(cfg.rest));
@@ -594,16 +594,16 @@ impl Procedure {
     /// The button was pressed: starts a calibration (from idle, done or failed) or confirms
     /// that the board is back on the shaft. False: a press that does nothing in this phase (a
     /// calibration is running and not waiting for the re-clamp), for the shell to report.
-    pub fn handle_button(&mut self, t_s: f64) -> bool {
+    pub fn handle_button(&mut self, t: Time) -> bool {
         let acted = match self.step {
             Step::Idle | Step::Finished(_) => {
-                self.start(t_s);
+                self.start(t);
                 true
             }
             Step::Reattach { ref mut pressed, .. } => {
                 // The rig starts once the hand-held step's fits are made (`fit_due`).
                 *pressed = true;
-                self.fit_due(t_s);
+                self.fit_due(t);
                 true
             }
             _ => false,
@@ -660,12 +660,12 @@ impl Procedure {
     }
 
     /// A magnetometer reading (raw, µT, in the accelerometer's axes: the part's axis mapping
-    /// applied) at MCU time `t_s`. Only the hand-held step uses them, from its first pose on: on
+    /// applied), read since the last sample. Only the hand-held step uses them, from its first pose on: on
     /// the rig a servo's motor magnet moves with the shaft, and the step's first pose is
     /// usually taken before the board is lifted off it. A non-finite reading fails the
     /// calibration there.
-    pub fn handle_mag(&mut self, t_s: f64, m_ut: Vec3) {
-        if matches!(self.step, Step::HandHeld { .. }) && self.one_servo() && !self.accel_poses.is_empty() && t_s.is_finite() {
+    pub fn handle_mag(&mut self, m_ut: Vec3) {
+        if matches!(self.step, Step::HandHeld { .. }) && self.one_servo() && !self.accel_poses.is_empty() {
             match self.mag.add_sample(m_ut) {
                 Ok(()) => self.window_read.mag.add(m_ut),
                 Err(e) => self.fail(e),
@@ -678,29 +678,29 @@ impl Procedure {
     /// the solve's next step. (Never inlined, so that its longest call can be measured on the
     /// emulated MCU.)
     #[inline(never)]
-    pub fn handle_tick(&mut self, t_s: f64) {
-        self.tick(t_s);
+    pub fn handle_tick(&mut self, t: Time) {
+        self.tick(t);
         self.settle();
     }
 
-    fn tick(&mut self, t_s: f64) {
+    fn tick(&mut self, t: Time) {
         if !self.running() {
             return;
         }
         // The solve's steps and the store need no samples: the solve advances on the ticks
         // alone, one step a tick (the shell ticks after each FIFO read).
-        if let Step::Solving { next_s, .. } = self.step {
-            if t_s >= next_s {
-                self.solve_step(t_s);
+        if let Step::Solving { next, .. } = self.step {
+            if t >= next {
+                self.solve_step(t);
             }
         } else if let (Some(last), false) = (self.last_sample_t, matches!(self.step, Step::Storing { .. })) {
-            let gap = t_s - last;
-            if gap > self.cfg.sample_timeout_s as f64 {
+            let gap = t.since(last);
+            if gap > self.cfg.sample_timeout_s as Real {
                 return self.fail(Error::SensorTimeout { gap_s: gap as f32 });
             }
-            self.fit_due(t_s);
+            self.fit_due(t);
         }
-        self.check_timeout(t_s);
+        self.check_timeout(t);
     }
 
     /// A sensor sample. (Never inlined, so that its cost per sample can be measured on the
@@ -715,15 +715,15 @@ impl Procedure {
         if !self.running() {
             return;
         }
-        let finite = s.accel_g.iter().chain(s.gyro_dps.iter()).all(|v| v.is_finite()) && s.t_s.is_finite();
+        let finite = s.accel_g.iter().chain(s.gyro_dps.iter()).all(|v| v.is_finite());
         if !finite {
             return self.fail(Error::NonFinite);
         }
         let last = self.last_sample_t;
-        if last.is_some_and(|last| !(s.t_s > last)) {
+        if last.is_some_and(|last| s.t <= last) {
             return; // duplicate or out-of-order timestamp: dropped
         }
-        self.last_sample_t = Some(s.t_s);
+        self.last_sample_t = Some(s.t);
         let gyro_saturated = s.gyro_dps.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.gyro_range_dps);
         let saturated = gyro_saturated || s.accel_g.iter().any(|v| v.abs() >= 0.98 * self.cfg.setup.accel_range_g);
         self.tainted |= saturated;
@@ -731,14 +731,14 @@ impl Procedure {
         if let Some(t) = s.temp_c.filter(|t| t.is_finite()) {
             self.window_read.temp.add(t);
         }
-        let window = self.rest.update(s.t_s, s.accel_g, s.gyro_dps);
+        let window = self.rest.update(s.t, s.accel_g, s.gyro_dps);
         let tainted = self.tainted;
         let g = self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps));
         let hand = matches!(self.step, Step::HandHeld { .. }) && self.one_servo();
         if hand || self.attitude.is_some() {
-            let dt = last.map_or(0.0, |last| s.t_s - last);
+            let dt = last.map_or(0.0, |last| s.t.since(last));
             if hand {
-                self.window_turn.add(s.t_s, dt as Real, g);
+                self.window_turn.add(s.t, dt as Real, g);
             }
             if let Some(a) = self.attitude.filter(|_| self.one_servo()) {
                 // A clipped gyro sample, or a step beyond `exp_jr`'s series (a gap in the
@@ -760,9 +760,9 @@ impl Procedure {
             Step::WaitRest => {
                 if self.rest.state() == RestState::Still {
                     if self.bias.is_none() {
-                        self.enter(Step::Bias { capture: Capture::default() }, s.t_s);
+                        self.enter(Step::Bias { capture: Capture::default() }, s.t);
                     } else {
-                        self.enter(Step::Pose { k: 0, capture: Capture::default(), since: s.t_s }, s.t_s);
+                        self.enter(Step::Pose { k: 0, capture: Capture::default(), since: s.t }, s.t);
                     }
                 }
             }
@@ -776,21 +776,21 @@ impl Procedure {
                         }
                         CaptureStep::Done => {
                             let c = *capture;
-                            self.finish_bias(&c, s.t_s)
+                            self.finish_bias(&c, s.t)
                         }
                     }
                 }
             }
             Step::HandHeld { .. } if !hand => {}
             Step::HandHeld { ref mut capture, .. } => {
-                self.rotations.add(s.t_s, g, saturated);
+                self.rotations.add(s.t, g, saturated);
                 if let Some((w, wt, turn)) = &closed {
                     // A disturbed hand-held pose is simply taken again: the user is moving it.
                     if let CaptureStep::Done = capture.feed(w, wt, turn, tainted, self.cfg.hand_pose_s) {
                         let c = *capture;
-                        self.finish_accel_pose(&c, s.t_s);
+                        self.finish_accel_pose(&c, s.t);
                         // The next move starts at this sample (its first interval is the next).
-                        self.rotations.add(s.t_s, g, saturated);
+                        self.rotations.add(s.t, g, saturated);
                     }
                 }
             }
@@ -798,8 +798,8 @@ impl Procedure {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
-                self.integ.add(s.t_s, g);
-                let (deg, done) = ramp.at(s.t_s);
+                self.integ.add(s.t, g);
+                let (deg, done) = ramp.at(s.t);
                 if ramp.channel == 1 {
                     self.set_tilt(deg);
                 } else {
@@ -809,7 +809,7 @@ impl Procedure {
                     if let (ServoKind::Continuous { .. }, 0) = (self.cfg.servo(), ramp.channel) {
                         self.push(Command::ServoOff { channel: 0 });
                     }
-                    self.step = Step::Pose { k, capture: Capture::default(), since: s.t_s };
+                    self.step = Step::Pose { k, capture: Capture::default(), since: s.t };
                 }
             }
             Step::Pose { k, ref mut capture, since } => {
@@ -817,7 +817,7 @@ impl Procedure {
                     // The shaft may still be settling: a clipped sample corrupts the move's integral.
                     return self.fail(Error::Saturated);
                 }
-                self.integ.add(s.t_s, g);
+                self.integ.add(s.t, g);
                 if let Some((w, wt, turn)) = &closed {
                     match capture.feed(w, wt, turn, tainted, self.cfg.pose_average_s) {
                         CaptureStep::Pending => {}
@@ -836,21 +836,21 @@ impl Procedure {
                 if saturated {
                     return self.fail(Error::Saturated);
                 }
-                let elapsed = s.t_s - spin.ramp.t0;
-                let duration = spin.ramp.duration_s as f64;
-                let deg = spin.ramp.at(s.t_s).0;
+                let elapsed = s.t.since(spin.ramp.t0);
+                let duration = spin.ramp.duration_s as Real;
+                let deg = spin.ramp.at(s.t).0;
                 if self.cfg.steady.averaged(elapsed, duration) {
                     spin.rate.add(g);
                     // The rate gravity turns at is a continuous servo's (a positional one's is
                     // commanded).
                     if let ServoKind::Continuous { .. } = self.cfg.servo() {
-                        spin.gravity.add(s.t_s, self.accel_cal.apply(s.accel_g));
+                        spin.gravity.add(s.t, self.accel_cal.apply(s.accel_g));
                     }
                 }
                 let done = (elapsed >= duration).then_some(*spin);
                 self.set_angle(deg);
                 if let Some(spin) = done {
-                    self.finish_spin(&spin, s.t_s);
+                    self.finish_spin(&spin, s.t);
                 }
             }
         }
@@ -874,7 +874,7 @@ impl Procedure {
         }
     }
 
-    fn start(&mut self, t_s: f64) {
+    fn start(&mut self, t: Time) {
         // Cleared in place: no second copy of the (large) state on the stack.
         self.last_sample_t = None;
         self.rest.reset();
@@ -907,16 +907,16 @@ impl Procedure {
             self.accel_cal = acc;
         }
         self.park_servo();
-        self.enter(Step::WaitRest, t_s);
+        self.enter(Step::WaitRest, t);
     }
 
-    fn enter(&mut self, step: Step, t_s: f64) {
+    fn enter(&mut self, step: Step, t: Time) {
         let rest = if matches!(step, Step::HandHeld { .. }) { self.cfg.hand_rest } else { self.cfg.rest };
         if *self.rest.config() != rest {
             self.rest = RestDetector::new(rest);
         }
         self.step = step;
-        self.phase_t0 = t_s;
+        self.phase_t0 = t;
         let phase = self.phase();
         self.push(Command::Report(Report::Phase(phase)));
         let led = match phase {
@@ -948,7 +948,7 @@ impl Procedure {
         self.step = back(capture);
     }
 
-    fn check_timeout(&mut self, t_s: f64) {
+    fn check_timeout(&mut self, t: Time) {
         let c = &self.cfg;
         let (since, limit) = match self.step {
             Step::WaitRest | Step::Bias { .. } => (self.phase_t0, c.rest_timeout_s + c.bias_s),
@@ -962,7 +962,7 @@ impl Procedure {
             Step::Storing { .. } => (self.phase_t0, STORE_TIMEOUT_S),
             Step::Idle | Step::Finished(_) => return,
         };
-        if t_s - since > limit as f64 {
+        if t.since(since) > limit as Real {
             let phase = self.phase();
             self.fail(Error::PhaseTimeout { phase, limit_s: limit });
         }
@@ -970,7 +970,7 @@ impl Procedure {
 
     /// Drains the commands into `shell`, answering each store with [`Self::handle_stored`]
     /// (the one dispatch loop of every shell). Call after every `handle_*`.
-    pub fn drive(&mut self, t_s: f64, shell: &mut impl Shell) {
+    pub fn drive(&mut self, t: Time, shell: &mut impl Shell) {
         while let Some(c) = self.poll() {
             match c {
                 Command::Servo { channel, pulse_us } => shell.servo(channel, pulse_us),
@@ -979,7 +979,7 @@ impl Procedure {
                 Command::Report(r) => shell.report(&r),
                 Command::Store(rec) => {
                     let result = shell.store(&rec);
-                    self.handle_stored(t_s, result);
+                    self.handle_stored(t, result);
                 }
                 Command::Apply(rec) => shell.apply(&rec),
             }
@@ -991,6 +991,7 @@ impl Procedure {
 mod tests {
     use super::*;
     use crate::formats::record::tests::sample;
+    use crate::time::secs;
 
     fn drain(p: &mut Procedure) -> heapless::Vec<Command, QUEUE> {
         core::iter::from_fn(|| p.poll()).collect()
@@ -999,13 +1000,13 @@ mod tests {
     #[test]
     fn the_queue_hands_out_each_record_it_was_given() {
         let mut p = Procedure::new(Config::default(), None);
-        p.handle_button(0.0);
+        p.handle_button(secs(0.0));
         drain(&mut p);
-        p.store(sample(), 1.0);
+        p.store(sample(), secs(1.0));
         p.settle();
         let cmds = drain(&mut p);
         assert_eq!(cmds.last(), Some(&Command::Store(sample())), "{cmds:?}");
-        p.handle_stored(1.5, Ok(()));
+        p.handle_stored(secs(1.5), Ok(()));
         let cmds = drain(&mut p);
         assert_eq!(cmds[..2], [Command::Report(Report::Done(sample())), Command::Apply(sample())], "{cmds:?}");
         assert_eq!(p.stored, Some(sample()));
@@ -1061,11 +1062,11 @@ mod tests {
         // out and the calibration fails before the shell polls. The failure is handed out; the
         // record of the failed calibration is not, neither to store nor to apply.
         let mut p = Procedure::new(Config::default(), None);
-        p.handle_button(0.0);
+        p.handle_button(secs(0.0));
         drain(&mut p);
-        p.store(sample(), 1.0);
+        p.store(sample(), secs(1.0));
         p.settle();
-        p.handle_tick(1.0 + STORE_TIMEOUT_S as Real + 0.1);
+        p.handle_tick(secs(1.0 + STORE_TIMEOUT_S as Real + 0.1));
         let cmds = drain(&mut p);
         assert!(!cmds.iter().any(|c| matches!(c, Command::Store(_) | Command::Apply(_))), "{cmds:?}");
         let timeout = Error::PhaseTimeout { phase: Phase::Store, limit_s: STORE_TIMEOUT_S };

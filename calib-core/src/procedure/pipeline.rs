@@ -12,7 +12,7 @@ use crate::estimators::{paper, sweep};
 use crate::math::lsq::NormalEquations;
 use crate::math::real::Real;
 use crate::math::vec3::to_real as v64;
-use crate::{Error, Vec3};
+use crate::{Error, Time, Vec3};
 use nalgebra::Vector3;
 
 /// What a result must meet to be stored or printed.
@@ -288,8 +288,8 @@ impl SteadyRate {
     pub const DEFAULT: SteadyRate = SteadyRate { skip_start_s: 1.0, skip_end_s: 0.5, min_s: 3.0, min_dps: 2.0 };
 
     /// A sample `elapsed_s` after the start of a spin that lasts `duration_s` is averaged.
-    pub fn averaged(&self, elapsed_s: f64, duration_s: f64) -> bool {
-        elapsed_s > self.skip_start_s as f64 && elapsed_s < duration_s - self.skip_end_s as f64
+    pub fn averaged(&self, elapsed_s: Real, duration_s: Real) -> bool {
+        elapsed_s > self.skip_start_s as Real && elapsed_s < duration_s - self.skip_end_s as Real
     }
 }
 
@@ -321,30 +321,30 @@ pub struct GravityTurn {
     axis: Option<Vector3<Real>>,
     prev: Option<Vec3>,
     turn_deg: Real,
-    t_first: Option<f64>,
-    t_last: f64,
+    t_first: Option<Time>,
+    t_last: Time,
 }
 
 impl GravityTurn {
     /// About `axis` (unit, calibrated accelerometer frame); `None`: no axis, no rate.
     pub fn new(axis: Option<Vector3<Real>>) -> Self {
-        Self { axis, prev: None, turn_deg: 0.0, t_first: None, t_last: 0.0 }
+        Self { axis, prev: None, turn_deg: 0.0, t_first: None, t_last: Time::ZERO }
     }
 
-    /// A calibrated accelerometer sample (g) at `t_s`.
-    pub fn add(&mut self, t_s: f64, accel_g: Vec3) {
+    /// A calibrated accelerometer sample (g) at `t`.
+    pub fn add(&mut self, t: Time, accel_g: Vec3) {
         if let (Some(u), Some(p)) = (self.axis, self.prev) {
             self.turn_deg += turn_deg(&u, &v64(p), &v64(accel_g));
         }
         self.prev = Some(accel_g);
-        self.t_first.get_or_insert(t_s);
-        self.t_last = t_s;
+        self.t_first.get_or_insert(t);
+        self.t_last = t;
     }
 
     /// Mean rate of the turn (°/s, ≥ 0; 0 before two samples).
     pub fn rate_dps(&self) -> f32 {
         match self.t_first {
-            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / (self.t_last - t0) as Real) as f32,
+            Some(t0) if self.t_last > t0 => (self.turn_deg.abs() / self.t_last.since(t0)) as f32,
             _ => 0.0,
         }
     }
@@ -365,6 +365,7 @@ mod tests {
     use crate::estimators::accel::AccelModel;
     use crate::estimators::bias::RestBias;
     use crate::estimators::rotation;
+    use crate::time::secs;
 
     #[test]
     fn a_too_uncertain_scale_names_disagreeing_moves_apart_from_too_few() {
@@ -391,7 +392,7 @@ mod tests {
     #[test]
     fn moves_that_disagree_are_blamed_on_the_bias_only_when_it_left_its_trend() {
         let inconsistent = Error::MovesInconsistent { residual_rms_deg: 0.3, limit_deg: 0.15 };
-        let rest = |t: f64, b: f32| RestBias { t_s: t, residual_dps: [b, 0.0, 0.0] };
+        let rest = |t: f64, b: f32| RestBias { t: secs(t), residual_dps: [b, 0.0, 0.0] };
         // A fast but smooth warm-up (0.3 °/s per minute): the rig, not the bias.
         let mut smooth = Drift::new();
         for i in 0..10 {

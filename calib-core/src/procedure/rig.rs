@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::math::real::{self, Real};
+use crate::Time;
 
 impl Procedure {
     pub(super) fn park_servo(&mut self) {
@@ -30,16 +31,16 @@ impl Procedure {
 
     /// Starts a commanded turn from the current angle: a positional ramp to `to_deg` at
     /// `rate_dps`, or a continuous servo at speed `dir` (±1) for `secs`.
-    pub(super) fn start_ramp(&mut self, t_s: f64, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
+    pub(super) fn start_ramp(&mut self, t: Time, to_deg: f32, rate_dps: f32, dir: f32, secs: f32) -> Ramp {
         let from_deg = self.servo_deg.unwrap_or(self.cfg.pose_first_deg);
         match self.cfg.servo() {
             ServoKind::Positional => {
-                Ramp { channel: 0, from_deg, to_deg, t0: t_s, duration_s: (to_deg - from_deg).abs() / rate_dps.max(1.0) }
+                Ramp { channel: 0, from_deg, to_deg, t0: t, duration_s: (to_deg - from_deg).abs() / rate_dps.max(1.0) }
             }
             ServoKind::Continuous { neutral_us, span_us, speed, nominal_rate_dps, .. } => {
                 let pulse = self.cfg.clamp_pulse(neutral_us as f32 + dir * speed * span_us as f32);
                 self.push(Command::Servo { channel: 0, pulse_us: pulse });
-                Ramp { channel: 0, from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t_s, duration_s: secs }
+                Ramp { channel: 0, from_deg, to_deg: from_deg + dir * nominal_rate_dps * secs, t0: t, duration_s: secs }
             }
         }
     }
@@ -54,14 +55,14 @@ impl Procedure {
         }
     }
 
-    pub(super) fn begin_rig(&mut self, t_s: f64) {
+    pub(super) fn begin_rig(&mut self, t: Time) {
         self.rest.reset();
         self.park_servo();
         self.poses.clear();
         self.moves.clear();
         self.axes.clear();
         self.integ = Integrator::new();
-        self.enter(Step::WaitRest, t_s);
+        self.enter(Step::WaitRest, t);
     }
 
     pub(super) fn finish_pose(&mut self, k: u16, capture: &Capture, s: &Sample) {
@@ -108,38 +109,38 @@ impl Procedure {
             self.push(Command::Report(Report::Move { from: idx - 1, to: idx, gyro_turn_deg: turned }));
         }
         self.integ = Integrator::new();
-        self.integ.add(s.t_s, self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps)));
+        self.integ.add(s.t, self.bias.map_or(s.gyro_dps, |b| sub(s.gyro_dps, b.bias_dps)));
         let next = k + 1;
         if next < self.cfg.plan_steps() {
-            let (next_setting, nj) = self.cfg.plan_at(next);
+            let (nextetting, nj) = self.cfg.plan_at(next);
             let ramp = if pan_tilt && nj == 0 {
-                let (from_deg, to_deg) = (self.cfg.tilt_settings_deg[setting], self.cfg.tilt_settings_deg[next_setting]);
+                let (from_deg, to_deg) = (self.cfg.tilt_settings_deg[setting], self.cfg.tilt_settings_deg[nextetting]);
                 let duration_s = (to_deg - from_deg).abs() / self.cfg.move_rate_dps.max(1.0);
-                Ramp { channel: 1, from_deg, to_deg, t0: s.t_s, duration_s }
+                Ramp { channel: 1, from_deg, to_deg, t0: s.t, duration_s }
             } else {
                 // Forward over the first half of each round trip, back over the second.
                 let forward = self.cfg.pose_slot(nj) > self.cfg.pose_slot(j);
                 let move_s = if let ServoKind::Continuous { move_s, .. } = self.cfg.servo() { move_s } else { 0.0 };
                 let dir = if forward { 1.0 } else { -1.0 };
-                self.start_ramp(s.t_s, self.cfg.step_deg(nj), self.cfg.move_rate_dps, dir, move_s)
+                self.start_ramp(s.t, self.cfg.step_deg(nj), self.cfg.move_rate_dps, dir, move_s)
             };
             self.step = Step::Move { k: next, ramp };
         } else if pan_tilt {
-            self.solve_full(s.t_s);
+            self.solve_full(s.t);
         } else if self.cfg.spin_rate_dps > 0.0 {
-            let ramp = self.start_ramp(s.t_s, self.cfg.pose_last_deg, self.cfg.spin_rate_dps, 1.0, self.cfg.spin_s);
+            let ramp = self.start_ramp(s.t, self.cfg.pose_last_deg, self.cfg.spin_rate_dps, 1.0, self.cfg.spin_s);
             // The axis gravity turns about: a continuous servo's rate (a positional one's is
             // commanded).
             let continuous = matches!(self.cfg.servo(), ServoKind::Continuous { .. });
             let axis = continuous.then(|| self.poses.geometry(&self.cfg.geometry, false).ok().map(|g| g.u)).flatten();
             let spin = Spin { ramp, rate: Moments3::new(), gravity: GravityTurn::new(axis) };
-            self.enter(Step::Spin { spin }, s.t_s);
+            self.enter(Step::Spin { spin }, s.t);
         } else {
-            self.solve(s.t_s);
+            self.solve(s.t);
         }
     }
 
-    pub(super) fn finish_spin(&mut self, spin: &Spin, t_s: f64) {
+    pub(super) fn finish_spin(&mut self, spin: &Spin, t: Time) {
         self.push(Command::ServoOff { channel: 0 });
         self.servo_deg = None;
         self.last_pulse = None;
@@ -151,6 +152,6 @@ impl Procedure {
             let r = self.drift.last().map_or([0.0; 3], |r| r.residual_dps);
             self.gbar = Some((sub(spin.rate.mean().map(|v| v as f32), r), omega));
         }
-        self.solve(t_s);
+        self.solve(t);
     }
 }

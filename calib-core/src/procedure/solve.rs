@@ -5,12 +5,13 @@ use crate::estimators::bias::RestNoise;
 use crate::estimators::full::{iterate_end, GAUSS_NEWTON_ITERATIONS, GAUSS_NEWTON_STEP};
 use crate::estimators::mag::{MagMove, REFINE_STEPS};
 use crate::math::real::Real;
+use crate::Time;
 
 impl Procedure {
     /// The end of the pan/tilt plan: its steps follow on the ticks ([`Self::solve_step`]), the
     /// accelerometer's fit first.
-    pub(super) fn solve_full(&mut self, t_s: f64) {
-        self.step = Step::Solving { stage: SolveStage::PanTilt, k: None, iterations: 0, next_s: t_s };
+    pub(super) fn solve_full(&mut self, t: Time) {
+        self.step = Step::Solving { stage: SolveStage::PanTilt, k: None, iterations: 0, next: t };
     }
 
     /// The pan/tilt plan's accelerometer from the rig poses (`nine`: its 9-parameter fit, if
@@ -37,9 +38,9 @@ impl Procedure {
     /// The end of the full `K` (or its error): with the pan/tilt plan, beside it the one-axis
     /// sweep estimator of the tilt setting whose pan axis is the most oblique to the sensor
     /// axes, then the store; with the one-servo plan [`Self::finish_full`].
-    fn end_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+    fn end_full(&mut self, full: Result<FullCal, Error>, t: Time) {
         if self.one_servo() {
-            return self.finish_full(full, t_s);
+            return self.finish_full(full, t);
         }
         let oblique = |a: &FullAxis| a.u.iter().fold(f32::INFINITY, |m, c| m.min(c.abs()));
         let setting = match &full {
@@ -49,12 +50,12 @@ impl Procedure {
         if let Err(e) = self.one_axis_beside(setting) {
             return self.fail(e);
         }
-        self.store_full(full, t_s);
+        self.store_full(full, t);
     }
 
     /// Reports a full `K` (or fails with why there is none), validates it and hands its record
     /// to the shell.
-    pub(super) fn store_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+    pub(super) fn store_full(&mut self, full: Result<FullCal, Error>, t: Time) {
         let full = match full {
             Ok(f) => f,
             Err(e) => return self.fail(e),
@@ -73,8 +74,8 @@ impl Procedure {
             return self.fail(e);
         }
         let poses = self.axes.poses().len() as u8;
-        let record = self.context(t_s).full(&full, poses);
-        self.store(record, t_s);
+        let record = self.context(t).full(&full, poses);
+        self.store(record, t);
     }
 
     /// The poses and pan moves of one tilt setting as a one-axis rig (`poses`, `moves`).
@@ -106,13 +107,13 @@ impl Procedure {
 
     /// The end of the one-axis plan: the solve's steps follow on the ticks ([`Self::solve_step`]),
     /// the warm-up and the diagonal estimators first.
-    pub(super) fn solve(&mut self, t_s: f64) {
-        self.step = Step::Solving { stage: SolveStage::Warmup, k: None, iterations: 0, next_s: t_s };
+    pub(super) fn solve(&mut self, t: Time) {
+        self.step = Step::Solving { stage: SolveStage::Warmup, k: None, iterations: 0, next: t };
     }
 
     /// The diagonal estimators; with hand-held moves the full `K` follows, one Gauss–Newton
     /// iteration a step; else the record of the one-axis `K`.
-    fn diagonal(&mut self, t_s: f64) {
+    fn diagonal(&mut self, t: Time) {
         let solved = OneAxis::diagonal(&self.poses, &self.moves, self.gbar, &self.cfg.geometry);
         for (method, r) in [(Method::Sweep, Some(solved.sweep)), (Method::Paper, solved.paper)] {
             match r {
@@ -124,14 +125,14 @@ impl Procedure {
         // With hand-held moves: the rig's axis and their rotation constraints give the full K.
         if !self.rotations.moves().is_empty() {
             return match solved.load_axes(&self.poses, &self.moves, &mut self.axes) {
-                Ok(k) => self.step = Step::Solving { stage: SolveStage::Iterate, k, iterations: 0, next_s: t_s + SOLVE_STEP_S },
-                Err(e) => self.finish_full(Err(e), t_s),
+                Ok(k) => self.step = Step::Solving { stage: SolveStage::Iterate, k, iterations: 0, next: t.plus_s(SOLVE_STEP_S) },
+                Err(e) => self.finish_full(Err(e), t),
             };
         }
         match solved.chosen(&self.cfg.acceptance) {
             Ok(c) => {
-                let record = self.context(t_s).one_axis(&c);
-                self.store(record, t_s);
+                let record = self.context(t).one_axis(&c);
+                self.store(record, t);
             }
             Err(e) => self.fail(e),
         }
@@ -146,9 +147,9 @@ impl Procedure {
     /// solve at the last iterate in the parts of [`Axes::solve_after`]; the magnetometer refined
     /// with it; each move's misfit and the store. The stage changes in place.
     #[inline(never)]
-    pub(super) fn solve_step(&mut self, t_s: f64) {
-        let Step::Solving { stage, k, iterations, next_s } = &mut self.step else { return };
-        *next_s = t_s + SOLVE_STEP_S;
+    pub(super) fn solve_step(&mut self, t: Time) {
+        let Step::Solving { stage, k, iterations, next } = &mut self.step else { return };
+        *next = t.plus_s(SOLVE_STEP_S);
         let (limits, rl, at) = (&self.cfg.full, &self.cfg.rotation, k.unwrap_or_default());
         // The call's work: `Some` stage to go on with, `None` another batch of this one, an
         // error the solve's end. An iteration's error goes on to the solve, whose checks name a
@@ -182,7 +183,7 @@ impl Procedure {
                 }
                 Ok(Some(SolveStage::Diagonal))
             }
-            SolveStage::Diagonal => return self.diagonal(t_s),
+            SolveStage::Diagonal => return self.diagonal(t),
             SolveStage::Iterate => match self.axes.iterate_rig(limits, &mut self.rows, *k) {
                 Ok(a) => {
                     *k = Some(a);
@@ -259,25 +260,25 @@ impl Procedure {
             }
             SolveStage::Store | SolveStage::StoreEnd => {
                 let full = self.full.ok_or(Error::NoUsableMove);
-                return self.end_full(full, t_s);
+                return self.end_full(full, t);
             }
         };
         match step {
             Ok(Some(next)) => *stage = next,
             Ok(None) => {}
-            Err(e) => self.end_full(Err(e), t_s),
+            Err(e) => self.end_full(Err(e), t),
         }
     }
 
     /// The full `K` of the one-axis plan with hand-held moves (the magnetometer refined with it
     /// in the call before): each move's misfit reported and the record stored (or the failure
     /// said).
-    fn finish_full(&mut self, full: Result<FullCal, Error>, t_s: f64) {
+    fn finish_full(&mut self, full: Result<FullCal, Error>, t: Time) {
         // Each move's misfit at the solution (none without one).
         let residual_deg = full.as_ref().map_or([0.0; MAX_ROTATION_MOVES], |f| self.rotations.residuals_deg(&f.k, &self.cfg.rotation));
         let (moves, rejected) = (self.rotations.moves().len() as u8, self.rotations.rejected());
         self.push(Command::Report(Report::Rotations { moves, rejected, residual_deg }));
-        self.store_full(full, t_s)
+        self.store_full(full, t)
     }
 
     /// `steps` of the magnetometer's refinement ([`MagCalibrator::refine_steps`]) from the die's
@@ -303,11 +304,11 @@ impl Procedure {
     }
 
     /// Hands a built record to the shell to store (or fails: a NaN or an infinite number).
-    pub(super) fn store(&mut self, record: Record, t_s: f64) {
+    pub(super) fn store(&mut self, record: Record, t: Time) {
         match record.check_finite().map(|_| record).map_err(|_| Error::ResultNotFinite) {
             Ok(record) => {
                 self.push(Command::Report(Report::TempCo(record.tempco)));
-                self.enter(Step::Storing { record }, t_s);
+                self.enter(Step::Storing { record }, t);
                 self.push(Command::Store(()));
             }
             Err(e) => self.fail(e),
@@ -317,17 +318,17 @@ impl Procedure {
     /// The shell's answer to [`Command::Store`]: only a verified store reports the result,
     /// applies it, shows it as done and moves the sequence number on; a failed one fails the
     /// calibration with [`Error::Storage`] (the previous record stays in use).
-    pub fn handle_stored(&mut self, t_s: f64, result: Result<(), StoreError>) {
-        self.stored_answer(t_s, result);
+    pub fn handle_stored(&mut self, t: Time, result: Result<(), StoreError>) {
+        self.stored_answer(t, result);
         self.settle();
     }
 
-    pub(super) fn stored_answer(&mut self, t_s: f64, result: Result<(), StoreError>) {
+    pub(super) fn stored_answer(&mut self, t: Time, result: Result<(), StoreError>) {
         let Step::Storing { record } = self.step else { return };
         match result {
             Ok(()) => {
                 self.stored = Some(record);
-                self.phase_t0 = t_s;
+                self.phase_t0 = t;
                 self.step = Step::Finished(Phase::Done);
                 self.push(Command::Report(Report::Done(())));
                 self.push(Command::Apply(()));
@@ -344,15 +345,15 @@ impl Procedure {
         (temp.count() > 0).then(|| temp.mean())
     }
 
-    /// The gyro bias a record made at MCU time `t_s` holds, with its 1σ: the rests' at the
+    /// The gyro bias a record made at MCU time `t` holds, with its 1σ: the rests' at the
     /// record's temperature when the tempco is known (`b(T) = b + c (T − temp_c)` then holds),
-    /// else their line's at `t_s` ([`Drift::at`]: over the rig's many short rests less noisy
+    /// else their line's at `t` ([`Drift::at`]: over the rig's many short rests less noisy
     /// than [`Drift::predict`]'s, measured by drift-bench); the 1σ [`Drift::predict`]'s. The
     /// first rest's alone is minutes old on a warming board. `None` before the bias rest.
-    pub fn bias_at(&self, t_s: f64) -> Option<Bias> {
+    pub fn bias_at(&self, t: Time) -> Option<Bias> {
         let first = self.bias?;
-        let residual = self.temp_c().and_then(|t| self.temp_fit.residual_at(t)).or_else(|| self.drift.at(t_s).map(|r| r.residual_dps));
-        let sigma = self.drift.predict(t_s, RestNoise::Own(first.sigma_dps)).map_or(first.sigma_dps, |(_, s)| s);
+        let residual = self.temp_c().and_then(|t| self.temp_fit.residual_at(t)).or_else(|| self.drift.at(t).map(|r| r.residual_dps));
+        let sigma = self.drift.predict(t, RestNoise::Own(first.sigma_dps)).map_or(first.sigma_dps, |(_, s)| s);
         let bias_dps = residual.map_or(first.bias_dps, |r| core::array::from_fn(|k| first.bias_dps[k] + r[k]));
         Some(Bias { bias_dps, sigma_dps: sigma, ..first })
     }
@@ -364,12 +365,12 @@ impl Procedure {
     }
 
     /// The record's calibration-independent part (sequence, temperature, bias, accelerometer) at
-    /// MCU time `t_s` ([`Self::bias_at`]).
-    pub(super) fn context(&self, t_s: f64) -> record::Context {
+    /// MCU time `t` ([`Self::bias_at`]).
+    pub(super) fn context(&self, t: Time) -> record::Context {
         record::Context {
             seq: self.stored.map_or(1, |r| r.seq.wrapping_add(1)),
             temp_c: self.temp_c(),
-            gyro_bias_dps: self.bias_at(t_s).map_or([0.0; 3], |b| b.bias_dps),
+            gyro_bias_dps: self.bias_at(t).map_or([0.0; 3], |b| b.bias_dps),
             accel: self.accel_cal,
             setup: self.cfg.setup,
             tempco: self.temp_fit.finish(),

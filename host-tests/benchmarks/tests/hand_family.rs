@@ -90,7 +90,7 @@ fn a_held_pose_s_1sigma_covers_the_error_of_its_mean_for_every_hand() {
         for run in 0..POSES {
             let mut rig = Rig::new(RigConfig { hand: Some(hand), ..pan_tilt::rig_config(2027, run) }, 100 + run as u64);
             let row = |r: rig_sim::sim::Reading| Row {
-                t_s: r.t_s,
+                t: rig_sim::harness::at(r.t_s),
                 accel_g: r.accel_g,
                 gyro_dps: r.gyro_dps,
                 servo_deg: None,

@@ -219,7 +219,7 @@ fn noise(x: &[[f64; 3]], fs: f64) -> Noise {
 /// [`MAX_MISSING_SHARE`] of its samples missing), at its median rate.
 pub fn analyse(rows: &[Row]) -> Result<Allan, AllanError> {
     let duration_s = match (rows.first(), rows.last()) {
-        (Some(a), Some(b)) => b.t_s - a.t_s,
+        (Some(a), Some(b)) => b.t.s() - a.t.s(),
         _ => 0.0,
     };
     if duration_s < MIN_DURATION_S {
@@ -230,14 +230,14 @@ pub fn analyse(rows: &[Row]) -> Result<Allan, AllanError> {
         .segments
         .iter()
         .map(|s| (s.first, s.last))
-        .max_by(|a, b| (rows[a.1].t_s - rows[a.0].t_s).total_cmp(&(rows[b.1].t_s - rows[b.0].t_s)))
+        .max_by(|a, b| (rows[a.1].t.s() - rows[a.0].t.s()).total_cmp(&(rows[b.1].t.s() - rows[b.0].t.s())))
         .unwrap_or((0, 0));
-    let still_s = rows[last].t_s - rows[first].t_s;
+    let still_s = rows[last].t.s() - rows[first].t.s();
     if still_s < MIN_STILL_SHARE * duration_s || still_s < MIN_DURATION_S {
         return Err(AllanError::NotStatic { still_s, duration_s });
     }
     // Holes anywhere in the log (a still stretch stops at one, so the longest would hide them).
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t.s() - w[0].t.s()).collect();
     dt.sort_by(f64::total_cmp);
     let median = dt[dt.len() / 2];
     let missing: usize = dt.iter().filter(|&&d| d > 1.5 * median).map(|d| (d / median).round() as usize - 1).sum();

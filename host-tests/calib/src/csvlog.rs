@@ -5,6 +5,7 @@
 use calib_core::formats::log::{self, Bound, Line, PLAUSIBLE, STATED_MARGIN};
 pub use calib_core::formats::log::{LogError, Row, HEADER};
 use calib_core::formats::record::SensorSetup;
+use calib_core::Time;
 use std::borrow::Cow;
 
 /// A parsed log.
@@ -136,7 +137,7 @@ pub fn parse(text: &str) -> Result<Log, LogError> {
             Line::Message => messages += 1,
             Line::End => break,
             Line::Row(r) => {
-                if rows.last().is_some_and(|p| r.t_s <= p.t_s) {
+                if rows.last().is_some_and(|p| r.t.s() <= p.t.s()) {
                     return Err(LogError::NonMonotonicTime { line: n });
                 }
                 rows.push(r);
@@ -211,23 +212,24 @@ impl Log {
 fn holes(log: &Log) -> Result<Vec<Hole>, LogError> {
     let rows = &log.rows;
     let Some((period_s, _)) = crate::offline::sample_intervals(rows) else { return Ok(vec![]) };
-    let at: Vec<usize> = (1..rows.len()).filter(|&i| rows[i].t_s - rows[i - 1].t_s > (HOLE_PERIODS * period_s).max(HOLE_MIN_S)).collect();
+    let at: Vec<usize> =
+        (1..rows.len()).filter(|&i| rows[i].t.s() - rows[i - 1].t.s() > (HOLE_PERIODS * period_s).max(HOLE_MIN_S)).collect();
     if at.is_empty() {
         return Ok(vec![]);
     }
     let segments = crate::offline::phases(rows).segments;
     at.into_iter()
         .map(|i| {
-            let (line, gap_s, t_s) = (log.lines[i], rows[i].t_s - rows[i - 1].t_s, rows[i - 1].t_s);
+            let (line, gap_s, t_s) = (log.lines[i], rows[i].t.s() - rows[i - 1].t.s(), rows[i - 1].t.s());
             let before = segments.iter().rfind(|s| s.last < i);
             let after = segments.iter().find(|s| s.first >= i);
-            let span = |s: &crate::offline::Segment| (rows[s.first].t_s, rows[s.last].t_s);
+            let span = |s: &crate::offline::Segment| (rows[s.first].t.s(), rows[s.last].t.s());
             let across = match (before, after) {
                 (None, _) => Across::BeforeThePoses,
-                (_, None) if gap_s > t_s - rows[0].t_s => return Err(LogError::TimeJump { line, gap_s: gap_s as f32, t_s }),
+                (_, None) if gap_s > t_s - rows[0].t.s() => return Err(LogError::TimeJump { line, gap_s: gap_s as f32, t: rows[i - 1].t }),
                 (_, None) => Across::AfterThePoses,
                 (Some(b), Some(a)) if b.is_rig_pose() && a.is_rig_pose() => {
-                    return Err(LogError::HoleInRig { line, gap_s: gap_s as f32, t_s });
+                    return Err(LogError::HoleInRig { line, gap_s: gap_s as f32, t: rows[i - 1].t });
                 }
                 (Some(b), Some(a)) if !b.is_rig_pose() && !a.is_rig_pose() => Across::HandHeldMove { before: span(b), after: span(a) },
                 _ => Across::HandAndRig,
@@ -346,7 +348,7 @@ pub fn remap(text: &str, spec: &str) -> Result<String, String> {
         }
         let need = |i: usize| v[i].ok_or(format!("line {}: no value for {}", n + 1, log::COLUMNS[i]));
         let row = Row {
-            t_s: need(0)?,
+            t: Time::from_s(need(0)?).ok_or(format!("line {}: the time is beyond +-1e12 s", n + 1))?,
             accel_g: [need(1)? as f32, need(2)? as f32, need(3)? as f32],
             gyro_dps: [need(4)? as f32, need(5)? as f32, need(6)? as f32],
             servo_deg: v[7].map(|x| x as f32),
@@ -510,7 +512,7 @@ mod tests {
     #[test]
     fn format_then_parse_round_trips_and_the_end_marker_ends_the_data() {
         let r = Row {
-            t_s: 1.25,
+            t: Time::from_s(1.25).unwrap(),
             accel_g: [0.5, -0.25, 0.75],
             gyro_dps: [1.5, -2.0, 3.0],
             servo_deg: Some(30.0),
@@ -520,7 +522,7 @@ mod tests {
         };
         let mut s = header();
         format_row(&mut s, &r);
-        format_row(&mut s, &Row { t_s: 1.5, servo_deg: None, tilt_deg: Some(-25.0), ..r });
+        format_row(&mut s, &Row { t: Time::from_s(1.5).unwrap(), servo_deg: None, tilt_deg: Some(-25.0), ..r });
         s.insert_str(header().len(), "phase: bias, a log message\n");
         s.push_str(calib_core::formats::log::END);
         s.push_str("\nINFO a log line after the raw log\n");
@@ -538,7 +540,7 @@ mod tests {
         let spec = "t_s=time_ms/1000,ax_g=acc_x/9.80665,ay_g=acc_y/9.80665,az_g=acc_z/9.80665,gx_dps=gyr_x*57.29578,gy_dps=gyr_y*57.29578,gz_dps=gyr_z*57.29578";
         let rows = parse(&remap(text, spec).unwrap()).unwrap().rows;
         assert_eq!(rows.len(), 2);
-        assert_eq!(rows[1].t_s, 0.01);
+        assert_eq!(rows[1].t.s(), 0.01);
         assert_eq!(rows[0].accel_g, [0.0, 0.0, 1.0]);
         assert!((rows[0].gyro_dps[0] - 0.5729578).abs() < 1e-5 && rows[1].servo_deg.is_none());
         assert!(remap(text, "t_s=nope").unwrap_err().contains("no source column \"nope\""));
@@ -550,7 +552,7 @@ mod tests {
     fn magnetometer_columns_are_optional_and_empty_without_a_reading() {
         let mut s = format!("{HEADER},mx_ut,my_ut,mz_ut\n");
         let r = Row {
-            t_s: 1.0,
+            t: Time::from_s(1.0).unwrap(),
             accel_g: [0.0, 0.0, 1.0],
             gyro_dps: [0.0; 3],
             servo_deg: None,
@@ -558,7 +560,7 @@ mod tests {
             mag_ut: Some([21.5, -3.25, -40.125]),
             temp_c: None,
         };
-        for row in [r, Row { t_s: 1.01, mag_ut: None, ..r }] {
+        for row in [r, Row { t: Time::from_s(1.01).unwrap(), mag_ut: None, ..r }] {
             let _ = log::write_row(&mut s, &row);
             let _ = log::write_mag(&mut s, row.mag_ut);
             s.push('\n');
@@ -585,7 +587,7 @@ mod tests {
         // Every LSB value of the ±2 g / ±500 °/s ranges survives the text round trip.
         for counts in [-32768i32, -12345, -1, 0, 1, 777, 32767] {
             let r = Row {
-                t_s: 12345.678901,
+                t: Time::from_s(12345.678901).unwrap(),
                 accel_g: [counts as f32 * 0.000061; 3],
                 gyro_dps: [counts as f32 * 0.0175; 3],
                 servo_deg: Some(-12.34),
@@ -596,7 +598,7 @@ mod tests {
             let mut s = header();
             format_row(&mut s, &r);
             let back = parse(&s).unwrap().rows[0];
-            assert!((back.t_s - r.t_s).abs() < 1e-6);
+            assert!((back.t.s() - r.t.s()).abs() < 1e-6);
             for i in 0..3 {
                 assert!((back.accel_g[i] - r.accel_g[i]).abs() <= 5e-7, "{counts}: {} vs {}", back.accel_g[i], r.accel_g[i]);
                 assert!((back.gyro_dps[i] - r.gyro_dps[i]).abs() <= 5e-6);

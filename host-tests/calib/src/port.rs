@@ -597,7 +597,7 @@ pub fn record_from_json(line: &str) -> Result<Record, String> {
 
 /// Rows missing from a log: a gap of n median sample periods (n ≥ 1.5) is n − 1 rows.
 pub fn lost_rows(rows: &[Row]) -> usize {
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t.s() - w[0].t.s()).collect();
     if dt.is_empty() {
         return 0;
     }
@@ -664,11 +664,19 @@ pub fn cross_check(board: &Record, log_text: &str, dropped_bytes: u64, stored: O
 #[cfg(test)]
 mod tests {
     use super::*;
+    use calib_core::Time;
 
     #[test]
     fn gaps_in_time_are_lost_rows() {
-        let row =
-            |t_s| Row { t_s, accel_g: [0.0, 0.0, 1.0], gyro_dps: [0.0; 3], servo_deg: None, tilt_deg: None, mag_ut: None, temp_c: None };
+        let row = |t_s: f64| Row {
+            t: Time::from_s(t_s).unwrap(),
+            accel_g: [0.0, 0.0, 1.0],
+            gyro_dps: [0.0; 3],
+            servo_deg: None,
+            tilt_deg: None,
+            mag_ut: None,
+            temp_c: None,
+        };
         let mut rows: Vec<Row> = (0..100).map(|i| row(i as f64 / 119.0)).collect();
         assert_eq!(lost_rows(&rows), 0);
         rows.drain(40..43);

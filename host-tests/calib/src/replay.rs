@@ -21,7 +21,7 @@ use calib_core::estimators::gyro::{GyroCal, Method};
 use calib_core::formats::record::{Record, SensorSetup, StoreError};
 use calib_core::procedure::pipeline;
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, ServoKind, Shell};
-use calib_core::Error;
+use calib_core::{Error, Time};
 
 /// What the procedure concluded on the replayed log.
 #[derive(Debug, Clone)]
@@ -99,19 +99,19 @@ fn configs(setup: SensorSetup) -> [(&'static str, Config); 4] {
 /// accelerometer's choice and the magnetometer's parts (its points a batch a tick), with room.
 const MAX_FIT_TICKS: usize = 32;
 
-/// The re-clamp's press in a replay of a log, at `t_s`, the sample before the log's first
+/// The re-clamp's press in a replay of a log, at `t`, the sample before the log's first
 /// commanded row after the hand-held step: the press came before it on the board, which made
 /// the hand-held step's fits still due a tick each (they need no samples), then started the
-/// rig; here they are ticked at `t_s`.
-pub fn press_to_rig(p: &mut Procedure, t_s: f64, shell: &mut impl Shell) {
-    p.handle_button(t_s);
-    p.drive(t_s, shell);
+/// rig; here they are ticked at `t`.
+pub fn press_to_rig(p: &mut Procedure, t: Time, shell: &mut impl Shell) {
+    p.handle_button(t);
+    p.drive(t, shell);
     for _ in 0..MAX_FIT_TICKS {
         if p.phase() != Phase::Reattach {
             break;
         }
-        p.handle_tick(t_s);
-        p.drive(t_s, shell);
+        p.handle_tick(t);
+        p.drive(t, shell);
     }
 }
 
@@ -130,13 +130,13 @@ fn same(a: Option<f32>, b: Option<f32>) -> bool {
 fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, Option<FullCal>, Option<Bias>)> {
     let mut p = Procedure::new(cfg, stored.copied());
     let mut out = Collect::default();
-    let mut prev_t = rows.first()?.t_s;
+    let mut prev_t = rows.first()?.t;
     let mut started = false;
     for r in rows {
         let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
         if !started {
             if !commanded {
-                prev_t = r.t_s;
+                prev_t = r.t;
                 continue;
             }
             p.handle_button(prev_t);
@@ -150,19 +150,19 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         }
         // A field reading enters before its row's sample, as the firmware feeds them.
         if let Some(m) = r.mag_ut {
-            p.handle_mag(r.t_s, m);
-            p.drive(r.t_s, &mut out);
+            p.handle_mag(m);
+            p.drive(r.t, &mut out);
         }
         // The temperature the firmware saw, if the log has it (the hand-held poses' bias follows
         // the warm-up with it; a log without it replays with the bias on lines in time).
-        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: r.temp_c });
+        p.handle_sample(&Sample { t: r.t, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c: r.temp_c });
         // The firmware ticks after each FIFO read: the solve's steps advance on the ticks.
-        p.handle_tick(r.t_s);
-        p.drive(r.t_s, &mut out);
+        p.handle_tick(r.t);
+        p.drive(r.t, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
-            return Some((out, p.full().copied(), p.bias_at(r.t_s)));
+            return Some((out, p.full().copied(), p.bias_at(r.t)));
         }
-        prev_t = r.t_s;
+        prev_t = r.t;
     }
     // A log that ends while the board solves: its steps need no samples (one a tick once the
     // procedure's spacing has passed), and their count is bounded.
@@ -170,7 +170,7 @@ fn run(rows: &[Row], cfg: Config, stored: Option<&Record>) -> Option<(Collect, O
         if p.phase() != Phase::Store {
             break;
         }
-        let t = prev_t + calib_core::procedure::SOLVE_STEP_S * i as f64;
+        let t = prev_t.plus_s(calib_core::procedure::SOLVE_STEP_S * i as f64);
         p.handle_tick(t);
         p.drive(t, &mut out);
         if matches!(p.phase(), Phase::Done | Phase::Failed) {

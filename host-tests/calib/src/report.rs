@@ -102,7 +102,7 @@ fn moves<'a>(rows: &[Row], c: &'a Calibration, tilt: i32) -> Vec<(&'a Segment, &
             let mut g = Vector3::zeros();
             for p in rows[w[0].last..=w[1].last].windows(2) {
                 let d = sub(p[1].gyro_dps, c.bias.bias_dps);
-                g += Vector3::new(d[0] as f64, d[1] as f64, d[2] as f64) * (p[1].t_s - p[0].t_s);
+                g += Vector3::new(d[0] as f64, d[1] as f64, d[2] as f64) * (p[1].t.s() - p[0].t.s());
             }
             (&w[0], &w[1], g)
         })
@@ -219,14 +219,14 @@ pub fn plots(rows: &[Row], c: &Calibration) -> Result<Plots, String> {
             &[(RESIDUAL, "after (K)", res)],
         )?);
     }
-    let t0 = rows.first().map_or(0.0, |r| r.t_s);
+    let t0 = rows.first().map_or(0.0, |r| r.t.s());
     let series: Vec<Series> = (0..3)
         .map(|a| {
             // The rests that measure the bias: a hand's shaky pose does not.
             let pts = seg
                 .iter()
                 .filter(|s| c.phases.measures_bias(s))
-                .map(|s| ((rows[s.first].t_s + rows[s.last].t_s) / 2.0 - t0, s.gyro.mean()[a] - c.bias.bias_dps[a] as f64))
+                .map(|s| ((rows[s.first].t.s() + rows[s.last].t.s()) / 2.0 - t0, s.gyro.mean()[a] - c.bias.bias_dps[a] as f64))
                 .collect();
             (AXES[a], ["x", "y", "z"][a], pts)
         })
@@ -306,7 +306,7 @@ fn mag_plots(rows: &[Row], c: &Calibration, k: &Matrix3<f64>) -> Result<MagPlots
             let mut q = nalgebra::UnitQuaternion::identity();
             for p in rows[from..=to].windows(2) {
                 let w_rad = (k * (to_real(p[1].gyro_dps) - bias)).map(f64::to_radians);
-                q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t_s - p[0].t_s));
+                q *= nalgebra::UnitQuaternion::from_scaled_axis(w_rad * (p[1].t.s() - p[0].t.s()));
             }
             Some((mi, mj, q, direction(c, w[1])))
         })

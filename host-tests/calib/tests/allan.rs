@@ -29,7 +29,15 @@ fn rows(cfg: RigConfig, seed: u64, seconds: f64) -> Vec<Row> {
         if r.t_s > seconds {
             return out;
         }
-        out.push(Row { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, servo_deg: None, tilt_deg: None, mag_ut: None, temp_c: None });
+        out.push(Row {
+            t: rig_sim::harness::at(r.t_s),
+            accel_g: r.accel_g,
+            gyro_dps: r.gyro_dps,
+            servo_deg: None,
+            tilt_deg: None,
+            mag_ut: None,
+            temp_c: None,
+        });
     }
 }
 

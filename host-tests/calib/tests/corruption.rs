@@ -16,6 +16,7 @@ use calib_core::formats::export::{self, Format};
 use calib_core::formats::log::Bound;
 use calib_core::formats::protocol::{self, RecordLine};
 use calib_core::procedure::Phase;
+use calib_core::Time;
 use common::calib;
 use std::path::{Path, PathBuf};
 
@@ -328,7 +329,7 @@ fn variants(s: &Session, base: &Log, c: &Calibration) -> Vec<Variant> {
             swapped_header("ax_g,ay_g,az_g,gx_dps,gy_dps,gz_dps", "gx_dps,gy_dps,gz_dps,ax_g,ay_g,az_g"),
             Expect::Refused(first_beyond(base, |r| r.gyro_dps, 40.0), "g is beyond any MEMS part's full scale"),
         ),
-        v("time in milliseconds", all_rows(&|r| r.t_s *= 1000.0), Expect::Named(1, "milliseconds")),
+        v("time in milliseconds", all_rows(&|r| r.t = Time::from_us(r.t.us() * 1000)), Expect::Named(1, "milliseconds")),
         v("accelerometer in m/s²", all_rows(&|r| r.accel_g = r.accel_g.map(|a| a * 9.80665)), Expect::Named(1, "m/s²")),
         v(
             "gyro in rad/s",

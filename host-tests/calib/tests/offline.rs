@@ -4,6 +4,7 @@ use calib::csvlog::{self, Row, HEADER};
 use calib::offline::{self, OfflineError};
 use calib_core::estimators::gyro::Method;
 use calib_core::procedure::{Config, Procedure};
+use calib_core::Time;
 use common::{calib, simulated_log};
 use rig_sim::harness::{record_log, Faults};
 use rig_sim::sim::{Rig, RigConfig, ServoModel};
@@ -55,7 +56,7 @@ fn degenerate_logs_are_named_errors() {
     let mut text = format!("{HEADER}\n");
     for i in 0..500 {
         let r = Row {
-            t_s: i as f64 / 119.0,
+            t: Time::from_s(i as f64 / 119.0).unwrap(),
             accel_g: [0.0, 0.0, 1.0],
             gyro_dps: [0.5, -0.2, 0.1],
             servo_deg: Some(0.0),
@@ -217,7 +218,7 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     let ms = write(
         "ms.csv",
         &rewrite(&log, |r| {
-            r.t_s *= 1000.0;
+            r.t = Time::from_us(r.t.us() * 1000);
             true
         }),
     );
@@ -274,8 +275,8 @@ fn common_mistakes_are_named_and_partial_logs_give_what_they_can() {
     // Hand-held poses only (no servo at all): the full K from their moves and the
     // accelerometer, exit 0; without the rotation constraints the gyro is named as missing, exit 4.
     // (The rows after the rig's last pose, the board solving on the shaft, are not hand-held.)
-    let last_rig_s = csvlog::parse(&log).unwrap().rows.iter().rev().find(|r| r.servo_deg.is_some()).unwrap().t_s;
-    let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none() && r.t_s < last_rig_s));
+    let last_rig_s = csvlog::parse(&log).unwrap().rows.iter().rev().find(|r| r.servo_deg.is_some()).unwrap().t.s();
+    let hand = write("hand.csv", &rewrite(&log, |r| r.servo_deg.is_none() && r.t.s() < last_rig_s));
     let (code, out, err) = calib(&[&hand]);
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
@@ -423,7 +424,7 @@ fn another_sensor_s_rate_is_accepted_and_said_but_a_firmware_run_must_be_at_an_o
     let log = pan_tilt::handheld_only(&pan_tilt::log_at(&mut rig, true, &[]));
     let s = 119.0 / 100.0;
     let other = rewrite(&log, |r| {
-        r.t_s *= s;
+        r.t = Time::from_s(r.t.s() * s).unwrap();
         r.gyro_dps = r.gyro_dps.map(|g| (g as f64 / s) as f32);
         true
     });
@@ -436,7 +437,7 @@ fn another_sensor_s_rate_is_accepted_and_said_but_a_firmware_run_must_be_at_an_o
     assert_eq!(json["quality"]["sample_rate"]["lsm9ds1_odr"], serde_json::Value::Bool(false));
     // The same in ms is named.
     let ms = rewrite(&other, |r| {
-        r.t_s *= 1000.0;
+        r.t = Time::from_us(r.t.us() * 1000);
         true
     });
     let err = offline::calibrate(&csvlog::parse(&ms).unwrap().rows, None).unwrap_err().to_string();

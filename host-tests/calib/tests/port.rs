@@ -165,7 +165,7 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
     let rows = csvlog::parse(log_text).unwrap().rows;
     let mut p = Procedure::new(Config::DEFAULT, f.stored);
     sh.out.push(protocol::raw_log(true).into());
-    let mut prev_t = rows[0].t_s;
+    let mut prev_t = rows[0].t;
     let (mut started, mut through) = (false, 0);
     for (i, r) in rows.iter().enumerate() {
         let commanded = r.servo_deg.is_some() || r.tilt_deg.is_some();
@@ -201,11 +201,11 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
         }
         // A field reading enters before its sample, as the firmware's `feed` does.
         if let Some(m) = r.mag_ut {
-            p.handle_mag(r.t_s, m);
+            p.handle_mag(m);
         }
-        p.handle_sample(&Sample { t_s: r.t_s, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c });
-        p.handle_tick(r.t_s);
-        p.drive(r.t_s, &mut sh);
+        p.handle_sample(&Sample { t: r.t, accel_g: r.accel_g, gyro_dps: r.gyro_dps, temp_c });
+        p.handle_tick(r.t);
+        p.drive(r.t, &mut sh);
         if sh.out.len() >= 64 {
             send(&mut m, &mut sh.out)?;
         }
@@ -213,7 +213,7 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
         if matches!(p.phase(), Phase::Done | Phase::Failed) {
             break;
         }
-        prev_t = r.t_s;
+        prev_t = r.t;
     }
     // The firmware's main loop ticks on without samples (2 ms apart): the solve's steps need
     // none, and the log, cut at the simulated board's store, may end a step or two before this
@@ -222,8 +222,8 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
         if !started || matches!(p.phase(), Phase::Done | Phase::Failed) {
             break;
         }
-        p.handle_tick(prev_t + k as f64 * 0.002);
-        p.drive(prev_t + k as f64 * 0.002, &mut sh);
+        p.handle_tick(prev_t.plus_s(k as f64 * 0.002));
+        p.drive(prev_t.plus_s(k as f64 * 0.002), &mut sh);
     }
     send(&mut m, &mut sh.out)?;
     if wait_for(&mut m, Command::RawLog) {

@@ -39,10 +39,10 @@ pub fn log_reader(data: &[u8]) {
     let Some(text) = log_text(data) else { return };
     if let Ok(log) = csvlog::parse(&text) {
         for w in log.rows.windows(2) {
-            assert!(w[1].t_s > w[0].t_s, "time does not increase: {} then {}", w[0].t_s, w[1].t_s);
+            assert!(w[1].t > w[0].t, "time does not increase: {:?} then {:?}", w[0].t, w[1].t);
         }
         for r in &log.rows {
-            assert!(r.t_s.is_finite() && r.accel_g.iter().chain(&r.gyro_dps).all(|v| v.is_finite()), "{r:?}");
+            assert!(r.accel_g.iter().chain(&r.gyro_dps).all(|v| v.is_finite()), "{r:?}");
         }
     }
 }

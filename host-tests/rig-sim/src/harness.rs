@@ -12,7 +12,7 @@ use calib_core::estimators::gyro::GyroCal;
 use calib_core::formats::log::{self, Row};
 use calib_core::formats::record::{Record, StoreError};
 use calib_core::procedure::{Config, Led, Phase, Procedure, Report, Sample, Shell};
-use calib_core::Error;
+use calib_core::{Error, Time};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
 use std::f64::consts::TAU;
@@ -133,9 +133,15 @@ pub fn operator_attitudes(rng: &mut impl Rng) -> Vec<UnitQuaternion<f64>> {
 /// the time from the press.
 pub const PRESS_AT_S: f64 = 1.0;
 
+/// A simulated MCU time (s) as the procedure's (to the µs, as the board's clock and the log
+/// hold it); the simulator's times are finite and small.
+pub fn at(t_s: f64) -> Time {
+    Time::from_s(t_s).expect("a simulated time within 1e12 s")
+}
+
 /// Converts a simulator sample to the procedure's input.
 pub fn to_input(s: &Reading) -> Sample {
-    Sample { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: log::temp_as_logged(Some(s.temp_c)) }
+    Sample { t: at(s.t_s), accel_g: s.accel_g, gyro_dps: s.gyro_dps, temp_c: log::temp_as_logged(Some(s.temp_c)) }
 }
 
 /// The simulated board's outputs and its operator: servo commands go to the rig, reports move
@@ -245,7 +251,7 @@ fn run_posed(
         let stopped = faults.sensor_stops_at_s.is_some_and(|ts| b.t >= ts);
         if stopped {
             b.t += 0.01;
-            proc.handle_tick(b.t);
+            proc.handle_tick(at(b.t));
         } else {
             let s = b.rig.next_sample();
             b.t = s.t_s;
@@ -264,10 +270,10 @@ fn run_posed(
             // A field reading enters before its sample, as the firmware feeds them (as logged);
             // its commands (a failure's, at most 4) are drained with the sample's below.
             if let Some(m) = s.mag_ut {
-                proc.handle_mag(s.t_s, calib_core::formats::log::mag_as_logged(m));
+                proc.handle_mag(calib_core::formats::log::mag_as_logged(m));
             }
             proc.handle_sample(&input);
-            proc.handle_tick(s.t_s);
+            proc.handle_tick(at(s.t_s));
             samples += 1;
         }
         if !lost_reported && faults.samples_lost_in == Some(proc.phase()) {
@@ -280,12 +286,12 @@ fn run_posed(
                 continue;
             }
         }
-        proc.drive(b.t, &mut b);
+        proc.drive(at(b.t), &mut b);
         if b.press_at.is_some_and(|tp| b.t >= tp) {
             b.press_at = None;
             started = true;
-            proc.handle_button(b.t);
-            proc.drive(b.t, &mut b);
+            proc.handle_button(at(b.t));
+            proc.drive(at(b.t), &mut b);
         }
         if faults.disturb_rig_poses && proc.phase() == Phase::RigPoses && b.t - last_bump > 1.6 {
             b.rig.disturb(0.3, 20.0);
@@ -323,7 +329,7 @@ pub fn write_log_row(text: &mut String, row: &Row, mag: bool) {
 
 /// A reading as a log's row holds it, with the commanded servo angles.
 pub fn log_row(s: &Reading, servo_deg: Option<f32>, tilt_deg: Option<f32>) -> Row {
-    Row { t_s: s.t_s, accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut, temp_c: to_input(s).temp_c }
+    Row { t: at(s.t_s), accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut, temp_c: to_input(s).temp_c }
 }
 
 /// Runs like [`run`] and records the log ([`calib_core::formats::log`], `comments` first).

@@ -5,6 +5,7 @@
 use calib_core::formats::record::{Sensor, SensorSetup};
 use gyrocal_fw::bmi270::{self, Bmi270, Bmi270Error, Config, CONFIG};
 use rig_sim::bmi_model::{Bmi270Model, Loaded, BOSCH_CONFIG, BOSCH_MAX_FIFO_CONFIG, GYR_START_S};
+use rig_sim::harness::at;
 use sha2::{Digest, Sha256};
 use std::cell::RefCell;
 use std::rc::Rc;
@@ -224,7 +225,7 @@ fn the_fifo_gives_every_sample_and_names_the_lost_ones() {
     assert_eq!((r.samples, r.lost), (3, 0));
     // The sensortime frame after the data, the newest sample's count; no date yet (the first
     // reads find the sample grid: the sensortime test).
-    assert_eq!(r.newest_age_s, None);
+    assert_eq!(r.newest_age_us, None);
     assert_eq!(r.sensortime.map(|t| t / 256), Some(b.0.borrow().sensortime() / 256), "the newest sample's count");
     assert!(got.iter().enumerate().all(|(k, (a, g))| *a == [0.0, 0.0, 1.0] && (g[0] - k as f32).abs() < 0.01), "{got:?}");
     // Empty: nothing (the over-read header ends the data).
@@ -369,17 +370,17 @@ fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_soone
             // The newest sample in the FIFO: produced at least the latency before the read.
             let Some(&newest) = produced.iter().rev().find(|&&t| t + latency_s <= t_read) else { continue };
             // The first reads find the grid: undated, counted only.
-            let Some(age) = r.newest_age_s else {
+            let Some(age) = r.newest_age_us else {
                 assert!(batch < 8, "read {batch} undated");
-                by_sensortime.undated(t_read, r.samples);
-                by_read.batch(t_read, r.samples);
+                by_sensortime.undated(at(t_read), r.samples);
+                by_read.batch(at(t_read), r.samples);
                 continue;
             };
-            let t_st = t_read - age;
+            let t_st = t_read - f64::from(age) * 1e-6;
             worst_st = worst_st.max((t_st - newest).abs());
             worst_read = worst_read.max(t_read - newest);
-            by_sensortime.batch(t_st, r.samples);
-            by_read.batch(t_read, r.samples);
+            by_sensortime.batch(at(t_st), r.samples);
+            by_read.batch(at(t_read), r.samples);
             if batch == 200 {
                 let err = |p: f64| (p / period - 1.0).abs();
                 println!(
@@ -399,7 +400,10 @@ fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_soone
         );
         // The nominal count rate's 1.7 % error over at most one period plus the latency, and
         // one count.
-        assert!(worst_st < 0.02 * (period + latency_s) + bmi270::SENSORTIME_S, "latency {latency_s}: {worst_st}");
+        assert!(
+            worst_st < 0.02 * (period + latency_s) + f64::from(bmi270::SENSORTIME_US.0) / f64::from(bmi270::SENSORTIME_US.1) * 1e-6,
+            "latency {latency_s}: {worst_st}"
+        );
         assert!(worst_read > 0.5 * period, "the read time alone is up to a period late: {worst_read}");
     }
 }

@@ -8,6 +8,7 @@ use calib_core::estimators::{paper, sweep};
 use calib_core::{Error, Vec3};
 use nalgebra::{Rotation3, Unit, Vector3};
 use proptest::prelude::*;
+use rig_sim::harness::at;
 
 /// Specific force (g, B) at shaft angle `th` (rad) for axis `u` (B) tilted `tilt` (rad) from vertical.
 fn pose(u: &Vector3<f64>, tilt: f64, th: f64) -> Vector3<f64> {
@@ -186,10 +187,10 @@ fn integrator_is_the_trapezoid_rule_on_the_mcu_clock() {
     // Irregular timestamps: a ramp from 0 to 10 °/s over 1 s integrates to exactly 5°.
     let mut t = 0.0;
     while t <= 1.0 + 1e-12 {
-        it.add(t, [10.0 * t as f32, 0.0, -20.0 * t as f32]);
+        it.add(at(t), [10.0 * t as f32, 0.0, -20.0 * t as f32]);
         t += if (t * 100.0).round() as i64 % 2 == 0 { 0.003 } else { 0.007 };
     }
-    it.add(1.0, [10.0, 0.0, -20.0]);
+    it.add(at(1.0), [10.0, 0.0, -20.0]);
     let g = it.gamma();
     assert!((g[0] - 5.0).abs() < 1e-5 && (g[2] + 10.0).abs() < 2e-5, "{g:?}");
 }

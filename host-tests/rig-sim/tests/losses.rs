@@ -3,6 +3,7 @@
 
 use calib_core::procedure::{Command, Config, ErrorClass, Led, Phase, Procedure, Report};
 use calib_core::Error;
+use rig_sim::harness::at;
 use rig_sim::harness::{run, Faults};
 use rig_sim::sim::Rig;
 use rig_sim::variant::Variant;
@@ -24,7 +25,7 @@ fn a_sensor_fault_fails_a_running_calibration_and_is_ignored_when_idle() {
     let mut p = Procedure::new(Config::default(), None);
     p.handle_sensor_fault();
     assert_eq!((p.phase(), p.poll()), (Phase::Idle, None), "idle: nothing to fail");
-    p.handle_button(0.0);
+    p.handle_button(at(0.0));
     while p.poll().is_some() {}
     p.handle_sensor_fault();
     let cmds: Vec<Command> = std::iter::from_fn(|| p.poll()).collect();

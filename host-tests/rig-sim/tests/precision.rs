@@ -10,6 +10,7 @@ use calib_core::math::stats::Moments3;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rig_sim::harness::at;
 
 const N: usize = 100_000;
 
@@ -47,7 +48,9 @@ fn gyro_integral_over_100k_samples_matches_f64() {
     for _ in 0..N {
         t += 1.0 / 952.0 * (1.0 + rng.random_range(-0.01..0.01));
         let g: [f32; 3] = [21.7 + rng.random_range(-0.5..0.5), -8.9 + rng.random_range(-0.5..0.5), 13.3 + rng.random_range(-0.5..0.5)];
-        it.add(t, g);
+        it.add(at(t), g);
+        // The reference at the times the integrator is given (the board's µs).
+        let t = at(t).s();
         if let Some((t0, g0)) = prev {
             for k in 0..3 {
                 ref64[k] += 0.5 * (g0[k] as f64 + g[k] as f64) * (t - t0);
@@ -193,7 +196,7 @@ fn a_move_chunked_in_f32_composes_as_in_f64_at_952_hz() {
     for i in 0..=(secs / dt) as usize {
         let t = i as f64 * dt;
         let w = rate(t).map(|v| v as f32);
-        r.add(t0 + t, w, false);
+        r.add(at(t0 + t), w, false);
         if let Some(p) = prev {
             let d = Vector3::from_fn(|k, _| 0.5 * (p[k] as f64 + w[k] as f64) * dt);
             // β (deg²): ½ Σ Γ × d.
@@ -235,9 +238,9 @@ fn a_pose_turn_in_f32_rises_as_in_f64_an_hour_in() {
         let t = t_first + i as f64 * dt;
         let w: [f32; 3] = core::array::from_fn(|k| (0.8 * (2.0 * t + k as f64).sin()) as f32 + rng.random_range(-0.1..0.1));
         if i <= n / 2 {
-            turn.add(t, dt, w)
+            turn.add(at(t), dt, w)
         } else {
-            half.add(t, dt, w)
+            half.add(at(t), dt, w)
         }
         for k in 0..3 {
             a[k] += w[k] as f64 * dt;
@@ -246,7 +249,7 @@ fn a_pose_turn_in_f32_rises_as_in_f64_an_hour_in() {
     }
     turn.merge(&half);
     let t_last = t_first + n as f64 * dt;
-    let got = turn.rise_deg(t_first, t_last);
+    let got = turn.rise_deg(at(t_first), at(t_last));
     for k in 0..3 {
         let want = (c[k] - t_first * a[k]) / (t_last - t_first);
         assert!((got[k] as f64 - want).abs() < 1e-6, "axis {k}: {} vs {want}", got[k]);

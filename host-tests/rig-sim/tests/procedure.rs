@@ -8,6 +8,7 @@ use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, R
 use calib_core::Error;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rig_sim::harness::at;
 use rig_sim::harness::{run, Faults, Run};
 use rig_sim::pan_tilt;
 use rig_sim::sim::{AccelRange, ContinuousServo, GyroRange, Rig, RigConfig, ServoModel};
@@ -65,7 +66,7 @@ fn at_arduino_lsm9ds1s_setup_the_record_says_so_and_a_change_waits_for_the_end()
     let out = run(&mut rig, &mut p, Faults::default(), 900.0, |_, _, _| {});
     // A change asked for while a calibration runs is refused.
     let mut running = Procedure::new(Config::default(), None);
-    running.handle_button(0.0);
+    running.handle_button(at(0.0));
     assert_eq!(running.handle_setup(SensorSetup::ARDUINO_LSM9DS1), Err(Running));
     assert_eq!(running.setup(), SensorSetup::DEFAULT);
     assert_eq!(out.error, None, "{:?}", out.reports.last());
@@ -380,11 +381,11 @@ fn a_shell_that_never_drains_the_queue_gets_a_failure_not_lost_commands() {
     // Start, lose the sensor (a timeout failure), start again, ... and never poll.
     let mut t = 0.0;
     for _ in 0..10 {
-        p.handle_button(t);
+        p.handle_button(at(t));
         let s = rig.next_sample();
         p.handle_sample(&rig_sim::harness::to_input(&s));
         t = s.t_s + 10.0;
-        p.handle_tick(t);
+        p.handle_tick(at(t));
     }
     let cmds: Vec<_> = std::iter::from_fn(|| p.poll()).collect();
     assert!(cmds.len() <= 11);

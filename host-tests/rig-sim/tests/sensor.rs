@@ -2,10 +2,12 @@
 //! model fed by the rig simulator; and the button and LED logic.
 
 use calib_core::procedure::{ErrorClass, Led, Phase};
+use calib_core::Time;
 use gyrocal_fw::button::{Button, Press};
 use gyrocal_fw::led::render;
 use gyrocal_fw::lsm9ds1::{reg, AccelScale, BusFault, GyroScale, Lsm9ds1, Odr, SensorConfig, SensorError};
 use gyrocal_fw::stamp::Stamper;
+use rig_sim::harness::at;
 use rig_sim::lsm_model::{Board, Lsm9ds1Model};
 use rig_sim::sim::{AccelRange, GyroRange, Rig};
 use rig_sim::variant::Variant;
@@ -84,7 +86,7 @@ fn missing_rev2_and_foreign_chips_are_named() {
 }
 
 /// A sample as read: accel (g), gyro (°/s), MCU timestamp (s).
-type Read = ([f32; 3], [f32; 3], f64);
+type Read = ([f32; 3], [f32; 3], Time);
 
 /// Polls the FIFO every `poll_s` of true time for `secs`; returns samples read and overruns seen.
 fn stream(odr: Odr, poll_s: f64, secs: f64) -> (Vec<Read>, usize, Lsm9ds1Model) {
@@ -100,7 +102,7 @@ fn stream(odr: Odr, poll_s: f64, secs: f64) -> (Vec<Read>, usize, Lsm9ds1Model) 
         bus.advance_to(t);
         let st = s.fifo_status().unwrap();
         overruns += usize::from(st.overrun);
-        let batch = stamper.batch(t, st.level as usize);
+        let batch = stamper.batch(at(t), st.level as usize);
         for i in 0..st.level as usize {
             let raw = s.read_slot().unwrap();
             let (a, g) = s.convert(&raw);
@@ -157,10 +159,10 @@ fn no_sample_lost_at_952_hz_and_values_exact() {
     assert!(m.history().iter().any(|(_, g)| g.iter().any(|v| v.abs() > 10.0)), "the servo never turned");
     // Timestamps: measured period, within 0.5 % of the true one (the rig's ODR error), increasing.
     let n = samples.len();
-    let period = (samples[n - 1].2 - samples[n / 2].2) / (n - 1 - n / 2) as f64;
+    let period = samples[n - 1].2.since(samples[n / 2].2) / (n - 1 - n / 2) as f64;
     let true_period = 1.0 / m.rig().config().actual_odr_hz();
     assert!((period / true_period - 1.0).abs() < 0.005, "period {period} vs {true_period}");
-    assert!(samples.windows(2).all(|w| w[1].2 > w[0].2 - 1e-9));
+    assert!(samples.windows(2).all(|w| w[1].2 >= w[0].2));
 }
 
 #[test]
@@ -182,12 +184,12 @@ fn samples_lost_without_the_overrun_flag_are_seen_by_their_count() {
         let now = (t / p) as u64;
         let n = (now - read) as usize;
         (read, produced) = (now, now);
-        assert!(!stamper.batch(t, n).late(t, n), "read {k}");
+        assert!(!stamper.batch(at(t), n).late(at(t), n), "read {k}");
     }
     t += 0.5 + 31.0 * p;
     let n = 31usize;
     let lost = ((t / p) as u64 - produced) as usize - n;
-    assert!(lost > 50 && stamper.batch(t, n).late(t, n), "{lost} samples lost unseen");
+    assert!(lost > 50 && stamper.batch(at(t), n).late(at(t), n), "{lost} samples lost unseen");
 }
 
 #[test]
@@ -208,24 +210,24 @@ fn button_debounces_and_tells_long_presses() {
     let mut t = 0.0;
     // Bouncy press: 5 ms toggles, then held 0.5 s, then released.
     for k in 0..6 {
-        events.extend(b.update(t, k % 2 == 0));
+        events.extend(b.update(at(t), k % 2 == 0));
         t += 0.005;
     }
     while t < 0.5 {
-        events.extend(b.update(t, true));
+        events.extend(b.update(at(t), true));
         t += 0.01;
     }
     while t < 0.6 {
-        events.extend(b.update(t, false));
+        events.extend(b.update(at(t), false));
         t += 0.01;
     }
     assert_eq!(events, vec![Press::Short]);
     while t < 3.0 {
-        events.extend(b.update(t, true));
+        events.extend(b.update(at(t), true));
         t += 0.01;
     }
-    events.extend(b.update(3.1, false));
-    events.extend(b.update(3.2, false));
+    events.extend(b.update(at(3.1), false));
+    events.extend(b.update(at(3.2), false));
     assert_eq!(events, vec![Press::Short, Press::Long]);
 }
 

@@ -2,6 +2,7 @@
 //! the commands, the 1200-baud touch.
 
 use gyrocal_fw::serial::{Command, Outbox, Touch, HELP, TOUCH_BAUD};
+use rig_sim::harness::at;
 
 /// Drains the outbox as the USB endpoint does, `packet` bytes at a time.
 fn drain<const N: usize>(o: &mut Outbox<N>, packet: usize) -> String {
@@ -86,18 +87,18 @@ fn the_console_takes_the_protocols_command_bytes() {
 fn the_touch_needs_1200_baud_and_dtr_low_for_200_ms() {
     let mut t = Touch::default();
     // Opening at 115 200 Bd with DTR up, or closing it (DTR low): no touch.
-    assert!(!t.update(0.0, 115_200, true));
-    assert!(!t.update(1.0, 115_200, false));
-    assert!(!t.update(5.0, 115_200, false));
+    assert!(!t.update(at(0.0), 115_200, true));
+    assert!(!t.update(at(1.0), 115_200, false));
+    assert!(!t.update(at(5.0), 115_200, false));
     // 1200 Bd with DTR still up: not yet.
-    assert!(!t.update(6.0, TOUCH_BAUD, true));
-    assert!(!t.update(6.1, TOUCH_BAUD, false));
-    assert!(!t.update(6.29, TOUCH_BAUD, false));
-    assert!(t.update(6.31, TOUCH_BAUD, false));
+    assert!(!t.update(at(6.0), TOUCH_BAUD, true));
+    assert!(!t.update(at(6.1), TOUCH_BAUD, false));
+    assert!(!t.update(at(6.29), TOUCH_BAUD, false));
+    assert!(t.update(at(6.31), TOUCH_BAUD, false));
     // DTR back up in between restarts the wait.
     let mut t = Touch::default();
-    assert!(!t.update(0.0, TOUCH_BAUD, false));
-    assert!(!t.update(0.15, TOUCH_BAUD, true));
-    assert!(!t.update(0.3, TOUCH_BAUD, false));
-    assert!(t.update(0.51, TOUCH_BAUD, false));
+    assert!(!t.update(at(0.0), TOUCH_BAUD, false));
+    assert!(!t.update(at(0.15), TOUCH_BAUD, true));
+    assert!(!t.update(at(0.3), TOUCH_BAUD, false));
+    assert!(t.update(at(0.51), TOUCH_BAUD, false));
 }

@@ -122,7 +122,7 @@ fn raw_log_at_952_hz_fits_the_rtt_buffer_and_is_a_log_calib_reads() {
     // The lines as `probe-rs run --log-format "{s}"` prints them: the message text.
     let text: String = b.mcu.log[before..].iter().map(|l| format!("{}\n", vboard::testbed::message(l))).collect();
     let log = calib::csvlog::parse(&text).expect("the raw log parses");
-    let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t_s - log.rows[0].t_s);
+    let rate = (log.rows.len() - 1) as f64 / (log.rows.last().unwrap().t.s() - log.rows[0].t.s());
     let buffer_s = gyrocal_fw::rtt::BUF_SIZE as f64 / bytes_per_s;
     println!("MEASURED raw_log_bytes_per_s={bytes_per_s:.0} rows={} sample_rate_hz={rate:.1} rtt_buffer_s={buffer_s:.3}", log.rows.len());
     assert!(rate > 900.0, "{rate} Hz");

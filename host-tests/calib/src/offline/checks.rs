@@ -42,7 +42,7 @@ impl TimeBase {
 
 /// The median sample interval (s) and every interval, sorted; `None` for fewer than 2 rows.
 pub fn sample_intervals(rows: &[Row]) -> Option<(f64, Vec<f64>)> {
-    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t.s() - w[0].t.s()).collect();
     dt.sort_by(f64::total_cmp);
     Some((*dt.get(dt.len() / 2)?, dt))
 }

@@ -5,6 +5,7 @@
 
 use super::*;
 use calib_core::estimators::bias::RestNoise;
+use calib_core::Time;
 
 /// The log's phases with the bias they are corrected by.
 struct Log<'a> {
@@ -28,7 +29,7 @@ impl<'a> Log<'a> {
             .segments
             .iter()
             .map(|s| {
-                let measured = RestBias::new(rows[s.first].t_s, rows[s.last].t_s, s.gyro.mean().map(|v| v as f32), bias.bias_dps);
+                let measured = RestBias::new(rows[s.first].t, rows[s.last].t, s.gyro.mean().map(|v| v as f32), bias.bias_dps);
                 let predicted = if s.is_rig_pose() { None } else { drift.shaky(measured, s.gyro.max_std() as f32, noise) };
                 match predicted {
                     Some(p) => (p, false),
@@ -43,7 +44,7 @@ impl<'a> Log<'a> {
             let before = rests[..i].iter().rev().find(|r| r.1);
             let after = rests[i + 1..].iter().find(|r| r.1);
             if let (false, Some((a, _)), Some((b, _))) = (rests[i].1, before, after) {
-                rests[i].0 = a.between(b, rests[i].0.t_s);
+                rests[i].0 = a.between(b, rests[i].0.t);
             }
         }
         Log { rows, ph, bias, rests }
@@ -58,7 +59,7 @@ impl<'a> Log<'a> {
     fn gamma(&self, from: &Segment, to: &Segment) -> [f64; 3] {
         let mut it = Integrator::new();
         for r in &self.rows[from.last..=to.last] {
-            it.add(r.t_s, sub(r.gyro_dps, self.bias.bias_dps));
+            it.add(r.t, sub(r.gyro_dps, self.bias.bias_dps));
         }
         it.gamma_tracked(&self.rest(from), &self.rest(to))
     }
@@ -76,7 +77,7 @@ impl<'a> Log<'a> {
     /// pooled one): the bias as the calibration hands over. (The pooled mean the
     /// moves are corrected against is the bias of no instant when it drifts.)
     fn bias_at_end(&self) -> Bias {
-        let t_end = self.rows.last().map_or(0.0, |r| r.t_s);
+        let t_end = self.rows.last().map_or(Time::ZERO, |r| r.t);
         let n = self.ph.segments.iter().zip(&self.rests).filter(|(_, r)| r.1).map(|(s, _)| s.gyro.count()).next_back().unwrap_or(1);
         // A rest's own noise: the rig's still poses' ([`rest_noise_dps`]; the pooled figure
         // holds a hand's sway) when the log has them.
@@ -327,14 +328,14 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
         }
         let mut turn = PoseTurn::new();
         for i in s.first.max(1)..=s.last {
-            turn.add(rows[i].t_s, rows[i].t_s - rows[i - 1].t_s, gyro(&rows[i]));
+            turn.add(rows[i].t, rows[i].t.since(rows[i - 1].t), gyro(&rows[i]));
         }
-        let (t_first, t_last) = (rows[s.first].t_s, rows[s.last].t_s);
+        let (t_first, t_last) = (rows[s.first].t, rows[s.last].t);
         let rest = PoseRest {
             bias: log.rest(s),
             predicted: false,
             rise_deg: turn.rise_deg(t_first, t_last),
-            span_s: (t_last - t_first) as f32,
+            span_s: t_last.since(t_first) as f32,
             warm_c: f32::NAN,
         };
         let sigma = s.accel.max_std_of_mean();
@@ -342,7 +343,7 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
         if let Some((from, p)) = prev {
             rotations.begin(from);
             for r in &rows[p.last..=s.last] {
-                rotations.add(r.t_s, gyro(r), r.gyro_dps.iter().any(|v| clipped(*v, range_dps)));
+                rotations.add(r.t, gyro(r), r.gyro_dps.iter().any(|v| clipped(*v, range_dps)));
             }
             let _ = rotations.end(idx, limits);
         }
@@ -401,7 +402,7 @@ fn spin(log: &Log, poses: &Poses, accel: &AccelCal) -> Option<(Vec3, f32, &'stat
     let span = &log.rows[rot.rows.0..=rot.rows.1];
     let mut gravity = GravityTurn::new(poses.geometry(&cfg.geometry, false).ok().map(|g| g.u));
     for r in span {
-        gravity.add(r.t_s, accel.apply(r.accel_g));
+        gravity.add(r.t, accel.apply(r.accel_g));
     }
     let (w, source) = pipeline::spin_rate(servo_rate(span, cfg.steady.min_dps), &gravity);
     if w <= 0.0 {

@@ -348,7 +348,7 @@ const CLIP_COUNT: usize = 3;
 /// |slope| (°/s) of the servo column when it ramps linearly over `rows` (residual < 0.5° RMS)
 /// faster than `min_dps`.
 fn servo_rate(rows: &[Row], min_dps: f32) -> Option<f32> {
-    let pts: Vec<(f64, f64)> = rows.iter().map(|r| r.servo_deg.map(|s| (r.t_s, s as f64))).collect::<Option<_>>()?;
+    let pts: Vec<(f64, f64)> = rows.iter().map(|r| r.servo_deg.map(|s| (r.t.s(), s as f64))).collect::<Option<_>>()?;
     let n = pts.len() as f64;
     if n < 3.0 {
         return None;

@@ -56,12 +56,12 @@ impl Segment {
         let along: Vec<f64> = rows.iter().map(|r| Vector3::from(r.accel_g.map(f64::from)).dot(&u) - norm).collect();
         let (mut b, mut b2) = (0.0, 0.0);
         for (w, a) in rows.windows(2).zip(&along[1..]) {
-            b += a * (w[1].t_s - w[0].t_s);
+            b += a * (w[1].t.s() - w[0].t.s());
             b2 += b * b;
         }
         let d2: f64 = along.windows(3).map(|w| (w[2] - 2.0 * w[1] + w[0]).powi(2)).sum();
         let n = rows.len() as f64;
-        let t = rows[rows.len() - 1].t_s - rows[0].t_s;
+        let t = rows[rows.len() - 1].t.s() - rows[0].t.s();
         let noise = if d2 > 0.0 { d2 / (6.0 * (n - 2.0)) } else { noise_g * noise_g } / n;
         let motion = if t > 0.0 { 1.2 * b2 / n / (t * t) } else { 0.0 };
         (0.8 * noise + motion).max(noise).sqrt()
@@ -111,7 +111,7 @@ fn window_len(rows: &[Row], window_s: f64) -> Vec<(usize, usize)> {
     let mut out = vec![];
     let mut start = 0;
     for i in 0..rows.len() {
-        if rows[i].t_s - rows[start].t_s >= window_s {
+        if rows[i].t.s() - rows[start].t.s() >= window_s {
             out.push((start, i));
             start = i + 1;
             if start >= rows.len() {
@@ -176,13 +176,13 @@ pub fn phases(rows: &[Row]) -> Phases {
     for (i, r) in rows.iter().enumerate() {
         // A hole in the samples (a log cut, samples lost) ends the stillness: the board may have
         // moved unseen, so no window or pose spans it.
-        if i > 0 && r.t_s - rows[i - 1].t_s > CONFIG.rotation.max_gap_s as f64 {
+        if i > 0 && r.t.s() - rows[i - 1].t.s() > CONFIG.rotation.max_gap_s as f64 {
             close(&mut open, &mut segments, rows);
             det.reset();
             hand_det.reset();
             start = i;
         }
-        let (w, hw) = (det.update(r.t_s, r.accel_g, r.gyro_dps), hand_det.update(r.t_s, r.accel_g, r.gyro_dps));
+        let (w, hw) = (det.update(r.t, r.accel_g, r.gyro_dps), hand_det.update(r.t, r.accel_g, r.gyro_dps));
         let (Some(w), Some(hw)) = (w, hw) else { continue };
         let span = &rows[start..=i];
         start = i + 1;
@@ -229,7 +229,7 @@ fn column_of(rows: &[Row], col: impl Fn(&Row) -> Option<f32>) -> Option<Option<f
 
 fn close(open: &mut Option<Segment>, segments: &mut Vec<Segment>, rows: &[Row]) {
     if let Some(seg) = open.take() {
-        if rows[seg.last].t_s - rows[seg.first].t_s >= MIN_SEGMENT_S {
+        if rows[seg.last].t.s() - rows[seg.first].t.s() >= MIN_SEGMENT_S {
             segments.push(seg);
         }
     }
@@ -245,10 +245,10 @@ pub fn steady_spin(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &Ste
     let means: Vec<Vector3<f64>> = windows.iter().map(|&(a, c)| Vector3::from(stats(&rows[a..=c]).1.mean()) - b).collect();
     // The averaged rows of windows i..=j.
     let averaged = |i: usize, j: usize| {
-        let (t0, t1) = (rows[windows[i].0].t_s, rows[windows[j].1].t_s);
-        let first = (windows[i].0..=windows[j].1).find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
-        let last = (windows[i].0..=windows[j].1).rev().find(|&r| steady.averaged(rows[r].t_s - t0, t1 - t0))?;
-        (rows[last].t_s - rows[first].t_s >= steady.min_s as f64).then_some((first, last))
+        let (t0, t1) = (rows[windows[i].0].t.s(), rows[windows[j].1].t.s());
+        let first = (windows[i].0..=windows[j].1).find(|&r| steady.averaged(rows[r].t.s() - t0, t1 - t0))?;
+        let last = (windows[i].0..=windows[j].1).rev().find(|&r| steady.averaged(rows[r].t.s() - t0, t1 - t0))?;
+        (rows[last].t.s() - rows[first].t.s() >= steady.min_s as f64).then_some((first, last))
     };
     let mut best: Option<(usize, usize)> = None;
     let mut i = 0;
@@ -274,6 +274,7 @@ pub fn steady_spin(rows: &[Row], bias_dps: [f32; 3], window_s: f32, steady: &Ste
 #[cfg(test)]
 mod tests {
     use super::*;
+    use calib_core::Time;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -285,7 +286,15 @@ mod tests {
                 let t = i as f64 / 119.0;
                 let mut n = || (rng.random::<f64>() - 0.5) * noise_g * 12f64.sqrt();
                 let a = [n(), n(), 1.0 + motion(t) + n()].map(|v| v as f32);
-                Row { t_s: t, accel_g: a, gyro_dps: [0.0; 3], servo_deg: None, tilt_deg: None, mag_ut: None, temp_c: None }
+                Row {
+                    t: Time::from_s(t).unwrap(),
+                    accel_g: a,
+                    gyro_dps: [0.0; 3],
+                    servo_deg: None,
+                    tilt_deg: None,
+                    mag_ut: None,
+                    temp_c: None,
+                }
             })
             .collect();
         let (accel, gyro) = stats(&rows);
