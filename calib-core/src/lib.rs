@@ -52,7 +52,7 @@
 #![deny(missing_docs)]
 // Matrix code reads best with indices; `!(x > 0.0)` is a deliberate NaN-rejecting test.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
-// Casts between `Real` and `f32` (the records) or `f64` (times, the normal equations' sums)
+// Casts between `Real` and `f32` (the records) or `f64` (the normal equations' sums)
 // convert in one build and are the identity in the other (`Real` is `f32` with `single`).
 #![allow(clippy::unnecessary_cast)]
 

@@ -2,9 +2,10 @@
 //!
 //! `f32` on the Cortex-M4F (feature `single`, every firmware build: its FPU adds and
 //! multiplies in one cycle, where `f64` is software), `f64` on the PC (the offline tool, the
-//! simulator, the benchmarks). Times stay `f64` seconds in both: a timestamp an hour after boot
-//! needs a resolution `f32` does not have. The firmware's K against the PC's on the firmware's
-//! own log is vboard's precision test.
+//! simulator, the benchmarks). Times are integer µs in both ([`crate::Time`]): a timestamp an
+//! hour after boot needs a resolution `f32` does not have; differences of two are `Real`
+//! seconds. The firmware's K against the PC's on the firmware's own log is vboard's precision
+//! test.
 
 /// The fits' and solves' real number (see the module).
 #[cfg(feature = "single")]
