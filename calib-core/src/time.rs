@@ -44,11 +44,13 @@ impl Time {
     }
 
     /// Seconds (negative when `earlier` is later) from `earlier` to `self`.
+    #[inline(never)] // one copy (flash): an i64 difference, its conversion and a product
     pub fn since(self, earlier: Time) -> Real {
         self.0.saturating_sub(earlier.0) as Real * 1e-6
     }
 
     /// The instant `s` seconds later (earlier when negative; a NaN adds nothing).
+    #[inline(never)] // one copy (flash)
     pub fn plus_s(self, s: Real) -> Time {
         let us = s * 1e6;
         let us = if us >= 0.0 {

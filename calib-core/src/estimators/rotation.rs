@@ -41,7 +41,7 @@ use crate::estimators::bias::RestBias;
 use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
-use crate::math::real::{self, sq, Real};
+use crate::math::real::{self, sq, widen, Real, Scalar, Sum};
 use crate::math::vec3::{sqrtf, tangent_basis, to_real as v64};
 use crate::{Error, Mat3, Time, Vec3};
 use nalgebra::{Matrix3, Vector3};
@@ -399,9 +399,9 @@ pub struct Rotations<const M: usize = MAX_ROTATION_MOVES, const C: usize = MAX_C
 /// the next: the Earth's rate's parts and the residual sums at the linearisation point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowSum {
-    /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns), in `f64` as the
+    /// `Σ w h xᵀ` of the rows' Earth's-rate parts (the rows' `w` columns), in [`Sum`] as the
     /// normal equations' sums are: the elimination takes large sums apart.
-    cross: [[f64; 3]; 9],
+    cross: [[Sum; 3]; 9],
     /// The normal equations of the Earth's rate `w` alone, with its prior `N(0, I/3)`.
     earth: NormalEquations<3>,
     /// Weighted residual sum; unweighted one of the rotation rows (rad²) and their count.
@@ -415,7 +415,7 @@ pub struct RowSum {
 impl RowSum {
     /// No move yet: the Earth's rate's prior alone.
     pub const fn new() -> Self {
-        Self { cross: [[0.0; 3]; 9], earth: NormalEquations::prior(3.0), wrss: 0.0, rss: 0.0, n: 0, next: 0 }
+        Self { cross: [[<Sum as Scalar>::ZERO; 3]; 9], earth: NormalEquations::prior(3.0), wrss: 0.0, rss: 0.0, n: 0, next: 0 }
     }
 
     /// Ends the sums of `ne` (every move added): the Earth's rate marginalised out of `ne` if
@@ -1074,7 +1074,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 let x: [Real; 3] = (g.transpose() * rg.cross(&e) * -EARTH_RATE_RAD_S).into();
                 for (c, row) in sum.cross.iter_mut().enumerate() {
                     for b in 0..3 {
-                        row[b] += w as f64 * h[c] as f64 * x[b] as f64;
+                        row[b] += widen(w) * widen(h[c]) * widen(x[b]);
                     }
                 }
                 sum.earth.add_row(&x, y, w)?;

@@ -1,4 +1,4 @@
-//! Small dense linear algebra: Cholesky factorisation (in [`Real`] or `f64`: [`Scalar`]) and the
+//! Small dense linear algebra: Cholesky factorisation (in [`Real`] or [`real::Sum`]: [`Scalar`]) and the
 //! symmetric Jacobi eigen-decomposition. No allocation, bounded iteration counts. Each routine is
 //! one core on a row-major slice (`n × n`, `n ≤ MAX_N`, generic over its scalar alone) behind a
 //! thin wrapper generic over the size, so the firmware links one copy a scalar whatever the sizes.

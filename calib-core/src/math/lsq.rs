@@ -1,8 +1,9 @@
 //! Weighted linear least squares through normal equations, accumulated one row at a time.
 //!
-//! `NormalEquations<N>` keeps `Σ w x xᵀ`, `Σ w x y`, `Σ w y²` in `f64` whatever [`Real`] is:
+//! `NormalEquations<N>` keeps `Σ w x xᵀ`, `Σ w x y`, `Σ w y²` in [`Sum`] whatever [`Real`] is
+//! (`f64` on the PC, a double-single [`crate::math::wide::Wide`] on the FPU):
 //! O(N²) state whatever the number of rows. It solves in [`Real`], but takes the residual sum
-//! from the `f64` sums at the solution, `Σ w y² − 2 βᵀ Σ w x y + βᵀ (Σ w x xᵀ) β`: a small
+//! from those sums at the solution, `Σ w y² − 2 βᵀ Σ w x y + βᵀ (Σ w x xᵀ) β`: a small
 //! difference of large sums, which sums in `f32` lose (the firmware's 1σ of K came out 0.6 times
 //! the PC's on a 952 Hz log), and which the solve's rounding of `β` changes
 //! only to second order. Every linear solve of the crate goes through it (3 unknowns for the
@@ -11,7 +12,7 @@
 use crate::math::linalg::{
     cholesky, cholesky_in, cholesky_inverse, cholesky_inverse_in, cholesky_solve, cholesky_solve_in, sym_extremes_in, MAX_N,
 };
-use crate::math::real::{self, Real};
+use crate::math::real::{self, narrow, widen, Real, Scalar, Sum};
 use crate::Error;
 
 /// Largest accepted condition number of the equilibrated normal matrix (unit diagonal): 1e8 in
@@ -23,9 +24,9 @@ pub const MAX_CONDITION: Real = if cfg!(feature = "single") { 1e6 } else { 1e8 }
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize> {
     /// Lower triangle (`j ≤ i`) of `Σ w x xᵀ`; the upper one stays zero.
-    xtx: [[f64; N]; N],
-    xty: [f64; N],
-    yty: f64,
+    xtx: [[Sum; N]; N],
+    xty: [Sum; N],
+    yty: Sum,
     rows: u32,
 }
 
@@ -62,7 +63,7 @@ impl<const N: usize> NormalEquations<N> {
     /// Empty equations.
     pub const fn new() -> Self {
         const { assert!(N <= MAX_N, "more unknowns than the linear algebra's MAX_N") };
-        Self { xtx: [[0.0; N]; N], xty: [0.0; N], yty: 0.0, rows: 0 }
+        Self { xtx: [[<Sum as Scalar>::ZERO; N]; N], xty: [<Sum as Scalar>::ZERO; N], yty: <Sum as Scalar>::ZERO, rows: 0 }
     }
 
     /// The prior `β ~ N(0, I/w)`: the `N` unit rows `eᵢ·β ≈ 0` of weight `w` (the same sums as
@@ -71,7 +72,7 @@ impl<const N: usize> NormalEquations<N> {
         let mut out = Self::new();
         let mut i = 0;
         while i < N {
-            out.xtx[i][i] = w as f64;
+            out.xtx[i][i] = widen(w);
             i += 1;
         }
         out.rows = N as u32;
@@ -96,16 +97,16 @@ impl<const N: usize> NormalEquations<N> {
         let mut out = *self;
         for i in 0..N {
             for j in 0..=i {
-                out.xtx[i][j] *= d[i] as f64 * d[j] as f64;
+                out.xtx[i][j] *= widen(d[i]) * widen(d[j]);
             }
-            out.xty[i] *= d[i] as f64;
+            out.xty[i] *= widen(d[i]);
         }
         out
     }
 
     /// `(Σ w x xᵀ)⁻¹` by Cholesky: the parameter covariance before its scaling by the residual.
     pub fn inverse(&self) -> Result<[[Real; N]; N], Error> {
-        let l = cholesky(&self.xtx.map(|r| r.map(|v| v as Real)), 1e-13).ok_or(Error::Singular)?;
+        let l = cholesky(&self.xtx.map(|r| r.map(narrow)), 1e-13).ok_or(Error::Singular)?;
         Ok(cholesky_inverse(&l))
     }
 
@@ -122,7 +123,7 @@ impl<const N: usize> NormalEquations<N> {
         if !cholesky_in(&self.real()[..N * N], &mut l[..N * N], N, 1e-13) {
             return Err(Error::Singular);
         }
-        cholesky_solve_in(&l[..N * N], &self.xty.map(|v| v as Real), &mut x);
+        cholesky_solve_in(&l[..N * N], &self.xty.map(narrow), &mut x);
         Ok(x)
     }
 
@@ -130,7 +131,7 @@ impl<const N: usize> NormalEquations<N> {
     fn real(&self) -> [Real; MAX_N * MAX_N] {
         let mut a = [0.0; MAX_N * MAX_N];
         for (a, v) in a.iter_mut().zip(self.xtx.as_flattened()) {
-            *a = *v as Real;
+            *a = narrow(*v);
         }
         a
     }
@@ -138,10 +139,10 @@ impl<const N: usize> NormalEquations<N> {
     /// Marginalises `M` more unknowns `z` out of equations whose rows were `x·β + c·z ≈ y`, given
     /// `Σ w x cᵀ` (`cross`) and the rows `c·z ≈ y` alone (`nuisance`, positive definite: a prior
     /// added): what is left are the normal equations of `β` alone (the Schur complement), whose
-    /// solution and covariance are those of the joint solve. In `f64`, as the sums are.
-    pub fn eliminate<const M: usize>(&mut self, cross: &[[f64; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
-        let l = cholesky(&nuisance.xtx, 1e-13).ok_or(Error::Singular)?;
-        let dot = |a: &[f64; M], b: &[f64; M]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
+    /// solution and covariance are those of the joint solve. In [`Sum`], as the sums are.
+    pub fn eliminate<const M: usize>(&mut self, cross: &[[Sum; M]; N], nuisance: &NormalEquations<M>) -> Result<(), Error> {
+        let l = cholesky(&nuisance.xtx, widen(1e-13)).ok_or(Error::Singular)?;
+        let dot = |a: &[Sum; M], b: &[Sum; M]| a.iter().zip(b).fold(<Sum as Scalar>::ZERO, |s, (a, b)| s + *a * *b);
         let cy = &nuisance.xty;
         for i in 0..N {
             let s = cholesky_solve(&l, &cross[i]);
@@ -203,21 +204,22 @@ impl<const N: usize> NormalEquations<N> {
         if !(condition <= MAX_CONDITION) {
             return Err(Error::IllConditioned { condition: condition as f32, limit: MAX_CONDITION as f32 });
         }
-        cholesky_solve_in(l, &self.xty.map(|v| v as Real), x);
-        let rss = self.rss_at(x).max(0.0) as Real;
+        cholesky_solve_in(l, &self.xty.map(narrow), x);
+        let rss = narrow(self.rss_at(x)).max(0.0);
         let dof = self.rows - N as u32;
         scaled_inverse(l, N, rss, dof, covariance);
         Ok((rss, dof, condition))
     }
 
-    /// `Σ w (y − x·β)²` at `β`, from the `f64` sums.
-    fn rss_at(&self, beta: &[Real; N]) -> f64 {
+    /// `Σ w (y − x·β)²` at `β`, from the [`Sum`]s.
+    fn rss_at(&self, beta: &[Real; N]) -> Sum {
         let mut q = self.yty;
         for i in 0..N {
-            let bi = beta[i] as f64;
-            q += bi * (bi * self.xtx[i][i] - 2.0 * self.xty[i]);
+            let bi = widen(beta[i]);
+            q += bi * (bi * self.xtx[i][i] - (self.xty[i] + self.xty[i]));
             for j in 0..i {
-                q += 2.0 * bi * beta[j] as f64 * self.xtx[i][j];
+                let p = bi * widen(beta[j]) * self.xtx[i][j];
+                q += p + p;
             }
         }
         q
@@ -225,14 +227,14 @@ impl<const N: usize> NormalEquations<N> {
 }
 
 /// [`NormalEquations::add_row`] into the row-major lower triangle `xtx` (`n = x.len()`), `xty`, `yty`.
-fn add_row(xtx: &mut [f64], xty: &mut [f64], yty: &mut f64, x: &[Real], y: Real, w: Real) -> Result<(), Error> {
+fn add_row(xtx: &mut [Sum], xty: &mut [Sum], yty: &mut Sum, x: &[Real], y: Real, w: Real) -> Result<(), Error> {
     if !(x.iter().all(|v| v.is_finite()) && y.is_finite() && w.is_finite() && w >= 0.0) {
         return Err(Error::NonFinite);
     }
-    let (n, y, w) = (x.len(), y as f64, w as f64);
-    let mut xd = [0.0f64; MAX_N];
+    let (n, y, w) = (x.len(), widen(y), widen(w));
+    let mut xd = [<Sum as Scalar>::ZERO; MAX_N];
     for (d, v) in xd.iter_mut().zip(x) {
-        *d = *v as f64;
+        *d = widen(*v);
     }
     for i in 0..n {
         let wxi = w * xd[i];

@@ -9,3 +9,4 @@ pub mod stats;
 pub(crate) mod test_noise;
 pub mod trig;
 pub mod vec3;
+pub mod wide;

@@ -19,6 +19,43 @@ pub use core::f32::consts;
 #[cfg(not(feature = "single"))]
 pub use core::f64::consts;
 
+use super::wide::Wide;
+
+/// What needs more than `f32` whatever [`Real`] is (the normal equations' sums: their residual is
+/// a small difference of large sums): `f64` on the PC, a [`Wide`] double-single on the FPU (no
+/// software `f64` on the firmware).
+#[cfg(feature = "single")]
+pub type Sum = Wide;
+/// What needs more than `f32` whatever [`Real`] is (see the `single` build's).
+#[cfg(not(feature = "single"))]
+pub type Sum = f64;
+
+/// `x` as a [`Sum`] (exactly).
+#[inline]
+pub const fn widen(x: Real) -> Sum {
+    #[cfg(feature = "single")]
+    {
+        Wide::new(x)
+    }
+    #[cfg(not(feature = "single"))]
+    {
+        x
+    }
+}
+
+/// The [`Real`] nearest `s`.
+#[inline]
+pub fn narrow(s: Sum) -> Real {
+    #[cfg(feature = "single")]
+    {
+        s.to_f32()
+    }
+    #[cfg(not(feature = "single"))]
+    {
+        s
+    }
+}
+
 /// `x²`.
 pub fn sq(x: Real) -> Real {
     x * x
@@ -30,9 +67,9 @@ pub fn sqrt(x: Real) -> Real {
     Scalar::sqrt(x)
 }
 
-/// The floating-point types the code is generic over where it runs in both: [`Real`], and `f64`
-/// for the normal equations' sums that need it whatever `Real` is (the Cholesky routines of
-/// `linalg`; each instance is linked only where used).
+/// The floating-point types the code is generic over where it runs in both: [`Real`], and
+/// [`Sum`] for the normal equations' sums (the Cholesky routines of `linalg`; each instance is
+/// linked only where used).
 pub(crate) trait Scalar:
     Copy
     + PartialOrd
@@ -78,6 +115,27 @@ macro_rules! scalar {
 
 scalar!(f32, super::vec3::sqrtf);
 scalar!(f64, libm::sqrt);
+
+impl Scalar for Wide {
+    const ZERO: Self = Wide::ZERO;
+    const ONE: Self = Wide::ONE;
+    fn sqrt(self) -> Self {
+        Wide::sqrt(self)
+    }
+    fn abs(self) -> Self {
+        Wide::abs(self)
+    }
+    fn max(self, other: Self) -> Self {
+        if other > self || self.to_f32().is_nan() {
+            other
+        } else {
+            self
+        }
+    }
+    fn is_finite(self) -> bool {
+        Wide::is_finite(self)
+    }
+}
 
 /// `eˣ`.
 #[inline]

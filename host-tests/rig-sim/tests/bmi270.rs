@@ -382,7 +382,7 @@ fn sensortime_dates_the_newest_sample_to_a_count_and_the_stamper_converges_soone
             by_sensortime.batch(at(t_st), r.samples);
             by_read.batch(at(t_read), r.samples);
             if batch == 200 {
-                let err = |p: f64| (p / period - 1.0).abs();
+                let err = |p: f32| (f64::from(p) / period - 1.0).abs();
                 println!(
                     "latency {latency_s} s: period error after 2 s: sensortime {:.2e}, read times {:.2e}",
                     err(by_sensortime.period_s()),
