@@ -17,9 +17,9 @@ use nrf52840_hal as hal;
 
 /// Longest log line (B): the full `K` line is ~330 B; a longer one is cut.
 pub(crate) const LINE: usize = 640;
-/// Longest export text (B, on the stack while it is sent): the C snippet of a record with the
-/// magnetometer is ~2.1 KiB.
-pub(crate) const EXPORT: usize = 2560;
+/// Longest JSON line of a record (B, on the stack while it is sent): one with the magnetometer
+/// is ~1.3 KiB.
+pub(crate) const EXPORT: usize = 2048;
 
 /// Every log line after boot: over RTT (defmt) and, while a terminal has the USB port open,
 /// over USB serial, with the same text (`calib_core::formats::text`).
@@ -101,29 +101,23 @@ impl Console {
         }
     }
 
-    /// Sends a multi-line text (export snippets) line by line.
-    #[inline(never)]
-    pub(crate) fn lines(&mut self, text: &str) {
-        text.lines().for_each(|l| self.send(Log::Info, l));
-    }
-
     #[inline(never)]
     pub(crate) fn report(&mut self, r: &Report) {
         let mut line = heapless::String::<LINE>::new();
         let _ = calib_core::formats::text::report(&mut line, r);
         self.send(calib_core::formats::text::level(r), &line);
         if let Report::Done(rec) = r {
-            self.export(rec, Format::Json);
+            self.json(rec);
         }
     }
 
-    /// Sends a record in an export format.
+    /// Sends a record's JSON line (`gyrocal-calib`'s schema).
     #[inline(never)]
-    pub(crate) fn export(&mut self, rec: &Record, format: Format) {
+    pub(crate) fn json(&mut self, rec: &Record) {
         let mut text = heapless::String::<EXPORT>::new();
-        match calib_core::formats::export::write(&mut text, rec, format) {
-            Ok(()) => self.lines(&text),
-            Err(_) => self.send(Log::Error, "export did not fit its buffer"),
+        match calib_core::formats::export::write(&mut text, rec, Format::Json) {
+            Ok(()) => self.send(Log::Info, &text),
+            Err(_) => self.send(Log::Error, "the JSON line did not fit its buffer"),
         }
     }
 
@@ -154,7 +148,8 @@ impl Console {
         self.ignored_at = now;
     }
 
-    /// The stored calibration (`s`): its line, the JSON line, the C snippet.
+    /// The stored calibration (`s`): its line and the JSON line. (C and Rust come from the PC,
+    /// `gyrocal-calib --port … --export c`, from this very line; a sketch loads the record itself.)
     #[inline(never)]
     pub(crate) fn stored(&mut self, rec: Option<&Record>) {
         let Some(rec) = rec else {
@@ -163,8 +158,7 @@ impl Console {
         let mut line = heapless::String::<LINE>::new();
         let _ = protocol::record(&mut line, RecordLine::Stored, rec);
         self.send(Log::Info, &line);
-        self.export(rec, Format::Json);
-        self.export(rec, Format::C);
+        self.json(rec);
     }
 
     /// Starts and stops USB with VBUS ([`Link`]), serves it every tick, enters the bootloader

@@ -295,7 +295,7 @@ pub fn run(
     link.drain()?;
 
     // The record the run starts from (its accelerometer calibration replaces the hand-held
-    // poses): the answer is a record line, its JSON, a C snippet, or none stored.
+    // poses): the answer is a record line and its JSON, or none stored.
     link.send(Command::Stored)?;
     let asked = Instant::now();
     let stored = loop {

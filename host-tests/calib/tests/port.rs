@@ -148,7 +148,6 @@ fn board(mut m: TTYPort, log_text: &str, f: Quirks) -> std::io::Result<usize> {
         Some(rec) => {
             sh.out.push(line(|s| protocol::record(s, RecordLine::Stored, rec)));
             sh.out.push(line(|s| export::write(s, rec, Format::Json)));
-            sh.out.extend(line(|s| export::write(s, rec, Format::C)).lines().map(String::from));
         }
         None => sh.out.push(protocol::NO_RECORD.into()),
     }
