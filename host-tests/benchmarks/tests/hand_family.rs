@@ -89,15 +89,7 @@ fn a_held_pose_s_1sigma_covers_the_error_of_its_mean_for_every_hand() {
         let (mut within, mut ratios, mut squares) = ([0usize; 2], vec![], [0.0; 2]);
         for run in 0..POSES {
             let mut rig = Rig::new(RigConfig { hand: Some(hand), ..pan_tilt::rig_config(2027, run) }, 100 + run as u64);
-            let row = |r: rig_sim::sim::Reading| Row {
-                t: rig_sim::harness::at(r.t_s),
-                accel_g: r.accel_g,
-                gyro_dps: r.gyro_dps,
-                servo_deg: None,
-                tilt_deg: None,
-                mag_ut: None,
-                temp_c: None,
-            };
+            let row = |r: rig_sim::sim::Reading| rig_sim::harness::bare_row(&r);
             // A second still on the shaft (the log's noise floor), the hand's motion setting in,
             // then the pose.
             let mut rows: Vec<Row> = (0..119).map(|_| row(rig.next_sample())).collect();

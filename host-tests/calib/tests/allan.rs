@@ -29,15 +29,7 @@ fn rows(cfg: RigConfig, seed: u64, seconds: f64) -> Vec<Row> {
         if r.t_s > seconds {
             return out;
         }
-        out.push(Row {
-            t: rig_sim::harness::at(r.t_s),
-            accel_g: r.accel_g,
-            gyro_dps: r.gyro_dps,
-            servo_deg: None,
-            tilt_deg: None,
-            mag_ut: None,
-            temp_c: None,
-        });
+        out.push(rig_sim::harness::bare_row(&r));
     }
 }
 

@@ -329,7 +329,13 @@ pub fn write_log_row(text: &mut String, row: &Row, mag: bool) {
 
 /// A reading as a log's row holds it, with the commanded servo angles.
 pub fn log_row(s: &Reading, servo_deg: Option<f32>, tilt_deg: Option<f32>) -> Row {
-    Row { t: at(s.t_s), accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg, tilt_deg, mag_ut: s.mag_ut, temp_c: to_input(s).temp_c }
+    Row { servo_deg, tilt_deg, mag_ut: s.mag_ut, temp_c: to_input(s).temp_c, ..bare_row(s) }
+}
+
+/// A reading's time, accelerometer and gyro as a row, nothing else (no servo, field or
+/// temperature).
+pub fn bare_row(s: &Reading) -> Row {
+    Row { t: at(s.t_s), accel_g: s.accel_g, gyro_dps: s.gyro_dps, servo_deg: None, tilt_deg: None, mag_ut: None, temp_c: None }
 }
 
 /// Runs like [`run`] and records the log ([`calib_core::formats::log`], `comments` first).
