@@ -233,7 +233,8 @@ impl fmt::Display for Error {
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
             Error::SamplesLost { count } => write!(
                 f,
-                "{count} sample(s) lost (FIFO overrun or a failed read): the gyro integral has a gap; keep the host reading and rerun"
+                "{count} sample(s) lost (a FIFO overrun or a failed read): the gyro integral has a gap; rerun (no host can cause it: \
+                 the board never waits for RTT or USB; if it repeats, check the sensor's I2C wiring and supply)"
             ),
             Error::SensorFault => f.write_str("the sensor stopped answering during the calibration (I2C error): check the board, rerun"),
             Error::ResultNotFinite => f.write_str("the result holds a NaN, an infinite number or a value beyond what a part can have: not stored"),
