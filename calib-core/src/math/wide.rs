@@ -103,12 +103,6 @@ impl Wide {
     }
 }
 
-impl From<f32> for Wide {
-    fn from(x: f32) -> Wide {
-        Wide::new(x)
-    }
-}
-
 impl Neg for Wide {
     type Output = Wide;
     fn neg(self) -> Wide {
