@@ -63,7 +63,7 @@ impl Time {
         Time(self.0.saturating_add(us))
     }
 
-    /// `(self + other) / 2` (rounded down).
+    /// `(self + other) / 2` (rounded towards zero).
     pub fn midpoint(self, other: Time) -> Time {
         Time(self.0.midpoint(other.0))
     }
