@@ -4,8 +4,8 @@
 //!
 //! The firmware writes the lines with these writers (directly, or through
 //! [`crate::formats::text::report`] and [`crate::formats::export`]); the PC never matches a sentence, only the
-//! [`Event`] it parses to. A line that is none of these (the other report lines, the C snippet,
-//! warnings) parses to `None`: it is for people.
+//! [`Event`] it parses to. A line that is none of these (the other report lines, an older firmware's C
+//! snippet, warnings) parses to `None`: it is for people.
 //!
 //! No allocation, and no `core::fmt` float code (numbers with decimals go through
 //! [`crate::formats::text::Fixed`]). The parsers are for the PC; the firmware links only the writers.
@@ -28,7 +28,7 @@ pub enum Command {
     Calibrate,
     /// `r`: raw-log mode on/off (as a long press).
     RawLog,
-    /// `s`: the stored calibration (its record line, the JSON line, the C snippet).
+    /// `s`: the stored calibration (its record line and the JSON line).
     Stored,
     /// `p`: the sensor setup of the next calibration: the firmware's own, or Arduino_LSM9DS1's
     /// (119 Hz, ±2000 °/s, ±4 g), in turn.
@@ -72,7 +72,7 @@ impl Command {
 
 /// The help (the answer to [`Command::Help`]), one line each.
 pub const HELP: [&str; 2] = [
-    "commands: c calibrate, or go on after re-clamping (= the button); r raw log on/off; s stored calibration (JSON, C); p sensor setup: ours or Arduino's library's (119 Hz LSM9DS1, 100 Hz BMI270, +-2000 dps, +-4 g) in turn until reset; h help",
+    "commands: c calibrate, or go on after re-clamping (= the button); r raw log on/off; s stored calibration (JSON); p sensor setup: ours or Arduino's library's (119 Hz LSM9DS1, 100 Hz BMI270, +-2000 dps, +-4 g) in turn until reset; h help",
     "1200-baud touch (open at 1200 Bd, close): resets into the Arduino bootloader for bossac",
 ];
 
@@ -86,7 +86,7 @@ pub const NO_RECORD: &str = "no calibration stored";
 pub enum RecordLine {
     /// Loaded from flash at boot (and applied).
     Loaded,
-    /// The answer to [`Command::Stored`] (followed by the JSON line and the C snippet).
+    /// The answer to [`Command::Stored`] (followed by the JSON line).
     Stored,
     /// A calibration ended with this record stored and applied (followed by the JSON line).
     CalibrationDone,
@@ -466,7 +466,7 @@ mod tests {
         }
         let l = line(|s| record(s, RecordLine::CalibrationDone, &sample()));
         assert!(l.starts_with("calibration done: stored record 7 (sweep K): K = [1.010000 0.000000 0.000000; "), "{l}");
-        // The C snippet after the JSON line is for people.
+        // A C snippet (an older firmware's, after the JSON line) is for people.
         let mut c = String::new();
         export::write(&mut c, &sample(), Format::C).unwrap();
         assert!(c.lines().all(|l| parse(l).is_none()), "{c}");
