@@ -7,6 +7,7 @@
 use crate::math::linalg::sym_eigen;
 use crate::math::real::{self, Real};
 use crate::math::vec3::to_real;
+use crate::math::vec3::Length;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -142,7 +143,7 @@ impl Poses {
         }
         let (axial, radial, off) = tips().fold((0.0, 0.0, 0.0), |(ax, ra, off), t| {
             let (along, off_plane) = (t.dot(&u), (t - mean).dot(&u));
-            (ax + along / nf, ra + (t - u * along).norm() / nf, off + off_plane * off_plane / nf)
+            (ax + along / nf, ra + (t - u * along).length() / nf, off + off_plane * off_plane / nf)
         });
         let (e, tilt_deg) = ([col(1), col(2)], crate::math::trig::atan2(radial, axial).to_degrees());
         Plane { n, mean, vals, u, e, tilt_deg, radial, off_plane_ms: off }
@@ -160,7 +161,7 @@ impl Poses {
         let spread = real::sqrt((vals[1] + vals[2]).max(0.0));
         let min_tilt = (limits.min_tilt_deg as Real).to_radians();
         if spread < 0.3 * min_tilt || tilt_deg < limits.min_tilt_deg as Real {
-            let tilt = crate::math::trig::atan2(spread, mean.norm()).to_degrees().min(tilt_deg);
+            let tilt = crate::math::trig::atan2(spread, mean.length()).to_degrees().min(tilt_deg);
             return Err(Error::AxisNearVertical { tilt_deg: tilt as f32, limit_deg: limits.min_tilt_deg });
         }
         // Shaft angle of each pose, unwrapped along the pose order (consecutive poses < 180° apart).

@@ -13,6 +13,7 @@
 use crate::math::linalg::{inverse3, sym_eigen};
 use crate::math::lsq::{NormalEquations, Solution};
 use crate::math::real::{self, Real};
+use crate::math::vec3::Length;
 use crate::math::vec3::{mat_to_real, to_real};
 use crate::{Error, Mat3, Vec3};
 use nalgebra::{Matrix3, Vector3};
@@ -140,13 +141,13 @@ fn cayley(theta: &Vector3<Real>) -> Matrix3<Real> {
 /// The angle (rad) of rotation matrix `r`: `atan2(sin, cos)` from its skew part and trace.
 fn angle_of(r: &Matrix3<Real>) -> Real {
     let v = Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]);
-    crate::math::trig::atan2(v.norm() / 2.0, (r.trace() - 1.0) / 2.0)
+    crate::math::trig::atan2(v.length() / 2.0, (r.trace() - 1.0) / 2.0)
 }
 
 /// Strength (µT) and dip (rad, positive below the horizon) of field `m` with gravity along `f`.
 fn field_and_dip(f: &Vector3<Real>, m: &Vector3<Real>) -> (Real, Real) {
-    let b = m.norm();
-    (b, asin(-f.normalize().dot(m) / b))
+    let b = m.length();
+    (b, asin(-f.unit().dot(m) / b))
 }
 
 /// A pose's field `b` (µT) and dip (rad) against the expected ones, within `limits`.
@@ -352,7 +353,7 @@ impl MagCalibrator {
         }
         let (mut sum, mut sum2) = (0.0, 0.0);
         for p in &self.poses {
-            let b = (a * (to_real(p.1) - o)).norm();
+            let b = (a * (to_real(p.1) - o)).length();
             sum += b;
             sum2 += b * b;
         }
@@ -362,7 +363,7 @@ impl MagCalibrator {
         let mut rss = 0.0;
         for (m, _) in self.points() {
             let v = a * (to_real(m) - o);
-            rss += (v.norm() - field) * (v.norm() - field);
+            rss += (v.length() - field) * (v.length() - field);
             bins |= 1 << face(&v);
         }
         let residual = real::sqrt(rss / self.samples() as Real);
@@ -408,7 +409,7 @@ impl MagCalibrator {
         let mut sol = None;
         for _ in 0..steps {
             let a = rot * a0;
-            let u = |i: usize| -> Vector3<Real> { (a * (to_real(self.poses[i].1) - o)).normalize() };
+            let u = |i: usize| -> Vector3<Real> { (a * (to_real(self.poses[i].1) - o)).unit() };
             let mut ne = NormalEquations::<4>::new();
             self.angle_rows(&mut ne, &a, &o, None)?;
             for m in moves.iter().filter(|m| (m.from as usize) < n && (m.to as usize) < n) {
@@ -479,7 +480,7 @@ impl MagCalibrator {
     #[inline(never)]
     fn angle_rows(&self, ne: &mut NormalEquations<4>, a: &Matrix3<Real>, o: &Vector3<Real>, skip: Option<usize>) -> Result<(), Error> {
         for (_, p) in self.poses.iter().enumerate().filter(|(i, _)| Some(*i) != skip) {
-            let (f, u) = (to_real(p.0).normalize(), (a * (to_real(p.1) - o)).normalize());
+            let (f, u) = (to_real(p.0).unit(), (a * (to_real(p.1) - o)).unit());
             let x = u.cross(&f);
             ne.add_row(&[x[0], x[1], x[2], -1.0], -f.dot(&u), 1.0)?;
         }
@@ -552,8 +553,8 @@ pub fn ellipsoid_from(ne: &NormalEquations<9>, c: &Vector3<Real>) -> Result<Elli
 /// body's x axis, from the specific force `f` (g, up) and the field `m` (µT), both in the body
 /// frame. `None` when the field is parallel to gravity.
 pub fn heading_deg(f: Vector3<Real>, m: Vector3<Real>) -> Option<Real> {
-    let up = f.try_normalize(1e-9)?;
-    let north = (m - up * m.dot(&up)).try_normalize(1e-9)?;
+    let up = f.try_unit(1e-9)?;
+    let north = (m - up * m.dot(&up)).try_unit(1e-9)?;
     let east = north.cross(&up);
     let h = crate::math::trig::atan2(east[0], north[0]).to_degrees();
     Some(if h < 0.0 { h + 360.0 } else { h })

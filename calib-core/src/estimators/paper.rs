@@ -9,6 +9,7 @@ use crate::estimators::gyro::{GyroCal, GyroQuality, Method, SCALE_RANGE};
 use crate::math::lsq::NormalEquations;
 use crate::math::real::{self, Real};
 use crate::math::stats::Spread;
+use crate::math::vec3::Length;
 use crate::{Error, Vec3};
 use nalgebra::Vector3;
 
@@ -26,8 +27,8 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
     let geo = poses.geometry(limits, true)?;
     let g = Vector3::new(gbar_dps[0] as Real, gbar_dps[1] as Real, gbar_dps[2] as Real);
     let omega = (omega_n_dps as Real).abs();
-    if g.norm() < MIN_RATE_DPS as Real || omega < MIN_RATE_DPS as Real {
-        return Err(Error::NoSpin { rate_dps: g.norm().min(omega) as f32, min_dps: MIN_RATE_DPS });
+    if g.length() < MIN_RATE_DPS as Real || omega < MIN_RATE_DPS as Real {
+        return Err(Error::NoSpin { rate_dps: g.length().min(omega) as f32, min_dps: MIN_RATE_DPS });
     }
     // Σ A Aᵀ is accumulated from the poses, then scaled by ḡ: the rows A_i ∘ ḡ.
     let mut ne = NormalEquations::<3>::new();
@@ -37,7 +38,7 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
     let sol = ne.scaled(&[g[0], g[1], g[2]]).solve()?;
     let beta = Vector3::from(sol.x);
     let sign = if beta.sum() < 0.0 { -1.0 } else { 1.0 };
-    let l = sign * omega / beta.component_mul(&g).norm();
+    let l = sign * omega / beta.component_mul(&g).length();
     let k = beta * l;
     for (axis, &v) in k.iter().enumerate() {
         if !(v > SCALE_RANGE.0 && v < SCALE_RANGE.1) {

@@ -42,6 +42,7 @@ use crate::estimators::gyro::SCALE_RANGE;
 use crate::math::linalg::{cofactor, sym_eigen};
 use crate::math::lsq::NormalEquations;
 use crate::math::real::{self, sq, widen, Real, Scalar, Sum};
+use crate::math::vec3::Length;
 use crate::math::vec3::{sqrtf, tangent_basis, to_real as v64};
 use crate::{Error, Mat3, Time, Vec3};
 use nalgebra::{Matrix3, Vector3};
@@ -479,7 +480,7 @@ fn flush<const C: usize>(chunks: &mut heapless::Vec<Chunk, C>, o: &mut Open, t_e
 }
 
 fn angle_deg(a: &Vector3<Real>, b: &Vector3<Real>) -> Real {
-    crate::math::trig::atan2(a.cross(b).norm(), a.dot(b)).to_degrees()
+    crate::math::trig::atan2(a.cross(b).length(), a.dot(b)).to_degrees()
 }
 
 /// The whole number of revolutions nearest to a turn (rad), in rad (at least one).
@@ -760,17 +761,17 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
     pub fn end(&mut self, to: u8, limits: &RotationLimits) -> Result<(), Rejected> {
         let Some(mut o) = self.open.take() else { return Ok(()) };
         let t_end = o.last.map_or(o.chunk_t0, |(t, _)| t);
-        if Vector3::from(o.gamma).norm() > 0.0 {
+        if Vector3::from(o.gamma).norm_squared() > 0.0 {
             flush(&mut self.chunks, &mut o, t_end);
         }
         // Back from the end of pose `to` to its mean instant: its turn undone.
         let (end_s, rest) = (t_end.since(o.t0) as f32, self.rest[to as usize % P]);
         self.push_turn(&mut o, rest.rise_deg.map(|v| -v), [end_s + rest.span_s / 2.0, end_s]);
         let total = Vector3::from(o.total);
-        let turn = total.norm();
+        let turn = total.length();
         let (ra, rb) = (self.rest[o.from as usize % P].bias, self.rest[to as usize % P].bias);
         let (a, b) = (v64(ra.residual_dps), v64(rb.residual_dps));
-        let (gi, gj) = (self.poses.get(o.from as usize).normalize(), self.poses.get(to as usize).normalize());
+        let (gi, gj) = (self.poses.get(o.from as usize).unit(), self.poses.get(to as usize).unit());
         let gravity_deg = angle_deg(&gi, &gj);
         let bias_change = (a - b).amax();
         let candidates = [
@@ -894,7 +895,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let m = Matrix3::from_fn(|r, c| accel.m[r][c] as Real);
         let o = v64(accel.offset_g);
         self.poses.map(|a| m * (a - o));
-        let gain = (m.norm() / real::sqrt(3.0)) as f32;
+        let gain = (real::sqrt(m.norm_squared()) / real::sqrt(3.0)) as f32;
         for s in &mut self.sigma_g[..self.poses.len()] {
             *s *= gain;
         }
@@ -1031,8 +1032,8 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             chunks += m.n as usize;
             sum.next += 1;
             let (pi, pj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
-            let (gi, gj) = (pi.normalize(), pj.normalize());
-            let dir = |p: &Vector3<Real>, i: u8| (self.sigma_g[i as usize] as Real / p.norm()).max(limits.min_direction_sigma as Real);
+            let (gi, gj) = (pi.unit(), pj.unit());
+            let dir = |p: &Vector3<Real>, i: u8| (self.sigma_g[i as usize] as Real / p.length()).max(limits.min_direction_sigma as Real);
             let (di, dj) = (dir(&pi, m.from), dir(&pj, m.to));
             let s2 = di * di + dj * dj + sg * sg + sq(m.int_sigma_rad as Real);
             if m.vertical {
@@ -1040,7 +1041,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
                 // across gravity (1σ the axis' tilt), and with whole turns `N·360°/|Γ|` along it
                 // (1σ the hand's realignment of the start attitude, as an angle over the turn).
                 let gamma = self.total_rad(m);
-                let (len, unit) = (gamma.norm(), gamma.normalize());
+                let (len, unit) = (gamma.length(), gamma.unit());
                 let up = if unit.dot(&gi) >= 0.0 { gi } else { -gi };
                 let tilt = (limits.vertical_axis_sigma_deg as Real).to_radians();
                 let noise = (sg * sg + sq(m.int_sigma_rad as Real)) / (len * len);
@@ -1093,11 +1094,11 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let mut out = [0.0; M];
         let Some(cof) = cofactor(&km) else { return out };
         for (o, m) in out.iter_mut().zip(self.moves()) {
-            let (gi, gj) = (self.poses.get(m.from as usize).normalize(), self.poses.get(m.to as usize).normalize());
+            let (gi, gj) = (self.poses.get(m.from as usize).unit(), self.poses.get(m.to as usize).unit());
             *o = if m.vertical {
                 let turn = km * self.total_rad(m);
                 let off = angle_deg(&turn, &gi);
-                let excess = if limits.whole_turns { (turn.norm() - whole_turn_rad(turn.norm())).abs().to_degrees() } else { 0.0 };
+                let excess = if limits.whole_turns { (turn.length() - whole_turn_rad(turn.length())).abs().to_degrees() } else { 0.0 };
                 off.min(180.0 - off).max(excess) as f32
             } else {
                 angle_deg(&(self.turn(m, &km, &cof) * gj), &gi) as f32
@@ -1121,7 +1122,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
             }
             // The poses' gravity is 1 g to within the accelerometer's calibration.
             let (gi, gj) = (self.poses.get(m.from as usize), self.poses.get(m.to as usize));
-            let s = gi.cross(&gj).dot(&self.total_rad(m).normalize());
+            let s = gi.cross(&gj).dot(&self.total_rad(m).unit());
             if s < -MIRROR_MIN_SINE {
                 right_hand += 1;
             } else if s > MIRROR_MIN_SINE {
@@ -1151,7 +1152,7 @@ impl<const M: usize, const C: usize, const P: usize> Rotations<M, C, P> {
         let n = self.moves.len().max(1) as Real;
         for m in self.moves() {
             let total: Vector3<Real> = self.chunks_of(m).iter().map(|c| v64(c.gamma)).sum();
-            let u = total.normalize();
+            let u = total.unit();
             for i in 0..3 {
                 for j in 0..3 {
                     s[i][j] += u[i] * u[j] / n;

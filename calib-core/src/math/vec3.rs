@@ -18,25 +18,13 @@ pub fn sqrtf(x: f32) -> f32 {
     }
 }
 
-/// `vsqrt.f32` through core registers (the FPU's register class needs a target feature that
-/// stable Rust does not name), its scratch `s15` saved and restored on the stack.
+/// `vsqrt.f32` alone, called (AAPCS-VFP: `x` and the result in `s0`): one `bl` at each use
+/// instead of an inlined sequence (the FPU's register class needs a target feature that stable
+/// Rust does not name, so `asm!` would move `x` through core registers and a saved `s15`).
 #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
-fn vsqrt(x: f32) -> f32 {
-    let r: u32;
-    // SAFETY: FPU instructions the hard-float target has; `s15` is restored, the stack balanced.
-    unsafe {
-        core::arch::asm!(
-            "vpush {{s15}}",
-            "vmov s15, {x}",
-            "vsqrt.f32 s15, s15",
-            "vmov {r}, s15",
-            "vpop {{s15}}",
-            x = in(reg) x.to_bits(),
-            r = lateout(reg) r,
-            options(pure, readonly, preserves_flags),
-        )
-    };
-    f32::from_bits(r)
+#[unsafe(naked)]
+extern "C" fn vsqrt(x: f32) -> f32 {
+    core::arch::naked_asm!(".fpu fpv4-sp-d16", "vsqrt.f32 s0, s0", "bx lr")
 }
 
 /// `a − b`, element-wise (e.g. a raw gyro reading minus the bias, °/s).
@@ -44,10 +32,36 @@ pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
+/// A [`Real`] 3-vector's length and direction through [`crate::math::real::sqrt`] (the FPU's on
+/// the firmware; nalgebra's `norm` would link libm's software `sqrtf`).
+pub trait Length {
+    /// `|v|`, in the vector's units.
+    fn length(&self) -> Real;
+    /// `v / |v|` (NaN for the zero vector, as nalgebra's `normalize`).
+    fn unit(&self) -> Self;
+    /// `v / |v|`, or `None` if `|v| <= min`.
+    fn try_unit(&self, min: Real) -> Option<Self>
+    where
+        Self: Sized;
+}
+
+impl Length for Vector3<Real> {
+    fn length(&self) -> Real {
+        crate::math::real::sqrt(self.norm_squared())
+    }
+    fn unit(&self) -> Self {
+        self / self.length()
+    }
+    fn try_unit(&self, min: Real) -> Option<Self> {
+        let n = self.length();
+        (n > min).then(|| self / n)
+    }
+}
+
 /// An orthonormal basis `(e₁, e₂)` of the plane ⟂ the unit vector `u`.
 pub fn tangent_basis(u: &Vector3<Real>) -> [Vector3<Real>; 2] {
     let helper = if u[0].abs() < 0.6 { Vector3::x() } else { Vector3::y() };
-    let e1 = u.cross(&helper).normalize();
+    let e1 = u.cross(&helper).unit();
     [e1, u.cross(&e1)]
 }
 

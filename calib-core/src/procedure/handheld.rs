@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::math::real::{self, Real};
+use crate::math::vec3::Length;
 use crate::Time;
 
 impl Procedure {
@@ -48,7 +49,7 @@ impl Procedure {
         let poses = self.rotations.poses();
         let distinct = (if extra { poses.len().saturating_sub(1) } else { 0 }..poses.len()).all(|i| {
             let old = poses.get(i);
-            crate::math::trig::atan2(old.cross(&new).norm(), old.dot(&new)).to_degrees() >= min_sep
+            crate::math::trig::atan2(old.cross(&new).length(), old.dot(&new)).to_degrees() >= min_sep
         });
         self.step = Step::HandHeld { capture: Capture::default(), due: HandDue::None };
         if !distinct {

@@ -5,6 +5,7 @@ use super::{Axes, FullAxis, FullLimits, MAX_AXES, MIN_NOISE_DOF};
 use crate::estimators::axis::Plane;
 use crate::math::real::{self, Real};
 use crate::math::vec3::tangent_basis;
+use crate::math::vec3::Length;
 use crate::Error;
 use nalgebra::Vector3;
 
@@ -149,11 +150,11 @@ impl Axes {
             f
         };
         let along_gravity = || {
-            let u = mean.normalize();
+            let u = mean.unit();
             let r = 1.0 / real::sqrt(nf);
             let e = tangent_basis(&u);
             // Along gravity the axis is off by up to its own tilt: that bounds the direction's 1σ.
-            let floor_rad = crate::math::trig::atan2(spread, mean.norm());
+            let floor_rad = crate::math::trig::atan2(spread, mean.length());
             let tilt_deg = floor_rad.to_degrees();
             let f = Fit {
                 u,
@@ -229,11 +230,11 @@ pub(super) fn spread_rad(us: &[Vector3<Real>]) -> (Real, Real) {
     for i in 0..us.len() {
         for j in i + 1..us.len() {
             let c = us[i].cross(&us[j]);
-            min_pair = min_pair.min(crate::math::trig::atan2(c.norm(), us[i].dot(&us[j]).abs()));
-            if c.norm() > 1e-9 {
+            min_pair = min_pair.min(crate::math::trig::atan2(c.length(), us[i].dot(&us[j]).abs()));
+            if c.length() > 1e-9 {
                 for k in (0..us.len()).filter(|&k| k != i && k != j) {
                     // The angle of u_k from the plane ⟂ c (no asin linked into the firmware).
-                    non_coplanar = non_coplanar.max(crate::math::trig::atan2(us[k].dot(&c).abs(), us[k].cross(&c).norm()));
+                    non_coplanar = non_coplanar.max(crate::math::trig::atan2(us[k].dot(&c).abs(), us[k].cross(&c).length()));
                 }
             }
         }

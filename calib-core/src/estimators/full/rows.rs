@@ -6,6 +6,7 @@ use super::{vec_index, Axes, AxisMove, FullLimits, MAX_AXES};
 use crate::estimators::axis::{turn_deg, unwrap_near};
 use crate::math::lsq::{NormalEquations, Solution};
 use crate::math::real::{self, sq, Real};
+use crate::math::vec3::Length;
 use crate::{Error, Mat3};
 use nalgebra::Vector3;
 
@@ -66,7 +67,7 @@ impl Rig<'_> {
         let (pa, pb) = (self.axes.poses.get(m.from as usize), self.axes.poses.get(m.to as usize));
         let e_row = |k: usize, turn: Real| Row { v: f.e[k], y: 0.0, var: sg2 + sq(turn.abs() * f.dir_sigma(k, sigma_a)) };
         if f.direction_only {
-            let turn = gamma.norm();
+            let turn = gamma.length();
             let rows = [e_row(0, turn), e_row(1, turn), Row { v: f.u, y: 0.0, var: 1.0 }];
             (turn >= limits.min_move_deg as Real).then(|| MoveRows { rows, n: 2, gamma, turn: gamma.dot(&f.u) })
         } else {
