@@ -25,6 +25,7 @@
 
 use crate::lsm9ds1::BusFault;
 use calib_core::formats::record::{Sensor, SensorSetup};
+use calib_core::formats::text::{Hex, Int};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -329,12 +330,12 @@ impl core::fmt::Display for Bmi270Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
             Bmi270Error::Bus(b) => write!(f, "BMI270 I2C: {b:?}"),
-            Bmi270Error::WrongId(id) => write!(f, "CHIP_ID 0x{id:02X} at 0x68 is not a BMI270"),
-            Bmi270Error::Init(s) => write!(f, "BMI270 not initialised: INTERNAL_STATUS message 0x{s:X} (1 expected)"),
+            Bmi270Error::WrongId(id) => write!(f, "CHIP_ID 0x{} at 0x68 is not a BMI270", Hex(id.into(), 2)),
+            Bmi270Error::Init(s) => write!(f, "BMI270 not initialised: INTERNAL_STATUS message 0x{} (1 expected)", Hex(s.into(), 1)),
             Bmi270Error::BadConfig => f.write_str("a full scale the BMI270 does not have"),
-            Bmi270Error::ConfigRejected(e) => write!(f, "BMI270 rejected its configuration (EVENT error code {e})"),
+            Bmi270Error::ConfigRejected(e) => write!(f, "BMI270 rejected its configuration (EVENT error code {})", Int(e.into())),
             Bmi270Error::ConfigMismatch { reg, wrote, read } => {
-                write!(f, "BMI270 register 0x{reg:02X} reads 0x{read:02X} after 0x{wrote:02X}")
+                write!(f, "BMI270 register 0x{} reads 0x{} after 0x{}", Hex(reg.into(), 2), Hex(read.into(), 2), Hex(wrote.into(), 2))
             }
         }
     }

@@ -12,6 +12,7 @@
 
 use crate::lsm9ds1::BusFault;
 use crate::watch::{Shared, Watch};
+use calib_core::formats::text::Hex;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -170,7 +171,7 @@ pub enum ReadError {
 impl core::fmt::Display for ReadError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let shared = match *self {
-            ReadError::WrongId(id) => return write!(f, "BMM150: CHIP_ID 0x{id:02X} at 0x10 (expected 0x32)"),
+            ReadError::WrongId(id) => return write!(f, "BMM150: CHIP_ID 0x{} at 0x10 (expected 0x32)", Hex(id.into(), 2)),
             ReadError::TrimInvalid => {
                 return f.write_str("BMM150: its trim registers hold zeros (DIG_XYZ1, DIG_Z1 or DIG_Z2): no compensation")
             }

@@ -6,6 +6,7 @@
 //! simulated register map through the same `I2c` trait.
 
 use calib_core::formats::record::{Sensor, SensorSetup};
+use calib_core::formats::text::Hex;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::{ErrorKind, I2c};
 
@@ -310,9 +311,9 @@ impl core::fmt::Display for SensorError {
             }),
             SensorError::Missing => f.write_str("LSM9DS1 missing"),
             SensorError::Rev2Bmi270 => f.write_str("Nano 33 BLE Rev2"),
-            SensorError::WrongId(id) => write!(f, "WHO_AM_I 0x{id:02X} at 0x6B is not an LSM9DS1"),
+            SensorError::WrongId(id) => write!(f, "WHO_AM_I 0x{} at 0x6B is not an LSM9DS1", Hex(id.into(), 2)),
             SensorError::ConfigMismatch { reg, wrote, read } => {
-                write!(f, "register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
+                write!(f, "register 0x{} reads 0x{} after writing 0x{}", Hex(reg.into(), 2), Hex(read.into(), 2), Hex(wrote.into(), 2))
             }
             SensorError::ResetTimeout => f.write_str("no answer after the software reset"),
         }

@@ -9,6 +9,7 @@
 
 use crate::lsm9ds1::BusFault;
 use crate::watch::{Shared, Watch};
+use calib_core::formats::text::{Hex, Int};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::i2c::I2c;
 
@@ -170,8 +171,8 @@ pub enum Error {
 impl core::fmt::Display for Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let shared = match *self {
-            Error::WrongId(id) => return write!(f, "LSM9DS1 magnetometer: WHO_AM_I_M 0x{id:02X} at 0x1E (expected 0x3D)"),
-            Error::ResetTimeout => return write!(f, "LSM9DS1 magnetometer: no answer {RESET_TIMEOUT_MS} ms after its reset"),
+            Error::WrongId(id) => return write!(f, "LSM9DS1 magnetometer: WHO_AM_I_M 0x{} at 0x1E (expected 0x3D)", Hex(id.into(), 2)),
+            Error::ResetTimeout => return write!(f, "LSM9DS1 magnetometer: no answer {} ms after its reset", Int(RESET_TIMEOUT_MS.into())),
             Error::Bus(b) => Shared::Bus(b),
             Error::ConfigMismatch { reg, wrote, read } => Shared::ConfigMismatch { reg, wrote, read },
             Error::Stalled { ms, limit_ms } => Shared::Stalled { ms, limit_ms },

@@ -21,7 +21,7 @@ use gyrocal_fw::board::{self, flash_map, quiesce, start_hfxo, Bus, Clock, Leds, 
 use calib_core::estimators::mag::heading_deg;
 use calib_core::formats::protocol::{self, RecordLine};
 use calib_core::formats::record::{Record, SensorSetup};
-use calib_core::formats::text::{Fixed, Level as Log, V3};
+use calib_core::formats::text::{Fixed, Int, Level as Log, Text, V3};
 use calib_core::math::stats::Moments3;
 use calib_core::math::vec3::to_real;
 use calib_core::procedure::{Config, ErrorClass, Led, Phase, Procedure, Report, Running, Sample, Shell};
@@ -166,7 +166,7 @@ impl Shell for Io {
 
     fn store(&mut self, rec: &Record) -> Result<(), StoreError> {
         let slot = self.storage.as_mut().ok_or(StoreError::Unavailable)?.store(rec)?;
-        self.console.say(Log::Info, format_args!("record {} stored in slot {slot} and verified", rec.seq));
+        self.console.say(Log::Info, format_args!("record {} stored in slot {} and verified", Int(rec.seq.into()), Int(slot as i64)));
         Ok(())
     }
 
@@ -241,11 +241,11 @@ impl Sensing {
                                 Log::Info,
                                 format_args!(
                                     "Nano 33 BLE Rev2: BMI270 ready (Bosch's configuration loaded): {} Hz, +-{} dps, +-{} g; GYR_CAS {} (not applied), user gain {}",
-                                    c.odr.hz() as u32,
-                                    c.gyro_range_dps,
-                                    c.accel_range_g,
-                                    s.gyr_cas(),
-                                    if s.user_gain() { "on" } else { "off" }
+                                    Int(c.odr.hz() as i64),
+                                    Int(c.gyro_range_dps.into()),
+                                    Int(c.accel_range_g.into()),
+                                    Int(s.gyr_cas().into()),
+                                    Text(if s.user_gain() { "on" } else { "off" })
                                 ),
                             );
                             // Idle at boot (and after a re-initialisation): refused only mid-run,
@@ -386,13 +386,14 @@ impl Sensing {
         }) {
             Ok(r) => {
                 if r.lost > 0 {
-                    io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} samples lost", r.lost));
+                    io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} samples lost", Int(r.lost as i64)));
                 }
                 if let Some(n) = r.gyro_started_after {
-                    io.console.say(Log::Info, format_args!("BMI270: gyro started after {} accelerometer-only frames", n));
+                    io.console.say(Log::Info, format_args!("BMI270: gyro started after {} accelerometer-only frames", Int(n as i64)));
                 }
                 if r.partial > 0 {
-                    io.console.say(Log::Warn, format_args!("BMI270 FIFO: {} frames held one sensor alone: samples lost", r.partial));
+                    io.console
+                        .say(Log::Warn, format_args!("BMI270 FIFO: {} frames held one sensor alone: samples lost", Int(r.partial as i64)));
                 }
                 let missing = r.lost + r.partial;
                 if missing > 0 {
@@ -561,7 +562,7 @@ impl Status {
             self.last_drop_check = now;
             let dropped = gyrocal_fw::rtt::dropped_bytes();
             if dropped != self.dropped_reported {
-                console.say(Log::Warn, format_args!("RTT: {dropped} log bytes dropped since boot (no host was reading)"));
+                console.say(Log::Warn, format_args!("RTT: {} log bytes dropped since boot (no host was reading)", Int(dropped.into())));
                 self.dropped_reported = dropped;
             }
         }
@@ -652,7 +653,7 @@ fn main() -> ! {
             let mut line = heapless::String::<LINE>::new();
             let _ = protocol::record(&mut line, RecordLine::Loaded, &rec);
             console.send(Log::Info, &line);
-            console.say(Log::Info, format_args!("record read from slot {slot}; applied at the sensor setup it was made at"));
+            console.say(Log::Info, format_args!("record read from slot {}; applied at the sensor setup it was made at", Int(slot as i64)));
             applied = Some(rec);
         }
         Some(Ok(None)) => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),

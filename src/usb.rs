@@ -25,6 +25,7 @@
 //!   enters the bootloader with [`enter_bootloader`].
 
 use crate::serial::{Command, Outbox, Touch, GPREGRET_SERIAL_BOOTLOADER};
+use calib_core::formats::text::{Hex, Int, Text};
 use calib_core::Time;
 use core::sync::atomic::{compiler_fence, Ordering};
 use nrf52840_hal::pac;
@@ -67,12 +68,17 @@ pub struct Error {
 
 impl core::fmt::Display for Error {
     fn fmt(&self, f: &mut core::fmt::Formatter) -> core::fmt::Result {
-        let what = match (self.ready, self.regulator) {
+        let what = Text(match (self.ready, self.regulator) {
             (false, false) => "neither USBD READY nor the USB regulator's OUTPUTRDY",
             (false, true) => "no USBD READY (the regulator is up)",
             _ => "no USB regulator OUTPUTRDY (the USBD is READY)",
-        };
-        write!(f, "USB did not start: {what} {} ms after ENABLE; retrying in {} s", (START_TIMEOUT_S * 1e3) as u32, RETRY_S as u32)
+        });
+        write!(
+            f,
+            "USB did not start: {what} {} ms after ENABLE; retrying in {} s",
+            Int((START_TIMEOUT_S * 1e3) as i64),
+            Int(RETRY_S as i64)
+        )
     }
 }
 
@@ -260,7 +266,7 @@ pub fn serial_number(ficr: &pac::FICR) -> &'static str {
         return "";
     };
     // 16 hex digits always fit.
-    let _ = write!(s, "{:08X}{:08X}", ficr.deviceaddr[1].read().bits(), ficr.deviceaddr[0].read().bits());
+    let _ = write!(s, "{}{}", Hex(ficr.deviceaddr[1].read().bits(), 8), Hex(ficr.deviceaddr[0].read().bits(), 8));
     s.as_str()
 }
 

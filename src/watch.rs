@@ -4,6 +4,7 @@
 //! the failures they share.
 
 use crate::lsm9ds1::BusFault;
+use calib_core::formats::text::{Hex, Int, Text};
 use core::fmt;
 
 /// A failure both magnetometer drivers have (each driver's error holds these and its own).
@@ -22,14 +23,23 @@ pub(crate) enum Shared {
 impl Shared {
     /// The failure in words, for the part named `part` at I2C address `addr`.
     pub(crate) fn write(self, f: &mut fmt::Formatter<'_>, part: &str, addr: u8) -> fmt::Result {
+        let part = Text(part);
         match self {
-            Shared::Bus(BusFault::Nack) => write!(f, "{part}: nothing acknowledges 0x{addr:02X}"),
+            Shared::Bus(BusFault::Nack) => write!(f, "{part}: nothing acknowledges 0x{}", Hex(addr.into(), 2)),
             Shared::Bus(b) => write!(f, "{part} I2C: {b:?}"),
             Shared::ConfigMismatch { reg, wrote, read } => {
-                write!(f, "{part}: register 0x{reg:02X} reads 0x{read:02X} after writing 0x{wrote:02X}")
+                write!(
+                    f,
+                    "{part}: register 0x{} reads 0x{} after writing 0x{}",
+                    Hex(reg.into(), 2),
+                    Hex(read.into(), 2),
+                    Hex(wrote.into(), 2)
+                )
             }
-            Shared::Stalled { ms, limit_ms } => write!(f, "{part}: no new reading for {ms} ms (limit {limit_ms} ms): stopped"),
-            Shared::Stuck { readings } => write!(f, "{part}: {readings} readings in a row with the same counts: stuck"),
+            Shared::Stalled { ms, limit_ms } => {
+                write!(f, "{part}: no new reading for {} ms (limit {} ms): stopped", Int(ms.into()), Int(limit_ms.into()))
+            }
+            Shared::Stuck { readings } => write!(f, "{part}: {} readings in a row with the same counts: stuck", Int(readings.into())),
         }
     }
 }

@@ -1,7 +1,7 @@
 //! The one error type of the crate: every failure names the requirement that was not met.
 
 use crate::formats::record::StoreError;
-use crate::formats::text::Fixed;
+use crate::formats::text::{Fixed, Int, Text};
 use crate::procedure::Phase;
 use core::fmt;
 
@@ -55,7 +55,8 @@ pub enum Error {
     ServoNotTurning { channel: u8, commanded_deg: f32, measured_deg: f32 },
     /// A static pose kept being disturbed: retaken `retries` times.
     PoseDisturbed { index: u8, retries: u8 },
-    /// A sample reached the sensor's full scale during a move: lower the rate or raise the range.
+    /// A gyro sample reached its full scale during a rig move or pose (the spin: either sensor's):
+    /// lower the rate or raise the range.
     Saturated,
     /// The calibration result failed validation (scale out of range or too uncertain).
     ResultRejected { axis: u8, k: f32, sigma: f32 },
@@ -125,14 +126,23 @@ pub const DISAGREE_RATIO: f32 = 2.0;
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            Error::TooFewRows { have, need } => write!(f, "least squares needs {need} rows, has {have}"),
+            Error::TooFewRows { have, need } => {
+                let (have, need) = (Int(have.into()), Int(need.into()));
+                write!(f, "least squares needs {need} rows, has {have}")
+            }
             Error::Singular => f.write_str("normal matrix singular: the data do not determine every parameter"),
             Error::IllConditioned { condition, limit } => {
                 write!(f, "normal matrix ill-conditioned: condition {condition} > limit {limit}", condition = Fixed(condition, 0), limit = Fixed(limit, 0))
             }
             Error::NonFinite => f.write_str("non-finite value (NaN or infinity) in the input"),
-            Error::TooFewPoses { have, need } => write!(f, "too few static poses: {have}, need {need}"),
-            Error::CapacityExceeded { max } => write!(f, "capacity exceeded: at most {max} entries"),
+            Error::TooFewPoses { have, need } => {
+                let (have, need) = (Int(have.into()), Int(need.into()));
+                write!(f, "too few static poses: {have}, need {need}")
+            }
+            Error::CapacityExceeded { max } => {
+                let max = Int(max.into());
+                write!(f, "capacity exceeded: at most {max} entries")
+            }
             Error::AxisNearVertical { tilt_deg, limit_deg } => write!(
                 f,
                 "rotation axis {tilt_deg} deg from vertical, need at least {limit_deg} deg: tilt the servo", tilt_deg = Fixed(tilt_deg, 1), limit_deg = Fixed(limit_deg, 1)),
@@ -142,7 +152,7 @@ impl fmt::Display for Error {
             Error::WeakSensorAxis { axis, component, min } => write!(
                 f,
                 "sensor axis {} has rotation-axis component {component} < {min}: remount the board askew",
-                ["x", "y", "z"][axis as usize % 3], component = Fixed(component, 3), min = Fixed(min, 3)),
+                Text(["x", "y", "z"][axis as usize % 3]), component = Fixed(component, 3), min = Fixed(min, 3)),
             Error::AngleSpanTooSmall { span_deg, min_deg } => {
                 write!(f, "poses span {span_deg} deg of shaft angle, need {min_deg} deg", span_deg = Fixed(span_deg, 1), min_deg = Fixed(min_deg, 1))
             }
@@ -155,36 +165,40 @@ impl fmt::Display for Error {
             Error::ImplausibleScale { axis, value } => write!(
                 f,
                 "implausible scale factor {value} on axis {}{}",
-                ["x", "y", "z"][axis as usize % 3],
-                if value < 0.0 { ": negative: mirrored axes" } else { "" },
+                Text(["x", "y", "z"][axis as usize % 3]),
+                Text(if value < 0.0 { ": negative: mirrored axes" } else { "" }),
                 value = Fixed(value, 4)
             ),
             Error::NoUsableMove => f.write_str("no move between poses turned the shaft by a usable angle"),
-            Error::TooFewSamples { have, need } => write!(f, "too few samples: {have}, need {need}"),
+            Error::TooFewSamples { have, need } => {
+                let (have, need) = (Int(have.into()), Int(need.into()));
+                write!(f, "too few samples: {have}, need {need}")
+            }
             Error::NotStill { gyro_std_dps, accel_std_g } => write!(
                 f,
                 "motion during a still period: gyro std {gyro_std_dps} deg/s, accel std {accel_std_g} g", gyro_std_dps = Fixed(gyro_std_dps, 3), accel_std_g = Fixed(accel_std_g, 4)),
             Error::BiasOutOfRange { axis, bias_dps, limit_dps } => write!(
                 f,
                 "gyro bias {bias_dps} deg/s on axis {} exceeds {limit_dps} deg/s",
-                ["x", "y", "z"][axis as usize % 3], bias_dps = Fixed(bias_dps, 2), limit_dps = Fixed(limit_dps, 1)),
+                Text(["x", "y", "z"][axis as usize % 3]), bias_dps = Fixed(bias_dps, 2), limit_dps = Fixed(limit_dps, 1)),
             Error::AccelFitFailed => f.write_str("accelerometer fit failed: poses do not describe an ellipsoid"),
             Error::SensorTimeout { gap_s } => write!(f, "no sensor sample for {gap_s} s: sensor or I2C bus stopped", gap_s = Fixed(gap_s, 2)),
-            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s} s", phase.name(), limit_s = Fixed(limit_s, 0)),
+            Error::PhaseTimeout { phase, limit_s } => write!(f, "phase {} did not complete within {limit_s} s", Text(phase.name()), limit_s = Fixed(limit_s, 0)),
             Error::ServoNotTurning { channel, commanded_deg, measured_deg } => write!(
                 f,
                 "{} servo commanded {commanded_deg} deg but the gyro saw {measured_deg} deg: servo unplugged or stalled",
-                if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }, commanded_deg = Fixed(commanded_deg, 1), measured_deg = Fixed(measured_deg, 1)),
+                Text(if channel == 1 { "tilt (D10)" } else { "rotation (D9)" }), commanded_deg = Fixed(commanded_deg, 1), measured_deg = Fixed(measured_deg, 1)),
             Error::PoseDisturbed { index, retries } => {
+                let (index, retries) = (Int(index.into()), Int(retries.into()));
                 write!(f, "static pose {index} disturbed {retries} times: keep the rig still")
             }
             Error::Saturated => f.write_str("sensor saturated during a move: lower the servo rate or raise the range"),
             Error::ResultRejected { axis, k, sigma } => write!(
                 f,
                 "result rejected: axis {} scale {k} (1 sigma {sigma}) outside the accepted range",
-                ["x", "y", "z"][axis as usize % 3], k = Fixed(k, 4), sigma = Fixed(sigma, 4)),
+                Text(["x", "y", "z"][axis as usize % 3]), k = Fixed(k, 4), sigma = Fixed(sigma, 4)),
             Error::TooUncertain { axis, k, sigma, limit, noise_ratio } => {
-                let name = ["x", "y", "z"][axis as usize % 3];
+                let name = Text(["x", "y", "z"][axis as usize % 3]);
                 write!(
                     f,
                     "result rejected: axis {name} scale {k} is known only to 1 sigma {sigma} (limit {limit}): ",
@@ -205,18 +219,24 @@ impl fmt::Display for Error {
                 }
             }
             Error::MagFitFailed => f.write_str("magnetometer: the samples fit no ellipsoid: turn the board through every direction, away from magnets"),
-            Error::MagTooFew { samples, need_samples, poses, need_poses } => write!(
+            Error::MagTooFew { samples, need_samples, poses, need_poses } => {
+                let (samples, need_samples, poses, need_poses) = (Int(samples.into()), Int(need_samples.into()), Int(poses.into()), Int(need_poses.into()));
+                write!(
                 f,
                 "magnetometer: {samples} distinct readings and {poses} still poses with one (need {need_samples} and {need_poses}): its readings stopped, or the board was turned through too few orientations"
-            ),
-            Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => write!(
+            )
+            }
+            Error::MagDisturbed { pose, field_ut, expected_ut, dip_deg, expected_dip_deg } => {
+                let pose = Int(pose.into());
+                write!(
                 f,
                 "magnetometer: the field at pose {pose} is {field} uT at dip {dip} deg, the others' {expected} uT at {expected_dip} deg: a magnet, a laptop or the servo near the board; calibrate it away from them",
                 field = Fixed(field_ut, 1),
                 dip = Fixed(dip_deg, 1),
                 expected = Fixed(expected_ut, 1),
                 expected_dip = Fixed(expected_dip_deg, 1)
-            ),
+            )
+            }
             Error::MagFitPoor { residual_ut, limit_ut } => write!(
                 f,
                 "magnetometer: the calibrated field's strength scatters by {} uT RMS (limit {}): the field changed during the step (a magnet or metal moving near it)",
@@ -231,32 +251,44 @@ impl fmt::Display for Error {
             ),
             Error::Storage(e) => write!(f, "storing the record failed: {e}; the previous record is kept"),
             Error::CommandQueueFull => f.write_str("command queue full: the shell did not drain the procedure's commands"),
-            Error::SamplesLost { count } => write!(
+            Error::SamplesLost { count } => {
+                let count = Int(count.into());
+                write!(
                 f,
                 "{count} sample(s) lost (a FIFO overrun or a failed read): the gyro integral has a gap; rerun (no host can cause it: \
                  the board never waits for RTT or USB; if it repeats, check the sensor's I2C wiring and supply)"
-            ),
+            )
+            }
             Error::SensorFault => f.write_str("the sensor stopped answering during the calibration (I2C error): check the board, rerun"),
             Error::ResultNotFinite => f.write_str("the result holds a NaN, an infinite number or a value beyond what a part can have: not stored"),
-            Error::TooFewAxes { have, need } => write!(
+            Error::TooFewAxes { have, need } => {
+                let (have, need) = (Int(have.into()), Int(need.into()));
+                write!(
                 f,
                 "moves about {have} rotation axes, the full K needs {need} non-coplanar: use at least 2 tilt settings with tilt moves between them"
-            ),
+            )
+            }
             Error::AxesCoplanar { angle_deg, limit_deg } => write!(
                 f,
                 "rotation axes nearly coplanar: best axis {angle_deg} deg from the plane of two others, need {limit_deg} deg: add tilt moves (the hinge axis) or spread the tilt settings", angle_deg = Fixed(angle_deg, 1), limit_deg = Fixed(limit_deg, 1)),
-            Error::AxisUndetermined { axis, sigma_deg, limit_deg } => write!(
+            Error::AxisUndetermined { axis, sigma_deg, limit_deg } => {
+                let axis = Int(axis.into());
+                write!(
                 f,
-                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg} deg > {limit_deg} deg): give it at least 3 poses at distinct angles", sigma_deg = Fixed(sigma_deg, 2), limit_deg = Fixed(limit_deg, 2)),
+                "axis {axis}: its poses do not span a plane (direction 1 sigma {sigma_deg} deg > {limit_deg} deg): give it at least 3 poses at distinct angles", sigma_deg = Fixed(sigma_deg, 2), limit_deg = Fixed(limit_deg, 2))
+            }
             Error::FullKUnobservable { condition, limit } => write!(
                 f,
                 "full K unobservable: normal-matrix condition {condition} > {limit} (upright bracket?): tilt the pan servo's shaft >= 20 deg from vertical", condition = Fixed(condition, 0), limit = Fixed(limit, 0)),
             Error::RotationAxesCoplanar { spread, limit } => write!(
                 f,
                 "the moves between poses turn about too few directions (axis spread {spread} < {limit}): turn the board about varied axes, not only about one", spread = Fixed(spread, 3), limit = Fixed(limit, 3)),
-            Error::AxesMirrored { right_hand, left_hand } => write!(
+            Error::AxesMirrored { right_hand, left_hand } => {
+                let (right_hand, left_hand) = (Int(right_hand.into()), Int(left_hand.into()));
+                write!(
                 f,
-                "gyro axes mirrored: {left_hand} moves left-handed, {right_hand} right-handed: wrong axis map, not a slip"),
+                "gyro axes mirrored: {left_hand} moves left-handed, {right_hand} right-handed: wrong axis map, not a slip")
+            }
             Error::MovesInconsistent { residual_rms_deg, limit_deg } => write!(
                 f,
                 "moves disagree with one K: residual {residual_rms_deg} deg rms > {limit_deg} deg: the board slipped on the bracket or a pose moved; re-clamp and rerun", residual_rms_deg = Fixed(residual_rms_deg, 3), limit_deg = Fixed(limit_deg, 3)),
@@ -264,6 +296,7 @@ impl fmt::Display for Error {
                 f,
                 "the gyro bias changed unevenly between rests ({off_trend_dps} deg/s off a steady drift, > {limit_dps}; drift {dps_per_min} deg/s per minute), so the moves disagree with one K: the gyro's temperature changed unevenly (still warming up, a draught, a hand on the board); wait 5 min after power-on, shield the board, keep it still longer at each pose, and rerun", off_trend_dps = Fixed(off_trend_dps, 3), limit_dps = Fixed(limit_dps, 3), dps_per_min = Fixed(dps_per_min, 3)),
             Error::MovesDropped { dropped, total, reason, value, limit } => {
+                let (dropped, total) = (Int(dropped.into()), Int(total.into()));
                 use crate::estimators::rotation::Rejected;
                 let (value, limit) = if reason == Rejected::Gap {
                     (Fixed(value, 3), Fixed(limit, 3))

@@ -26,6 +26,7 @@ use crate::estimators::bias::TempCo;
 use crate::estimators::frame::DataFrame;
 use crate::formats::log::fixed;
 use crate::formats::record::{Record, Sensor};
+use crate::formats::text::{Int, Text};
 use crate::{Mat3, Vec3};
 use core::fmt::{self, Write};
 
@@ -169,7 +170,7 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     json_mat(w, &r.gyro_k, D_MATRIX)?;
     w.write_str(",\"bias_dps\":")?;
     json_vec(w, &r.gyro_bias_dps, D_BIAS)?;
-    write!(w, ",\"method\":\"{}\"}},\"accel\":{{\"M\":", r.method.name())?;
+    write!(w, ",\"method\":\"{}\"}},\"accel\":{{\"M\":", Text(r.method.name()))?;
     json_mat(w, &r.accel_m, D_MATRIX)?;
     w.write_str(",\"offset_g\":")?;
     json_vec(w, &r.accel_offset_g, D_OFFSET)?;
@@ -184,17 +185,17 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
             w.write_str("}")?;
         }
     }
-    write!(w, ",\"quality\":{{\"source\":\"{}\",\"seq\":{},\"temp_c\":", Source::of(r).name(), r.seq)?;
+    write!(w, ",\"quality\":{{\"source\":\"{}\",\"seq\":{},\"temp_c\":", Text(Source::of(r).name()), Int(r.seq.into()))?;
     json_num(w, temp_c(r), D_TEMP)?;
     w.write_str(",\"sigma_K\":")?;
     json_mat(w, &r.sigma_k, D_SIGMA)?;
-    write!(w, ",\"poses\":{},\"rows\":{},\"condition\":", r.poses, r.rows)?;
+    write!(w, ",\"poses\":{},\"rows\":{},\"condition\":", Int(r.poses.into()), Int(r.rows.into()))?;
     json_num(w, r.condition, D_CONDITION)?;
     w.write_str(",\"residual_rms\":")?;
     json_num(w, r.residual_rms, D_RESIDUAL)?;
     w.write_str(",\"non_coplanar_deg\":")?;
     json_num(w, r.non_coplanar_deg, D_CONDITION)?;
-    write!(w, ",\"accel_model\":\"{}\",\"accel_rms_g\":", r.accel_model.name())?;
+    write!(w, ",\"accel_model\":\"{}\",\"accel_rms_g\":", Text(r.accel_model.name()))?;
     json_num(w, r.accel_rms_g, D_ACCEL_RMS)?;
     w.write_str(",\"setup\":{\"odr_hz\":")?;
     json_num(w, r.setup.odr_hz, D_SETUP)?;
@@ -205,7 +206,8 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
     match r.setup.sensor {
         Sensor::Lsm9ds1 => w.write_str(",\"sensor\":\"lsm9ds1\"")?,
         Sensor::Bmi270 { gyr_cas, user_gain } => {
-            write!(w, ",\"sensor\":{{\"bmi270\":{{\"gyr_cas\":{gyr_cas},\"user_gain\":{user_gain}}}}}")?
+            let user_gain = Text(if user_gain { "true" } else { "false" });
+            write!(w, ",\"sensor\":{{\"bmi270\":{{\"gyr_cas\":{},\"user_gain\":{user_gain}}}}}", Int(gyr_cas.into()))?
         }
     }
     w.write_str("},\"tempco\":")?;
@@ -240,10 +242,12 @@ fn json(w: &mut impl Write, r: &Record) -> fmt::Result {
             .into_iter()
             .enumerate()
             {
-                write!(w, "{}\"{k}\":", if i == 0 { "{" } else { "," })?;
+                w.write_str(if i == 0 { "{\"" } else { ",\"" })?;
+                w.write_str(k)?;
+                w.write_str("\":")?;
                 json_num(w, v, D_MAG)?;
             }
-            write!(w, ",\"samples\":{},\"poses\":{}}}", m.samples, m.poses)?;
+            write!(w, ",\"samples\":{},\"poses\":{}}}", Int(m.samples.into()), Int(m.poses.into()))?;
         }
     }
     w.write_str("}}")

@@ -22,6 +22,7 @@
 //! the firmware needs no float-formatting code.
 
 use crate::formats::record::{Sensor, SensorSetup};
+use crate::formats::text::Int;
 use crate::Time;
 use core::fmt::{self, Write};
 
@@ -238,7 +239,9 @@ pub fn write_setup(w: &mut impl Write, s: &SensorSetup) -> fmt::Result {
     }
     match s.sensor {
         Sensor::Lsm9ds1 => w.write_str(" sensor=lsm9ds1"),
-        Sensor::Bmi270 { gyr_cas, user_gain } => write!(w, " sensor=bmi270 gyr_cas={gyr_cas} user_gain={}", u8::from(user_gain)),
+        Sensor::Bmi270 { gyr_cas, user_gain } => {
+            write!(w, " sensor=bmi270 gyr_cas={} user_gain={}", Int(gyr_cas.into()), Int(user_gain.into()))
+        }
     }
 }
 

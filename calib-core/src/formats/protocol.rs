@@ -15,7 +15,7 @@ use crate::estimators::accel::AccelModel;
 use crate::estimators::gyro::Method;
 use crate::formats::log::{self, Row, END, HEADER, HEADER_MAG, HEADER_RAW};
 use crate::formats::record::Record;
-use crate::formats::text::{Fixed, M3, V3};
+use crate::formats::text::{Fixed, Int, Text, M3, V3};
 use crate::procedure::Phase;
 use crate::Vec3;
 use core::fmt::{self, Write};
@@ -191,7 +191,7 @@ pub enum Event<'a> {
 
 /// Writes `USB: <bytes> bytes dropped since boot (the host was not reading)`.
 pub fn usb_dropped(w: &mut impl Write, bytes: u32) -> fmt::Result {
-    write!(w, "USB: {bytes} bytes dropped since boot (the host was not reading)")
+    write!(w, "USB: {} bytes dropped since boot (the host was not reading)", Int(bytes.into()))
 }
 
 fn parse_usb_dropped(l: &str) -> Option<Event<'_>> {
@@ -211,7 +211,8 @@ pub struct Ignored {
 /// Writes the commands ignored since boot (`limit`: the commands one loop tick takes). Counts
 /// since boot, so that a later line makes up for one a full log dropped.
 pub fn ignored(w: &mut impl Write, n: Ignored, limit: u32) -> fmt::Result {
-    write!(w, "commands ignored since boot: {} beyond the {limit} a loop tick takes, {} c {IGNORED_RUNNING}", n.beyond_tick, n.running)
+    let (beyond, limit, running) = (Int(n.beyond_tick.into()), Int(limit.into()), Int(n.running.into()));
+    write!(w, "commands ignored since boot: {beyond} beyond the {limit} a loop tick takes, {running} c {}", Text(IGNORED_RUNNING))
 }
 
 const IGNORED_RUNNING: &str = "while a calibration ran (a press only ends its re-clamp step)";
@@ -227,6 +228,7 @@ fn parse_ignored(l: &str) -> Option<Event<'_>> {
 
 /// Writes `LSM9DS1 ready: <odr> Hz, +-<gyro> dps, +-<accel> g`.
 pub fn sensor_ready(w: &mut impl Write, odr_hz: u32, gyro_dps: u32, accel_g: u32) -> fmt::Result {
+    let (odr_hz, gyro_dps, accel_g) = (Int(odr_hz.into()), Int(gyro_dps.into()), Int(accel_g.into()));
     write!(w, "LSM9DS1 ready: {odr_hz} Hz, +-{gyro_dps} dps, +-{accel_g} g")
 }
 
@@ -239,8 +241,15 @@ fn parse_sensor_ready(l: &str) -> Option<Event<'_>> {
 /// Writes a record's line: what it is, the sequence number, the estimator, `K` in full
 /// (row-major) and the bias.
 pub fn record(w: &mut impl Write, line: RecordLine, rec: &Record) -> fmt::Result {
-    let what = line.prefix();
-    write!(w, "{what} record {} ({} K): K = {}, b = {} dps", rec.seq, rec.method.name(), M3(rec.gyro_k, 6), V3(rec.gyro_bias_dps, 4))
+    let what = Text(line.prefix());
+    write!(
+        w,
+        "{what} record {} ({} K): K = {}, b = {} dps",
+        Int(rec.seq.into()),
+        Text(rec.method.name()),
+        M3(rec.gyro_k, 6),
+        V3(rec.gyro_bias_dps, 4)
+    )
 }
 
 fn parse_record(l: &str) -> Option<Event<'_>> {
@@ -262,6 +271,7 @@ pub fn raw_log(on: bool) -> &'static str {
 
 /// Writes the plan announced when a calibration starts.
 pub fn plan(w: &mut impl Write, rig_poses: usize, handheld_poses: usize) -> fmt::Result {
+    let (rig_poses, handheld_poses) = (Int(rig_poses as i64), Int(handheld_poses as i64));
     write!(w, "plan: {rig_poses} rig poses, {handheld_poses} hand-held poses")
 }
 
@@ -273,8 +283,8 @@ fn parse_plan(l: &str) -> Option<Event<'_>> {
 /// Writes `phase: <name>[: <instruction>]`.
 pub fn phase(w: &mut impl Write, p: Phase) -> fmt::Result {
     match p.instruction() {
-        Some(i) => write!(w, "phase: {}: {i}", p.name()),
-        None => write!(w, "phase: {}", p.name()),
+        Some(i) => write!(w, "phase: {}: {}", Text(p.name()), Text(i)),
+        None => write!(w, "phase: {}", Text(p.name())),
     }
 }
 
@@ -286,12 +296,12 @@ fn parse_phase(l: &str) -> Option<Event<'_>> {
 
 /// Writes `hand-held pose <index>: a = [x y z] g` (the raw mean).
 pub fn hand_held_pose(w: &mut impl Write, index: u8, accel_g: &Vec3) -> fmt::Result {
-    write!(w, "hand-held pose {index}: a = {} g", V3(*accel_g, 4))
+    write!(w, "hand-held pose {}: a = {} g", Int(index.into()), V3(*accel_g, 4))
 }
 
 /// Writes `rig pose <index> at <servo> deg: A = [x y z] g`.
 pub fn rig_pose(w: &mut impl Write, index: u8, servo_deg: f32, accel_g: &Vec3) -> fmt::Result {
-    write!(w, "rig pose {index} at {} deg: A = {} g", Fixed(servo_deg, 1), V3(*accel_g, 4))
+    write!(w, "rig pose {} at {} deg: A = {} g", Int(index.into()), Fixed(servo_deg, 1), V3(*accel_g, 4))
 }
 
 fn parse_pose(l: &str) -> Option<Event<'_>> {

@@ -7,7 +7,7 @@
 //! of flash the firmware does not have.
 
 use crate::estimators::rotation::Rejected;
-use crate::formats::log::fixed;
+use crate::formats::log::{decimal, fixed};
 use crate::formats::protocol::{self, RecordLine};
 use crate::procedure::{Phase, Report};
 use crate::{Mat3, Vec3};
@@ -24,6 +24,40 @@ pub struct Fixed(pub f32, pub u32);
 impl Display for Fixed {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         fixed(f, self.0, self.1)
+    }
+}
+
+/// An integer, e.g. `Int(-12)` → `-12`: written by the same digit writer as [`Fixed`] (the
+/// integers' `core::fmt` code is another 1.4 KiB of flash).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Int(pub i64);
+
+impl Display for Int {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        decimal(f, self.0 < 0, self.0.unsigned_abs(), 0)
+    }
+}
+
+/// An unsigned integer in upper-case hexadecimal, at least this many digits (8 at most): `Hex(0x3d, 2)` →
+/// `3D` (a register's or an ID's value).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hex(pub u32, pub u32);
+
+impl Display for Hex {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let digits = (1..8).find(|&n| self.0 >> (4 * n) == 0).unwrap_or(8).max(self.1.min(8));
+        (0..digits).rev().try_for_each(|n| f.write_char(char::from(b"0123456789ABCDEF"[(self.0 >> (4 * n) & 0xF) as usize])))
+    }
+}
+
+/// Words as an argument of `write!`, written as they are (a bare `&str` goes through
+/// `Formatter::pad`, another 0.6 KiB of flash for widths no line uses).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Text<'a>(pub &'a str);
+
+impl Display for Text<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.0)
     }
 }
 
@@ -84,16 +118,16 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
     match r {
         Report::Phase(p) => protocol::phase(w, *p),
         Report::Bias(b) => {
-            write!(w, "gyro bias {} dps, 1 sigma {}, {} samples", V3(b.bias_dps, 4), V3(b.sigma_dps, 5), b.samples)
+            write!(w, "gyro bias {} dps, 1 sigma {}, {} samples", V3(b.bias_dps, 4), V3(b.sigma_dps, 5), Int(b.samples.into()))
         }
         Report::AccelPose { index, accel_g } => protocol::hand_held_pose(w, *index, accel_g),
         Report::Accel(c) => write!(
             w,
             "accelerometer {}: | |a| - 1 | rms {} g -> {} g over {} poses; offset {} g",
-            c.model.name(),
+            Text(c.model.name()),
             Fixed(c.rms_before_g, 5),
             Fixed(c.rms_after_g, 5),
-            c.poses,
+            Int(c.poses.into()),
             V3(c.offset_g, 4)
         ),
         Report::Mag(c) => write!(
@@ -103,26 +137,26 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             Fixed(c.sigma_field_ut, 2),
             Fixed(c.dip_deg, 2),
             Fixed(c.sigma_dip_deg, 2),
-            DIP_SIGN,
+            Text(DIP_SIGN),
             Fixed(c.alignment_deg, 2),
             Fixed(c.sigma_alignment_deg, 2),
             Fixed(c.residual_ut, 3),
             Fixed(c.coverage * 100.0, 0),
-            c.samples,
-            c.poses,
+            Int(c.samples.into()),
+            Int(c.poses.into()),
             V3(c.offset_ut, 2)
         ),
         Report::RigPose { index, servo_deg, accel_g } => protocol::rig_pose(w, *index, *servo_deg, accel_g),
-        Report::Retake { index, retries } => write!(w, "pose {index} disturbed: retake {retries}"),
+        Report::Retake { index, retries } => write!(w, "pose {} disturbed: retake {}", Int((*index).into()), Int((*retries).into())),
         Report::Move { from, to, gyro_turn_deg } => {
-            write!(w, "move {from} -> {to}: gyro turned {} deg", Fixed(*gyro_turn_deg, 2))
+            write!(w, "move {} -> {}: gyro turned {} deg", Int((*from).into()), Int((*to).into()), Fixed(*gyro_turn_deg, 2))
         }
         Report::Gyro(c) => {
             let q = &c.quality;
             write!(
                 w,
                 "{} estimator: K = diag{} +- {} 1 sigma; invariant spread {} -> {}; cond {}; tilt {} deg, span {} deg",
-                c.method.name(),
+                Text(c.method.name()),
                 V3([c.k[0][0], c.k[1][1], c.k[2][2]], 6),
                 V3(q.sigma_k, 6),
                 Fixed(q.invariant_before.relative_std(), 6),
@@ -134,17 +168,21 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
         }
         Report::FullK { k, sigma_k, condition, non_coplanar_deg, residual_rms_deg, axes, moves } => write!(
             w,
-            "full K = {} +- {} 1 sigma; {axes} axes {} deg from coplanar, {moves} moves, residual {} deg rms, cond {}",
+            "full K = {} +- {} 1 sigma; {} axes {} deg from coplanar, {} moves, residual {} deg rms, cond {}",
             M3(*k, 6),
             M3(*sigma_k, 6),
+            Int((*axes).into()),
             Fixed(*non_coplanar_deg, 1),
+            Int((*moves).into()),
             Fixed(*residual_rms_deg, 4),
             Fixed(*condition, 0)
         ),
         Report::HandMove { from, to, rejected: None, turn_deg, spread, need, k_sigma, goal } => {
             write!(
                 w,
-                "hand-held move {from} -> {to}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
+                "hand-held move {} -> {}: turned {} deg; axes spread {} (need {}: turn about varied axes)",
+                Int((*from).into()),
+                Int((*to).into()),
                 Fixed(*turn_deg, 1),
                 Fixed(*spread, 3),
                 Fixed(*need, 3)
@@ -152,17 +190,18 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             k_sigma_goal(w, *k_sigma, *goal)
         }
         Report::HandMove { from, to, rejected: Some(why), k_sigma, goal, .. } => {
-            write!(w, "hand-held move {from} -> {to} not used: {}", why.describe())?;
+            write!(w, "hand-held move {} -> {} not used: {}", Int((*from).into()), Int((*to).into()), Text(why.describe()))?;
             k_sigma_goal(w, *k_sigma, *goal)
         }
         Report::Rotations { moves, rejected: r, residual_deg } => {
-            write!(w, "rotation constraints: {moves} moves, misfit [")?;
+            write!(w, "rotation constraints: {} moves, misfit [", Int((*moves).into()))?;
             for (i, m) in residual_deg[..(*moves as usize).min(residual_deg.len())].iter().enumerate() {
-                write!(w, "{}{}", if i == 0 { "" } else { " " }, Fixed(*m, 3))?;
+                w.write_str(if i == 0 { "" } else { " " })?;
+                write!(w, "{}", Fixed(*m, 3))?;
             }
             write!(w, "] deg; rejected:")?;
             for (why, n) in Rejected::ALL.iter().zip(r) {
-                write!(w, " {n} {},", why.name())?;
+                write!(w, " {} {},", Int((*n).into()), Text(why.name()))?;
             }
             Ok(())
         }
@@ -179,7 +218,7 @@ pub fn report(w: &mut impl Write, r: &Report) -> fmt::Result {
             "gyro bias tempco unknown: the rests' temperatures spanned < {} C (or were not read)",
             Fixed(crate::estimators::bias::MIN_TEMP_SPAN_C, 1)
         ),
-        Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", method.name()),
+        Report::EstimatorFailed { method, error } => write!(w, "{} estimator failed: {error}", Text(method.name())),
         Report::Done(rec) => protocol::record(w, RecordLine::CalibrationDone, rec),
         Report::Failed(e) => protocol::failed(w, e),
     }
@@ -206,6 +245,20 @@ mod tests {
     extern crate std;
     use std::format;
     use std::string::String;
+
+    #[test]
+    fn integers_and_words_match_core_fmt() {
+        for v in [0i64, 7, -7, 9, 10, -10, 255, 65_535, 4_294_967_295, -128, i64::MAX, i64::MIN] {
+            assert_eq!(format!("{}", Int(v)), format!("{v}"));
+        }
+        for v in [0u32, 1, 0xA, 0x3D, 0xFF, 0x100, 0x1234, 0xABCD_EF01, u32::MAX] {
+            for w in [1, 2, 8] {
+                assert_eq!(format!("{}", Hex(v, w)), format!("{v:0w$X}", w = w as usize));
+            }
+        }
+        assert_eq!(format!("{}", Hex(0x3D, 12)), "0000003D", "at most 8 digits");
+        assert_eq!(format!("[{}]", Text("x y")), "[x y]");
+    }
 
     #[test]
     fn fixed_matches_core_fmt() {

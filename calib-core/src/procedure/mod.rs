@@ -795,7 +795,9 @@ impl Procedure {
                 }
             }
             Step::Move { k, ramp } => {
-                if saturated {
+                // The move's integral is the gyro's: a clipped gyro sample corrupts it, a clipped
+                // accelerometer one (a hobby servo's jerk at the lever arm) does not.
+                if gyro_saturated {
                     return self.fail(Error::Saturated);
                 }
                 self.integ.add(s.t, g);
@@ -813,8 +815,9 @@ impl Procedure {
                 }
             }
             Step::Pose { k, ref mut capture, since } => {
-                if saturated {
-                    // The shaft may still be settling: a clipped sample corrupts the move's integral.
+                if gyro_saturated {
+                    // The shaft may still be settling: a clipped gyro sample corrupts the move's
+                    // integral (a clipped accelerometer one taints the pose's window: retaken).
                     return self.fail(Error::Saturated);
                 }
                 self.integ.add(s.t, g);

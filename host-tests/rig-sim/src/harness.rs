@@ -46,6 +46,9 @@ pub struct Faults {
     /// The shell reads the LSM9DS1 as the firmware did before the board frame: its raw axes
     /// ([`crate::lsm_model::Lsm9ds1Model::raw_axes`], a left-handed triad) handed on unmapped.
     pub lsm9ds1_unmapped: bool,
+    /// The servo jerks as each rig move starts: the accelerometer's z reads its full scale
+    /// (`accel_clip_g`) for that move's first sample, a hobby servo's kick at the lever arm.
+    pub accel_clip_in_moves: Option<f32>,
     /// The user presses the button the moment the re-clamp step begins, before the hand-held
     /// step's fits are due (the procedure then makes them all at the press).
     pub press_on_reattach: bool,
@@ -68,6 +71,8 @@ pub struct Run {
     pub led: Option<Led>,
     /// MCU time at the end (s).
     pub end_s: f64,
+    /// Samples whose accelerometer the harness clipped ([`Faults::accel_clip_in_moves`]).
+    pub accel_clips: usize,
 }
 
 impl Run {
@@ -245,6 +250,7 @@ fn run_posed(
     let mut started = false;
     let mut samples = 0;
     let (mut lost_reported, mut undrained) = (false, 0usize);
+    let (mut last_servo_deg, mut was_moving, mut out_clips) = (None, false, 0usize);
     let mut b = SimBoard { rig, out: &mut out, faults, attitudes, next_pose: 0, handheld: false, press_at: Some(PRESS_AT_S), t: 0.0 };
     b.rig.stall_tilt(faults.tilt_stalled);
     while b.t < max_s {
@@ -259,6 +265,15 @@ fn run_posed(
             let mut input = to_input(&s);
             if faults.lsm9ds1_unmapped {
                 (input.accel_g, input.gyro_dps) = (Lsm9ds1Model::raw_axes(input.accel_g), Lsm9ds1Model::raw_axes(input.gyro_dps));
+            }
+            if let Some(clip_g) = faults.accel_clip_in_moves.filter(|_| proc.phase() == Phase::RigPoses) {
+                let servo_deg = proc.servo_deg();
+                let moving = last_servo_deg.is_some() && servo_deg != last_servo_deg;
+                if moving && !was_moving {
+                    input.accel_g[2] = clip_g;
+                    out_clips += 1;
+                }
+                (last_servo_deg, was_moving) = (servo_deg, moving);
             }
             if let Some(n) = faults.temp_missing_every {
                 input.temp_c = match samples % n.max(1) {
@@ -304,6 +319,7 @@ fn run_posed(
     let t = b.t;
     out.samples = samples;
     out.end_s = t;
+    out.accel_clips = out_clips;
     out
 }
 
