@@ -62,9 +62,12 @@ impl<F: NorFlash> Storage<F> {
         let at = Self::offset(target);
         self.flash.erase(at, at + F::ERASE_SIZE as u32).map_err(|_| StoreError::Flash)?;
         self.flash.write(at, &bytes).map_err(|_| StoreError::Flash)?;
-        match self.slot(target)? {
-            Slot::Valid(r) if r == *rec => Ok(target),
-            _ => Err(StoreError::Verify),
+        // Read back: the very bytes written (a valid record, since `encode` made them).
+        let mut back = [0u8; LEN];
+        self.flash.read(at, &mut back).map_err(|_| StoreError::Flash)?;
+        if back != bytes {
+            return Err(StoreError::Verify);
         }
+        Ok(target)
     }
 }

@@ -142,6 +142,7 @@ mod errata {
 
     /// Writes `v` to `reg` as nrfx does: the lock reads 0 while closed and a write of the key
     /// toggles it, so it is opened only if closed, then closed again.
+    #[inline(never)]
     pub fn poke(reg: u32, v: u32) {
         // SAFETY: the addresses and values of Nordic's errata workarounds.
         unsafe {

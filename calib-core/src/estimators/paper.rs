@@ -48,8 +48,8 @@ pub fn solve(poses: &Poses, gbar_dps: Vec3, omega_n_dps: f32, limits: &GeometryL
     let kg = k.component_mul(&g);
     let rows = poses.len() as Real;
     let quality = GyroQuality {
-        invariant_before: Spread::of(poses.iter().map(|a| a.dot(&g))),
-        invariant_after: Spread::of(poses.iter().map(|a| a.dot(&kg))),
+        invariant_before: Spread::of(&mut poses.iter().map(|a| a.dot(&g))),
+        invariant_after: Spread::of(&mut poses.iter().map(|a| a.dot(&kg))),
         sigma_k: core::array::from_fn(|i| (l.abs() * sol.sigma(i)) as f32),
         condition: sol.condition as f32,
         residual_rms: real::sqrt(sol.rss / rows) as f32,

@@ -168,8 +168,9 @@ pub fn solve(poses: &Poses, moves: &Moves, limits: &GeometryLimits) -> Result<Gy
             return Err(Error::ImplausibleScale { axis: axis as u8, value: v as f32 });
         }
     }
-    let invariant =
-        |kk: Vector3<Real>| Spread::of(moves.as_slice().iter().filter_map(usable).map(|(a, g, dth)| a.dot(&kk.component_mul(&g)) / dth));
+    let invariant = |kk: Vector3<Real>| {
+        Spread::of(&mut moves.as_slice().iter().filter_map(usable).map(|(a, g, dth)| a.dot(&kk.component_mul(&g)) / dth))
+    };
     let quality = GyroQuality {
         invariant_before: invariant(Vector3::repeat(1.0)),
         invariant_after: invariant(k),

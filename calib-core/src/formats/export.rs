@@ -24,7 +24,7 @@
 
 use crate::estimators::bias::TempCo;
 use crate::estimators::frame::DataFrame;
-use crate::formats::log::fixed;
+use crate::formats::log::{fixed, writable};
 use crate::formats::record::{Record, Sensor};
 use crate::formats::text::{Int, Text};
 use crate::{Mat3, Vec3};
@@ -125,22 +125,13 @@ pub fn write_in(w: &mut impl Write, rec: &Record, format: Format, frame: DataFra
     }
 }
 
-/// `v` with `decimals` into a small buffer: `None` if [`fixed`] cannot write it as a number.
-fn digits(v: f32, decimals: u32) -> Option<heapless::String<24>> {
-    let mut s = heapless::String::new();
-    // 19 digits, a point and a sign at most: the buffer cannot overflow.
-    fixed(&mut s, v, decimals).ok()?;
-    (s != "nan").then_some(s)
-}
-
 /// One number, `nan` standing for a value that cannot be written, `suffix` after a written one.
 fn num(w: &mut impl Write, v: f32, decimals: u32, nan: &str, suffix: &str) -> fmt::Result {
-    match digits(v, decimals) {
-        Some(s) => {
-            w.write_str(&s)?;
-            w.write_str(suffix)
-        }
-        None => w.write_str(nan),
+    if writable(v, decimals) {
+        fixed(w, v, decimals)?;
+        w.write_str(suffix)
+    } else {
+        w.write_str(nan)
     }
 }
 
@@ -506,7 +497,7 @@ mod schema {
 
     /// `v` where [`Format::Json`] writes a number, `None` where it writes `null`.
     fn written(v: f32, decimals: u32) -> Option<f32> {
-        digits(v, decimals).map(|_| v)
+        writable(v, decimals).then_some(v)
     }
 
     impl From<&Record> for RecordJson {

@@ -84,6 +84,11 @@ pub(crate) fn fixed(w: &mut dyn Write, v: f32, decimals: u32) -> fmt::Result {
     }
 }
 
+/// Whether [`fixed`] writes `v` with `decimals` as a number (not as `nan`).
+pub(crate) fn writable(v: f32, decimals: u32) -> bool {
+    scaled(v, decimals.min(9)).is_some()
+}
+
 /// `|v| · 10^decimals` (`decimals` ≤ 9) rounded half away from zero, computed exactly from the
 /// `f32`'s mantissa and exponent; `None` for a NaN, an infinity or a result ≥ 2⁶³.
 fn scaled(v: f32, decimals: u32) -> Option<u64> {

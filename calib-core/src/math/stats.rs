@@ -203,8 +203,8 @@ pub struct Spread {
 }
 
 impl Spread {
-    /// Spread of `values` (computed in f64).
-    pub fn of(values: impl Iterator<Item = Real>) -> Self {
+    /// Spread of `values`, in [`Real`] (a `dyn` iterator: one copy of the code for every caller).
+    pub fn of(values: &mut dyn Iterator<Item = Real>) -> Self {
         let (mut n, mut mean, mut m2) = (0u32, 0.0 as Real, 0.0 as Real);
         let (mut lo, mut hi) = (Real::INFINITY, Real::NEG_INFINITY);
         for x in values {
@@ -318,7 +318,7 @@ mod tests {
         for (vi, x) in v.iter_mut().zip(xs.iter()) {
             *vi = (0..3).map(|k| x[k] as Real * m[k] / mn).sum();
         }
-        let s = Spread::of(v.iter().copied());
+        let s = Spread::of(&mut v.iter().copied());
         let expect = s.std as Real / libm::sqrt(40.0);
         assert!((w.radial_std_of_mean() - expect).abs() < 1e-3 * expect, "{} vs {expect}", w.radial_std_of_mean());
         assert!(w.max_std_of_mean() > 10.0 * w.radial_std_of_mean());
@@ -326,8 +326,8 @@ mod tests {
 
     #[test]
     fn spread_of_values() {
-        let s = Spread::of([1.0, 3.0, 2.0].into_iter());
+        let s = Spread::of(&mut [1.0, 3.0, 2.0].into_iter());
         assert_eq!((s.n, s.mean, s.std, s.range), (3, 2.0, 1.0, 2.0));
-        assert_eq!(Spread::of(core::iter::empty()), Spread::default());
+        assert_eq!(Spread::of(&mut core::iter::empty()), Spread::default());
     }
 }

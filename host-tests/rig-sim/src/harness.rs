@@ -363,3 +363,32 @@ pub fn record_log(rig: &mut Rig, proc: &mut Procedure, faults: Faults, comments:
     });
     (text, out)
 }
+
+/// A plausible record (a sweep `K` near 1, an identity accelerometer) with sequence number
+/// `seq`, for the storage and boot tests.
+pub fn record(seq: u32) -> Record {
+    Record {
+        seq,
+        temp_c: Some(24.0),
+        gyro_k: [[1.0 + (seq % 100) as f32 * 1e-3, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.01]],
+        gyro_bias_dps: [0.1, -0.2, 0.3],
+        method: calib_core::estimators::gyro::Method::Sweep,
+        accel_m: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        accel_offset_g: [0.0; 3],
+        accel_model: calib_core::estimators::accel::AccelModel::NineParam,
+        poses: 13,
+        rows: 12,
+        sigma_k: [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]],
+        invariant_before_rel: 0.01,
+        invariant_after_rel: 0.001,
+        condition: 2.0,
+        tilt_deg: 40.0,
+        span_deg: 180.0,
+        accel_rms_g: 1e-4,
+        residual_rms: 0.01,
+        non_coplanar_deg: 0.0,
+        setup: calib_core::formats::record::SensorSetup::DEFAULT,
+        tempco: None,
+        mag: None,
+    }
+}

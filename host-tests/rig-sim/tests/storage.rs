@@ -2,38 +2,10 @@
 //! erase and word-write step of a store: the previous record always survives, a torn record is
 //! never loaded.
 
-use calib_core::estimators::accel::AccelModel;
-use calib_core::estimators::gyro::Method;
-use calib_core::formats::record::{Record, SensorSetup};
+use calib_core::formats::record::Record;
 use gyrocal_fw::storage::{Slot, Storage, StoreError};
+use rig_sim::harness::record;
 use rig_sim::nor::{NorError, NorSim};
-
-fn record(seq: u32) -> Record {
-    Record {
-        seq,
-        temp_c: Some(24.0),
-        gyro_k: [[1.0 + (seq % 100) as f32 * 1e-3, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.01]],
-        gyro_bias_dps: [0.1, -0.2, 0.3],
-        method: Method::Sweep,
-        accel_m: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        accel_offset_g: [0.0; 3],
-        accel_model: AccelModel::NineParam,
-        poses: 13,
-        rows: 12,
-        sigma_k: [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]],
-        invariant_before_rel: 0.01,
-        invariant_after_rel: 0.001,
-        condition: 2.0,
-        tilt_deg: 40.0,
-        span_deg: 180.0,
-        accel_rms_g: 1e-4,
-        residual_rms: 0.01,
-        non_coplanar_deg: 0.0,
-        setup: SensorSetup::DEFAULT,
-        tempco: None,
-        mag: None,
-    }
-}
 
 #[test]
 fn empty_flash_has_no_record_then_stores_and_alternates() {

@@ -223,3 +223,29 @@ fn the_stock_bootloader_is_cut_off_by_a_watchdog_a_soft_reset_kept_but_not_after
     b.run_for(2.0);
     assert!(b.mcu.stock_bootloader().in_samba());
 }
+
+/// The firmware reads only this version's records (it is built without calib-core's
+/// `older-records`): one of version 5 (the part's raw axes, before the board frame) in flash is
+/// kept and not applied, the same record as version 6 is loaded and applied.
+#[test]
+fn a_record_of_an_older_version_is_not_applied_and_one_of_this_version_is() {
+    use calib_core::formats::record::{crc32, LEN, VERSION};
+    use embedded_storage::nor_flash::NorFlash;
+    let rec = rig_sim::harness::record(7);
+    for (version, loaded) in [(VERSION - 1, false), (VERSION, true)] {
+        let mut bytes = rec.encode().unwrap();
+        bytes[4] = version;
+        let crc = crc32(&bytes[..LEN - 4]);
+        bytes[LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+        let mut nor = NorSim::new(8, 12);
+        nor.write(0, &bytes).unwrap();
+        let elf = build_firmware(&[]).unwrap();
+        let mut b = Testbed::new(elf, Variant::Hobby.config(12, 0), 12, Board::Rev1, nor, false).unwrap();
+        assert_eq!(b.run_for(3.0), Stop::Time, "{:?}", b.mcu.log);
+        let said = |m: &str| b.mcu.log.iter().any(|l| vboard::testbed::message(l).contains(m));
+        assert_eq!(said("loaded record 7"), loaded, "version {version}: {:?}", b.mcu.log);
+        assert_eq!(said("no calibration stored"), !loaded, "version {version}: {:?}", b.mcu.log);
+        // Kept: the flash still holds it.
+        assert_eq!(b.mcu.periph.borrow().flash.bytes()[..LEN], bytes[..], "version {version}");
+    }
+}
