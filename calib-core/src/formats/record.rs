@@ -486,6 +486,13 @@ impl Record {
         if stored != computed {
             return Err(DecodeError::BadCrc { stored, computed });
         }
+        // Without the conversion (the firmware) only this version's layout is read: the older
+        // layouts' code is not linked.
+        #[cfg(not(feature = "older-records"))]
+        let len = match bytes[4] {
+            VERSION => LEN,
+            v => return Err(DecodeError::UnsupportedVersion(v)),
+        };
         let method = match b[5] {
             0 => Method::Paper,
             1 => Method::Sweep,
