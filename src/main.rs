@@ -656,7 +656,16 @@ fn main() -> ! {
             console.say(Log::Info, format_args!("record read from slot {}; applied at the sensor setup it was made at", Int(slot as i64)));
             applied = Some(rec);
         }
-        Some(Ok(None)) => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),
+        Some(Ok(None)) => match storage.as_mut().and_then(|s| s.unsupported_version()) {
+            Some(v) => console.say(
+                Log::Warn,
+                format_args!(
+                    "unsupported record version {} in flash (made before the board frame): kept, not applied; calibrate again",
+                    Int(v.into())
+                ),
+            ),
+            None => console.send(Log::Warn, "no calibration stored: raw gyro readings until the button is pressed"),
+        },
         _ => console.send(Log::Error, "calibration storage unreadable"),
     }
 

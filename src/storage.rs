@@ -7,7 +7,7 @@
 //! magic and field checks of `calib_core::formats::record`).
 
 pub use calib_core::formats::record::StoreError;
-use calib_core::formats::record::{Record, LEN};
+use calib_core::formats::record::{DecodeError, Record, LEN};
 pub use calib_core::formats::region::{Slot, SLOTS};
 use embedded_storage::nor_flash::NorFlash;
 
@@ -49,6 +49,15 @@ impl<F: NorFlash> Storage<F> {
     /// The newest valid record and its slot, if any ([`calib_core::formats::region::newest`]).
     pub fn load(&mut self) -> Result<Option<(usize, Record)>, StoreError> {
         Ok(calib_core::formats::region::newest(&self.slots()?))
+    }
+
+    /// The version of a record in a slot that this build does not read (one made before the
+    /// board frame, without calib-core's `older-records`), if any.
+    pub fn unsupported_version(&mut self) -> Option<u8> {
+        self.slots().ok()?.into_iter().find_map(|s| match s {
+            Slot::Invalid(DecodeError::UnsupportedVersion(v)) => Some(v),
+            _ => None,
+        })
     }
 
     /// Stores `rec` in the slot not holding the newest valid record; returns that slot.
