@@ -783,14 +783,15 @@ impl Procedure {
             }
             Step::HandHeld { .. } if !hand => {}
             Step::HandHeld { ref mut capture, .. } => {
-                self.rotations.add(s.t, g, saturated);
+                // A move's turn is the gyro's: only its clipping spoils it.
+                self.rotations.add(s.t, g, gyro_saturated);
                 if let Some((w, wt, turn)) = &closed {
                     // A disturbed hand-held pose is simply taken again: the user is moving it.
                     if let CaptureStep::Done = capture.feed(w, wt, turn, tainted, self.cfg.hand_pose_s) {
                         let c = *capture;
                         self.finish_accel_pose(&c, s.t);
                         // The next move starts at this sample (its first interval is the next).
-                        self.rotations.add(s.t, g, saturated);
+                        self.rotations.add(s.t, g, gyro_saturated);
                     }
                 }
             }

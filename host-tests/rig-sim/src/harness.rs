@@ -46,8 +46,9 @@ pub struct Faults {
     /// The shell reads the LSM9DS1 as the firmware did before the board frame: its raw axes
     /// ([`crate::lsm_model::Lsm9ds1Model::raw_axes`], a left-handed triad) handed on unmapped.
     pub lsm9ds1_unmapped: bool,
-    /// The servo jerks as each rig move starts: the accelerometer's z reads its full scale
-    /// (`accel_clip_g`) for that move's first sample, a hobby servo's kick at the lever arm.
+    /// Each move starts with a jolt: the accelerometer's z reads its full scale (this, g) for
+    /// the move's first sample (a rig move: a hobby servo's kick at the lever arm; a hand-held
+    /// one: a brisk start of the hand).
     pub accel_clip_in_moves: Option<f32>,
     /// The user presses the button the moment the re-clamp step begins, before the hand-held
     /// step's fits are due (the procedure then makes them all at the press).
@@ -266,9 +267,14 @@ fn run_posed(
             if faults.lsm9ds1_unmapped {
                 (input.accel_g, input.gyro_dps) = (Lsm9ds1Model::raw_axes(input.accel_g), Lsm9ds1Model::raw_axes(input.gyro_dps));
             }
-            if let Some(clip_g) = faults.accel_clip_in_moves.filter(|_| proc.phase() == Phase::RigPoses) {
+            if let Some(clip_g) = faults.accel_clip_in_moves {
+                // A rig move: the servo's angle changing; a hand's: the gyro above 20 °/s.
                 let servo_deg = proc.servo_deg();
-                let moving = last_servo_deg.is_some() && servo_deg != last_servo_deg;
+                let moving = match proc.phase() {
+                    Phase::RigPoses => last_servo_deg.is_some() && servo_deg != last_servo_deg,
+                    Phase::HandHeld => input.gyro_dps.iter().any(|v| v.abs() > 20.0),
+                    _ => false,
+                };
                 if moving && !was_moving {
                     input.accel_g[2] = clip_g;
                     out_clips += 1;
