@@ -9,6 +9,7 @@
 //! - [`stamp`]: MCU timestamps for FIFO batches from the measured sample period.
 //! - [`storage`]: the power-fail-safe A/B record slots over embedded-storage NOR flash.
 //! - [`button`]: debouncing; [`led`]: the LED patterns.
+//! - `mem` (target only): the small `memcpy`, `memclr` and `memcmp` the linker takes.
 //! - [`rtt`]: the never-blocking defmt RTT logger.
 //! - [`serial`]: the USB serial console's outbox, commands and 1200-baud touch; `usb` (target
 //!   only): the CDC-ACM port over the USBD.
@@ -26,6 +27,8 @@ pub mod button;
 pub mod led;
 pub mod lsm9ds1;
 pub mod lsm9ds1_mag;
+#[cfg(target_os = "none")]
+pub mod mem;
 pub mod rtt;
 pub mod serial;
 pub mod stamp;

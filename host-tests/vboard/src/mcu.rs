@@ -12,6 +12,8 @@ use unicorn_engine::{Arch, MemType, Mode, Prot, RegisterARM, Unicorn};
 
 const FLASH_END: u64 = STORAGE.0;
 const RAM: (u64, u64) = (0x2000_0000, 0x2004_0000);
+/// The application's start (its vector table), after the Arduino bootloader.
+const APP: u64 = 0x1_0000;
 /// Instructions per emulation slice (1 ms at 64 MHz).
 const SLICE: u64 = 64_000;
 /// Unicorn interrupt number of a v7-M exception return.
@@ -384,7 +386,6 @@ impl Mcu {
     /// the storage flash model). Then the board powers on with it; the peripherals' models, the
     /// flash, the sensor and the rig carry over.
     pub fn upload(self, firmware: Firmware) -> Result<Mcu, String> {
-        const APP: u64 = 0x1_0000;
         const PAGE: u64 = 4096;
         let mut flash = vec![0u8; (FLASH_END - APP) as usize];
         self.uc.mem_read(APP, &mut flash).map_err(err("flash read"))?;
@@ -423,6 +424,50 @@ impl Mcu {
     /// The firmware.
     pub fn firmware(&self) -> &Firmware {
         &self.firmware
+    }
+
+    /// Reads `len` bytes of RAM or flash at `addr`.
+    pub fn mem_read(&self, addr: u64, len: usize) -> Result<Vec<u8>, String> {
+        self.uc.mem_read_as_vec(addr, len).map_err(err("read"))
+    }
+
+    /// Writes `data` into RAM at `addr`.
+    pub fn mem_write(&mut self, addr: u64, data: &[u8]) -> Result<(), String> {
+        self.uc.mem_write(addr, data).map_err(err("write"))
+    }
+
+    /// Calls the image's function `name` (AAPCS: `args` in r0–r3) on the emulated core and
+    /// returns r0: checks a leaf routine of the image itself (the run-time's `memcpy`) where it
+    /// runs. At most `limit` instructions; the registers are restored after it, memory is left
+    /// as the call leaves it.
+    pub fn call(&mut self, name: &str, args: &[u32], limit: u64) -> Result<u32, String> {
+        const REGS: [RegisterARM; 4] = [RegisterARM::R0, RegisterARM::R1, RegisterARM::R2, RegisterARM::R3];
+        let start = self.firmware.functions.iter().find(|f| f.2 == name).map(|f| f.0).ok_or(format!("no function {name} in the image"))?;
+        if args.len() > REGS.len() {
+            return Err(format!("{} arguments: at most 4 go in registers", args.len()));
+        }
+        let mut saved = self.uc.context_init().map_err(err("context"))?;
+        self.uc.context_save(&mut saved).map_err(err("context save"))?;
+        // Returning to the vector table's first word, which is never executed, ends the call.
+        let ret = APP;
+        for (r, a) in REGS.iter().zip(args) {
+            self.uc.reg_write(*r, u64::from(*a)).map_err(err("argument"))?;
+        }
+        self.uc.reg_write(RegisterARM::LR, ret | 1).map_err(err("LR"))?;
+        let n0 = self.instructions.get();
+        self.stop_at.set(n0 + limit);
+        let run = self.uc.emu_start(start | 1, ret, 0, 0);
+        let (pc, r0) = (self.pc(), self.uc.reg_read(RegisterARM::R0).unwrap_or(0));
+        let fault = self.fault.borrow_mut().take();
+        self.uc.context_restore(&saved).map_err(err("context restore"))?;
+        run.map_err(|e| format!("{name}: emulation error {e:?} at PC 0x{pc:08X}"))?;
+        if let Some(f) = fault {
+            return Err(format!("{name}: {f}"));
+        }
+        if pc != ret {
+            return Err(format!("{name} did not return within {limit} instructions (PC 0x{pc:08X})"));
+        }
+        Ok(r0 as u32)
     }
 
     /// A power-on reset (see [`Mcu::reset_with`]).

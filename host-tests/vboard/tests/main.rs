@@ -6,5 +6,6 @@ mod boot;
 mod common;
 mod flash;
 mod models;
+mod runtime;
 mod usb_firmware;
 mod usbd;

@@ -204,7 +204,7 @@ fn demo_section(d: &Demos, budgets: &[(String, String)]) -> Result<String, Strin
         after(odr952, "(a fit or a step of the solve): "),
         after(odr952, "FIFO overruns: ").trim_end_matches(',')
     );
-    s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 132 KiB, the pan/tilt build's 128 KiB, static RAM 48 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";
+    s += "## Firmware\n\nRelease builds (`.ci/firmware-check`; budgets: flash 128 KiB, static RAM 48 KiB).\n\n| build | flash | static RAM |\n|---|---|---|\n";
     for (name, check) in budgets {
         s += &format!("| {name} | {} B | {} B |\n", after(check, "flash "), after(check, "static RAM "));
     }
