@@ -4,8 +4,9 @@
 //! accepted, whom an error blames) are calib-core's [`pipeline`] ones, as in the firmware.
 
 use super::*;
-use calib_core::estimators::bias::RestNoise;
+use calib_core::estimators::bias::{RestNoise, TempFit};
 use calib_core::Time;
+use nalgebra::Matrix3;
 
 /// The log's phases with the bias they are corrected by.
 struct Log<'a> {
@@ -48,6 +49,16 @@ impl<'a> Log<'a> {
             }
         }
         Log { rows, ph, bias, rests }
+    }
+
+    /// A segment's mean temperature (°C), NaN when its rows have none.
+    fn temp_c(&self, s: &Segment) -> f32 {
+        let t: Vec<f32> = self.rows[s.first..=s.last].iter().filter_map(|r| r.temp_c).filter(|t| t.is_finite()).collect();
+        if t.is_empty() {
+            f32::NAN
+        } else {
+            t.iter().sum::<f32>() / t.len() as f32
+        }
     }
 
     fn rest(&self, s: &Segment) -> RestBias {
@@ -315,13 +326,37 @@ fn one_axis_rig(log: &Log, setting: Option<i32>, accel: &AccelCal) -> Result<(Po
 /// mean over the pose, the mean attitude of a board that sways: each move runs from the mean
 /// instant of one pose to that of the next (DESIGN §4.7, [`PoseTurn`]), as in the firmware. A
 /// rejected move is counted, not an error.
+///
+/// A shaky pose's bias is the line between the rests around it ([`Log::new`]); as in the
+/// firmware's hand-held step ([`Rotations::settle_bias`]) each rest settles the poses since the
+/// one before, which gives their moves the Earth's rate each rest measured in its own attitude
+/// ([`Attitude`]) and the warm-up a line in time misses: the poses' temperatures against the
+/// line of their rests', times the zero rate's coefficient the rests show
+/// ([`Rotations::follow_warmup`], [`TempFit`]; a log without temperatures keeps the line).
+/// A still pose measures its own Earth's rate with its bias (removed to first order, the
+/// module doc of [`calib_core::estimators::rotation`]) and takes no attitude: the Earth's
+/// rate's `w` is then only estimated where a shaky pose needs it. (Its prior, `|w| = 1`, is
+/// scaled with the rows' scatter like the rest of the solve: on the Ferraris session's still
+/// poses, whose moves scatter 13× their noise, `w` took up that misfit and widened y's 1σ from
+/// 0.0045 to 0.0052.)
 fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &RotationLimits) -> Box<HostRotations> {
     // 260 KB of chunks: on the heap.
     let mut rotations = Box::new(HostRotations::new());
     let mut prev: Option<(u8, &Segment)> = None;
     let rows = log.rows;
     let gyro = |r: &Row| sub(r.gyro_dps, log.bias.bias_dps);
-    for s in &log.ph.segments {
+    let (mut attitude, mut before, mut temp_fit) = (Attitude::default(), None, TempFit::new());
+    for (s, &(bias, measured)) in log.ph.segments.iter().zip(&log.rests) {
+        attitude.advance(log, s.last, range_dps);
+        let temp_c = log.temp_c(s);
+        if measured {
+            if let Some((b, b_temp_c)) = before {
+                rotations.settle_bias(&b, &bias, attitude.get(), [b_temp_c, temp_c]);
+            }
+            before = Some((bias, temp_c));
+            temp_fit.add(temp_c, &bias);
+            attitude.start(s.last);
+        }
         if s.is_rig_pose() {
             prev = None;
             continue;
@@ -332,14 +367,17 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
         }
         let (t_first, t_last) = (rows[s.first].t, rows[s.last].t);
         let rest = PoseRest {
-            bias: log.rest(s),
-            predicted: false,
+            bias,
+            predicted: !measured,
             rise_deg: turn.rise_deg(t_first, t_last),
             span_s: t_last.since(t_first) as f32,
-            warm_c: f32::NAN,
+            warm_c: if measured { f32::NAN } else { temp_c },
         };
         let sigma = s.accel.max_std_of_mean();
         let Ok(idx) = rotations.push_pose(s.accel.mean().map(|v| v as f32), sigma as f32, rest) else { break };
+        if let Some(a) = attitude.get().filter(|_| !measured) {
+            rotations.push_attitude(idx, a);
+        }
         if let Some((from, p)) = prev {
             rotations.begin(from);
             for r in &rows[p.last..=s.last] {
@@ -349,8 +387,51 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
         }
         prev = Some((idx, s));
     }
+    if let Some(tempco) = temp_fit.finish() {
+        rotations.follow_warmup(&tempco.dps_per_c);
+    }
     rotations.calibrate_poses(accel);
     rotations
+}
+
+/// The board's attitude (body to the first rest's frame) from the end of the log's first
+/// measured rest, the gyro less the reference bias integrated with `K = I`, as the firmware
+/// tracks it through its hand-held step for the Earth's rate ([`Rotations::push_attitude`]).
+/// Lost for good at a clipped sample or a step beyond 0.25 rad (a hole in time), as there.
+#[derive(Default)]
+struct Attitude {
+    /// The attitude, once started and while known.
+    at: Option<Matrix3<f64>>,
+    /// Started (at the first rest).
+    started: bool,
+    /// The last row integrated.
+    row: usize,
+}
+
+impl Attitude {
+    /// Starts at the identity at row `row`, the end of the first rest (later rests: nothing).
+    fn start(&mut self, row: usize) {
+        if !self.started {
+            (self.at, self.started, self.row) = (Some(Matrix3::identity()), true, row);
+        }
+    }
+
+    /// Integrates the rows after the last one up to `to`.
+    fn advance(&mut self, log: &Log, to: usize, range_dps: Option<f32>) {
+        for i in self.row + 1..=to {
+            let (r, prior) = (&log.rows[i], &log.rows[i - 1]);
+            let dt = r.t.since(prior.t);
+            let phi = v64(sub(r.gyro_dps, log.bias.bias_dps)).map(|v| v.to_radians() * dt);
+            let lost = r.gyro_dps.iter().any(|v| clipped(*v, range_dps)) || phi.norm_squared() > 0.0625;
+            self.at = self.at.filter(|_| !lost).map(|a| a * nalgebra::Rotation3::new(phi).into_inner());
+        }
+        self.row = self.row.max(to);
+    }
+
+    /// The attitude (`f32`, as the rotations keep it), when known.
+    fn get(&self) -> Option<Matrix3<f32>> {
+        self.at.map(|a| a.map(|v| v as f32))
+    }
 }
 
 /// Pan/tilt: the full `K` (not yet validated) from the pan moves of every setting with poses at
