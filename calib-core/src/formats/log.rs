@@ -159,7 +159,7 @@ fn div10(m: u64) -> (u64, u32) {
 fn on_grid(v: f32, decimals: u32) -> f32 {
     match scaled(v, decimals) {
         Some(m) if m < 1 << 24 => {
-            let r = m as u32 as f32 / 10u32.pow(decimals) as f32;
+            let r = m as f32 / 10u32.pow(decimals) as f32;
             if v.is_sign_negative() {
                 -r
             } else {

@@ -101,12 +101,9 @@ impl Moments3 {
             return Real::NAN;
         }
         let sij = if i == j { self.s2[i] } else { self.sc[i + j - 1] };
-        // n Σqᵢqⱼ − Σqᵢ Σqⱼ: at most 2³² · 2⁹⁴ and 2⁶³ · 2⁶³, within i128; to a float by parts,
-        // the low word's by its 32-bit halves (one instruction each on the FPU; in f64 exact, so
-        // the sum rounds once, as the whole word's conversion does).
+        // n Σqᵢqⱼ − Σqᵢ Σqⱼ: at most 2³² · 2⁹⁴ and 2⁶³ · 2⁶³, within i128; to f64 by halves.
         let num = self.n as i128 * sij - self.s1[i] as i128 * self.s1[j] as i128;
-        let low = (num as u64 >> 32) as u32 as Real * 4_294_967_296.0 + num as u32 as Real;
-        let num = (num >> 64) as i64 as Real * 18_446_744_073_709_551_616.0 + low;
+        let num = (num >> 64) as i64 as Real * 18_446_744_073_709_551_616.0 + num as u64 as Real;
         num / (self.n.max(1) as Real * SCALE as Real * SCALE as Real)
     }
 

@@ -659,7 +659,7 @@ fn quick(r: Run) -> Run {
     Run { bin: r.bin, args }
 }
 
-/// Rigs per row of the hand family's runs (and of the free hand's section): a coverage of 68 %
+/// Rigs per row of the rotation bench's runs (every hand of the family, Rev2's): a coverage of 68 %
 /// over 20 rigs' 60 bias or accelerometer values has a binomial σ of 6 %, so "within 60–75 %
 /// on every row" would say little; over 100 rigs (300 values) 2.7 %, which put three of the
 /// family's 60 coverages at 76–78 % that read 74–75 % over 300 rigs; over 300 (900 values,
@@ -674,7 +674,7 @@ fn page(quick_set: bool) -> Result<String, String> {
     }
     let a = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
     let runs = [
-        Run { bin: "rotation-bench", args: a(&["--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "paper-tables", args: a(&["--json"]) },
         Run { bin: "full-k-bench", args: a(&["--json"]) },
         Run { bin: "calib-bench", args: a(&["--logs", "10", "--json"]) },
@@ -687,7 +687,7 @@ fn page(quick_set: bool) -> Result<String, String> {
         Run { bin: "drift-bench", args: a(&["--rigs", "20", "--setup", "bmi270", "--json"]) },
         Run { bin: "demo", args: a(&["--quiet", "--rev2"]) },
         Run { bin: "full-k-bench", args: a(&["--setup", "bmi270", "--json"]) },
-        Run { bin: "rotation-bench", args: a(&["--setup", "bmi270", "--json"]) },
+        Run { bin: "rotation-bench", args: a(&["--setup", "bmi270", "--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "real-bench", args: a(&["--json"]) },
         Run { bin: "rotation-bench", args: a(&["--hand", "free", "--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "mag-bench", args: a(&["--json"]) },
@@ -697,7 +697,6 @@ fn page(quick_set: bool) -> Result<String, String> {
         Run { bin: "rotation-bench", args: a(&["--hand", "wrist", "--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "rotation-bench", args: a(&["--hand", "arm", "--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "rotation-bench", args: a(&["--hand", "nod", "--json", "--rigs", FAMILY_RIGS]) },
-        Run { bin: "rotation-bench", args: a(&["--hand", "braced", "--json", "--rigs", FAMILY_RIGS]) },
         Run { bin: "demo", args: a(&["--quiet", "--odr952"]) },
     ];
     let runs: Vec<Run> = if quick_set { runs.into_iter().map(quick).collect() } else { runs.into() };
@@ -736,7 +735,7 @@ fn page(quick_set: bool) -> Result<String, String> {
          log-uniform over 1.25e-4–2e-3 °/s/√s, the Earth's rate at a latitude of U(−60°, 60°)); the servo's angle-scale error U(±3 %). \
          Neither datasheet gives the ODR tolerance or the walk: [limits](limits.md).\n\n",
     );
-    let demos = Demos { plain: &out[4], tilt: &out[5], raw: &out[6], no_probe: &out[7], rev2: &out[11], odr952: &out[24] };
+    let demos = Demos { plain: &out[4], tilt: &out[5], raw: &out[6], no_probe: &out[7], rev2: &out[11], odr952: &out[23] };
     s += &demo_section(&demos, &budgets)?;
     s += "\n";
     s += &paper_section(&json(&out[1])?);
@@ -759,7 +758,7 @@ fn page(quick_set: bool) -> Result<String, String> {
     s += "\n";
     s += &rotation_section("Rotation bench, held in the air", &json(&out[15])?);
     s += "\n";
-    let family = [23, 15, 20, 21, 22].map(|i| json(&out[i]));
+    let family = [0, 15, 20, 21, 22].map(|i| json(&out[i]));
     s += &family_section(&family.into_iter().collect::<Result<Vec<_>, _>>()?);
     s += "\n";
     s += &real_section(&json(&out[14])?);

@@ -347,7 +347,7 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
     let gyro = |r: &Row| sub(r.gyro_dps, log.bias.bias_dps);
     let (mut attitude, mut before, mut temp_fit) = (Attitude::default(), None, TempFit::new());
     for (s, &(bias, measured)) in log.ph.segments.iter().zip(&log.rests) {
-        attitude.advance(log, s.last, range_dps);
+        attitude.advance(&rows[..=s.last], log.bias.bias_dps, range_dps, limits.max_gap_s);
         let temp_c = log.temp_c(s);
         if measured {
             if let Some((b, b_temp_c)) = before {
@@ -397,7 +397,8 @@ fn rotations(log: &Log, accel: &AccelCal, range_dps: Option<f32>, limits: &Rotat
 /// The board's attitude (body to the first rest's frame) from the end of the log's first
 /// measured rest, the gyro less the reference bias integrated with `K = I`, as the firmware
 /// tracks it through its hand-held step for the Earth's rate ([`Rotations::push_attitude`]).
-/// Lost for good at a clipped sample or a step beyond 0.25 rad (a hole in time), as there.
+/// Lost for good at a clipped sample or a step beyond 0.25 rad, as there, or a hole in time
+/// longer than a move may have ([`RotationLimits::max_gap_s`]: the board may have turned unseen).
 #[derive(Default)]
 struct Attitude {
     /// The attitude, once started and while known.
@@ -416,16 +417,15 @@ impl Attitude {
         }
     }
 
-    /// Integrates the rows after the last one up to `to`.
-    fn advance(&mut self, log: &Log, to: usize, range_dps: Option<f32>) {
-        for i in self.row + 1..=to {
-            let (r, prior) = (&log.rows[i], &log.rows[i - 1]);
-            let dt = r.t.since(prior.t);
-            let phi = v64(sub(r.gyro_dps, log.bias.bias_dps)).map(|v| v.to_radians() * dt);
-            let lost = r.gyro_dps.iter().any(|v| clipped(*v, range_dps)) || phi.norm_squared() > 0.0625;
+    /// Integrates `rows` after the last one integrated (°/s less `bias_dps`).
+    fn advance(&mut self, rows: &[Row], bias_dps: Vec3, range_dps: Option<f32>, max_gap_s: f32) {
+        for i in self.row + 1..rows.len() {
+            let dt = rows[i].t.since(rows[i - 1].t);
+            let phi = v64(sub(rows[i].gyro_dps, bias_dps)).map(|v| v.to_radians() * dt);
+            let lost = rows[i].gyro_dps.iter().any(|v| clipped(*v, range_dps)) || phi.norm_squared() > 0.0625 || dt > max_gap_s as f64;
             self.at = self.at.filter(|_| !lost).map(|a| a * nalgebra::Rotation3::new(phi).into_inner());
         }
-        self.row = self.row.max(to);
+        self.row = self.row.max(rows.len().saturating_sub(1));
     }
 
     /// The attitude (`f32`, as the rotations keep it), when known.
@@ -491,4 +491,53 @@ fn spin(log: &Log, poses: &Poses, accel: &AccelCal) -> Option<(Vec3, f32, &'stat
     }
     let before = log.ph.segments.iter().rfind(|s| s.last < rot.rows.0).map_or([0.0; 3], |s| log.rest(s).residual_dps);
     Some((sub(sub(rot.gyro.mean().map(|v| v as f32), log.bias.bias_dps), before), w, source.name()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 90 °/s about z (plus the reference bias) for 1 s at 100 Hz from row 0.
+    fn turning(bias_dps: Vec3) -> Vec<Row> {
+        (0..=100)
+            .map(|i| Row {
+                t: Time::from_s(i as f64 * 0.01).unwrap(),
+                accel_g: [0.0, 0.0, 1.0],
+                gyro_dps: [bias_dps[0], bias_dps[1], 90.0 + bias_dps[2]],
+                servo_deg: None,
+                tilt_deg: None,
+                mag_ut: None,
+                temp_c: None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_attitude_is_the_gyro_integrated_and_lost_at_a_clip_or_a_hole() {
+        let bias = [0.3, -0.2, 0.1];
+        let rows = turning(bias);
+        let mut a = Attitude::default();
+        a.advance(&rows[..=10], bias, None, 0.1);
+        assert_eq!(a.get(), None, "not started before the first rest");
+        a.start(10);
+        a.advance(&rows, bias, None, 0.1);
+        // 0.9 s at 90 °/s: 81° about z, body to the first rest's frame.
+        let want = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 81f64.to_radians()).into_inner();
+        let got = a.get().expect("tracked").map(|v| v as f64);
+        assert!((got - want).amax() < 1e-5, "{got} against {want}");
+        // A clipped sample (a stated range of 90 °/s) or a hole of 0.2 s loses it for good.
+        let clipped = |range: Option<f32>, rows: &[Row]| {
+            let mut a = Attitude::default();
+            a.start(0);
+            a.advance(rows, bias, range, 0.1);
+            a.get()
+        };
+        assert_eq!(clipped(Some(90.0), &rows), None);
+        let mut holed = rows.clone();
+        for r in &mut holed[50..] {
+            r.t = r.t.plus_s(0.2);
+        }
+        assert_eq!(clipped(None, &holed), None);
+        assert!(clipped(None, &rows).is_some());
+    }
 }

@@ -345,8 +345,9 @@ impl Calibration {
     /// The result as a flash record, for `calib_core::formats::export`: the gyro `K` of
     /// [`Self::output`] (the full `K` if there is one) with its quality, the bias and the
     /// accelerometer; `seq` 0 (never stored: the export names the source `calib`), temperature
-    /// and tempco unknown (the offline fit does not read a log's temperature column; a replay of
-    /// the firmware's log does, as the firmware did), the setup the log states, else its
+    /// and tempco unknown (the offline fit takes a log's temperatures only for its shaky poses'
+    /// warm-up and reports no coefficient; a replay of the firmware's log does, as the firmware
+    /// did), the setup the log states, else its
     /// rate (nominal: [`TimeBase::nominal_hz`]) at the firmware's default full scales. `None`
     /// without a gyro result.
     pub fn record(&self) -> Option<Record> {
