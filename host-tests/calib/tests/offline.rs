@@ -189,10 +189,10 @@ fn hand_held_moves_follow_a_warm_up_by_the_log_s_temperatures() {
             (pan_tilt::k_error(full.k, c.accel.m, rig).unwrap().0, full.rotation_residual_rms_deg as f64)
         };
         let mut cfg = pan_tilt::rig_config(43, run).constant_bias();
-        let still = fit(&mut Rig::new(cfg.clone(), 43 + run as u64), false);
+        let still = fit(&mut Rig::new(cfg, 43 + run as u64), false);
         cfg.warmup = Some(Warmup { rise_c: 6.0, tau_s: 60.0, since_power_on_s: 5.0 });
         cfg.gyro.bias_tempco_dps_per_c = nalgebra::Vector3::new(0.05, -0.05, 0.05);
-        let rig = || Rig::new(cfg.clone(), 43 + run as u64);
+        let rig = || Rig::new(cfg, 43 + run as u64);
         runs.push([fit(&mut rig(), false), fit(&mut rig(), true), still]);
     }
     let text: Vec<String> = runs.iter().map(|r| r.map(|(e, m)| format!("{e:.2e} {m:.4}°")).join(" / ")).collect();
